@@ -1,0 +1,2 @@
+//! The stablesurf binary.
+fn main() {}

@@ -1,0 +1,1 @@
+//! The pipeline: chains the stages through the cache (skeleton).
