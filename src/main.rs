@@ -1,2 +1,1 @@
-//! The stablesurf binary.
 fn main() {}

@@ -1,1 +1,1 @@
-//! The pipeline: chains the stages through the cache (skeleton).
+//! The pipeline: chains the stages through the cache (being wired as the stages land).
