@@ -40,7 +40,11 @@ fn big_ply(n: usize) -> Vec<u8> {
     for i in 0..n {
         for j in 0..n {
             let (u, v) = (i as f32 / n as f32 * 6.283, j as f32 / n as f32 * 6.283);
-            let p = [(2.0 + v.cos()) * u.cos(), (2.0 + v.cos()) * u.sin(), v.sin()];
+            let p = [
+                (2.0 + v.cos()) * u.cos(),
+                (2.0 + v.cos()) * u.sin(),
+                v.sin(),
+            ];
             let normal = [v.cos() * u.cos(), v.cos() * u.sin(), v.sin()];
             for c in p.iter().chain(&normal) {
                 out.extend_from_slice(&c.to_le_bytes());
@@ -127,7 +131,9 @@ fn read_with_ply_rs_bw(bytes: &[u8]) -> PointCloud {
                     .unwrap();
                 for f in faces {
                     for k in 1..f.0.len().saturating_sub(1) {
-                        cloud.triangles.push([f.0[0] as u32, f.0[k] as u32, f.0[k + 1] as u32]);
+                        cloud
+                            .triangles
+                            .push([f.0[0] as u32, f.0[k] as u32, f.0[k + 1] as u32]);
                     }
                 }
             }
@@ -150,8 +156,12 @@ fn ascii_bunny(c: &mut Criterion) {
     let mut group = c.benchmark_group("ascii_bunny");
     group.throughput(Throughput::Bytes(bytes.len() as u64));
     group.sample_size(20);
-    group.bench_function("read_scan", |b| b.iter(|| read_scan(black_box(&path)).unwrap()));
-    group.bench_function("ply_rs_bw", |b| b.iter(|| read_with_ply_rs_bw(black_box(&bytes))));
+    group.bench_function("read_scan", |b| {
+        b.iter(|| read_scan(black_box(&path)).unwrap())
+    });
+    group.bench_function("ply_rs_bw", |b| {
+        b.iter(|| read_with_ply_rs_bw(black_box(&bytes)))
+    });
     group.finish();
 }
 
@@ -159,7 +169,10 @@ fn binary_ply_1m(c: &mut Criterion) {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("big.ply");
     let bytes = big_ply(1000);
-    std::fs::File::create(&path).unwrap().write_all(&bytes).unwrap();
+    std::fs::File::create(&path)
+        .unwrap()
+        .write_all(&bytes)
+        .unwrap();
     // The two readers agree before they are timed.
     let ours = read_scan_bytes(&bytes, &path).unwrap().cloud;
     let theirs = read_with_ply_rs_bw(&bytes);
@@ -169,11 +182,15 @@ fn binary_ply_1m(c: &mut Criterion) {
     group.throughput(Throughput::Bytes(bytes.len() as u64));
     group.sample_size(10);
     group.measurement_time(Duration::from_secs(8));
-    group.bench_function("read_scan_file", |b| b.iter(|| read_scan(black_box(&path)).unwrap()));
+    group.bench_function("read_scan_file", |b| {
+        b.iter(|| read_scan(black_box(&path)).unwrap())
+    });
     group.bench_function("read_scan_bytes", |b| {
         b.iter(|| read_scan_bytes(black_box(&bytes), &path).unwrap())
     });
-    group.bench_function("ply_rs_bw", |b| b.iter(|| read_with_ply_rs_bw(black_box(&bytes))));
+    group.bench_function("ply_rs_bw", |b| {
+        b.iter(|| read_with_ply_rs_bw(black_box(&bytes)))
+    });
     group.finish();
 }
 
@@ -188,7 +205,10 @@ fn obj(c: &mut Criterion) {
     group.bench_function("read_scan_bytes", |b| {
         b.iter(|| read_scan_bytes(black_box(&bytes), &path).unwrap())
     });
-    let options = tobj::LoadOptions { triangulate: true, ..Default::default() };
+    let options = tobj::LoadOptions {
+        triangulate: true,
+        ..Default::default()
+    };
     group.bench_function("tobj", |b| {
         b.iter(|| {
             tobj::load_obj_buf(&mut black_box(&bytes[..]), &options, |_| {

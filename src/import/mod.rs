@@ -26,8 +26,8 @@
 //!
 //! Every reader is hand-written over the byte slice, so each error can name the line, face or
 //! point at fault, and malformed input is an [`ImportError`], never a panic. Polygons are
-//! fan-triangulated: (v0, v1, v2), (v0, v2, v3), …; faces with fewer than three corners are
-//! skipped.
+//! fan-triangulated: (v0, v1, v2), (v0, v2, v3), …; PLY faces with fewer than three corners are
+//! skipped (some writers emit them), an OBJ `f` with fewer than three corners is an error.
 
 mod obj;
 mod ply;
@@ -122,7 +122,7 @@ pub enum ImportError {
     #[error(
         "{path}{at}: face {face} refers to vertex {index}, but the file has {n_points} vertices \
          (0-based indices 0..{n_points}); fix or remove that face",
-        at = line_suffix(*.line)
+        at = line_suffix(.line)
     )]
     IndexOutOfRange {
         /// The file.
@@ -251,7 +251,7 @@ pub struct ScanInfo {
 }
 
 /// `:LINE` after a path when the line is known.
-fn line_suffix(line: Option<usize>) -> String {
+fn line_suffix(line: &Option<usize>) -> String {
     line.map(|l| format!(":{l}")).unwrap_or_default()
 }
 
@@ -294,9 +294,8 @@ pub fn read_scan_bytes(bytes: &[u8], path: &Path) -> Result<Scan, ImportError> {
     if bytes.is_empty() {
         return Err(ImportError::Empty { path: name });
     }
-    let detected = detect_format(bytes, path).ok_or(ImportError::UnknownFormat {
-        path: name.clone(),
-    })?;
+    let detected =
+        detect_format(bytes, path).ok_or(ImportError::UnknownFormat { path: name.clone() })?;
     read_detected(bytes, &name, detected)
 }
 
@@ -368,7 +367,9 @@ pub fn import_bytes(bytes: &[u8], path: &Path) -> Result<PointCloud, ImportError
 /// Checks the invariants of a validated [`PointCloud`] (see the module docs).
 fn validate(cloud: &PointCloud, path: &str) -> Result<(), ImportError> {
     if cloud.points.is_empty() {
-        return Err(ImportError::NoPoints { path: path.to_owned() });
+        return Err(ImportError::NoPoints {
+            path: path.to_owned(),
+        });
     }
     if let Some((point, p)) = cloud
         .points
@@ -517,7 +518,10 @@ fn sniff_text(bytes: &[u8]) -> Option<Detected> {
             continue;
         }
         let first = line.split_ascii_whitespace().next().unwrap_or("");
-        if matches!(first, "v" | "vn" | "vt" | "f" | "o" | "g" | "mtllib" | "usemtl" | "s") {
+        if matches!(
+            first,
+            "v" | "vn" | "vt" | "f" | "o" | "g" | "mtllib" | "usemtl" | "s"
+        ) {
             return Some(Detected::Obj);
         }
         let numeric = line
@@ -538,12 +542,18 @@ pub(crate) struct Lines<'a> {
 impl<'a> Lines<'a> {
     /// Lines of `bytes`, the first numbered `first_line`.
     pub(crate) fn new(bytes: &'a [u8], first_line: usize) -> Lines<'a> {
-        Lines { rest: bytes, line: first_line.saturating_sub(1) }
+        Lines {
+            rest: bytes,
+            line: first_line.saturating_sub(1),
+        }
     }
 
     /// The next line without its `\n` or `\r\n`, with its number, or `None` at the end.
     /// Invalid UTF-8 is reported as a [`ImportError::Malformed`] line.
-    pub(crate) fn next_line(&mut self, path: &str) -> Option<Result<(usize, &'a str), ImportError>> {
+    pub(crate) fn next_line(
+        &mut self,
+        path: &str,
+    ) -> Option<Result<(usize, &'a str), ImportError>> {
         if self.rest.is_empty() {
             return None;
         }
@@ -588,14 +598,23 @@ mod tests {
 
     #[test]
     fn position_key_folds_negative_zero() {
-        assert_eq!(position_key([0.0, -0.0, 1.0]), position_key([-0.0, 0.0, 1.0]));
-        assert_ne!(position_key([0.0, 0.0, 1.0]), position_key([0.0, 0.0, -1.0]));
+        assert_eq!(
+            position_key([0.0, -0.0, 1.0]),
+            position_key([-0.0, 0.0, 1.0])
+        );
+        assert_ne!(
+            position_key([0.0, 0.0, 1.0]),
+            position_key([0.0, 0.0, -1.0])
+        );
     }
 
     #[test]
     fn detection_uses_content_before_extension() {
         let p = Path::new("scan.obj");
-        assert_eq!(detect_format(b"ply\nformat ascii 1.0\n", p), Some(Detected::Ply));
+        assert_eq!(
+            detect_format(b"ply\nformat ascii 1.0\n", p),
+            Some(Detected::Ply)
+        );
         // A binary STL whose header starts with "solid".
         let mut stl = b"solid binary header".to_vec();
         stl.resize(80, b' ');
@@ -604,10 +623,19 @@ mod tests {
         assert_eq!(detect_format(&stl, p), Some(Detected::StlBinary));
         let ascii = b"solid x\nfacet normal 0 0 1\nouter loop\n";
         assert_eq!(detect_format(ascii, p), Some(Detected::StlAscii));
-        assert_eq!(detect_format(b"v 0 0 0\n", Path::new("a")), Some(Detected::Obj));
-        assert_eq!(detect_format(b"# c\n1,2,3\n", Path::new("a")), Some(Detected::Xyz));
+        assert_eq!(
+            detect_format(b"v 0 0 0\n", Path::new("a")),
+            Some(Detected::Obj)
+        );
+        assert_eq!(
+            detect_format(b"# c\n1,2,3\n", Path::new("a")),
+            Some(Detected::Xyz)
+        );
         assert_eq!(detect_format(b"\x00\x01garbage", Path::new("a.bin")), None);
-        assert_eq!(detect_format(b"1 2 3\n", Path::new("a.PTS")), Some(Detected::Xyz));
+        assert_eq!(
+            detect_format(b"1 2 3\n", Path::new("a.PTS")),
+            Some(Detected::Xyz)
+        );
     }
 
     #[test]
@@ -622,18 +650,33 @@ mod tests {
 
     #[test]
     fn validate_reports_each_problem() {
-        let ok = PointCloud { points: vec![[0.0; 3]; 3], normals: None, triangles: vec![[0, 1, 2]] };
+        let ok = PointCloud {
+            points: vec![[0.0; 3]; 3],
+            normals: None,
+            triangles: vec![[0, 1, 2]],
+        };
         assert!(validate(&ok, "f").is_ok());
         let mut bad = ok.clone();
         bad.triangles.push([0, 1, 3]);
         assert!(matches!(
             validate(&bad, "f"),
-            Err(ImportError::IndexOutOfRange { face: 1, index: 3, n_points: 3, .. })
+            Err(ImportError::IndexOutOfRange {
+                face: 1,
+                index: 3,
+                n_points: 3,
+                ..
+            })
         ));
         let mut bad = ok.clone();
         bad.normals = Some(vec![[0.0; 3]; 2]);
-        assert!(matches!(validate(&bad, "f"), Err(ImportError::NormalCountMismatch { .. })));
+        assert!(matches!(
+            validate(&bad, "f"),
+            Err(ImportError::NormalCountMismatch { .. })
+        ));
         let empty = PointCloud::default();
-        assert!(matches!(validate(&empty, "f"), Err(ImportError::NoPoints { .. })));
+        assert!(matches!(
+            validate(&empty, "f"),
+            Err(ImportError::NoPoints { .. })
+        ));
     }
 }

@@ -70,10 +70,24 @@ pub(crate) fn read(bytes: &[u8], path: &str) -> Result<PointCloud, ImportError> 
                     let v = parts.next().unwrap_or("");
                     let _vt = parts.next();
                     let n = parts.next().filter(|s| !s.is_empty());
-                    polygon.push(resolve(v, points.len(), line_number, "vertex", n_faces, path)?);
+                    polygon.push(resolve(
+                        v,
+                        points.len(),
+                        line_number,
+                        "vertex",
+                        n_faces,
+                        path,
+                    )?);
                     match n {
                         Some(n) => {
-                            polygon_normals.push(resolve(n, vn.len(), line_number, "normal", n_faces, path)?);
+                            polygon_normals.push(resolve(
+                                n,
+                                vn.len(),
+                                line_number,
+                                "normal",
+                                n_faces,
+                                path,
+                            )?);
                             any_corner_normal = true;
                         }
                         None => polygon_normals.push(u32::MAX),
@@ -111,8 +125,18 @@ pub(crate) fn read(bytes: &[u8], path: &str) -> Result<PointCloud, ImportError> 
         }
     }
     debug_assert_eq!(face_lines.len(), n_faces);
-    let normals = map_normals(n_points, &vn, &triangles, &corner_normals, any_corner_normal);
-    Ok(PointCloud { points, normals, triangles })
+    let normals = map_normals(
+        n_points,
+        &vn,
+        &triangles,
+        &corner_normals,
+        any_corner_normal,
+    );
+    Ok(PointCloud {
+        points,
+        normals,
+        triangles,
+    })
 }
 
 /// Resolves a 1-based or negative OBJ index against the `count` items defined so far.
@@ -134,7 +158,11 @@ fn resolve(
         .parse()
         .map_err(|_| malformed(format!("`{token}` is not a {what} index")))?;
     let resolved = match value {
-        0 => return Err(malformed(format!("{what} index 0 is not valid; obj indices start at 1"))),
+        0 => {
+            return Err(malformed(format!(
+                "{what} index 0 is not valid; obj indices start at 1"
+            )))
+        }
         v if v > 0 => v - 1,
         v => count as i64 + v,
     };
@@ -217,12 +245,28 @@ mod tests {
         let text = "v 0 0 0\nv 1 0 0\nv 0 1 0\n\nf 1 2 -4\n";
         assert!(matches!(
             read(text.as_bytes(), "t.obj"),
-            Err(ImportError::IndexOutOfRange { line: Some(5), face: 0, index: -1, .. })
+            Err(ImportError::IndexOutOfRange {
+                line: Some(5),
+                face: 0,
+                index: -1,
+                ..
+            })
         ));
         let text = "v 0 0 0\nv 1 0 0\nf 1 2 3\nv 0 1 0\nf 1 2 4\n";
         match read(text.as_bytes(), "t.obj") {
-            Err(e @ ImportError::IndexOutOfRange { line: Some(5), face: 1, index: 3, .. }) => {
-                assert!(e.to_string().starts_with("t.obj:5: face 1 refers to vertex 3"), "{e}")
+            Err(
+                e @ ImportError::IndexOutOfRange {
+                    line: Some(5),
+                    face: 1,
+                    index: 3,
+                    ..
+                },
+            ) => {
+                assert!(
+                    e.to_string()
+                        .starts_with("t.obj:5: face 1 refers to vertex 3"),
+                    "{e}"
+                )
             }
             other => panic!("{other:?}"),
         }

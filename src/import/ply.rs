@@ -133,7 +133,10 @@ pub(crate) fn read(bytes: &[u8], path: &str) -> Result<(ScanFormat, PointCloud),
     let plan = Plan::new(&header, path)?;
     let body = bytes.get(header.body_start..).unwrap_or(&[]);
     let (format, cloud) = match header.encoding {
-        Encoding::Ascii => (ScanFormat::PlyAscii, read_ascii(body, &header, &plan, path)?),
+        Encoding::Ascii => (
+            ScanFormat::PlyAscii,
+            read_ascii(body, &header, &plan, path)?,
+        ),
         Encoding::BinaryLe => (
             ScanFormat::PlyBinaryLe,
             read_binary::<false>(body, &header, &plan, path)?,
@@ -170,7 +173,10 @@ fn read_header(bytes: &[u8], path: &str) -> Result<Header, ImportError> {
         let raw = &rest[..len];
         let raw = raw.strip_suffix(b"\r").unwrap_or(raw);
         let Ok(line) = std::str::from_utf8(raw) else {
-            return Err(bad(line_number, "the line is not text; the header must be ascii".into()));
+            return Err(bad(
+                line_number,
+                "the line is not text; the header must be ascii".into(),
+            ));
         };
         let mut words = line.split_ascii_whitespace();
         let keyword = words.next().unwrap_or("");
@@ -213,13 +219,23 @@ fn read_header(bytes: &[u8], path: &str) -> Result<Header, ImportError> {
                     ));
                 };
                 if elements.iter().any(|e| e.name == name) {
-                    return Err(bad(line_number, format!("element `{name}` is declared twice")));
+                    return Err(bad(
+                        line_number,
+                        format!("element `{name}` is declared twice"),
+                    ));
                 }
-                elements.push(Element { name: name.to_owned(), count, properties: Vec::new() });
+                elements.push(Element {
+                    name: name.to_owned(),
+                    count,
+                    properties: Vec::new(),
+                });
             }
             "property" => {
                 let Some(element) = elements.last_mut() else {
-                    return Err(bad(line_number, "a property comes before any element".into()));
+                    return Err(bad(
+                        line_number,
+                        "a property comes before any element".into(),
+                    ));
                 };
                 let words: Vec<&str> = words.collect();
                 let (ty, name) = match words.as_slice() {
@@ -259,10 +275,16 @@ fn read_header(bytes: &[u8], path: &str) -> Result<Header, ImportError> {
                 if element.property_index(name).is_some() {
                     return Err(bad(
                         line_number,
-                        format!("property `{name}` of element `{}` is declared twice", element.name),
+                        format!(
+                            "property `{name}` of element `{}` is declared twice",
+                            element.name
+                        ),
                     ));
                 }
-                element.properties.push(Property { name: name.to_owned(), ty });
+                element.properties.push(Property {
+                    name: name.to_owned(),
+                    ty,
+                });
             }
             "end_header" => break,
             other => {
@@ -279,7 +301,12 @@ fn read_header(bytes: &[u8], path: &str) -> Result<Header, ImportError> {
     let Some(encoding) = encoding else {
         return Err(bad(line_number, "the header has no `format` line".into()));
     };
-    Ok(Header { encoding, elements, body_start: offset, body_line: line_number + 1 })
+    Ok(Header {
+        encoding,
+        elements,
+        body_start: offset,
+        body_line: line_number + 1,
+    })
 }
 
 /// Where the wanted values live in the header's elements.
@@ -296,7 +323,10 @@ struct Plan {
 
 impl Plan {
     fn new(header: &Header, path: &str) -> Result<Plan, ImportError> {
-        let layout = |message: String| ImportError::BadLayout { path: path.to_owned(), message };
+        let layout = |message: String| ImportError::BadLayout {
+            path: path.to_owned(),
+            message,
+        };
         let Some(vertex) = header.elements.iter().position(|e| e.name == "vertex") else {
             return Err(layout(
                 "the ply header has no `vertex` element; a scan needs `element vertex N` with \
@@ -351,13 +381,20 @@ impl Plan {
                 }
             }
         };
-        Ok(Plan { vertex, coords, normals, face })
+        Ok(Plan {
+            vertex,
+            coords,
+            normals,
+            face,
+        })
     }
 }
 
 /// A capacity that a lying header count cannot blow up: at most one entry per remaining byte.
 fn capped_capacity(count: u64, remaining_bytes: usize) -> usize {
-    usize::try_from(count).unwrap_or(usize::MAX).min(remaining_bytes)
+    usize::try_from(count)
+        .unwrap_or(usize::MAX)
+        .min(remaining_bytes)
 }
 
 /// Converts a face index to u32, rejecting indices outside `0..n_points` with the face number.
@@ -410,7 +447,11 @@ fn scalar_i64<const BIG: bool>(bytes: &[u8], ty: Scalar) -> Option<i64> {
     macro_rules! get {
         ($t:ty, $n:literal) => {{
             let raw: [u8; $n] = bytes.get(..$n)?.try_into().ok()?;
-            i64::from(if BIG { <$t>::from_be_bytes(raw) } else { <$t>::from_le_bytes(raw) })
+            i64::from(if BIG {
+                <$t>::from_be_bytes(raw)
+            } else {
+                <$t>::from_le_bytes(raw)
+            })
         }};
     }
     Some(match ty {
@@ -460,12 +501,23 @@ fn read_binary<const BIG: bool>(
                 .and_then(|n| n.checked_mul(stride))
                 .filter(|&size| size <= remaining)
                 .ok_or_else(|| {
-                    truncated(if stride == 0 { 0 } else { (remaining / stride) as u64 })
+                    truncated(if stride == 0 {
+                        0
+                    } else {
+                        (remaining / stride) as u64
+                    })
                 })?;
             let records = &body[pos..pos + size];
             pos += size;
             if e == plan.vertex && stride > 0 {
-                read_vertex_records::<BIG>(records, stride, element, plan, &mut points, &mut normals);
+                read_vertex_records::<BIG>(
+                    records,
+                    stride,
+                    element,
+                    plan,
+                    &mut points,
+                    &mut normals,
+                );
             }
             continue;
         }
@@ -478,7 +530,10 @@ fn read_binary<const BIG: bool>(
         } else if plan.face.is_some_and(|(f, _)| f == e) {
             list = plan.face.map(|(_, p)| p);
         }
-        let wanted = Wanted { scalars: &slots, list };
+        let wanted = Wanted {
+            scalars: &slots,
+            list,
+        };
         let mut values = [0.0; 6];
         let mut polygon: Vec<i64> = Vec::new();
         let mut polygon_u32: Vec<u32> = Vec::new();
@@ -524,7 +579,11 @@ fn read_binary<const BIG: bool>(
             },
         });
     }
-    Ok(PointCloud { points, normals, triangles })
+    Ok(PointCloud {
+        points,
+        normals,
+        triangles,
+    })
 }
 
 /// The fast path: a vertex element without lists, read at fixed offsets of each record.
@@ -557,7 +616,9 @@ fn read_vertex_records<const BIG: bool>(
     // Every offset plus its size is within the stride, so the reads below cannot fail; the
     // `unwrap_or(NaN)` is never taken and keeps this path free of panics.
     let read = |r: &[u8], (o, s): (usize, Scalar)| -> f64 {
-        r.get(o..).and_then(|b| scalar_f64::<BIG>(b, s)).unwrap_or(f64::NAN)
+        r.get(o..)
+            .and_then(|b| scalar_f64::<BIG>(b, s))
+            .unwrap_or(f64::NAN)
     };
     for record in records.chunks_exact(stride) {
         points.push(xyz.map(|f| read(record, f)));
@@ -637,8 +698,11 @@ fn count_mismatch(body: &[u8], header: &Header, path: &str) -> Option<ImportErro
         .filter(|l| l.iter().any(|b| !b.is_ascii_whitespace()))
         .count() as u64;
     (declared != found).then(|| {
-        let list: Vec<String> =
-            header.elements.iter().map(|e| format!("{} {}", e.name, e.count)).collect();
+        let list: Vec<String> = header
+            .elements
+            .iter()
+            .map(|e| format!("{} {}", e.name, e.count))
+            .collect();
         ImportError::HeaderCountMismatch {
             path: path.to_owned(),
             what: format!("entries in all ({}), one per line,", list.join(", ")),
@@ -747,6 +811,13 @@ fn read_ascii_entries(
                     }
                 }
             }
+            if let Some(extra) = tokens.next() {
+                return Err(malformed(format!(
+                    "extra value `{extra}` after the last property of a `{}` entry; each entry \
+                     holds one value per property, in header order",
+                    element.name
+                )));
+            }
             if is_vertex {
                 points.push([values[0], values[1], values[2]]);
                 if let Some(n) = normals.as_mut() {
@@ -760,17 +831,23 @@ fn read_ascii_entries(
     while let Some(line) = lines.next_line(path) {
         let (n, text) = line?;
         if !text.trim().is_empty() {
-            return Err(count_mismatch(body, header, path).unwrap_or(ImportError::Malformed {
-                path: path.to_owned(),
-                line: n,
-                message: format!(
+            return Err(
+                count_mismatch(body, header, path).unwrap_or(ImportError::Malformed {
+                    path: path.to_owned(),
+                    line: n,
+                    message: format!(
                     "data after the last element (which ended on line {last_line}); remove it or \
                      fix the counts in the header"
                 ),
-            }));
+                }),
+            );
         }
     }
-    Ok(PointCloud { points, normals, triangles })
+    Ok(PointCloud {
+        points,
+        normals,
+        triangles,
+    })
 }
 
 #[cfg(test)]
@@ -808,26 +885,38 @@ mod tests {
     fn header_errors_name_the_line() {
         let s = SQUARE.replace("property uchar red", "property uint128 red");
         match read_str(&s) {
-            Err(ImportError::BadHeader { line: 8, message, .. }) => {
+            Err(ImportError::BadHeader {
+                line: 8, message, ..
+            }) => {
                 assert!(message.contains("uint128"), "{message}")
             }
             other => panic!("{other:?}"),
         }
         let s = SQUARE.replace("property float z\n", "");
         assert!(matches!(read_str(&s), Err(ImportError::BadLayout { .. })));
+        // Without `end_header` the first data line is read as a header line.
         let s = SQUARE.replace("end_header\n", "");
-        assert!(matches!(read_str(&s), Err(ImportError::Truncated { .. })));
+        assert!(matches!(read_str(&s), Err(ImportError::BadHeader { line: 11, .. })));
+        let s = &SQUARE[..SQUARE.find("end_header").unwrap()];
+        assert!(matches!(read_str(s), Err(ImportError::Truncated { .. })));
     }
 
     #[test]
     fn ascii_count_mismatch_is_reported_as_such() {
         let s = SQUARE.replace("element vertex 4", "element vertex 3");
         match read_str(&s) {
-            Err(ImportError::HeaderCountMismatch { declared: 4, found: 5, .. }) => {}
+            Err(ImportError::HeaderCountMismatch {
+                declared: 4,
+                found: 5,
+                ..
+            }) => {}
             other => panic!("{other:?}"),
         }
         let s = SQUARE.replace("element vertex 4", "element vertex 5");
-        assert!(matches!(read_str(&s), Err(ImportError::HeaderCountMismatch { .. })));
+        assert!(matches!(
+            read_str(&s),
+            Err(ImportError::HeaderCountMismatch { .. })
+        ));
     }
 
     #[test]
@@ -865,7 +954,11 @@ mod tests {
         let s = SQUARE.replace("4 0 1 2 3", "3 0 -1 2");
         assert!(matches!(
             read_str(&s),
-            Err(ImportError::IndexOutOfRange { face: 0, index: -1, .. })
+            Err(ImportError::IndexOutOfRange {
+                face: 0,
+                index: -1,
+                ..
+            })
         ));
     }
 }

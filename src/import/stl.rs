@@ -39,7 +39,10 @@ pub(crate) fn is_binary_size(bytes: &[u8]) -> bool {
 /// Whether the file starts like an ascii STL: `solid` and, within the first kilobyte, `facet`
 /// or `endsolid` (a binary header that starts with `solid` has neither, as text).
 pub(crate) fn looks_ascii(bytes: &[u8]) -> bool {
-    let start = bytes.iter().position(|b| !b.is_ascii_whitespace()).unwrap_or(bytes.len());
+    let start = bytes
+        .iter()
+        .position(|b| !b.is_ascii_whitespace())
+        .unwrap_or(bytes.len());
     let text = &bytes[start..];
     if !text.starts_with(b"solid") {
         return false;
@@ -57,7 +60,10 @@ struct Welder {
 
 impl Welder {
     fn with_capacity(n: usize) -> Welder {
-        Welder { points: Vec::with_capacity(n), index: HashMap::with_capacity(n) }
+        Welder {
+            points: Vec::with_capacity(n),
+            index: HashMap::with_capacity(n),
+        }
     }
 
     /// The point index of `p`, added if new; `None` past u32::MAX points.
@@ -129,7 +135,11 @@ pub(crate) fn read_binary(bytes: &[u8], path: &str) -> Result<PointCloud, Import
         }
         triangles.push(triangle);
     }
-    Ok(PointCloud { points: welder.points, normals: None, triangles })
+    Ok(PointCloud {
+        points: welder.points,
+        normals: None,
+        triangles,
+    })
 }
 
 /// Reads an ascii STL. Facets with more than three `vertex` lines are fan-triangulated.
@@ -166,7 +176,9 @@ pub(crate) fn read_ascii(bytes: &[u8], path: &str) -> Result<PointCloud, ImportE
             }
             Some("vertex") => {
                 if !in_loop {
-                    return Err(malformed("`vertex` outside `outer loop` … `endloop`".into()));
+                    return Err(malformed(
+                        "`vertex` outside `outer loop` … `endloop`".into(),
+                    ));
                 }
                 let mut p = [0.0; 3];
                 for c in &mut p {
@@ -202,11 +214,19 @@ pub(crate) fn read_ascii(bytes: &[u8], path: &str) -> Result<PointCloud, ImportE
             path: path.to_owned(),
             detail: format!(
                 "the text ends on line {last_line} inside {}",
-                if in_loop { "a facet" } else { "a solid (no `endsolid`)" }
+                if in_loop {
+                    "a facet"
+                } else {
+                    "a solid (no `endsolid`)"
+                }
             ),
         });
     }
-    Ok(PointCloud { points: welder.points, normals: None, triangles })
+    Ok(PointCloud {
+        points: welder.points,
+        normals: None,
+        triangles,
+    })
 }
 
 #[cfg(test)]
@@ -251,9 +271,16 @@ mod tests {
         longer.extend_from_slice(&[0; 50]);
         assert!(matches!(
             read_binary(&longer, "t.stl"),
-            Err(ImportError::HeaderCountMismatch { declared: 2, found: 3, .. })
+            Err(ImportError::HeaderCountMismatch {
+                declared: 2,
+                found: 3,
+                ..
+            })
         ));
-        assert!(matches!(read_binary(b"short", "t.stl"), Err(ImportError::Truncated { .. })));
+        assert!(matches!(
+            read_binary(b"short", "t.stl"),
+            Err(ImportError::Truncated { .. })
+        ));
     }
 
     #[test]
@@ -271,6 +298,9 @@ mod tests {
             Err(ImportError::Malformed { line: 12, .. })
         ));
         let cut = &text[..text.find("endloop\nendfacet\nendsolid").unwrap()];
-        assert!(matches!(read_ascii(cut.as_bytes(), "t.stl"), Err(ImportError::Truncated { .. })));
+        assert!(matches!(
+            read_ascii(cut.as_bytes(), "t.stl"),
+            Err(ImportError::Truncated { .. })
+        ));
     }
 }

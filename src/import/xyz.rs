@@ -99,7 +99,11 @@ pub(crate) fn read(bytes: &[u8], path: &str) -> Result<PointCloud, ImportError> 
         }
     }
     let normals = (!normals.is_empty()).then_some(normals);
-    Ok(PointCloud { points, normals, triangles: Vec::new() })
+    Ok(PointCloud {
+        points,
+        normals,
+        triangles: Vec::new(),
+    })
 }
 
 #[cfg(test)]
@@ -110,7 +114,10 @@ mod tests {
     fn separators_comments_and_normals() {
         let text = "# scan\n1 2 3 0 0 1\n4,5,6,0,1,0 # end\n\t7\t8\t9\t1\t0\t0\n\n";
         let cloud = read(text.as_bytes(), "t.xyz").unwrap();
-        assert_eq!(cloud.points, vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]]);
+        assert_eq!(
+            cloud.points,
+            vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]]
+        );
         assert_eq!(cloud.normals.unwrap()[1], [0.0, 1.0, 0.0]);
     }
 
@@ -123,13 +130,21 @@ mod tests {
         assert!(cloud.normals.is_none());
         assert!(matches!(
             read(b"3\n1 2 3\n", "t.pts"),
-            Err(ImportError::HeaderCountMismatch { declared: 3, found: 1, .. })
+            Err(ImportError::HeaderCountMismatch {
+                declared: 3,
+                found: 1,
+                ..
+            })
         ));
     }
 
     #[test]
     fn errors_name_the_line() {
-        for (text, line) in [("1 2 3\n1 2\n", 2), ("1 2 3\n1 2 x\n", 2), ("1 2 3\n\n1 2 3 4\n", 3)] {
+        for (text, line) in [
+            ("1 2 3\n1 2\n", 2),
+            ("1 2 3\n1 2 x\n", 2),
+            ("1 2 3\n\n1 2 3 4\n", 3),
+        ] {
             match read(text.as_bytes(), "t.xyz") {
                 Err(ImportError::Malformed { line: l, .. }) => assert_eq!(l, line, "{text}"),
                 other => panic!("{text}: {other:?}"),
