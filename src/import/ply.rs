@@ -403,13 +403,18 @@ fn capped_capacity(count: u64, remaining_bytes: usize) -> usize {
 fn to_index(value: i64, face: u64, n_points: u64, path: &str) -> Result<u32, ImportError> {
     match u32::try_from(value) {
         Ok(index) if u64::from(index) < n_points => Ok(index),
-        _ => Err(ImportError::IndexOutOfRange {
-            path: path.to_owned(),
-            line: None,
-            face: usize::try_from(face).unwrap_or(usize::MAX),
-            index: value,
-            n_points: usize::try_from(n_points).unwrap_or(usize::MAX),
-        }),
+        _ => Err(index_error(value, face, n_points, path)),
+    }
+}
+
+/// The error for face `face` using the out-of-range index `value`.
+fn index_error(value: i64, face: u64, n_points: u64, path: &str) -> ImportError {
+    ImportError::IndexOutOfRange {
+        path: path.to_owned(),
+        line: None,
+        face: usize::try_from(face).unwrap_or(usize::MAX),
+        index: value,
+        n_points: usize::try_from(n_points).unwrap_or(usize::MAX),
     }
 }
 
@@ -521,6 +526,24 @@ fn read_binary<const BIG: bool>(
             }
             continue;
         }
+        // The common face element, a single index list: read it without the general walk.
+        if let ([only], Some((f, _))) = (element.properties.as_slice(), plan.face) {
+            if let (true, PropertyType::List { count, item }) = (f == e, only.ty) {
+                pos = read_face_lists::<BIG>(
+                    body,
+                    pos,
+                    element.count,
+                    (count, item),
+                    n_vertices,
+                    &mut triangles,
+                )
+                .map_err(|entry| match entry {
+                    FaceError::Truncated(entry) => truncated(entry),
+                    FaceError::Index { face, index } => index_error(index, face, n_vertices, path),
+                })?;
+                continue;
+            }
+        }
         // Elements with lists: walk each entry.
         let mut slots = Vec::new();
         let mut list = None;
@@ -584,6 +607,56 @@ fn read_binary<const BIG: bool>(
         normals,
         triangles,
     })
+}
+
+/// Why [`read_face_lists`] stopped.
+enum FaceError {
+    /// The body ended in this face entry (or its list length was negative).
+    Truncated(u64),
+    /// This face has an index outside `0..n_vertices`.
+    Index { face: u64, index: i64 },
+}
+
+/// The fast path for a face element whose only property is its index list. Returns the position
+/// after the element.
+fn read_face_lists<const BIG: bool>(
+    body: &[u8],
+    mut pos: usize,
+    n_faces: u64,
+    (count_ty, item_ty): (Scalar, Scalar),
+    n_vertices: u64,
+    triangles: &mut Vec<[u32; 3]>,
+) -> Result<usize, FaceError> {
+    let (count_size, item_size) = (count_ty.size(), item_ty.size());
+    let smallest_triangle = count_size + 3 * item_size;
+    triangles.reserve(capped_capacity(
+        n_faces,
+        (body.len() - pos) / smallest_triangle,
+    ));
+    let mut polygon: Vec<u32> = Vec::new();
+    for face in 0..n_faces {
+        let n = body
+            .get(pos..)
+            .and_then(|b| scalar_i64::<BIG>(b, count_ty))
+            .and_then(|n| usize::try_from(n).ok())
+            .ok_or(FaceError::Truncated(face))?;
+        pos += count_size;
+        let items = n
+            .checked_mul(item_size)
+            .and_then(|size| body.get(pos..pos.checked_add(size)?))
+            .ok_or(FaceError::Truncated(face))?;
+        pos += items.len();
+        polygon.clear();
+        for chunk in items.chunks_exact(item_size) {
+            let index = scalar_i64::<BIG>(chunk, item_ty).ok_or(FaceError::Truncated(face))?;
+            match u32::try_from(index) {
+                Ok(i) if u64::from(i) < n_vertices => polygon.push(i),
+                _ => return Err(FaceError::Index { face, index }),
+            }
+        }
+        push_fan(triangles, &polygon);
+    }
+    Ok(pos)
 }
 
 /// The fast path: a vertex element without lists, read at fixed offsets of each record.
@@ -896,7 +969,10 @@ mod tests {
         assert!(matches!(read_str(&s), Err(ImportError::BadLayout { .. })));
         // Without `end_header` the first data line is read as a header line.
         let s = SQUARE.replace("end_header\n", "");
-        assert!(matches!(read_str(&s), Err(ImportError::BadHeader { line: 11, .. })));
+        assert!(matches!(
+            read_str(&s),
+            Err(ImportError::BadHeader { line: 11, .. })
+        ));
         let s = &SQUARE[..SQUARE.find("end_header").unwrap()];
         assert!(matches!(read_str(s), Err(ImportError::Truncated { .. })));
     }
