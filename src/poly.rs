@@ -822,4 +822,139 @@ mod tests {
         // ∇f = 2 q / scale with q = (0.6, 0, 0.8).
         assert!((g[0] - 0.6).abs() < 1e-14 && g[1].abs() < 1e-14 && (g[2] - 0.8).abs() < 1e-14);
     }
+
+    /// A deterministic pseudo-random polynomial of degree `n` with a positive leading part.
+    fn test_poly(n: u32, seed: u64) -> ImplicitPolynomial {
+        let mut state = seed.wrapping_mul(0x9E3779B97F4A7C15).wrapping_add(7);
+        let coefficients = (0..n_coefficients(n))
+            .map(|_| {
+                state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                ((state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+            })
+            .collect();
+        ImplicitPolynomial { degree: n, coefficients, center: [0.3, -1.0, 2.0], scale: 1.7 }
+    }
+
+    fn test_points() -> Vec<[f64; 3]> {
+        (0..200).map(|i| {
+            let t = i as f64;
+            [0.3 + 1.5 * (0.37 * t).sin(), -1.0 + 1.2 * (0.21 * t).cos(), 2.0 + (0.13 * t).sin() * 1.9]
+        }).collect()
+    }
+
+    #[test]
+    fn fast_evaluators_match_pointwise() {
+        for n in [1, 2, 5, 8, 14] {
+            let f = test_poly(n, n as u64);
+            let pts = test_points();
+            let mut v = vec![0.0; pts.len()];
+            let mut g = vec![[0.0; 3]; pts.len()];
+            f.eval_gradient_many(&pts, &mut v, &mut g);
+            let mut v2 = vec![0.0; pts.len()];
+            f.eval_many(&pts, &mut v2);
+            for (i, p) in pts.iter().enumerate() {
+                let (fv, fg) = f.eval_gradient(*p);
+                let scale = 1.0 + fv.abs();
+                assert!((v[i] - fv).abs() <= 1e-11 * scale, "degree {n}");
+                assert!((v2[i] - fv).abs() <= 1e-11 * scale, "degree {n}");
+                for a in 0..3 {
+                    assert!((g[i][a] - fg[a]).abs() <= 1e-10 * (1.0 + fg[a].abs()), "degree {n}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn grid_matches_pointwise() {
+        let f = test_poly(6, 3);
+        let (origin, step, dims) = ([-0.5, -2.0, 1.0], [0.3, 0.25, 0.2], [5, 4, 3]);
+        let v = f.eval_grid(origin, step, dims);
+        for iz in 0..3 {
+            for iy in 0..4 {
+                for ix in 0..5 {
+                    let p = [origin[0] + ix as f64 * 0.3, origin[1] + iy as f64 * 0.25, origin[2] + iz as f64 * 0.2];
+                    let expected = f.eval(p);
+                    assert!((v[ix + 5 * (iy + 4 * iz)] - expected).abs() <= 1e-11 * (1.0 + expected.abs()));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn hessian_matches_finite_differences() {
+        let f = test_poly(5, 9);
+        let p = [0.7, -0.4, 1.9];
+        let (_, _, h) = f.eval_hessian(p);
+        let step = 1e-5;
+        for a in 0..3 {
+            let mut lo = p;
+            let mut hi = p;
+            lo[a] -= step;
+            hi[a] += step;
+            let (_, g_lo) = f.eval_gradient(lo);
+            let (_, g_hi) = f.eval_gradient(hi);
+            for b in 0..3 {
+                let fd = (g_hi[b] - g_lo[b]) / (2.0 * step);
+                assert!((h[a][b] - fd).abs() <= 1e-6 * (1.0 + fd.abs()), "H[{a}][{b}] = {} vs {fd}", h[a][b]);
+            }
+        }
+    }
+
+    #[test]
+    fn leading_form_extrema_beat_dense_sampling() {
+        for (n, seed) in [(4, 1), (6, 2), (8, 3), (10, 4)] {
+            let f = test_poly(n, seed);
+            let e = f.leading_form_extrema();
+            let h = f.leading_form();
+            // 200k Fibonacci samples.
+            let m = 200_000;
+            let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+            let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+            for i in 0..m {
+                let z = 1.0 - (2.0 * i as f64 + 1.0) / m as f64;
+                let r = (1.0 - z * z).sqrt();
+                let v = h.eval_normalized([r * (golden * i as f64).cos(), r * (golden * i as f64).sin(), z]);
+                lo = lo.min(v);
+                hi = hi.max(v);
+            }
+            let scale = hi.abs().max(lo.abs());
+            assert!(e.min <= lo + 1e-12 * scale && e.min >= lo - 1e-3 * scale, "degree {n}: min {} vs sampled {lo}", e.min);
+            assert!(e.max >= hi - 1e-12 * scale && e.max <= hi + 1e-3 * scale, "degree {n}: max {} vs sampled {hi}", e.max);
+            // argmin is a unit vector where the form takes the minimum.
+            assert!((h.eval_normalized(e.argmin) - e.min).abs() <= 1e-12 * scale);
+            // The certified bound is at least the true maximum of |H_n|.
+            assert!(f.homogeneous_bound(n) >= scale);
+        }
+    }
+
+    #[test]
+    fn containment_radius_contains_the_zero_set() {
+        // f = (x² + y² + z²)² + lower-order noise: positive leading form.
+        let mut f = test_poly(4, 5);
+        for l in n_coefficients(3)..n_coefficients(4) {
+            f.coefficients[l] = 0.0;
+        }
+        for (e, l) in exponents(4).iter().zip(0..) {
+            if e[0] % 2 == 0 && e[1] % 2 == 0 && e[2] % 2 == 0 && e.iter().sum::<u32>() == 4 {
+                // (x² + y² + z²)² = x⁴ + y⁴ + z⁴ + 2x²y² + 2x²z² + 2y²z².
+                f.coefficients[l] = if e.contains(&4) { 1.0 } else { 2.0 };
+            }
+        }
+        let r = f.containment_radius().unwrap();
+        assert!(r > 0.0 && r < 10.0);
+        // f > 0 on spheres beyond R.
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        for radius in [r * 1.001, r * 1.5, r * 3.0] {
+            for i in 0..2000 {
+                let z = 1.0 - (2.0 * i as f64 + 1.0) / 2000.0;
+                let rho = (1.0 - z * z).sqrt();
+                let q = [rho * (golden * i as f64).cos(), rho * (golden * i as f64).sin(), z].map(|c| c * radius);
+                assert!(f.eval_normalized(q) > 0.0);
+            }
+        }
+        // A form that is not positive has no radius.
+        let mut g = f.clone();
+        g.coefficients[n_coefficients(3)] = -5.0;
+        assert!(g.containment_radius().is_none());
+    }
 }
