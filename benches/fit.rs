@@ -29,14 +29,31 @@ fn bench_fit(c: &mut Criterion) {
     let mut group = c.benchmark_group("fit");
     group.sample_size(10);
     for degree in [4, 8, 12] {
-        let params = FitParams { degree, kappa: Kappa::Fixed(1e-3), ..FitParams::default() };
-        group.bench_function(format!("points=36k/degree={degree}/kappa=1e-3"), |b| b.iter(|| fit(&bunny, &params).unwrap()));
+        let params = FitParams {
+            degree,
+            kappa: Kappa::Fixed(1e-3),
+            ..FitParams::default()
+        };
+        group.bench_function(format!("points=36k/degree={degree}/kappa=1e-3"), |b| {
+            b.iter(|| fit(&bunny, &params).unwrap())
+        });
     }
-    let auto = FitParams { degree: 8, ..FitParams::default() };
-    group.bench_function("points=36k/degree=8/kappa=auto", |b| b.iter(|| fit(&bunny, &auto).unwrap()));
+    let auto = FitParams {
+        degree: 8,
+        ..FitParams::default()
+    };
+    group.bench_function("points=36k/degree=8/kappa=auto", |b| {
+        b.iter(|| fit(&bunny, &auto).unwrap())
+    });
     let million = cloud_of(1_000_000);
-    let params = FitParams { degree: 8, kappa: Kappa::Fixed(1e-3), ..FitParams::default() };
-    group.bench_function("points=1M/degree=8/kappa=1e-3", |b| b.iter(|| fit(&million, &params).unwrap()));
+    let params = FitParams {
+        degree: 8,
+        kappa: Kappa::Fixed(1e-3),
+        ..FitParams::default()
+    };
+    group.bench_function("points=1M/degree=8/kappa=1e-3", |b| {
+        b.iter(|| fit(&million, &params).unwrap())
+    });
     group.finish();
 }
 
@@ -46,7 +63,10 @@ fn main() {
     benches();
     Criterion::default().configure_from_args().final_summary();
     if let Ok(status) = std::fs::read_to_string("/proc/self/status") {
-        for line in status.lines().filter(|l| l.starts_with("VmHWM") || l.starts_with("VmRSS")) {
+        for line in status
+            .lines()
+            .filter(|l| l.starts_with("VmHWM") || l.starts_with("VmRSS"))
+        {
             eprintln!("{line}");
         }
     }

@@ -180,7 +180,11 @@ impl HornerLayout {
                 columns.push((j, k, offset));
             }
         }
-        HornerLayout { degree: n, columns, coeffs }
+        HornerLayout {
+            degree: n,
+            columns,
+            coeffs,
+        }
     }
 }
 
@@ -283,7 +287,11 @@ impl ImplicitPolynomial {
     pub fn eval_hessian(&self, p: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
         let (f, g, h) = self.eval_hessian_normalized(self.normalize(p));
         let s2 = self.scale * self.scale;
-        (f, g.map(|c| c / self.scale), h.map(|row| row.map(|c| c / s2)))
+        (
+            f,
+            g.map(|c| c / self.scale),
+            h.map(|row| row.map(|c| c / s2)),
+        )
     }
 
     /// f at many input-space points, written to `out` (`out.len() == points.len()`).
@@ -302,7 +310,11 @@ impl ImplicitPolynomial {
     /// assert_eq!(out, vec![3.0, 8.0]);
     /// ```
     pub fn eval_many(&self, points: &[[f64; 3]], out: &mut [f64]) {
-        assert_eq!(points.len(), out.len(), "eval_many: output length differs from input");
+        assert_eq!(
+            points.len(),
+            out.len(),
+            "eval_many: output length differs from input"
+        );
         self.eval_many_impl(points, out, None);
     }
 
@@ -310,13 +322,31 @@ impl ImplicitPolynomial {
     ///
     /// # Panics
     /// If `values.len()` or `gradients.len()` differs from `points.len()`.
-    pub fn eval_gradient_many(&self, points: &[[f64; 3]], values: &mut [f64], gradients: &mut [[f64; 3]]) {
-        assert_eq!(points.len(), values.len(), "eval_gradient_many: output length differs from input");
-        assert_eq!(points.len(), gradients.len(), "eval_gradient_many: output length differs from input");
+    pub fn eval_gradient_many(
+        &self,
+        points: &[[f64; 3]],
+        values: &mut [f64],
+        gradients: &mut [[f64; 3]],
+    ) {
+        assert_eq!(
+            points.len(),
+            values.len(),
+            "eval_gradient_many: output length differs from input"
+        );
+        assert_eq!(
+            points.len(),
+            gradients.len(),
+            "eval_gradient_many: output length differs from input"
+        );
         self.eval_many_impl(points, values, Some(gradients));
     }
 
-    fn eval_many_impl(&self, points: &[[f64; 3]], values: &mut [f64], mut gradients: Option<&mut [[f64; 3]]>) {
+    fn eval_many_impl(
+        &self,
+        points: &[[f64; 3]],
+        values: &mut [f64],
+        mut gradients: Option<&mut [[f64; 3]]>,
+    ) {
         let layout = HornerLayout::new(self);
         let n = layout.degree;
         let inv_scale = 1.0 / self.scale;
@@ -419,11 +449,15 @@ impl ImplicitPolynomial {
                 line.fill(0.0);
                 for &(j, k, offset) in &layout.columns {
                     let w = py[j] * pz[k];
-                    for (i, c) in layout.coeffs[offset..=offset + n - j - k].iter().enumerate() {
+                    for (i, c) in layout.coeffs[offset..=offset + n - j - k]
+                        .iter()
+                        .enumerate()
+                    {
                         line[i] += c * w;
                     }
                 }
-                let row = &mut out[dims[0] * (iy + dims[1] * iz)..dims[0] * (iy + 1 + dims[1] * iz)];
+                let row =
+                    &mut out[dims[0] * (iy + dims[1] * iz)..dims[0] * (iy + 1 + dims[1] * iz)];
                 for (v, &x) in row.iter_mut().zip(&xs) {
                     let mut acc = line[n];
                     for i in (0..n).rev() {
@@ -446,7 +480,12 @@ impl ImplicitPolynomial {
         for l in lo..hi {
             coefficients[l] = self.coefficients.get(l).copied().unwrap_or(0.0);
         }
-        ImplicitPolynomial { degree: k, coefficients, center: self.center, scale: self.scale }
+        ImplicitPolynomial {
+            degree: k,
+            coefficients,
+            center: self.center,
+            scale: self.scale,
+        }
     }
 
     /// The leading form H_n (degree-n part) of the normalized polynomial.
@@ -593,7 +632,11 @@ const SPHERE_CANDIDATES: usize = 12;
 
 /// Minimum and maximum of a homogeneous form (given as a polynomial) on the unit sphere.
 fn sphere_extrema(form: &ImplicitPolynomial) -> SphereExtrema {
-    let unit = ImplicitPolynomial { center: [0.0; 3], scale: 1.0, ..form.clone() };
+    let unit = ImplicitPolynomial {
+        center: [0.0; 3],
+        scale: 1.0,
+        ..form.clone()
+    };
     let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
     let dirs: Vec<[f64; 3]> = (0..SPHERE_SAMPLES)
         .map(|i| {
@@ -607,13 +650,27 @@ fn sphere_extrema(form: &ImplicitPolynomial) -> SphereExtrema {
     unit.eval_many(&dirs, &mut values);
     let (min, argmin) = refine_extremum(&unit, &dirs, &values, 1.0);
     let (max, argmax) = refine_extremum(&unit, &dirs, &values, -1.0);
-    SphereExtrema { min, argmin, max: -max, argmax }
+    SphereExtrema {
+        min,
+        argmin,
+        max: -max,
+        argmax,
+    }
 }
 
 /// Minimizes sign·H over the sphere from the best separated samples; returns (sign·H_min, argmin).
-fn refine_extremum(form: &ImplicitPolynomial, dirs: &[[f64; 3]], values: &[f64], sign: f64) -> (f64, [f64; 3]) {
+fn refine_extremum(
+    form: &ImplicitPolynomial,
+    dirs: &[[f64; 3]],
+    values: &[f64],
+    sign: f64,
+) -> (f64, [f64; 3]) {
     let mut order: Vec<usize> = (0..dirs.len()).collect();
-    order.sort_by(|&a, &b| (sign * values[a]).total_cmp(&(sign * values[b])).then(a.cmp(&b)));
+    order.sort_by(|&a, &b| {
+        (sign * values[a])
+            .total_cmp(&(sign * values[b]))
+            .then(a.cmp(&b))
+    });
     let mut starts: Vec<[f64; 3]> = Vec::new();
     for &idx in &order {
         let d = dirs[idx];
@@ -652,13 +709,21 @@ fn normalized(a: [f64; 3]) -> [f64; 3] {
 fn riemannian_newton(form: &ImplicitPolynomial, start: [f64; 3], sign: f64) -> (f64, [f64; 3]) {
     let eval = |u: [f64; 3]| {
         let (f, g, h) = form.eval_hessian_normalized(u);
-        (sign * f, g.map(|c| sign * c), h.map(|r| r.map(|c| sign * c)))
+        (
+            sign * f,
+            g.map(|c| sign * c),
+            h.map(|r| r.map(|c| sign * c)),
+        )
     };
     let mut u = normalized(start);
     let (mut f, mut g, mut h) = eval(u);
     for _ in 0..60 {
         // Tangent basis e1, e2 at u.
-        let helper = if u[0].abs() < 0.6 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+        let helper = if u[0].abs() < 0.6 {
+            [1.0, 0.0, 0.0]
+        } else {
+            [0.0, 1.0, 0.0]
+        };
         let e1 = normalized(cross(u, helper));
         let e2 = cross(u, e1);
         let radial = dot(u, g);
@@ -677,7 +742,10 @@ fn riemannian_newton(form: &ImplicitPolynomial, start: [f64; 3], sign: f64) -> (
         let h12 = he(e1, e2);
         let det = h11 * h22 - h12 * h12;
         let mut step = if h11 > 0.0 && det > 0.0 {
-            [-(h22 * grad[0] - h12 * grad[1]) / det, -(h11 * grad[1] - h12 * grad[0]) / det]
+            [
+                -(h22 * grad[0] - h12 * grad[1]) / det,
+                -(h11 * grad[1] - h12 * grad[0]) / det,
+            ]
         } else {
             // Not locally convex: a 0.3 rad step down the gradient, shortened by backtracking.
             [-grad[0] * 0.3 / gnorm, -grad[1] * 0.3 / gnorm]
@@ -709,7 +777,11 @@ fn riemannian_newton(form: &ImplicitPolynomial, start: [f64; 3], sign: f64) -> (
 }
 
 fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 
 /// How a model was fitted: the settings that produced it.
@@ -814,7 +886,12 @@ mod tests {
         coefficients[4] = 1.0;
         coefficients[7] = 1.0;
         coefficients[9] = 1.0;
-        let f = ImplicitPolynomial { degree: 2, coefficients, center: [1.0, 2.0, 3.0], scale: 2.0 };
+        let f = ImplicitPolynomial {
+            degree: 2,
+            coefficients,
+            center: [1.0, 2.0, 3.0],
+            scale: 2.0,
+        };
         let p = [1.0 + 2.0 * 0.6, 2.0, 3.0 + 2.0 * 0.8];
         let (v, g) = f.eval_gradient(p);
         assert!(v.abs() < 1e-14);
@@ -828,18 +905,31 @@ mod tests {
         let mut state = seed.wrapping_mul(0x9E3779B97F4A7C15).wrapping_add(7);
         let coefficients = (0..n_coefficients(n))
             .map(|_| {
-                state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
                 ((state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
             })
             .collect();
-        ImplicitPolynomial { degree: n, coefficients, center: [0.3, -1.0, 2.0], scale: 1.7 }
+        ImplicitPolynomial {
+            degree: n,
+            coefficients,
+            center: [0.3, -1.0, 2.0],
+            scale: 1.7,
+        }
     }
 
     fn test_points() -> Vec<[f64; 3]> {
-        (0..200).map(|i| {
-            let t = i as f64;
-            [0.3 + 1.5 * (0.37 * t).sin(), -1.0 + 1.2 * (0.21 * t).cos(), 2.0 + (0.13 * t).sin() * 1.9]
-        }).collect()
+        (0..200)
+            .map(|i| {
+                let t = i as f64;
+                [
+                    0.3 + 1.5 * (0.37 * t).sin(),
+                    -1.0 + 1.2 * (0.21 * t).cos(),
+                    2.0 + (0.13 * t).sin() * 1.9,
+                ]
+            })
+            .collect()
     }
 
     #[test]
@@ -858,7 +948,10 @@ mod tests {
                 assert!((v[i] - fv).abs() <= 1e-11 * scale, "degree {n}");
                 assert!((v2[i] - fv).abs() <= 1e-11 * scale, "degree {n}");
                 for a in 0..3 {
-                    assert!((g[i][a] - fg[a]).abs() <= 1e-10 * (1.0 + fg[a].abs()), "degree {n}");
+                    assert!(
+                        (g[i][a] - fg[a]).abs() <= 1e-10 * (1.0 + fg[a].abs()),
+                        "degree {n}"
+                    );
                 }
             }
         }
@@ -872,9 +965,16 @@ mod tests {
         for iz in 0..3 {
             for iy in 0..4 {
                 for ix in 0..5 {
-                    let p = [origin[0] + ix as f64 * 0.3, origin[1] + iy as f64 * 0.25, origin[2] + iz as f64 * 0.2];
+                    let p = [
+                        origin[0] + ix as f64 * 0.3,
+                        origin[1] + iy as f64 * 0.25,
+                        origin[2] + iz as f64 * 0.2,
+                    ];
                     let expected = f.eval(p);
-                    assert!((v[ix + 5 * (iy + 4 * iz)] - expected).abs() <= 1e-11 * (1.0 + expected.abs()));
+                    assert!(
+                        (v[ix + 5 * (iy + 4 * iz)] - expected).abs()
+                            <= 1e-11 * (1.0 + expected.abs())
+                    );
                 }
             }
         }
@@ -895,7 +995,11 @@ mod tests {
             let (_, g_hi) = f.eval_gradient(hi);
             for b in 0..3 {
                 let fd = (g_hi[b] - g_lo[b]) / (2.0 * step);
-                assert!((h[a][b] - fd).abs() <= 1e-6 * (1.0 + fd.abs()), "H[{a}][{b}] = {} vs {fd}", h[a][b]);
+                assert!(
+                    (h[a][b] - fd).abs() <= 1e-6 * (1.0 + fd.abs()),
+                    "H[{a}][{b}] = {} vs {fd}",
+                    h[a][b]
+                );
             }
         }
     }
@@ -913,13 +1017,25 @@ mod tests {
             for i in 0..m {
                 let z = 1.0 - (2.0 * i as f64 + 1.0) / m as f64;
                 let r = (1.0 - z * z).sqrt();
-                let v = h.eval_normalized([r * (golden * i as f64).cos(), r * (golden * i as f64).sin(), z]);
+                let v = h.eval_normalized([
+                    r * (golden * i as f64).cos(),
+                    r * (golden * i as f64).sin(),
+                    z,
+                ]);
                 lo = lo.min(v);
                 hi = hi.max(v);
             }
             let scale = hi.abs().max(lo.abs());
-            assert!(e.min <= lo + 1e-12 * scale && e.min >= lo - 1e-3 * scale, "degree {n}: min {} vs sampled {lo}", e.min);
-            assert!(e.max >= hi - 1e-12 * scale && e.max <= hi + 1e-3 * scale, "degree {n}: max {} vs sampled {hi}", e.max);
+            assert!(
+                e.min <= lo + 1e-12 * scale && e.min >= lo - 1e-3 * scale,
+                "degree {n}: min {} vs sampled {lo}",
+                e.min
+            );
+            assert!(
+                e.max >= hi - 1e-12 * scale && e.max <= hi + 1e-3 * scale,
+                "degree {n}: max {} vs sampled {hi}",
+                e.max
+            );
             // argmin is a unit vector where the form takes the minimum.
             assert!((h.eval_normalized(e.argmin) - e.min).abs() <= 1e-12 * scale);
             // The certified bound is at least the true maximum of |H_n|.
@@ -948,7 +1064,12 @@ mod tests {
             for i in 0..2000 {
                 let z = 1.0 - (2.0 * i as f64 + 1.0) / 2000.0;
                 let rho = (1.0 - z * z).sqrt();
-                let q = [rho * (golden * i as f64).cos(), rho * (golden * i as f64).sin(), z].map(|c| c * radius);
+                let q = [
+                    rho * (golden * i as f64).cos(),
+                    rho * (golden * i as f64).sin(),
+                    z,
+                ]
+                .map(|c| c * radius);
                 assert!(f.eval_normalized(q) > 0.0);
             }
         }

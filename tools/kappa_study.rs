@@ -10,7 +10,10 @@ use stablesurf::fit::study::{assess, sample, Shape, Variant};
 use stablesurf::fit::{fit, FitParams, KappaRule};
 
 fn main() {
-    let n_points: usize = std::env::args().nth(1).and_then(|a| a.parse().ok()).unwrap_or(3000);
+    let n_points: usize = std::env::args()
+        .nth(1)
+        .and_then(|a| a.parse().ok())
+        .unwrap_or(3000);
     let rules = [KappaRule::Stable, KappaRule::Paper];
     // good[rule][degree index], total[degree index]
     let mut good = [[0usize; 3]; 2];
@@ -27,7 +30,12 @@ fn main() {
                     total[di] += 1;
                     let mut cells = Vec::new();
                     for (ri, rule) in rules.into_iter().enumerate() {
-                        let params = FitParams { degree, epsilon, kappa_rule: rule, ..FitParams::default() };
+                        let params = FitParams {
+                            degree,
+                            epsilon,
+                            kappa_rule: rule,
+                            ..FitParams::default()
+                        };
                         match fit(&cloud, &params) {
                             Ok(model) => {
                                 let verdict = assess(&model.polynomial, &cloud);
@@ -44,16 +52,30 @@ fn main() {
                                     ));
                                 }
                                 cells.push(format!("{kappa:.1e}"));
-                                cells.push(if verdict.good { "good".into() } else { format!("bad ({} comp.)", verdict.components) });
+                                cells.push(if verdict.good {
+                                    "good".into()
+                                } else {
+                                    format!("bad ({} comp.)", verdict.components)
+                                });
                             }
                             Err(e) => {
                                 cells.push("-".into());
                                 cells.push(format!("error: {e}"));
-                                failures.push(format!("{} {} n={degree} eps={epsilon} rule={}: {e}", shape.name(), variant.name(), rule.as_str()));
+                                failures.push(format!(
+                                    "{} {} n={degree} eps={epsilon} rule={}: {e}",
+                                    shape.name(),
+                                    variant.name(),
+                                    rule.as_str()
+                                ));
                             }
                         }
                     }
-                    println!("| {} | {} | {degree} | {epsilon} | {} |", shape.name(), variant.name(), cells.join(" | "));
+                    println!(
+                        "| {} | {} | {degree} | {epsilon} | {} |",
+                        shape.name(),
+                        variant.name(),
+                        cells.join(" | ")
+                    );
                 }
             }
         }
@@ -69,7 +91,8 @@ fn main() {
             .map(|k| {
                 let mut k = k.clone();
                 k.sort_by(f64::total_cmp);
-                k.get(k.len() / 2).map_or("-".into(), |m| format!("{m:.1e}"))
+                k.get(k.len() / 2)
+                    .map_or("-".into(), |m| format!("{m:.1e}"))
             })
             .collect();
         println!(

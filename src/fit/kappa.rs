@@ -88,9 +88,17 @@ pub(crate) fn select(
     let grid: Vec<GridFit> = kappa_grid()
         .into_iter()
         .map(|kappa| {
-            let coefficients = solve::solve_ridge(gram, &sys.rhs, ridge, kappa).ok().map(|s| s.coefficients);
-            let leading_min = coefficients.as_ref().map_or(f64::NAN, |a| unit_poly(degree, a).leading_form_extrema().min);
-            GridFit { kappa, coefficients, leading_min }
+            let coefficients = solve::solve_ridge(gram, &sys.rhs, ridge, kappa)
+                .ok()
+                .map(|s| s.coefficients);
+            let leading_min = coefficients.as_ref().map_or(f64::NAN, |a| {
+                unit_poly(degree, a).leading_form_extrema().min
+            });
+            GridFit {
+                kappa,
+                coefficients,
+                leading_min,
+            }
         })
         .collect();
     let positive = |g: &GridFit| g.coefficients.is_some() && g.leading_min > 0.0;
@@ -112,10 +120,14 @@ pub(crate) fn select(
             let mut chosen = None;
             let mut unavailable = None;
             for &i in &candidates {
-                let Some(coefficients) = grid[i].coefficients.as_ref() else { continue };
+                let Some(coefficients) = grid[i].coefficients.as_ref() else {
+                    continue;
+                };
                 let poly = unit_poly(degree, coefficients);
                 // (b): certified containment radius.
-                let Some(radius) = poly.containment_radius_with(grid[i].leading_min) else { continue };
+                let Some(radius) = poly.containment_radius_with(grid[i].leading_min) else {
+                    continue;
+                };
                 if data.is_none() {
                     data = Some(DataPieces::new(cloud, norm));
                 }
@@ -148,17 +160,26 @@ pub(crate) fn select(
     match chosen {
         Some(i) => {
             let coefficients = grid[i].coefficients.clone().unwrap_or_default();
-            Ok(Selection { kappa: grid[i].kappa, coefficients, warnings, fallback: false, zero_set_checked })
+            Ok(Selection {
+                kappa: grid[i].kappa,
+                coefficients,
+                warnings,
+                fallback: false,
+                zero_set_checked,
+            })
         }
         None => {
-            let solution = solve::solve_ridge(gram, &sys.rhs, ridge, FALLBACK_KAPPA).map_err(|e| match e {
-                solve::SolveFailure::NotPositiveDefinite { column } => FitError::SingularSystem {
-                    kappa: FALLBACK_KAPPA,
-                    column,
-                    n_coefficients: sys.rhs.len(),
-                },
-                solve::SolveFailure::NoConvergence => FitError::NoConvergence,
-            })?;
+            let solution =
+                solve::solve_ridge(gram, &sys.rhs, ridge, FALLBACK_KAPPA).map_err(|e| match e {
+                    solve::SolveFailure::NotPositiveDefinite { column } => {
+                        FitError::SingularSystem {
+                            kappa: FALLBACK_KAPPA,
+                            column,
+                            n_coefficients: sys.rhs.len(),
+                        }
+                    }
+                    solve::SolveFailure::NoConvergence => FitError::NoConvergence,
+                })?;
             warnings.push(format!(
                 "no kappa on the grid 0, 1e-8 … 1 satisfied the {} rule; fell back to kappa = {FALLBACK_KAPPA}: check the result, or try another --degree",
                 rule.as_str()
@@ -176,7 +197,12 @@ pub(crate) fn select(
 
 /// The polynomial in normalized coordinates (centre 0, scale 1).
 fn unit_poly(degree: u32, coefficients: &[f64]) -> ImplicitPolynomial {
-    ImplicitPolynomial { degree, coefficients: coefficients.to_vec(), center: [0.0; 3], scale: 1.0 }
+    ImplicitPolynomial {
+        degree,
+        coefficients: coefficients.to_vec(),
+        center: [0.0; 3],
+        scale: 1.0,
+    }
 }
 
 /// Outcome of the zero-set checks (c)/(d).
@@ -198,12 +224,20 @@ struct DataPieces {
 impl DataPieces {
     fn new(cloud: &OrientedCloud, norm: &Normalization) -> Option<DataPieces> {
         let stride = cloud.points.len().div_ceil(MAX_CHECK_POINTS).max(1);
-        let points: Vec<[f64; 3]> = cloud.points.iter().step_by(stride).map(|p| norm.apply(*p)).collect();
+        let points: Vec<[f64; 3]> = cloud
+            .points
+            .iter()
+            .step_by(stride)
+            .map(|p| norm.apply(*p))
+            .collect();
         let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&points).ok()?;
         let mut parent: Vec<u32> = (0..points.len() as u32).collect();
         let k = std::num::NonZeroUsize::new(12).unwrap_or(std::num::NonZeroUsize::MIN);
         for (i, p) in points.iter().enumerate() {
-            let neighbours = tree.query(p).nearest_n::<SquaredEuclidean<f64>>(k).execute();
+            let neighbours = tree
+                .query(p)
+                .nearest_n::<SquaredEuclidean<f64>>(k)
+                .execute();
             for nb in neighbours {
                 if nb.distance <= NEAR_DATA * NEAR_DATA {
                     union(&mut parent, i as u32, nb.item);
@@ -211,12 +245,20 @@ impl DataPieces {
             }
         }
         let (labels, n_pieces) = compact_labels(&mut parent);
-        Some(DataPieces { tree, labels, n_pieces })
+        Some(DataPieces {
+            tree,
+            labels,
+            n_pieces,
+        })
     }
 
     /// Distance from `q` to the nearest data point and that point's piece.
     fn nearest(&self, q: [f64; 3]) -> (f64, u32) {
-        let nn = self.tree.query(&q).nearest_one::<SquaredEuclidean<f64>>().execute();
+        let nn = self
+            .tree
+            .query(&q)
+            .nearest_one::<SquaredEuclidean<f64>>()
+            .execute();
         let label = self.labels.get(nn.item as usize).copied().unwrap_or(0);
         (nn.distance.sqrt(), label)
     }
@@ -277,7 +319,10 @@ fn zero_set_check(poly: &ImplicitPolynomial, radius: f64, data: &DataPieces) -> 
     use crate::polygonize::{polygonize, PolygonizeParams};
     let params = PolygonizeParams { depth: CHECK_DEPTH };
     // (c): the inner box.
-    let inner = Aabb { min: [-INNER_BOX; 3], max: [INNER_BOX; 3] };
+    let inner = Aabb {
+        min: [-INNER_BOX; 3],
+        max: [INNER_BOX; 3],
+    };
     let mesh = match polygonize(poly, &inner, &params) {
         Ok(out) => out.mesh,
         Err(e) => return ZeroSetCheck::Unavailable(format!("polygonize failed: {e}")),
@@ -285,7 +330,8 @@ fn zero_set_check(poly: &ImplicitPolynomial, radius: f64, data: &DataPieces) -> 
     if mesh.triangles.is_empty() {
         return ZeroSetCheck::Fail;
     }
-    let (labels, n_components) = mesh_components(&mesh.positions, &mesh.triangles, 1e-9 * INNER_BOX);
+    let (labels, n_components) =
+        mesh_components(&mesh.positions, &mesh.triangles, 1e-9 * INNER_BOX);
     if n_components != data.n_pieces {
         return ZeroSetCheck::Fail;
     }
@@ -310,13 +356,20 @@ fn zero_set_check(poly: &ImplicitPolynomial, radius: f64, data: &DataPieces) -> 
     }
     // (d): the outer box; nothing beyond the components near the data, and no contact with the box.
     let half = OUTER_BOX.max(radius);
-    let outer = Aabb { min: [-half; 3], max: [half; 3] };
+    let outer = Aabb {
+        min: [-half; 3],
+        max: [half; 3],
+    };
     let mesh = match polygonize(poly, &outer, &params) {
         Ok(out) => out.mesh,
         Err(e) => return ZeroSetCheck::Unavailable(format!("polygonize failed: {e}")),
     };
     let cell = 2.0 * half / f64::from(1u32 << CHECK_DEPTH);
-    if mesh.positions.iter().any(|p| p.iter().any(|c| c.abs() > half - 0.5 * cell)) {
+    if mesh
+        .positions
+        .iter()
+        .any(|p| p.iter().any(|c| c.abs() > half - 0.5 * cell))
+    {
         return ZeroSetCheck::Fail;
     }
     let (_, n_outer) = mesh_components(&mesh.positions, &mesh.triangles, 1e-9 * half);

@@ -96,7 +96,9 @@ pub enum FitError {
         max: u32,
     },
     /// ε must be positive and finite.
-    #[error("epsilon {epsilon} is invalid: use a positive layer offset such as 0.05 (normalized units)")]
+    #[error(
+        "epsilon {epsilon} is invalid: use a positive layer offset such as 0.05 (normalized units)"
+    )]
     InvalidEpsilon {
         /// ε asked for.
         epsilon: f64,
@@ -196,7 +198,9 @@ impl FromStr for Kappa {
         }
         match s.parse::<f64>() {
             Ok(v) if v.is_finite() && v >= 0.0 => Ok(Kappa::Fixed(v)),
-            _ => Err(format!("invalid kappa {s:?}: use auto or a non-negative number such as 1e-3")),
+            _ => Err(format!(
+                "invalid kappa {s:?}: use auto or a non-negative number such as 1e-3"
+            )),
         }
     }
 }
@@ -332,10 +336,15 @@ impl Default for FitParams {
 pub fn fit(cloud: &OrientedCloud, params: &FitParams) -> Result<ImplicitModel, FitError> {
     let degree = params.degree;
     if degree == 0 || degree > MAX_DEGREE {
-        return Err(FitError::InvalidDegree { degree, max: MAX_DEGREE });
+        return Err(FitError::InvalidDegree {
+            degree,
+            max: MAX_DEGREE,
+        });
     }
     if params.method != FitMethod::Ls && !(params.epsilon.is_finite() && params.epsilon > 0.0) {
-        return Err(FitError::InvalidEpsilon { epsilon: params.epsilon });
+        return Err(FitError::InvalidEpsilon {
+            epsilon: params.epsilon,
+        });
     }
     if let Kappa::Fixed(kappa) = params.kappa {
         if !(kappa.is_finite() && kappa >= 0.0) {
@@ -355,7 +364,9 @@ pub fn fit(cloud: &OrientedCloud, params: &FitParams) -> Result<ImplicitModel, F
     let c = n_coefficients(degree);
     let rows = match params.method {
         FitMethod::Ls => Rows::Data,
-        _ => Rows::ThreeLayers { epsilon: params.epsilon },
+        _ => Rows::ThreeLayers {
+            epsilon: params.epsilon,
+        },
     };
     let sys = system::accumulate(cloud, &norm, degree, rows);
     let gram = sys.gram();
@@ -373,7 +384,11 @@ pub fn fit(cloud: &OrientedCloud, params: &FitParams) -> Result<ImplicitModel, F
             Kappa::Auto => {
                 let sel = kappa::select(&sys, &gram, &ridge, &norm, cloud, params.kappa_rule)?;
                 warnings.extend(sel.warnings.iter().cloned());
-                let out = (sel.kappa, params.kappa_rule.as_str(), sel.coefficients.clone());
+                let out = (
+                    sel.kappa,
+                    params.kappa_rule.as_str(),
+                    sel.coefficients.clone(),
+                );
                 selection = Some(sel);
                 out
             }
@@ -382,7 +397,12 @@ pub fn fit(cloud: &OrientedCloud, params: &FitParams) -> Result<ImplicitModel, F
     if params.solver == FitSolver::Qr && params.method != FitMethod::Ls {
         coefficients = solve_qr(cloud, &norm, degree, params.epsilon, kappa, &ridge)?;
     }
-    let polynomial = ImplicitPolynomial { degree, coefficients, center: norm.center, scale: norm.scale };
+    let polynomial = ImplicitPolynomial {
+        degree,
+        coefficients,
+        center: norm.center,
+        scale: norm.scale,
+    };
     let (condition_number, condition_number_scaled) = match params.method {
         FitMethod::Ls => solve::condition_numbers(&gram, &ridge, 0.0, c),
         _ => solve::condition_numbers(&gram, &ridge, kappa, c),
@@ -390,7 +410,11 @@ pub fn fit(cloud: &OrientedCloud, params: &FitParams) -> Result<ImplicitModel, F
     .map_err(|_| FitError::NoConvergence)?;
     let extrema = polynomial.leading_form_extrema();
     let bounded = degree % 2 == 0 && extrema.min > 0.0;
-    let containment_radius = if bounded { polynomial.containment_radius_with(extrema.min) } else { None };
+    let containment_radius = if bounded {
+        polynomial.containment_radius_with(extrema.min)
+    } else {
+        None
+    };
     let bbox = Aabb::from_points(&cloud.points).ok_or(FitError::DegenerateCloud)?;
     let (mean_distance, max_distance) = first_order_distances(&polynomial, &cloud.points);
     let diagonal = bbox.diagonal();
@@ -412,7 +436,11 @@ pub fn fit(cloud: &OrientedCloud, params: &FitParams) -> Result<ImplicitModel, F
         max_distance_relative: max_distance / diagonal,
         warnings,
         kappa,
-        epsilon: if params.method == FitMethod::Ls { 0.0 } else { params.epsilon },
+        epsilon: if params.method == FitMethod::Ls {
+            0.0
+        } else {
+            params.epsilon
+        },
         condition_number_scaled,
         leading_form_min: extrema.min,
         solver: params.solver.as_str().to_string(),
@@ -424,7 +452,11 @@ pub fn fit(cloud: &OrientedCloud, params: &FitParams) -> Result<ImplicitModel, F
         bounds: Some(bbox.grown(0.1)),
         fit: Some(FitRecord {
             method: params.method.as_str().to_string(),
-            epsilon: if params.method == FitMethod::Ls { 0.0 } else { params.epsilon },
+            epsilon: if params.method == FitMethod::Ls {
+                0.0
+            } else {
+                params.epsilon
+            },
             kappa,
             kappa_rule: kappa_rule.to_string(),
             n_points: cloud.points.len(),
@@ -437,11 +469,18 @@ pub fn fit(cloud: &OrientedCloud, params: &FitParams) -> Result<ImplicitModel, F
 fn validate(cloud: &OrientedCloud, degree: u32) -> Result<Option<OrientedCloud>, FitError> {
     let n_points = cloud.points.len();
     if cloud.normals.len() != n_points {
-        return Err(FitError::NormalsMismatch { n_points, n_normals: cloud.normals.len() });
+        return Err(FitError::NormalsMismatch {
+            n_points,
+            n_normals: cloud.normals.len(),
+        });
     }
     let min = n_coefficients(degree);
     if n_points < min {
-        return Err(FitError::TooFewPoints { n_points, degree, min });
+        return Err(FitError::TooFewPoints {
+            n_points,
+            degree,
+            min,
+        });
     }
     let mut needs_renormalizing = false;
     for (index, (p, n)) in cloud.points.iter().zip(&cloud.normals).enumerate() {
@@ -467,10 +506,18 @@ fn validate(cloud: &OrientedCloud, degree: u32) -> Result<Option<OrientedCloud>,
             n.map(|c| c / len)
         })
         .collect();
-    Ok(Some(OrientedCloud { points: cloud.points.clone(), normals }))
+    Ok(Some(OrientedCloud {
+        points: cloud.points.clone(),
+        normals,
+    }))
 }
 
-fn solve_fixed(sys: &System, gram: &[f64], ridge: &[f64], kappa: f64) -> Result<Vec<f64>, FitError> {
+fn solve_fixed(
+    sys: &System,
+    gram: &[f64],
+    ridge: &[f64],
+    kappa: f64,
+) -> Result<Vec<f64>, FitError> {
     solve::solve_ridge(gram, &sys.rhs, ridge, kappa)
         .map(|s| s.coefficients)
         .map_err(|e| solve_error(e, kappa, sys.rhs.len()))
@@ -478,22 +525,42 @@ fn solve_fixed(sys: &System, gram: &[f64], ridge: &[f64], kappa: f64) -> Result<
 
 fn solve_error(e: solve::SolveFailure, kappa: f64, n_coefficients: usize) -> FitError {
     match e {
-        solve::SolveFailure::NotPositiveDefinite { column } => FitError::SingularSystem { kappa, column, n_coefficients },
+        solve::SolveFailure::NotPositiveDefinite { column } => FitError::SingularSystem {
+            kappa,
+            column,
+            n_coefficients,
+        },
         solve::SolveFailure::NoConvergence => FitError::NoConvergence,
     }
 }
 
 /// Plain least squares (paper section 4): the unit eigenvector of MᵀM (data rows) with the
 /// smallest eigenvalue, signed so that Σ ∇f(p̂_t)·n_t > 0 (f increases outwards).
-fn least_squares(gram: &[f64], c: usize, cloud: &OrientedCloud, norm: &Normalization, degree: u32) -> Result<Vec<f64>, FitError> {
-    let (_, vectors) = solve::symmetric_eigen(gram, c, true).map_err(|_| FitError::NoConvergence)?;
+fn least_squares(
+    gram: &[f64],
+    c: usize,
+    cloud: &OrientedCloud,
+    norm: &Normalization,
+    degree: u32,
+) -> Result<Vec<f64>, FitError> {
+    let (_, vectors) =
+        solve::symmetric_eigen(gram, c, true).map_err(|_| FitError::NoConvergence)?;
     let vectors = vectors.ok_or(FitError::NoConvergence)?;
     let mut a = vectors[..c].to_vec();
-    let poly = ImplicitPolynomial { degree, coefficients: a.clone(), center: norm.center, scale: norm.scale };
+    let poly = ImplicitPolynomial {
+        degree,
+        coefficients: a.clone(),
+        center: norm.center,
+        scale: norm.scale,
+    };
     let mut values = vec![0.0; cloud.points.len()];
     let mut gradients = vec![[0.0; 3]; cloud.points.len()];
     poly.eval_gradient_many(&cloud.points, &mut values, &mut gradients);
-    let flux: f64 = gradients.iter().zip(&cloud.normals).map(|(g, n)| g[0] * n[0] + g[1] * n[1] + g[2] * n[2]).sum();
+    let flux: f64 = gradients
+        .iter()
+        .zip(&cloud.normals)
+        .map(|(g, n)| g[0] * n[0] + g[1] * n[1] + g[2] * n[2])
+        .sum();
     if flux < 0.0 {
         a.iter_mut().for_each(|v| *v = -*v);
     }
@@ -501,7 +568,14 @@ fn least_squares(gram: &[f64], c: usize, cloud: &OrientedCloud, norm: &Normaliza
 }
 
 /// The QR route: streams the rows of [M | b] and then √(κD) into a Householder QR.
-fn solve_qr(cloud: &OrientedCloud, norm: &Normalization, degree: u32, epsilon: f64, kappa: f64, ridge: &[f64]) -> Result<Vec<f64>, FitError> {
+fn solve_qr(
+    cloud: &OrientedCloud,
+    norm: &Normalization,
+    degree: u32,
+    epsilon: f64,
+    kappa: f64,
+    ridge: &[f64],
+) -> Result<Vec<f64>, FitError> {
     let exps = crate::poly::exponents(degree);
     let c = exps.len();
     let n = degree as usize;
@@ -515,7 +589,10 @@ fn solve_qr(cloud: &OrientedCloud, norm: &Normalization, degree: u32, epsilon: f
             py[e] = py[e - 1] * q[1];
             pz[e] = pz[e - 1] * q[2];
         }
-        let mut row: Vec<f64> = exps.iter().map(|e| px[e[0] as usize] * py[e[1] as usize] * pz[e[2] as usize]).collect();
+        let mut row: Vec<f64> = exps
+            .iter()
+            .map(|e| px[e[0] as usize] * py[e[1] as usize] * pz[e[2] as usize])
+            .collect();
         row.push(target);
         row
     };
@@ -532,7 +609,11 @@ fn solve_qr(cloud: &OrientedCloud, norm: &Normalization, degree: u32, epsilon: f
             qr.push(row);
         }
     }
-    qr.solve().ok_or(FitError::SingularSystem { kappa, column: 0, n_coefficients: c })
+    qr.solve().ok_or(FitError::SingularSystem {
+        kappa,
+        column: 0,
+        n_coefficients: c,
+    })
 }
 
 /// Mean and maximum of the first-order distance |f|/|∇f| at the points (input units), summed in
@@ -559,7 +640,9 @@ fn first_order_distances(poly: &ImplicitPolynomial, points: &[[f64; 3]]) -> (f64
             (sum, max, count)
         })
         .collect();
-    let (sum, max, count) = partials.iter().fold((0.0, 0.0f64, 0usize), |acc, p| (acc.0 + p.0, acc.1.max(p.1), acc.2 + p.2));
+    let (sum, max, count) = partials.iter().fold((0.0, 0.0f64, 0usize), |acc, p| {
+        (acc.0 + p.0, acc.1.max(p.1), acc.2 + p.2)
+    });
     if count == 0 {
         (f64::NAN, f64::NAN)
     } else {
@@ -590,9 +673,16 @@ pub struct FitSystemSummary {
 ///
 /// # Errors
 /// As [`fit`] for invalid input.
-pub fn system_summary(cloud: &OrientedCloud, degree: u32, epsilon: f64) -> Result<FitSystemSummary, FitError> {
+pub fn system_summary(
+    cloud: &OrientedCloud,
+    degree: u32,
+    epsilon: f64,
+) -> Result<FitSystemSummary, FitError> {
     if degree == 0 || degree > MAX_DEGREE {
-        return Err(FitError::InvalidDegree { degree, max: MAX_DEGREE });
+        return Err(FitError::InvalidDegree {
+            degree,
+            max: MAX_DEGREE,
+        });
     }
     let checked = validate(cloud, degree)?;
     let cloud = checked.as_ref().unwrap_or(cloud);

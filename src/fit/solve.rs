@@ -28,7 +28,12 @@ pub(crate) struct RidgeSolution {
 }
 
 /// Solves (G + κ diag(d)) a = r by Cholesky of the symmetrically scaled matrix.
-pub(crate) fn solve_ridge(gram: &[f64], rhs: &[f64], ridge: &[f64], kappa: f64) -> Result<RidgeSolution, SolveFailure> {
+pub(crate) fn solve_ridge(
+    gram: &[f64],
+    rhs: &[f64],
+    ridge: &[f64],
+    kappa: f64,
+) -> Result<RidgeSolution, SolveFailure> {
     let c = rhs.len();
     let (scaled, s) = scaled_matrix(gram, ridge, kappa, c);
     let chol = cholesky(scaled, c)?;
@@ -39,7 +44,12 @@ pub(crate) fn solve_ridge(gram: &[f64], rhs: &[f64], ridge: &[f64], kappa: f64) 
 }
 
 /// S (G + κD) S and the diagonal of S; S_ll = 1/√(G_ll + κ d_l) (1 where that is not positive).
-pub(crate) fn scaled_matrix(gram: &[f64], ridge: &[f64], kappa: f64, c: usize) -> (Vec<f64>, Vec<f64>) {
+pub(crate) fn scaled_matrix(
+    gram: &[f64],
+    ridge: &[f64],
+    kappa: f64,
+    c: usize,
+) -> (Vec<f64>, Vec<f64>) {
     let s: Vec<f64> = (0..c)
         .map(|l| {
             let d = gram[l * c + l] + kappa * ridge[l];
@@ -111,12 +121,29 @@ fn cholesky_solve(l: &[f64], c: usize, y: &mut [f64]) {
 
 /// Eigenvalues (ascending) and, if asked, eigenvectors (columns, c×c column-major) of a
 /// symmetric row-major matrix.
-pub(crate) fn symmetric_eigen(a: &[f64], c: usize, vectors: bool) -> Result<(Vec<f64>, Option<Vec<f64>>), SolveFailure> {
+pub(crate) fn symmetric_eigen(
+    a: &[f64],
+    c: usize,
+    vectors: bool,
+) -> Result<(Vec<f64>, Option<Vec<f64>>), SolveFailure> {
     let mat = Mat::<f64>::from_fn(c, c, |i, j| a[i * c + j]);
     let mut s = faer::diag::Diag::<f64>::zeros(c);
-    let compute = if vectors { ComputeEigenvectors::Yes } else { ComputeEigenvectors::No };
-    let mut u = if vectors { Some(Mat::<f64>::zeros(c, c)) } else { None };
-    let mut buffer = MemBuffer::new(self_adjoint_evd_scratch::<f64>(c, compute, Par::Seq, Default::default()));
+    let compute = if vectors {
+        ComputeEigenvectors::Yes
+    } else {
+        ComputeEigenvectors::No
+    };
+    let mut u = if vectors {
+        Some(Mat::<f64>::zeros(c, c))
+    } else {
+        None
+    };
+    let mut buffer = MemBuffer::new(self_adjoint_evd_scratch::<f64>(
+        c,
+        compute,
+        Par::Seq,
+        Default::default(),
+    ));
     self_adjoint_evd(
         mat.as_ref(),
         s.as_mut(),
@@ -140,7 +167,12 @@ pub(crate) fn symmetric_eigen(a: &[f64], c: usize, vectors: bool) -> Result<(Vec
 }
 
 /// 2-norm condition number λ_max/λ_min of G + κ diag(d) and of its scaled form S(G + κD)S.
-pub(crate) fn condition_numbers(gram: &[f64], ridge: &[f64], kappa: f64, c: usize) -> Result<(f64, f64), SolveFailure> {
+pub(crate) fn condition_numbers(
+    gram: &[f64],
+    ridge: &[f64],
+    kappa: f64,
+    c: usize,
+) -> Result<(f64, f64), SolveFailure> {
     let mut a = gram.to_vec();
     for l in 0..c {
         a[l * c + l] += kappa * ridge[l];
@@ -174,7 +206,12 @@ pub(crate) struct StreamingQr {
 
 impl StreamingQr {
     pub(crate) fn new(c: usize) -> StreamingQr {
-        StreamingQr { c, r: Mat::zeros(0, c + 1), pending: Vec::new(), tile: 4096 }
+        StreamingQr {
+            c,
+            r: Mat::zeros(0, c + 1),
+            pending: Vec::new(),
+            tile: 4096,
+        }
     }
 
     /// Adds one row `[m | b]` (length c + 1).
@@ -208,13 +245,15 @@ impl StreamingQr {
         let size = rows.min(w);
         let block = faer::linalg::qr::no_pivoting::factor::recommended_block_size::<f64>(rows, w);
         let mut q_coeff = Mat::<f64>::zeros(block, size);
-        let mut buffer = MemBuffer::new(faer::linalg::qr::no_pivoting::factor::qr_in_place_scratch::<f64>(
-            rows,
-            w,
-            block,
-            Par::Seq,
-            Default::default(),
-        ));
+        let mut buffer = MemBuffer::new(
+            faer::linalg::qr::no_pivoting::factor::qr_in_place_scratch::<f64>(
+                rows,
+                w,
+                block,
+                Par::Seq,
+                Default::default(),
+            ),
+        );
         let _info = faer::linalg::qr::no_pivoting::factor::qr_in_place(
             a.as_mut(),
             q_coeff.as_mut(),
@@ -281,7 +320,13 @@ mod tests {
     fn streaming_qr_matches_normal_equations() {
         let mut qr = StreamingQr::new(2);
         qr.tile = 3;
-        let rows = [[1.0, 0.0, 1.0], [1.0, 1.0, 2.0], [1.0, 2.0, 2.9], [1.0, 3.0, 4.2], [1.0, 4.0, 4.9]];
+        let rows = [
+            [1.0, 0.0, 1.0],
+            [1.0, 1.0, 2.0],
+            [1.0, 2.0, 2.9],
+            [1.0, 3.0, 4.2],
+            [1.0, 4.0, 4.9],
+        ];
         for row in rows {
             qr.push(row.to_vec());
         }

@@ -40,7 +40,14 @@ pub enum Shape {
 
 impl Shape {
     /// All six shapes.
-    pub const ALL: [Shape; 6] = [Shape::Sphere, Shape::Torus, Shape::Eight, Shape::Heart, Shape::Cube, Shape::Twisted];
+    pub const ALL: [Shape; 6] = [
+        Shape::Sphere,
+        Shape::Torus,
+        Shape::Eight,
+        Shape::Heart,
+        Shape::Cube,
+        Shape::Twisted,
+    ];
 
     /// A short name.
     pub fn name(&self) -> &'static str {
@@ -121,12 +128,17 @@ pub struct Lcg(u64);
 impl Lcg {
     /// A generator from a seed.
     pub fn new(seed: u64) -> Lcg {
-        Lcg(seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407))
+        Lcg(seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407))
     }
 
     /// Uniform in [0, 1).
     pub fn uniform(&mut self) -> f64 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (self.0 >> 11) as f64 / (1u64 << 53) as f64
     }
 
@@ -142,12 +154,20 @@ impl Lcg {
 pub fn sample(shape: Shape, variant: Variant, n_points: usize, seed: u64) -> OrientedCloud {
     let mut rng = Lcg::new(seed ^ (shape as u64) << 8);
     let mut cloud = OrientedCloud::default();
-    let target = if variant == Variant::Cut { n_points * 100 / 85 } else { n_points };
+    let target = if variant == Variant::Cut {
+        n_points * 100 / 85
+    } else {
+        n_points
+    };
     if shape == Shape::Cube {
         while cloud.points.len() < target {
             let face = (rng.uniform() * 6.0) as usize % 6;
             let (axis, sign) = (face / 2, if face % 2 == 0 { 1.0 } else { -1.0 });
-            let mut p = [2.0 * rng.uniform() - 1.0, 2.0 * rng.uniform() - 1.0, 2.0 * rng.uniform() - 1.0];
+            let mut p = [
+                2.0 * rng.uniform() - 1.0,
+                2.0 * rng.uniform() - 1.0,
+                2.0 * rng.uniform() - 1.0,
+            ];
             p[axis] = sign;
             let mut n = [0.0; 3];
             n[axis] = sign;
@@ -219,8 +239,13 @@ pub fn sample(shape: Shape, variant: Variant, n_points: usize, seed: u64) -> Ori
             let mut keys: Vec<f64> = cloud.points.iter().map(key).collect();
             keys.sort_by(f64::total_cmp);
             let threshold = keys[(keys.len() * 85 / 100).min(keys.len().saturating_sub(1))];
-            let (points, normals): (Vec<_>, Vec<_>) =
-                cloud.points.iter().zip(&cloud.normals).filter(|(p, _)| key(p) < threshold).map(|(p, n)| (*p, *n)).unzip();
+            let (points, normals): (Vec<_>, Vec<_>) = cloud
+                .points
+                .iter()
+                .zip(&cloud.normals)
+                .filter(|(p, _)| key(p) < threshold)
+                .map(|(p, n)| (*p, *n))
+                .unzip();
             cloud = OrientedCloud { points, normals };
         }
     }
@@ -249,7 +274,11 @@ pub fn assess(poly: &ImplicitPolynomial, cloud: &OrientedCloud) -> Assessment {
     let step: f64 = 0.1;
     let nv = (2.0 * half / step).round() as usize + 1;
     let nc = nv - 1;
-    let unit = ImplicitPolynomial { center: [0.0; 3], scale: 1.0, ..poly.clone() };
+    let unit = ImplicitPolynomial {
+        center: [0.0; 3],
+        scale: 1.0,
+        ..poly.clone()
+    };
     let values = unit.eval_grid([-half; 3], [step; 3], [nv, nv, nv]);
     let vid = |i: usize, j: usize, k: usize| i + nv * (j + nv * k);
     let cid = |i: usize, j: usize, k: usize| i + nc * (j + nc * k);
@@ -260,7 +289,16 @@ pub fn assess(poly: &ImplicitPolynomial, cloud: &OrientedCloud) -> Assessment {
             for i in 0..nc {
                 let mut pos = false;
                 let mut neg = false;
-                for (di, dj, dk) in [(0, 0, 0), (1, 0, 0), (0, 1, 0), (1, 1, 0), (0, 0, 1), (1, 0, 1), (0, 1, 1), (1, 1, 1)] {
+                for (di, dj, dk) in [
+                    (0, 0, 0),
+                    (1, 0, 0),
+                    (0, 1, 0),
+                    (1, 1, 0),
+                    (0, 0, 1),
+                    (1, 0, 1),
+                    (0, 1, 1),
+                    (1, 1, 1),
+                ] {
                     let v = values[vid(i + di, j + dj, k + dk)];
                     pos |= v > 0.0;
                     neg |= v <= 0.0;
@@ -326,10 +364,19 @@ pub fn assess(poly: &ImplicitPolynomial, cloud: &OrientedCloud) -> Assessment {
             near_data = comp_cells[0].iter().any(|&c| {
                 let (i, j, k) = (c % nc, (c / nc) % nc, c / (nc * nc));
                 let q = [i, j, k].map(|t| -half + (t as f64 + 0.5) * step);
-                let nn = tree.query(&q).nearest_one::<kiddo::SquaredEuclidean<f64>>().execute();
+                let nn = tree
+                    .query(&q)
+                    .nearest_one::<kiddo::SquaredEuclidean<f64>>()
+                    .execute();
                 nn.distance.sqrt() <= reach
             });
         }
     }
-    Assessment { good: positive && components == 1 && near_data && !touches_box, positive, components, near_data, touches_box }
+    Assessment {
+        good: positive && components == 1 && near_data && !touches_box,
+        positive,
+        components,
+        near_data,
+        touches_box,
+    }
 }

@@ -175,7 +175,11 @@ impl TensorLayout {
                 len += max_degree - a - b + 1;
             }
         }
-        TensorLayout { max_degree, pairs, len }
+        TensorLayout {
+            max_degree,
+            pairs,
+            len,
+        }
     }
 
     /// Reorders tensor-layout sums into the paper's graded order.
@@ -199,7 +203,12 @@ struct Partial {
 
 /// Accumulates the system of a fit of degree `degree` over `cloud` (already validated: finite,
 /// unit normals), in the normalization `norm`.
-pub(crate) fn accumulate(cloud: &OrientedCloud, norm: &Normalization, degree: u32, rows: Rows) -> System {
+pub(crate) fn accumulate(
+    cloud: &OrientedCloud,
+    norm: &Normalization,
+    degree: u32,
+    rows: Rows,
+) -> System {
     let n = degree as usize;
     let gram_layout = TensorLayout::new(2 * n);
     let rhs_layout = TensorLayout::new(n);
@@ -428,7 +437,8 @@ fn dot(x: &[f64; BLOCK], y: &[f64; BLOCK]) -> f64 {
             lanes[l] += x[i * 8 + l] * y[i * 8 + l];
         }
     }
-    ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3])) + ((lanes[4] + lanes[5]) + (lanes[6] + lanes[7]))
+    ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3]))
+        + ((lanes[4] + lanes[5]) + (lanes[6] + lanes[7]))
 }
 
 #[cfg(test)]
@@ -456,7 +466,11 @@ mod tests {
         let points: Vec<[f64; 3]> = (0..150)
             .map(|i| {
                 let t = i as f64 * 0.37;
-                [t.sin() * 2.0 + 1.0, (1.3 * t).cos() - 0.5, (0.7 * t).sin() * 1.5]
+                [
+                    t.sin() * 2.0 + 1.0,
+                    (1.3 * t).cos() - 0.5,
+                    (0.7 * t).sin() * 1.5,
+                ]
             })
             .collect();
         let normals: Vec<[f64; 3]> = points
@@ -473,7 +487,9 @@ mod tests {
         let g = sys.gram();
         let e = exponents(3);
         let c = e.len();
-        let mono = |q: [f64; 3], ex: [u32; 3]| q[0].powi(ex[0] as i32) * q[1].powi(ex[1] as i32) * q[2].powi(ex[2] as i32);
+        let mono = |q: [f64; 3], ex: [u32; 3]| {
+            q[0].powi(ex[0] as i32) * q[1].powi(ex[1] as i32) * q[2].powi(ex[2] as i32)
+        };
         let mut g_ref = vec![0.0; c * c];
         let mut r_ref = vec![0.0; c];
         for (p, nrm) in cloud.points.iter().zip(&cloud.normals) {
@@ -489,10 +505,16 @@ mod tests {
             }
         }
         for i in 0..c * c {
-            assert!((g[i] - g_ref[i]).abs() <= 1e-10 * g_ref[i].abs().max(1.0), "gram entry {i}");
+            assert!(
+                (g[i] - g_ref[i]).abs() <= 1e-10 * g_ref[i].abs().max(1.0),
+                "gram entry {i}"
+            );
         }
         for l in 0..c {
-            assert!((sys.rhs[l] - r_ref[l]).abs() <= 1e-12 * r_ref[l].abs().max(1.0), "rhs entry {l}");
+            assert!(
+                (sys.rhs[l] - r_ref[l]).abs() <= 1e-12 * r_ref[l].abs().max(1.0),
+                "rhs entry {l}"
+            );
         }
         assert_eq!(sys.beta[0], 150.0);
     }
