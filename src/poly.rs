@@ -6,6 +6,18 @@
 //! i = r − s. The 1-based index is l = k + s(s+1)/2 + r(r+1)(r+2)/6 + 1. Degree 2 gives
 //! 1, x, y, z, x², xy, xz, y², yz, z².
 //!
+//! Evaluation: pointwise value, gradient and Hessian; [`ImplicitPolynomial::eval_many`] and
+//! [`ImplicitPolynomial::eval_gradient_many`] run over blocks of 64 points with a Horner scheme
+//! in x per (j, k) column (about c multiply-adds per point, vectorized over points, no `powi`);
+//! [`ImplicitPolynomial::eval_grid`] reduces each grid line to a univariate polynomial (about
+//! n + 1 multiply-adds per grid point).
+//!
+//! Boundedness (paper 6.2/6.3): f = Σ_k H_k with H_k homogeneous of degree k. For even n the zero
+//! set is closed and bounded when the leading form H_n is positive on the unit sphere;
+//! [`ImplicitPolynomial::leading_form_extrema`] finds its minimum (dense sampling plus Riemannian
+//! Newton refinement), [`ImplicitPolynomial::homogeneous_bound`] bounds ‖H_k‖ from above, and
+//! [`ImplicitPolynomial::containment_radius`] combines them into a radius outside which f > 0.
+//!
 //! Invariants: `coefficients.len() == n_coefficients(degree)`; `scale > 0`.
 
 use serde::{Deserialize, Serialize};

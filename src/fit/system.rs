@@ -284,28 +284,29 @@ fn accumulate_chunk(
     let mut scratch = BlockScratch {
         px: vec![[0.0; BLOCK]; two_n + 1],
         py: vec![[0.0; BLOCK]; two_n + 1],
-        pz: vec![[0.0; BLOCK]; two_n + 1],
+        // Three extra powers of z pad the last group of four dot products.
+        pz: vec![[0.0; BLOCK]; two_n + 4],
         w: [0.0; BLOCK],
         xs: [0.0; BLOCK],
         ys: [0.0; BLOCK],
         zs: [0.0; BLOCK],
         len: 0,
     };
-    let use_avx2 = avx2_available();
+    let use_fma = fma_available();
     let flush = |scratch: &mut BlockScratch, partial: &mut Partial| {
         if scratch.len == 0 {
             return;
         }
         fill_powers(scratch, two_n);
-        if use_avx2 {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: only called when the CPU reports AVX2.
-            unsafe {
-                accumulate_block_avx2(scratch, n, gram_layout, rhs_layout, partial)
-            };
-        } else {
-            accumulate_block(scratch, n, gram_layout, rhs_layout, partial);
+        #[cfg(target_arch = "x86_64")]
+        if use_fma {
+            // SAFETY: only called when the CPU reports AVX2 and FMA.
+            unsafe { accumulate_block_fma(scratch, n, gram_layout, rhs_layout, partial) };
+            scratch.len = 0;
+            return;
         }
+        let _ = use_fma;
+        accumulate_block::<PortableDots>(scratch, n, gram_layout, rhs_layout, partial);
         scratch.len = 0;
     };
     for t in range {
@@ -341,10 +342,10 @@ fn accumulate_chunk(
     partial
 }
 
-fn avx2_available() -> bool {
+fn fma_available() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        std::arch::is_x86_feature_detected!("avx2")
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
@@ -370,30 +371,97 @@ fn fill_powers(s: &mut BlockScratch, two_n: usize) {
         for t in 0..BLOCK {
             s.px[e][t] = s.px[e - 1][t] * s.xs[t];
             s.py[e][t] = s.py[e - 1][t] * s.ys[t];
+        }
+    }
+    for e in 1..s.pz.len() {
+        for t in 0..BLOCK {
             s.pz[e][t] = s.pz[e - 1][t] * s.zs[t];
         }
     }
 }
 
-/// [`accumulate_block`] compiled for AVX2.
+/// The dot products of one block: a portable version and an AVX2+FMA one.
+trait Dots {
+    /// Four dot products of `x` at once.
+    fn dot4(x: &[f64; BLOCK], ys: [&[f64; BLOCK]; 4]) -> [f64; 4];
+}
+
+/// Portable dot products: eight independent lanes, a fixed pairwise sum of the lanes.
+struct PortableDots;
+
+impl Dots for PortableDots {
+    #[inline(always)]
+    fn dot4(x: &[f64; BLOCK], ys: [&[f64; BLOCK]; 4]) -> [f64; 4] {
+        dot4(x, ys)
+    }
+}
+
+/// AVX2+FMA dot products (fused multiply-add, so the last bits differ from [`PortableDots`];
+/// each is deterministic on its own).
+#[cfg(target_arch = "x86_64")]
+struct FmaDots;
+
+#[cfg(target_arch = "x86_64")]
+impl Dots for FmaDots {
+    #[inline(always)]
+    fn dot4(x: &[f64; BLOCK], ys: [&[f64; BLOCK]; 4]) -> [f64; 4] {
+        // SAFETY: FmaDots is only used inside `accumulate_block_fma`, which requires AVX2 + FMA.
+        unsafe { dot4_fma(x, ys) }
+    }
+}
+
+/// Four dot products with eight 4-wide accumulators (two per output), then a fixed reduction.
 ///
 /// # Safety
-/// The CPU must support AVX2.
+/// The CPU must support AVX2 and FMA.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn accumulate_block_avx2(
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+unsafe fn dot4_fma(x: &[f64; BLOCK], ys: [&[f64; BLOCK]; 4]) -> [f64; 4] {
+    use std::arch::x86_64::*;
+    let mut acc = [[_mm256_setzero_pd(); 2]; 4];
+    for i in 0..BLOCK / 8 {
+        // SAFETY: i * 8 + 4 + 4 ≤ BLOCK, so every load is in bounds.
+        let (x0, x1) = unsafe { (_mm256_loadu_pd(x.as_ptr().add(i * 8)), _mm256_loadu_pd(x.as_ptr().add(i * 8 + 4))) };
+        for k in 0..4 {
+            // SAFETY: as above.
+            let (y0, y1) = unsafe { (_mm256_loadu_pd(ys[k].as_ptr().add(i * 8)), _mm256_loadu_pd(ys[k].as_ptr().add(i * 8 + 4))) };
+            acc[k][0] = _mm256_fmadd_pd(x0, y0, acc[k][0]);
+            acc[k][1] = _mm256_fmadd_pd(x1, y1, acc[k][1]);
+        }
+    }
+    let mut out = [0.0; 4];
+    for k in 0..4 {
+        let mut lanes = [0.0; 8];
+        // SAFETY: `lanes` holds eight f64.
+        unsafe {
+            _mm256_storeu_pd(lanes.as_mut_ptr(), acc[k][0]);
+            _mm256_storeu_pd(lanes.as_mut_ptr().add(4), acc[k][1]);
+        }
+        out[k] = ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3])) + ((lanes[4] + lanes[5]) + (lanes[6] + lanes[7]));
+    }
+    out
+}
+
+/// [`accumulate_block`] with AVX2 + FMA dot products.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn accumulate_block_fma(
     s: &BlockScratch,
     n: usize,
     gram_layout: &TensorLayout,
     rhs_layout: &TensorLayout,
     partial: &mut Partial,
 ) {
-    accumulate_block(s, n, gram_layout, rhs_layout, partial);
+    accumulate_block::<FmaDots>(s, n, gram_layout, rhs_layout, partial);
 }
 
 /// Adds the block's moments to `partial`.
 #[inline(always)]
-fn accumulate_block(
+fn accumulate_block<D: Dots>(
     s: &BlockScratch,
     n: usize,
     gram_layout: &TensorLayout,
@@ -410,9 +478,7 @@ fn accumulate_block(
             pxy[t] = xa[t] * yb[t];
         }
         let run = &mut partial.moments[offset..=offset + two_n - a - b];
-        for (c, acc) in run.iter_mut().enumerate() {
-            *acc += dot(&pxy, &s.pz[c]);
-        }
+        add_dots::<D>(&pxy, &s.pz, run);
         if a + b <= n {
             debug_assert_eq!(rhs_layout.pairs[rhs_pair].0, a);
             let rhs_offset = rhs_layout.pairs[rhs_pair].2;
@@ -421,24 +487,42 @@ fn accumulate_block(
                 wxy[t] = pxy[t] * s.w[t];
             }
             let run = &mut partial.rhs[rhs_offset..=rhs_offset + n - a - b];
-            for (c, acc) in run.iter_mut().enumerate() {
-                *acc += dot(&wxy, &s.pz[c]);
-            }
+            add_dots::<D>(&wxy, &s.pz, run);
         }
     }
 }
 
-/// Dot product over eight independent lanes, then a fixed pairwise sum of the lanes.
+/// run[c] += Σ_t x_t z_t^c for every c of the run, four at a time; the last group is padded
+/// with the extra powers the table holds (their sums are dropped), which is cheaper than
+/// single dot products that cannot hide the add latency.
 #[inline(always)]
-fn dot(x: &[f64; BLOCK], y: &[f64; BLOCK]) -> f64 {
-    let mut lanes = [0.0; 8];
+fn add_dots<D: Dots>(x: &[f64; BLOCK], pz: &[[f64; BLOCK]], run: &mut [f64]) {
+    let mut c = 0;
+    while c < run.len() {
+        let sums = D::dot4(x, [&pz[c], &pz[c + 1], &pz[c + 2], &pz[c + 3]]);
+        for (k, v) in sums.into_iter().enumerate() {
+            if let Some(acc) = run.get_mut(c + k) {
+                *acc += v;
+            }
+        }
+        c += 4;
+    }
+}
+
+/// Four dot products of `x` with `ys` at once (x is loaded once per lane group; sixteen
+/// independent accumulators hide the add latency). Each sum uses the same lane order and final
+/// pairwise reduction as [`dot`], so results are identical whichever function computed them.
+#[inline(always)]
+fn dot4(x: &[f64; BLOCK], ys: [&[f64; BLOCK]; 4]) -> [f64; 4] {
+    let mut lanes = [[0.0; 8]; 4];
     for i in 0..BLOCK / 8 {
-        for l in 0..8 {
-            lanes[l] += x[i * 8 + l] * y[i * 8 + l];
+        for k in 0..4 {
+            for l in 0..8 {
+                lanes[k][l] += x[i * 8 + l] * ys[k][i * 8 + l];
+            }
         }
     }
-    ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3]))
-        + ((lanes[4] + lanes[5]) + (lanes[6] + lanes[7]))
+    lanes.map(|v| ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7])))
 }
 
 #[cfg(test)]
