@@ -52,6 +52,7 @@
 //! tolerance; its normal is ∇f/|∇f|.
 
 use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
 
 use rayon::prelude::*;
 
@@ -94,7 +95,7 @@ pub(crate) fn triangulate<F: ImplicitFunction + ?Sized>(
                 octree,
                 triangles: Vec::new(),
                 evaluations: 0,
-                values: HashMap::new(),
+                values: PointValues::default(),
             };
             for &leaf in chunk {
                 ctx.leaf(leaf);
@@ -131,8 +132,8 @@ struct LeafContext<'a, F: ?Sized> {
     octree: &'a Octree,
     triangles: Vec<[EdgeKey; 3]>,
     evaluations: u64,
-    /// Values at the points of the current transition leaf.
-    values: HashMap<u64, f64>,
+    /// Values at the lattice points seen in this task (neighbouring leaves share corners).
+    values: PointValues,
 }
 
 impl<F: ImplicitFunction + ?Sized> LeafContext<'_, F> {
@@ -147,9 +148,16 @@ impl<F: ImplicitFunction + ?Sized> LeafContext<'_, F> {
         self.octree.internal.contains(&self.grid.cell_key(cell))
     }
 
+    /// f at a lattice point, computed once per task.
     fn value(&mut self, l: [u64; 3]) -> f64 {
+        let key = pack(l);
+        if let Some(&v) = self.values.get(&key) {
+            return v;
+        }
         self.evaluations += 1;
-        self.function.value(self.grid.point(l))
+        let v = self.function.value(self.grid.point(l));
+        self.values.insert(key, v);
+        v
     }
 
     fn leaf(&mut self, leaf: Cell) {
@@ -205,7 +213,6 @@ impl<F: ImplicitFunction + ?Sized> LeafContext<'_, F> {
     }
 
     fn transition_leaf(&mut self, leaf: Cell) {
-        self.values.clear();
         let min = self.grid.cell_min(leaf);
         let side = self.grid.cell_side(leaf.level);
         let center = min.map(|c| c + side / 2);
@@ -241,15 +248,7 @@ impl<F: ImplicitFunction + ?Sized> LeafContext<'_, F> {
     fn tetrahedron(&mut self, points: [[u64; 3]; 4]) {
         let mut values = [0.0; 4];
         for (v, p) in values.iter_mut().zip(points) {
-            let key = pack(p);
-            *v = match self.values.get(&key) {
-                Some(&v) => v,
-                None => {
-                    let v = self.value(p);
-                    self.values.insert(key, v);
-                    v
-                }
-            };
+            *v = self.value(p);
         }
         march(points, values, &mut self.triangles);
     }
@@ -346,6 +345,30 @@ impl<F: ImplicitFunction + ?Sized> LeafContext<'_, F> {
         self.edge_points(level + 1, start, axis, out);
         out.push(middle);
         self.edge_points(level + 1, middle, axis, out);
+    }
+}
+
+/// A map from packed lattice points to f, hashed by one multiplication (the keys are distinct
+/// integers; no protection against adversarial keys is needed).
+type PointValues = HashMap<u64, f64, BuildHasherDefault<MultiplyHasher>>;
+
+/// Fibonacci hashing of one `u64`.
+#[derive(Default)]
+struct MultiplyHasher(u64);
+
+impl Hasher for MultiplyHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0 ^ u64::from(b)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+        }
+    }
+
+    fn write_u64(&mut self, key: u64) {
+        self.0 = (self.0 ^ key).wrapping_mul(0x9e37_79b9_7f4a_7c15).rotate_left(29);
     }
 }
 
@@ -464,7 +487,17 @@ fn place_vertex<F: ImplicitFunction + ?Sized>(
     let direction = [0, 1, 2].map(|k| pos[k] - neg[k]);
     let length = norm(direction);
     let at = |s: f64| [0, 1, 2].map(|k| neg[k] + s * direction[k]);
-    let mut x = if f_pos == 0.0 {
+    // Start from the linear interpolation of the end values; the Newton steps below converge
+    // from there in one or two steps on a smooth surface. Regula falsi on the edge is the
+    // fallback when they do not (a flat or turning gradient).
+    let s_linear = if f_pos == 0.0 { 1.0 } else { f_neg / (f_neg - f_pos) };
+    let mut x = at(s_linear.clamp(0.0, 1.0));
+    let (vertex, spent) = newton(function, x, length, tolerance);
+    evaluations += spent;
+    if let Some(vertex) = vertex {
+        return PlacedVertex { evaluations, ..vertex };
+    }
+    x = if f_pos == 0.0 {
         pos
     } else {
         // Illinois regula falsi on s ∈ [0, 1]: g(s0) < 0 ≤ g(s1).
@@ -534,6 +567,39 @@ fn place_vertex<F: ImplicitFunction + ?Sized>(
         direction.map(|d| d / length)
     };
     PlacedVertex { position: x, normal, residual, evaluations }
+}
+
+/// Newton steps from `x` along the gradient: the vertex if |f|/|∇f| ≤ `tolerance` is reached
+/// within 8 steps of at most `max_step` each, and the evaluations spent.
+fn newton<F: ImplicitFunction + ?Sized>(
+    function: &F,
+    mut x: [f64; 3],
+    max_step: f64,
+    tolerance: f64,
+) -> (Option<PlacedVertex>, u64) {
+    for spent in 1..=8 {
+        let (value, gradient) = function.value_gradient(x);
+        let g_norm = norm(gradient);
+        if !(g_norm > 0.0 && g_norm.is_finite()) {
+            return (None, spent);
+        }
+        let residual = value.abs() / g_norm;
+        if residual <= tolerance {
+            let vertex = PlacedVertex {
+                position: x,
+                normal: gradient.map(|g| g / g_norm),
+                residual,
+                evaluations: 0,
+            };
+            return (Some(vertex), spent);
+        }
+        let step = [0, 1, 2].map(|k| value * gradient[k] / (g_norm * g_norm));
+        if norm(step) > max_step {
+            return (None, spent);
+        }
+        x = [0, 1, 2].map(|k| x[k] - step[k]);
+    }
+    (None, 8)
 }
 
 fn norm(v: [f64; 3]) -> f64 {

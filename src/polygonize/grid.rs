@@ -17,16 +17,24 @@ use super::octree::Cell;
 const POINT_BITS: u32 = 18;
 
 /// The lattice over the region.
+///
+/// The octree's root is a cube of 2^depth level-`depth` cells per axis, each of the region's
+/// longest side / 2^depth; along a shorter axis only the first n_a = ⌈side_a / cell⌉ cells are
+/// inside, and they are shrunk (by less than 2×) so that they end exactly on the region's face.
+/// Cells of level < `depth` may straddle that face and are clipped to it; cells of level ≥
+/// `depth` are wholly inside or wholly outside.
 #[derive(Clone, Debug)]
 pub(crate) struct Grid {
-    /// The region in input coordinates.
-    pub region: Aabb,
     /// Level every surface leaf reaches.
     pub depth: u32,
     /// Deepest level (topology guard cap), ≤ [`Grid::MAX_CAP`].
     pub cap: u32,
+    /// The region's smallest corner.
+    origin: [f64; 3],
     /// Input-space length of one lattice step along each axis.
     step: [f64; 3],
+    /// Lattice steps from the region's smallest to its largest corner along each axis.
+    extent: [u64; 3],
 }
 
 impl Grid {
@@ -36,9 +44,18 @@ impl Grid {
     /// The lattice for `region`, refined to `depth` with the guard capped at `cap`.
     pub fn new(region: Aabb, depth: u32, cap: u32) -> Grid {
         debug_assert!(depth <= cap && cap <= Grid::MAX_CAP);
-        let steps = f64::from(1u32 << (cap + 1));
-        let step = [0, 1, 2].map(|a| (region.max[a] - region.min[a]) / steps);
-        Grid { region, depth, cap, step }
+        let sides = [0, 1, 2].map(|a| region.max[a] - region.min[a]);
+        let longest = sides.iter().copied().fold(0.0, f64::max);
+        let cells_per_axis = f64::from(1u32 << depth);
+        let cell = longest / cells_per_axis;
+        let depth_side = 1u64 << (cap + 1 - depth);
+        let extent = sides.map(|s| {
+            // The 1e-9 keeps a side that is a whole number of cells from rounding up.
+            let n = (s / cell * (1.0 - 1e-9)).ceil().clamp(1.0, cells_per_axis);
+            n as u64 * depth_side
+        });
+        let step = [0, 1, 2].map(|a| sides[a] / extent[a] as f64);
+        Grid { depth, cap, origin: region.min, step, extent }
     }
 
     /// Side of a level-`level` cell in lattice steps.
@@ -54,14 +71,22 @@ impl Grid {
 
     /// Input-space coordinates of the lattice point `l`.
     pub fn point(&self, l: [u64; 3]) -> [f64; 3] {
-        [0, 1, 2].map(|a| self.region.min[a] + l[a] as f64 * self.step[a])
+        [0, 1, 2].map(|a| self.origin[a] + l[a] as f64 * self.step[a])
     }
 
-    /// The closed box of `cell` in input coordinates (its corners are exactly [`Grid::point`]s).
+    /// Whether `cell` lies wholly outside the region.
+    pub fn is_outside(&self, cell: Cell) -> bool {
+        let min = self.cell_min(cell);
+        (0..3).any(|a| min[a] >= self.extent[a])
+    }
+
+    /// The closed box of `cell`, clipped to the region, in input coordinates (its corners are
+    /// exactly [`Grid::point`]s).
     pub fn cell_box(&self, cell: Cell) -> Aabb {
         let min = self.cell_min(cell);
         let side = self.cell_side(cell.level);
-        Aabb { min: self.point(min), max: self.point(min.map(|c| c + side)) }
+        let max = [0, 1, 2].map(|a| (min[a] + side).min(self.extent[a]));
+        Aabb { min: self.point(min), max: self.point(max) }
     }
 
     /// A unique key for a cell (level and coordinates).
@@ -102,13 +127,18 @@ mod tests {
 
     #[test]
     fn cell_box_corners_are_lattice_points() {
-        let region = Aabb { min: [-1.0, 0.0, 2.0], max: [1.0, 3.0, 2.5] };
-        let g = Grid::new(region, 3, 5);
+        // Longest side 4 along y: level-2 cells of side 1; x has 2 of them, z one (shrunk to 0.5).
+        let region = Aabb { min: [-1.0, 0.0, 2.0], max: [1.0, 4.0, 2.5] };
+        let g = Grid::new(region, 2, 4);
         let root = g.cell_box(Cell { level: 0, coords: [0, 0, 0] });
         assert_eq!(root, region);
-        let b = g.cell_box(Cell { level: 3, coords: [7, 0, 1] });
-        assert_eq!(b.max[0], 1.0);
-        assert!((b.min[0] - 0.75).abs() < 1e-15);
-        assert!((b.min[2] - 2.0625).abs() < 1e-15);
+        let b = g.cell_box(Cell { level: 2, coords: [1, 3, 0] });
+        assert_eq!(b, Aabb { min: [0.0, 3.0, 2.0], max: [1.0, 4.0, 2.5] });
+        assert!(g.is_outside(Cell { level: 2, coords: [2, 0, 0] }));
+        assert!(g.is_outside(Cell { level: 2, coords: [0, 0, 1] }));
+        assert!(!g.is_outside(Cell { level: 1, coords: [0, 1, 0] }));
+        // A level-4 cell below the depth keeps its shrunk z side: 0.5 / 4.
+        let c = g.cell_box(Cell { level: 4, coords: [0, 0, 3] });
+        assert!((c.max[2] - c.min[2] - 0.125).abs() < 1e-15);
     }
 }

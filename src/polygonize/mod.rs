@@ -19,8 +19,9 @@
 //!    the zero set is ever lost between samples; otherwise it is split until level `depth`, and
 //!    beyond that, up to `depth + guard_levels`, while Plantinga & Vegter's normal-variation test
 //!    on the gradient enclosure fails (the topology guard). Only cells near the zero set survive,
-//!    so the work grows about 4× per level, not 8×. Cells are boxes with the region's aspect
-//!    ratio: a level-`depth` cell has sides equal to the region's sides / 2^depth.
+//!    so the work grows about 4× per level, not 8×. A level-`depth` cell is a cube whose side is
+//!    the region's longest side / 2^depth, shrunk by less than 2× along a shorter axis so that
+//!    the cells end exactly on the region's faces.
 //! 2. **Extraction** ([`extract`]): marching tetrahedra over a tetrahedralization of the surface
 //!    leaves that conforms across levels (Kuhn tetrahedra in regular leaves, a cone from the
 //!    centre over a shared face tiling in leaves next to finer ones). It yields a watertight
@@ -110,7 +111,8 @@ pub enum PolygonizeError {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PolygonizeParams {
     /// Octree depth near the surface: every cell the zero set may cross is refined to this level,
-    /// whose cells have the region's sides / 2^depth. Default 8; at least 1.
+    /// whose cells have the region's longest side / 2^depth (at most; along a shorter axis they
+    /// are shrunk by less than 2× to end on the region's faces). Default 8; at least 1.
     pub depth: u32,
     /// How many levels below `depth` the topology guard may refine cells where the gradient's
     /// direction may turn by 90° or more (near singular points, thin necks, tiny components).

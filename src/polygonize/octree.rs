@@ -88,6 +88,9 @@ pub(crate) fn build<F: ImplicitFunction + ?Sized>(function: &F, grid: &Grid) -> 
 }
 
 fn visit<F: ImplicitFunction + ?Sized>(function: &F, grid: &Grid, cell: Cell) -> Part {
+    if grid.is_outside(cell) {
+        return Part::default();
+    }
     let cell_box = grid.cell_box(cell);
     let (lo, hi) = function.bounds_on_box(&cell_box);
     let mut part = Part { evaluations: 1, ..Part::default() };
