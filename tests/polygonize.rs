@@ -76,10 +76,9 @@ fn surface_samples(f: &ImplicitPolynomial, region: &Aabb, spacing: f64) -> Vec<[
     for i in 0..=counts[0] {
         for j in 0..=counts[1] {
             for k in 0..=counts[2] {
-                let start = [i, j, k].map(|_| 0.0);
-                let start = [0, 1, 2].map(|a| {
-                    region.min[a] + [i, j, k][a] as f64 * spacing + start[a] + 0.37 * spacing
-                });
+                // Offset from the lattice so the samples fall between the mesher's grid points.
+                let start =
+                    [0, 1, 2].map(|a| region.min[a] + ([i, j, k][a] as f64 + 0.37) * spacing);
                 let (v, g) = f.value_gradient(start);
                 if v.abs() / norm(g) > spacing {
                     continue;
@@ -182,7 +181,7 @@ fn assert_accurate(
     let cell = finest_cell(region, depth);
     let forward = mesh_to_surface(&out.mesh, distance);
     assert!(forward < cell, "mesh → surface {forward} ≥ cell {cell}");
-    let samples = surface_samples(f, region, 0.5 * cell);
+    let samples = surface_samples(f, region, cell);
     assert!(samples.len() > 100, "only {} samples", samples.len());
     let backward = surface_to_mesh(&samples, &out.mesh, cell);
     assert!(backward < cell, "surface → mesh {backward} ≥ cell {cell}");

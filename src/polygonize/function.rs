@@ -70,6 +70,12 @@ pub trait ImplicitFunction: Sync {
     /// refines that cell to its cap.
     fn gradient_bounds_on_box(&self, b: &Aabb) -> [(f64, f64); 3];
 
+    /// Both enclosures at once: `(bounds_on_box(b), gradient_bounds_on_box(b))`. Override it when
+    /// the two share work (the polynomial computes one local expansion for both).
+    fn bounds_with_gradient_on_box(&self, b: &Aabb) -> ((f64, f64), [(f64, f64); 3]) {
+        (self.bounds_on_box(b), self.gradient_bounds_on_box(b))
+    }
+
     /// Why the model cannot be meshed (a malformed model), or `Ok(())`.
     ///
     /// # Errors
@@ -156,19 +162,22 @@ impl ImplicitFunction for ImplicitPolynomial {
     }
 
     fn gradient_bounds_on_box(&self, b: &Aabb) -> [(f64, f64); 3] {
-        let unbounded = [(f64::NEG_INFINITY, f64::INFINITY); 3];
+        self.bounds_with_gradient_on_box(b).1
+    }
+
+    fn bounds_with_gradient_on_box(&self, b: &Aabb) -> ((f64, f64), [(f64, f64); 3]) {
+        let mut gradient = [(f64::NEG_INFINITY, f64::INFINITY); 3];
         let Some(t) = self.taylor(b) else {
-            return unbounded;
+            return ((f64::NEG_INFINITY, f64::INFINITY), gradient);
         };
-        let mut out = unbounded;
-        for (axis, slot) in out.iter_mut().enumerate() {
+        for (axis, slot) in gradient.iter_mut().enumerate() {
             let per_t = self.scale * t.half_width[axis];
             if per_t > 0.0 && per_t.is_finite() {
                 let (lo, hi) = t.derivative_bounds(axis);
                 *slot = (lo / per_t, hi / per_t);
             }
         }
-        out
+        (t.value_bounds(), gradient)
     }
 
     fn validate(&self) -> Result<(), String> {

@@ -132,7 +132,7 @@ pub struct Polygonized {
     /// The extracted mesh.
     pub mesh: TriangleMesh,
     /// Number of function evaluations spent: point values, value-and-gradient evaluations, and
-    /// box enclosures (value or gradient, each counted once).
+    /// box enclosures (of the value, or of value and gradient together), each counted once.
     pub evaluations: u64,
     /// Number of surface leaves (octree cells the zero set may cross) that were triangulated.
     pub cells: usize,

@@ -92,19 +92,23 @@ fn visit<F: ImplicitFunction + ?Sized>(function: &F, grid: &Grid, cell: Cell) ->
         return Part::default();
     }
     let cell_box = grid.cell_box(cell);
-    let (lo, hi) = function.bounds_on_box(&cell_box);
+    // Between `depth` and the cap the guard needs the gradient's enclosure too: get both at once.
+    let guarded = cell.level >= grid.depth && cell.level < grid.cap;
+    let ((lo, hi), gradient) = if guarded {
+        let (value, gradient) = function.bounds_with_gradient_on_box(&cell_box);
+        (value, Some(gradient))
+    } else {
+        (function.bounds_on_box(&cell_box), None)
+    };
     let mut part = Part { evaluations: 1, ..Part::default() };
     // Values ≥ 0 count as outside, so a cell is empty when f > 0 or f < 0 throughout.
     if lo > 0.0 || hi < 0.0 {
         return part;
     }
-    let split = if cell.level < grid.depth {
-        true
-    } else if cell.level < grid.cap {
-        part.evaluations += 1;
-        !normal_variation_small(&function.gradient_bounds_on_box(&cell_box))
-    } else {
-        false
+    let split = match gradient {
+        _ if cell.level < grid.depth => true,
+        Some(gradient) => !normal_variation_small(&gradient),
+        None => false,
     };
     if !split {
         part.leaves.push(cell);
