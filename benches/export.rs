@@ -19,15 +19,19 @@ fn torus_mesh(n_u: usize, n_v: usize) -> TriangleMesh {
         for j in 0..n_v {
             let v = j as f64 / n_v as f64 * std::f64::consts::TAU;
             let rho = big + small * v.cos();
-            mesh.positions.push([rho * u.cos(), rho * u.sin(), small * v.sin()]);
-            mesh.normals.push([v.cos() * u.cos(), v.cos() * u.sin(), v.sin()]);
+            mesh.positions
+                .push([rho * u.cos(), rho * u.sin(), small * v.sin()]);
+            mesh.normals
+                .push([v.cos() * u.cos(), v.cos() * u.sin(), v.sin()]);
         }
     }
     let id = |i: usize, j: usize| ((i % n_u) * n_v + (j % n_v)) as u32;
     for i in 0..n_u {
         for j in 0..n_v {
-            mesh.triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
-            mesh.triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            mesh.triangles
+                .push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+            mesh.triangles
+                .push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
         }
     }
     mesh
@@ -56,7 +60,10 @@ fn bench_export(c: &mut Criterion) {
         })
     });
     group.bench_function(format!("ply_binary_quality/tris={n_triangles}"), |b| {
-        let opts = PlyOptions { encoding: PlyEncoding::BinaryLittleEndian, quality: Some(&quality) };
+        let opts = PlyOptions {
+            encoding: PlyEncoding::BinaryLittleEndian,
+            quality: Some(&quality),
+        };
         b.iter(|| {
             buf.clear();
             ply::write(black_box(&mesh), &mut buf, &opts).unwrap();

@@ -131,7 +131,12 @@ pub struct SliceParams {
 
 impl Default for SliceParams {
     fn default() -> Self {
-        SliceParams { axis: Axis::Z, count: 16, resolution: 256, method: DistanceMethod::Exact }
+        SliceParams {
+            axis: Axis::Z,
+            count: 16,
+            resolution: 256,
+            method: DistanceMethod::Exact,
+        }
     }
 }
 
@@ -197,7 +202,10 @@ pub enum DistanceError {
 /// ```
 pub fn default_region(poly: &ImplicitPolynomial) -> Aabb {
     let h = 2.0 * poly.scale;
-    Aabb { min: poly.center.map(|c| c - h), max: poly.center.map(|c| c + h) }
+    Aabb {
+        min: poly.center.map(|c| c - h),
+        max: poly.center.map(|c| c + h),
+    }
 }
 
 /// Computes the K slices of the signed distance of `poly` across `region`.
@@ -229,7 +237,9 @@ pub fn slices(
     params: &SliceParams,
 ) -> Result<Vec<Slice>, DistanceError> {
     if params.count == 0 {
-        return Err(DistanceError::InvalidParams("the slice count must be at least 1".into()));
+        return Err(DistanceError::InvalidParams(
+            "the slice count must be at least 1".into(),
+        ));
     }
     if !(2..=16384).contains(&params.resolution) {
         return Err(DistanceError::InvalidParams(format!(
@@ -349,7 +359,9 @@ impl ExactDistance {
     }
 
     fn with_evaluator(eval: Evaluator, region: &Aabb) -> Result<Self, DistanceError> {
-        let longest = (0..3).map(|a| region.max[a] - region.min[a]).fold(0.0, f64::max);
+        let longest = (0..3)
+            .map(|a| region.max[a] - region.min[a])
+            .fold(0.0, f64::max);
         let margin = SEED_MARGIN * longest;
         // The seed grid in normalized coordinates.
         let lo = eval.normalize(region.min.map(|c| c - margin));
@@ -357,7 +369,11 @@ impl ExactDistance {
         let cell = (longest + 2.0 * margin) / eval.scale / SEED_CELLS as f64;
         let n = [0, 1, 2].map(|a| (((hi[a] - lo[a]) / cell).ceil() as usize).max(1));
         let node = |i: usize, j: usize, k: usize| {
-            [lo[0] + i as f64 * cell, lo[1] + j as f64 * cell, lo[2] + k as f64 * cell]
+            [
+                lo[0] + i as f64 * cell,
+                lo[1] + j as f64 * cell,
+                lo[2] + k as f64 * cell,
+            ]
         };
         // f at every node, one z layer per task.
         let values: Vec<Vec<f64>> = (0..=n[2])
@@ -408,7 +424,12 @@ impl ExactDistance {
         }
         let tree = ImmutableKdTree::new_from_slice(&seeds)
             .map_err(|_| DistanceError::InvalidPolynomial("cannot index the zero set".into()))?;
-        Ok(ExactDistance { eval, seeds, tree, cell })
+        Ok(ExactDistance {
+            eval,
+            seeds,
+            tree,
+            cell,
+        })
     }
 
     /// Number of zero-set samples found.
@@ -425,14 +446,32 @@ impl ExactDistance {
             return 0.0;
         }
         let k = NonZero::new(N_NEAREST.min(self.seeds.len())).unwrap_or(NonZero::<usize>::MIN);
-        let nearest = self.tree.query(&q).nearest_n::<SquaredEuclidean<f64>>(k).execute();
+        let nearest = self
+            .tree
+            .query(&q)
+            .nearest_n::<SquaredEuclidean<f64>>(k)
+            .execute();
         let mut best = nearest.first().map_or(f64::INFINITY, |n| n.distance.sqrt());
-        let limit = best + 2.0 * self.cell;
-        for n in nearest.iter().take(N_REFINE) {
-            if n.distance.sqrt() > limit {
+        // Refine from the nearest seed, then from up to N_REFINE − 1 more that lie more than two
+        // cells from every seed refined so far (seeds that close share a Newton basin) and whose
+        // own distance is below the best found plus a cell (the zero set within a cell of a seed
+        // is at least its distance minus a cell away, so a farther seed cannot lead closer).
+        let mut refined = [[f64::NAN; 3]; N_REFINE];
+        let mut n_refined = 0;
+        for n in &nearest {
+            if n_refined == N_REFINE || n.distance.sqrt() > best + self.cell {
                 break;
             }
-            if let Some(x) = self.eval.closest_point(q, self.seeds[n.item as usize]) {
+            let seed = self.seeds[n.item as usize];
+            if refined[..n_refined]
+                .iter()
+                .any(|r| dist(*r, seed) <= 2.0 * self.cell)
+            {
+                continue;
+            }
+            refined[n_refined] = seed;
+            n_refined += 1;
+            if let Some(x) = self.eval.closest_point(q, seed) {
                 best = best.min(dist(q, x));
             }
         }
@@ -448,19 +487,27 @@ fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
 /// coordinates without allocating.
 #[derive(Clone, Debug)]
 struct Evaluator {
-    /// (a, i, j, k) for every non-zero coefficient a of x^i y^j z^k.
-    terms: Vec<(f64, u8, u8, u8)>,
+    terms: Vec<Term>,
     degree: usize,
     center: [f64; 3],
     scale: f64,
 }
 
-/// Per-axis tables of t^e and its first two derivatives, e = 0 ..= degree.
-struct Powers {
-    d0: [[f64; MAX_DEGREE as usize + 1]; 3],
-    d1: [[f64; MAX_DEGREE as usize + 1]; 3],
-    d2: [[f64; MAX_DEGREE as usize + 1]; 3],
+/// One term a·x^i y^j z^k with its derivative factors precomputed.
+#[derive(Clone, Debug)]
+struct Term {
+    a: f64,
+    /// (i, j, k).
+    e: [usize; 3],
+    /// (i, j, k) as floats: d/dt t^e = e·t^(e−1).
+    f1: [f64; 3],
+    /// e(e − 1): d²/dt² t^e = e(e − 1)·t^(e−2).
+    f2: [f64; 3],
 }
+
+/// Length of a power table: t^e is stored at e + 2, with two zeros in front so the derivative
+/// lookups t^(e−1), t^(e−2) need no branch.
+const TABLE: usize = MAX_DEGREE as usize + 3;
 
 impl Evaluator {
     fn new(poly: &ImplicitPolynomial) -> Result<Self, DistanceError> {
@@ -476,7 +523,12 @@ impl Evaluator {
                 poly.coefficients.len()
             ));
         }
-        if !poly.coefficients.iter().chain(&poly.center).all(|c| c.is_finite()) {
+        if !poly
+            .coefficients
+            .iter()
+            .chain(&poly.center)
+            .all(|c| c.is_finite())
+        {
             return bad("a coefficient or the centre is not finite".into());
         }
         if !(poly.scale.is_finite() && poly.scale > 0.0) {
@@ -486,79 +538,91 @@ impl Evaluator {
             .into_iter()
             .zip(&poly.coefficients)
             .filter(|(_, &a)| a != 0.0)
-            .map(|(e, &a)| (a, e[0] as u8, e[1] as u8, e[2] as u8))
+            .map(|(e, &a)| {
+                let e = e.map(|x| x as usize);
+                Term {
+                    a,
+                    e,
+                    f1: e.map(|x| x as f64),
+                    f2: e.map(|x| (x * x.max(1) - x) as f64),
+                }
+            })
             .collect();
-        Ok(Evaluator { terms, degree: poly.degree as usize, center: poly.center, scale: poly.scale })
+        Ok(Evaluator {
+            terms,
+            degree: poly.degree as usize,
+            center: poly.center,
+            scale: poly.scale,
+        })
     }
 
     fn normalize(&self, p: [f64; 3]) -> [f64; 3] {
         [0, 1, 2].map(|a| (p[a] - self.center[a]) / self.scale)
     }
 
-    fn powers(&self, q: [f64; 3], order: usize) -> Powers {
-        const N: usize = MAX_DEGREE as usize + 1;
-        let mut pw = Powers { d0: [[0.0; N]; 3], d1: [[0.0; N]; 3], d2: [[0.0; N]; 3] };
+    /// Power tables of the three coordinates (see [`TABLE`]).
+    fn powers(&self, q: [f64; 3]) -> [[f64; TABLE]; 3] {
+        let mut t = [[0.0; TABLE]; 3];
         for a in 0..3 {
             let mut v = 1.0;
             for e in 0..=self.degree {
-                pw.d0[a][e] = v;
+                t[a][e + 2] = v;
                 v *= q[a];
             }
-            if order >= 1 {
-                for e in 1..=self.degree {
-                    pw.d1[a][e] = e as f64 * pw.d0[a][e - 1];
-                }
-            }
-            if order >= 2 {
-                for e in 2..=self.degree {
-                    pw.d2[a][e] = (e * (e - 1)) as f64 * pw.d0[a][e - 2];
-                }
-            }
         }
-        pw
+        t
     }
 
     /// f at the normalized point `q`.
     fn value(&self, q: [f64; 3]) -> f64 {
-        let pw = self.powers(q, 0);
+        let t = self.powers(q);
         self.terms
             .iter()
-            .map(|&(a, i, j, k)| {
-                a * pw.d0[0][i as usize] * pw.d0[1][j as usize] * pw.d0[2][k as usize]
-            })
+            .map(|m| m.a * t[0][m.e[0] + 2] * t[1][m.e[1] + 2] * t[2][m.e[2] + 2])
             .sum()
     }
 
     /// f and ∇f at the normalized point `q`.
     fn gradient(&self, q: [f64; 3]) -> (f64, [f64; 3]) {
-        let pw = self.powers(q, 1);
+        let t = self.powers(q);
         let (mut f, mut g) = (0.0, [0.0; 3]);
-        for &(a, i, j, k) in &self.terms {
-            let (i, j, k) = (i as usize, j as usize, k as usize);
-            let (x0, y0, z0) = (pw.d0[0][i], pw.d0[1][j], pw.d0[2][k]);
-            f += a * x0 * y0 * z0;
-            g[0] += a * pw.d1[0][i] * y0 * z0;
-            g[1] += a * x0 * pw.d1[1][j] * z0;
-            g[2] += a * x0 * y0 * pw.d1[2][k];
+        for m in &self.terms {
+            let [i, j, k] = m.e;
+            let (x0, y0, z0) = (t[0][i + 2], t[1][j + 2], t[2][k + 2]);
+            let (x1, y1, z1) = (
+                m.f1[0] * t[0][i + 1],
+                m.f1[1] * t[1][j + 1],
+                m.f1[2] * t[2][k + 1],
+            );
+            f += m.a * x0 * y0 * z0;
+            g[0] += m.a * x1 * y0 * z0;
+            g[1] += m.a * x0 * y1 * z0;
+            g[2] += m.a * x0 * y0 * z1;
         }
         (f, g)
     }
 
     /// f, ∇f and the Hessian at the normalized point `q`.
     fn hessian(&self, q: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
-        let pw = self.powers(q, 2);
+        let t = self.powers(q);
         let (mut f, mut g, mut h) = (0.0, [0.0; 3], [[0.0; 3]; 3]);
-        for &(a, i, j, k) in &self.terms {
-            let (i, j, k) = (i as usize, j as usize, k as usize);
-            let (x0, y0, z0) = (pw.d0[0][i], pw.d0[1][j], pw.d0[2][k]);
-            let (x1, y1, z1) = (pw.d1[0][i], pw.d1[1][j], pw.d1[2][k]);
+        for m in &self.terms {
+            let [i, j, k] = m.e;
+            let (x0, y0, z0) = (t[0][i + 2], t[1][j + 2], t[2][k + 2]);
+            let (x1, y1, z1) = (
+                m.f1[0] * t[0][i + 1],
+                m.f1[1] * t[1][j + 1],
+                m.f1[2] * t[2][k + 1],
+            );
+            let (x2, y2, z2) = (m.f2[0] * t[0][i], m.f2[1] * t[1][j], m.f2[2] * t[2][k]);
+            let a = m.a;
             f += a * x0 * y0 * z0;
             g[0] += a * x1 * y0 * z0;
             g[1] += a * x0 * y1 * z0;
             g[2] += a * x0 * y0 * z1;
-            h[0][0] += a * pw.d2[0][i] * y0 * z0;
-            h[1][1] += a * x0 * pw.d2[1][j] * z0;
-            h[2][2] += a * x0 * y0 * pw.d2[2][k];
+            h[0][0] += a * x2 * y0 * z0;
+            h[1][1] += a * x0 * y2 * z0;
+            h[2][2] += a * x0 * y0 * z2;
             h[0][1] += a * x1 * y1 * z0;
             h[0][2] += a * x1 * y0 * z1;
             h[1][2] += a * x0 * y1 * z1;
@@ -620,9 +684,16 @@ impl Evaluator {
         if !(g2 > 0.0) {
             return None;
         }
-        let mut lambda = ((q[0] - x[0]) * g0[0] + (q[1] - x[1]) * g0[1] + (q[2] - x[2]) * g0[2]) / g2;
+        let mut lambda =
+            ((q[0] - x[0]) * g0[0] + (q[1] - x[1]) * g0[1] + (q[2] - x[2]) * g0[2]) / g2;
         let (mut r, _, mut g, mut h) = residual(x, lambda);
         for _ in 0..40 {
+            // Converged to rounding: stop before a step that cannot reduce the residual.
+            let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+            let rx = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
+            if r[3].abs() <= 1e-14 * gn && rx <= 1e-12 * (1.0 + dist(q, x)) {
+                break;
+            }
             let mut jac = [[0.0; 5]; 4];
             for a in 0..3 {
                 for b in 0..3 {
@@ -642,7 +713,7 @@ impl Evaluator {
             let old = norm2(&r);
             let mut t = 1.0;
             let mut accepted = false;
-            for _ in 0..12 {
+            for _ in 0..8 {
                 let xt = [0, 1, 2].map(|a| x[a] + t * step[a]);
                 let lt = lambda + t * step[3];
                 let (rt, _, gt, ht) = residual(xt, lt);
@@ -698,7 +769,12 @@ mod tests {
         coefficients[4] = 1.0;
         coefficients[7] = 1.0;
         coefficients[9] = 1.0;
-        ImplicitPolynomial { degree: 2, coefficients, center: c, scale }
+        ImplicitPolynomial {
+            degree: 2,
+            coefficients,
+            center: c,
+            scale,
+        }
     }
 
     /// (x² + y² + z² + R² − r²)² − 4R²(x² + y²): a torus around z, degree 4.
@@ -707,7 +783,11 @@ mod tests {
         let mut add = |e: [u32; 3], a: f64| c[crate::poly::monomial_index(e)] += a;
         let k = big * big - small * small;
         // (s + k)² − 4R²(x² + y²) with s = x² + y² + z².
-        for (e1, e2) in [([2, 0, 0], [2, 0, 0]), ([0, 2, 0], [0, 2, 0]), ([0, 0, 2], [0, 0, 2])] {
+        for (e1, e2) in [
+            ([2, 0, 0], [2, 0, 0]),
+            ([0, 2, 0], [0, 2, 0]),
+            ([0, 0, 2], [0, 0, 2]),
+        ] {
             add([e1[0] + e2[0], e1[1] + e2[1], e1[2] + e2[2]], 1.0);
         }
         add([2, 2, 0], 2.0);
@@ -719,7 +799,12 @@ mod tests {
         add([0, 0, 0], k * k);
         add([2, 0, 0], -4.0 * big * big);
         add([0, 2, 0], -4.0 * big * big);
-        ImplicitPolynomial { degree: 4, coefficients: c, center: [0.0; 3], scale: 1.0 }
+        ImplicitPolynomial {
+            degree: 4,
+            coefficients: c,
+            center: [0.0; 3],
+            scale: 1.0,
+        }
     }
 
     #[test]
@@ -748,12 +833,19 @@ mod tests {
     #[test]
     fn exact_distance_to_torus_matches_analytic() {
         let (big, small) = (1.0, 0.4);
-        let region = Aabb { min: [-1.6, -1.6, -0.6], max: [1.6, 1.6, 0.6] };
+        let region = Aabb {
+            min: [-1.6, -1.6, -0.6],
+            max: [1.6, 1.6, 0.6],
+        };
         let exact = ExactDistance::new(&torus(big, small), &region).unwrap();
         assert!(exact.n_samples() > 1000);
         for i in 0..400 {
             let t = i as f64;
-            let p = [1.7 * (t * 0.37).sin(), 1.7 * (t * 0.53).cos(), 0.7 * (t * 0.29).sin()];
+            let p = [
+                1.7 * (t * 0.37).sin(),
+                1.7 * (t * 0.53).cos(),
+                0.7 * (t * 0.29).sin(),
+            ];
             let rho = (p[0] * p[0] + p[1] * p[1]).sqrt();
             let truth = ((rho - big).powi(2) + p[2] * p[2]).sqrt() - small;
             let d = exact.distance(p);
@@ -768,14 +860,20 @@ mod tests {
             let p = [1.0 + (2.0 + d) * 0.6, -2.0, 0.5 + (2.0 + d) * 0.8];
             let t = taubin_distance(&s, p).unwrap();
             // f/|∇f| − d = −d²/(2(r + d)).
-            assert!((t - (d - d * d / (2.0 * (2.0 + d)))).abs() < 1e-12, "{t} at {d}");
+            assert!(
+                (t - (d - d * d / (2.0 * (2.0 + d)))).abs() < 1e-12,
+                "{t} at {d}"
+            );
         }
     }
 
     #[test]
     fn slice_geometry_and_errors() {
         let s = sphere([0.0; 3], 1.0, 1.0);
-        let region = Aabb { min: [-2.0, -1.0, 0.0], max: [2.0, 1.0, 1.0] };
+        let region = Aabb {
+            min: [-2.0, -1.0, 0.0],
+            max: [2.0, 1.0, 1.0],
+        };
         let params = SliceParams {
             axis: Axis::Y,
             count: 2,
@@ -788,24 +886,55 @@ mod tests {
         assert_eq!(out[0].pixel_center(0, 0), [-1.5, -0.5, 2.0]);
         assert_eq!(out[1].pixel_center(3, 3), [1.5, 0.5, -1.0]);
         let bad = |p: SliceParams| slices(&s, &region, &p).unwrap_err();
-        assert!(matches!(bad(SliceParams { count: 0, ..params }), DistanceError::InvalidParams(_)));
         assert!(matches!(
-            bad(SliceParams { resolution: 1, ..params }),
+            bad(SliceParams { count: 0, ..params }),
             DistanceError::InvalidParams(_)
         ));
-        let flat = Aabb { min: [0.0; 3], max: [1.0, 1.0, 0.0] };
-        assert_eq!(slices(&s, &flat, &params).unwrap_err(), DistanceError::InvalidRegion);
-        let far = Aabb { min: [10.0; 3], max: [11.0; 3] };
-        let exact = SliceParams { method: DistanceMethod::Exact, ..params };
-        assert_eq!(slices(&s, &far, &exact).unwrap_err(), DistanceError::NoSurface);
+        assert!(matches!(
+            bad(SliceParams {
+                resolution: 1,
+                ..params
+            }),
+            DistanceError::InvalidParams(_)
+        ));
+        let flat = Aabb {
+            min: [0.0; 3],
+            max: [1.0, 1.0, 0.0],
+        };
+        assert_eq!(
+            slices(&s, &flat, &params).unwrap_err(),
+            DistanceError::InvalidRegion
+        );
+        let far = Aabb {
+            min: [10.0; 3],
+            max: [11.0; 3],
+        };
+        let exact = SliceParams {
+            method: DistanceMethod::Exact,
+            ..params
+        };
+        assert_eq!(
+            slices(&s, &far, &exact).unwrap_err(),
+            DistanceError::NoSurface
+        );
     }
 
     #[test]
     fn slices_do_not_depend_on_thread_count() {
         let t = torus(1.0, 0.3);
-        let region = Aabb { min: [-1.5, -1.5, -0.5], max: [1.5, 1.5, 0.5] };
-        let params = SliceParams { count: 2, resolution: 24, ..Default::default() };
-        let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        let region = Aabb {
+            min: [-1.5, -1.5, -0.5],
+            max: [1.5, 1.5, 0.5],
+        };
+        let params = SliceParams {
+            count: 2,
+            resolution: 24,
+            ..Default::default()
+        };
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
         let a = one.install(|| slices(&t, &region, &params).unwrap());
         let b = slices(&t, &region, &params).unwrap();
         assert_eq!(a, b);

@@ -41,15 +41,18 @@ fn torus_mesh(n_u: usize, n_v: usize, big: f64, small: f64) -> TriangleMesh {
             let v = j as f64 / n_v as f64 * std::f64::consts::TAU;
             let n = [v.cos() * u.cos(), v.cos() * u.sin(), v.sin()];
             let rho = big + small * v.cos();
-            mesh.positions.push([rho * u.cos(), rho * u.sin(), small * v.sin()]);
+            mesh.positions
+                .push([rho * u.cos(), rho * u.sin(), small * v.sin()]);
             mesh.normals.push(n);
         }
     }
     let id = |i: usize, j: usize| ((i % n_u) * n_v + (j % n_v)) as u32;
     for i in 0..n_u {
         for j in 0..n_v {
-            mesh.triangles.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
-            mesh.triangles.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            mesh.triangles
+                .push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+            mesh.triangles
+                .push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
         }
     }
     mesh
@@ -63,7 +66,12 @@ fn unit_sphere(center: [f64; 3], scale: f64) -> ImplicitPolynomial {
     coefficients[4] = 1.0;
     coefficients[7] = 1.0;
     coefficients[9] = 1.0;
-    ImplicitPolynomial { degree: 2, coefficients, center, scale }
+    ImplicitPolynomial {
+        degree: 2,
+        coefficients,
+        center,
+        scale,
+    }
 }
 
 /// How to run one external validator, or `None` (after a notice, or a failure under CI).
@@ -71,7 +79,9 @@ fn validator(kind: &str) -> Option<Command> {
     let dir = Path::new(ROOT).join("tools/validate");
     let (found, command) = match kind {
         "gltf" => {
-            let ok = dir.join("node_modules/gltf-validator/package.json").is_file()
+            let ok = dir
+                .join("node_modules/gltf-validator/package.json")
+                .is_file()
                 && Command::new("node").arg("--version").output().is_ok();
             let mut c = Command::new("node");
             c.arg(dir.join("gltf.mjs"));
@@ -93,7 +103,10 @@ fn validator(kind: &str) -> Option<Command> {
         "validator for {kind} is not installed; run `bash tools/install-validators.sh` to check \
          this format with its own tool"
     );
-    assert!(std::env::var_os("CI").is_none(), "{msg} (CI is set, so this is a failure)");
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "{msg} (CI is set, so this is a failure)"
+    );
     eprintln!("notice: skipping the {kind} validator: {msg}");
     None
 }
@@ -103,8 +116,14 @@ fn run(mut command: Command, args: &[&Path]) -> Vec<serde_json::Value> {
     let out = command.args(args).output().expect("cannot start validator");
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "validator failed on {args:?}:\n{stdout}\n{stderr}");
-    stdout.lines().map(|l| serde_json::from_str(l).expect("validator printed bad JSON")).collect()
+    assert!(
+        out.status.success(),
+        "validator failed on {args:?}:\n{stdout}\n{stderr}"
+    );
+    stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("validator printed bad JSON"))
+        .collect()
 }
 
 fn write_file<F>(path: &Path, f: F)
@@ -131,7 +150,9 @@ fn gltf_passes_the_khronos_validator() {
         let bin_name = format!("{name}.bin");
         let mut bin = Vec::new();
         write_file(&gltf, |w| write_gltf(mesh, w, &mut bin, &bin_name, &opts));
-        write_file(&dir.path().join(&bin_name), |w| w.write_all(&bin).map_err(ExportError::Write));
+        write_file(&dir.path().join(&bin_name), |w| {
+            w.write_all(&bin).map_err(ExportError::Write)
+        });
 
         // Deterministic bytes.
         let (mut a, mut b) = (Vec::new(), Vec::new());
@@ -143,7 +164,9 @@ fn gltf_passes_the_khronos_validator() {
         files.push((gltf, mesh.positions.len(), mesh.triangles.len()));
     }
     for (file, n_vertices, n_triangles) in files {
-        let Some(command) = validator("gltf") else { return };
+        let Some(command) = validator("gltf") else {
+            return;
+        };
         let report = &run(command, &[&file])[0];
         assert_eq!(report["errors"], 0, "{report}");
         assert_eq!(report["warnings"], 0, "{report}");
@@ -169,18 +192,30 @@ fn ply_passes_plyfile_and_meshlab() {
         .collect();
     let quality = nearest_point_distances(&mesh.positions, &scan).unwrap();
     let q_max = quality.iter().copied().fold(0.0f32, f32::max);
-    assert!(quality.iter().all(|&q| q >= 0.0099), "every vertex is ≥ 0.01 from the scan");
+    assert!(
+        quality.iter().all(|&q| q >= 0.0099),
+        "every vertex is ≥ 0.01 from the scan"
+    );
 
     for encoding in [PlyEncoding::BinaryLittleEndian, PlyEncoding::Ascii] {
         let path = dir.path().join(format!("mesh-{encoding:?}.ply"));
-        let opts = PlyOptions { encoding, quality: Some(&quality) };
+        let opts = PlyOptions {
+            encoding,
+            quality: Some(&quality),
+        };
         write_file(&path, |w| ply::write(&mesh, w, &opts));
-        let Some(mut command) = validator("ply") else { return };
+        let Some(mut command) = validator("ply") else {
+            return;
+        };
         command.arg("--closed");
         let report = &run(command, &[&path])[0];
         let (plyfile, meshlab) = (&report["plyfile"], &report["pymeshlab"]);
         assert_eq!(report["problems"], serde_json::json!([]), "{report}");
-        let expected_format = if encoding == PlyEncoding::Ascii { "ascii" } else { "<" };
+        let expected_format = if encoding == PlyEncoding::Ascii {
+            "ascii"
+        } else {
+            "<"
+        };
         assert_eq!(plyfile["format"], expected_format);
         assert_eq!(plyfile["vertices"], mesh.positions.len() as u64);
         assert_eq!(plyfile["faces"], mesh.triangles.len() as u64);
@@ -191,7 +226,10 @@ fn ply_passes_plyfile_and_meshlab() {
         assert_eq!(meshlab["genus"], 1);
         assert_eq!(meshlab["has_vertex_quality"], true);
         let seen = meshlab["quality_max"].as_f64().unwrap();
-        assert!((seen - f64::from(q_max)).abs() < 1e-6, "quality max {seen} vs {q_max}");
+        assert!(
+            (seen - f64::from(q_max)).abs() < 1e-6,
+            "quality max {seen} vs {q_max}"
+        );
     }
 }
 
@@ -214,8 +252,16 @@ fn exr_slices_pass_openexr_and_pngs_decode() {
     let dir = tempfile::tempdir().unwrap();
     let center = [0.3, -0.2, 0.1];
     let sphere = unit_sphere(center, 0.8);
-    let region = Aabb { min: [-1.0, -1.5, -1.1], max: [1.6, 1.1, 1.3] };
-    let params = SliceParams { axis: Axis::Y, count: 5, resolution: 40, ..Default::default() };
+    let region = Aabb {
+        min: [-1.0, -1.5, -1.1],
+        max: [1.6, 1.1, 1.3],
+    };
+    let params = SliceParams {
+        axis: Axis::Y,
+        count: 5,
+        resolution: 40,
+        ..Default::default()
+    };
     let stack = slices(&sphere, &region, &params).unwrap();
     let files = write_stack(dir.path(), &stack);
 
@@ -225,7 +271,9 @@ fn exr_slices_pass_openexr_and_pngs_decode() {
         assert_eq!((img.width(), img.height()), (40, 40));
     }
 
-    let Some(command) = validator("exr") else { return };
+    let Some(command) = validator("exr") else {
+        return;
+    };
     let paths: Vec<&Path> = files.iter().map(PathBuf::as_path).collect();
     let reports = run(command, &paths);
     assert_eq!(reports.len(), stack.len());
@@ -233,7 +281,10 @@ fn exr_slices_pass_openexr_and_pngs_decode() {
         assert_eq!(report["problems"], serde_json::json!([]), "{report}");
         assert_eq!(report["channels"], serde_json::json!(["Y"]));
         assert_eq!(report["dtype"], "float32");
-        assert_eq!((report["width"].as_u64(), report["height"].as_u64()), (Some(40), Some(40)));
+        assert_eq!(
+            (report["width"].as_u64(), report["height"].as_u64()),
+            (Some(40), Some(40))
+        );
         assert_eq!(report["compression"], "ZIP_COMPRESSION");
         let attrs = &report["attributes"];
         assert_eq!(attrs["sliceIndex"], slice.index as u64);
@@ -263,14 +314,26 @@ fn exr_slices_pass_openexr_and_pngs_decode() {
 fn sphere_distances_match_analytic() {
     let center = [0.3, -0.2, 0.1];
     let sphere = unit_sphere(center, 0.8);
-    let region = Aabb { min: [-1.0, -1.5, -1.1], max: [1.6, 1.1, 1.3] };
+    let region = Aabb {
+        min: [-1.0, -1.5, -1.1],
+        max: [1.6, 1.1, 1.3],
+    };
     let truth = |p: [f64; 3]| {
-        (0..3).map(|a| (p[a] - center[a]).powi(2)).sum::<f64>().sqrt() - 1.0
+        (0..3)
+            .map(|a| (p[a] - center[a]).powi(2))
+            .sum::<f64>()
+            .sqrt()
+            - 1.0
     };
     let mut near_surface = 0;
     for axis in [Axis::X, Axis::Y, Axis::Z] {
         for method in [DistanceMethod::Exact, DistanceMethod::Taubin] {
-            let params = SliceParams { axis, count: 6, resolution: 48, method };
+            let params = SliceParams {
+                axis,
+                count: 6,
+                resolution: 48,
+                method,
+            };
             let stack = slices(&sphere, &region, &params).unwrap();
             assert_eq!(stack.len(), 6);
             for slice in &stack {
@@ -299,7 +362,10 @@ fn sphere_distances_match_analytic() {
             }
         }
     }
-    assert!(near_surface > 100, "only {near_surface} pixels near the surface were checked");
+    assert!(
+        near_surface > 100,
+        "only {near_surface} pixels near the surface were checked"
+    );
 }
 
 #[test]
@@ -309,10 +375,12 @@ fn unwritable_output_is_a_clear_error_and_leaves_no_file() {
 
     // A missing directory.
     let missing = dir.path().join("no/such/dir/mesh.glb");
-    let err = write_atomic(&missing, |w| write_glb(&mesh, w, &GltfOptions::default()))
-        .unwrap_err();
+    let err = write_atomic(&missing, |w| write_glb(&mesh, w, &GltfOptions::default())).unwrap_err();
     let msg = err.to_string();
-    assert!(msg.contains("cannot write") && msg.contains("no/such/dir/mesh.glb"), "{msg}");
+    assert!(
+        msg.contains("cannot write") && msg.contains("no/such/dir/mesh.glb"),
+        "{msg}"
+    );
     assert!(!dir.path().join("no").exists());
 
     // A parent that is a file.
@@ -328,11 +396,18 @@ fn unwritable_output_is_a_clear_error_and_leaves_no_file() {
     let target = dir.path().join("mesh.ply");
     let mut broken = mesh.clone();
     broken.triangles.push([0, 1, 999]);
-    let err = write_atomic(&target, |w| ply::write(&broken, w, &PlyOptions::default()))
-        .unwrap_err();
+    let err =
+        write_atomic(&target, |w| ply::write(&broken, w, &PlyOptions::default())).unwrap_err();
     assert!(err.to_string().contains("triangle"), "{err}");
-    let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
-    assert_eq!(left, vec![std::ffi::OsString::from("file")], "files left behind: {left:?}");
+    let left: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(
+        left,
+        vec![std::ffi::OsString::from("file")],
+        "files left behind: {left:?}"
+    );
 
     // An existing file is replaced only when the new one is complete.
     std::fs::write(&target, b"old").unwrap();
@@ -345,7 +420,10 @@ fn model_file_round_trips_through_disk() {
     let dir = tempfile::tempdir().unwrap();
     let model = ImplicitModel {
         polynomial: unit_sphere([0.1, 0.2, 0.3], 0.7),
-        bounds: Some(Aabb { min: [-1.0; 3], max: [1.0, 1.5, 2.0] }),
+        bounds: Some(Aabb {
+            min: [-1.0; 3],
+            max: [1.0, 1.5, 2.0],
+        }),
         fit: None,
         diagnostics: None,
     };

@@ -100,7 +100,9 @@ fn encode(slice: &Slice, opts: &ExrOptions) -> Result<Vec<u8>, ExportError> {
         )));
     }
     if slice.data.iter().any(|v| v.is_nan()) {
-        return Err(ExportError::InvalidSlice("the slice holds NaN samples".into()));
+        return Err(ExportError::InvalidSlice(
+            "the slice holds NaN samples".into(),
+        ));
     }
     let to_i32 = |v: usize, what: &str| {
         i32::try_from(v).map_err(|_| ExportError::InvalidSlice(format!("{what} {v} is too large")))
@@ -118,23 +120,63 @@ fn encode(slice: &Slice, opts: &ExrOptions) -> Result<Vec<u8>, ExportError> {
             matrix.extend_from_slice(&m[col][row].to_le_bytes());
         }
     }
-    set("gridToWorld", AttributeValue::Custom { kind: Text::from("m44d"), bytes: matrix.into() });
-    set("gridToWorldConvention", AttributeValue::Text(Text::from(GRID_TO_WORLD_CONVENTION)));
-    let voxel: Vec<u8> = slice.voxel_size.iter().flat_map(|v| v.to_le_bytes()).collect();
-    set("voxelSize", AttributeValue::Custom { kind: Text::from("v3d"), bytes: voxel.into() });
-    set("sliceAxis", AttributeValue::Text(Text::from(slice.axis.name())));
-    set("sliceIndex", AttributeValue::I32(to_i32(slice.index, "slice index")?));
-    set("sliceCount", AttributeValue::I32(to_i32(slice.count, "slice count")?));
-    set("signConvention", AttributeValue::Text(Text::from("negative inside")));
-    set("distanceMethod", AttributeValue::Text(Text::from(slice.method.name())));
-    set("distanceUnits", AttributeValue::Text(Text::from("input units")));
+    set(
+        "gridToWorld",
+        AttributeValue::Custom {
+            kind: Text::from("m44d"),
+            bytes: matrix.into(),
+        },
+    );
+    set(
+        "gridToWorldConvention",
+        AttributeValue::Text(Text::from(GRID_TO_WORLD_CONVENTION)),
+    );
+    let voxel: Vec<u8> = slice
+        .voxel_size
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    set(
+        "voxelSize",
+        AttributeValue::Custom {
+            kind: Text::from("v3d"),
+            bytes: voxel.into(),
+        },
+    );
+    set(
+        "sliceAxis",
+        AttributeValue::Text(Text::from(slice.axis.name())),
+    );
+    set(
+        "sliceIndex",
+        AttributeValue::I32(to_i32(slice.index, "slice index")?),
+    );
+    set(
+        "sliceCount",
+        AttributeValue::I32(to_i32(slice.count, "slice count")?),
+    );
+    set(
+        "signConvention",
+        AttributeValue::Text(Text::from("negative inside")),
+    );
+    set(
+        "distanceMethod",
+        AttributeValue::Text(Text::from(slice.method.name())),
+    );
+    set(
+        "distanceUnits",
+        AttributeValue::Text(Text::from("input units")),
+    );
 
     let compression = match opts.compression {
         ExrCompression::Zip => Compression::ZIP16,
         ExrCompression::Piz => Compression::PIZ,
     };
-    let encoding =
-        Encoding { compression, blocks: Blocks::ScanLines, line_order: LineOrder::Increasing };
+    let encoding = Encoding {
+        compression,
+        blocks: Blocks::ScanLines,
+        line_order: LineOrder::Increasing,
+    };
     let channel = AnyChannel::new("Y", FlatSamples::F32(slice.data.clone()));
     let channels = AnyChannels::sort(SmallVec::from_vec(vec![channel]));
     let layer = Layer::new((r, r), attributes, encoding, channels);
@@ -152,7 +194,11 @@ fn encode(slice: &Slice, opts: &ExrOptions) -> Result<Vec<u8>, ExportError> {
 fn sort_header_attributes(bytes: &mut [u8]) -> Result<(), ExportError> {
     let corrupt = || ExportError::Format("the OpenEXR encoder wrote an unexpected header".into());
     let read_cstr = |at: usize| -> Option<usize> {
-        bytes.get(at..)?.iter().position(|&b| b == 0).map(|n| at + n)
+        bytes
+            .get(at..)?
+            .iter()
+            .position(|&b| b == 0)
+            .map(|n| at + n)
     };
     let mut attributes: Vec<(usize, usize, usize)> = Vec::new(); // (start, name_end, end)
     let mut at = 8; // magic number and version field
@@ -196,10 +242,22 @@ mod tests {
     fn sphere_slice(axis: Axis) -> Slice {
         let mut c = vec![0.0; 10];
         (c[0], c[4], c[7], c[9]) = (-1.0, 1.0, 1.0, 1.0);
-        let sphere = ImplicitPolynomial { degree: 2, coefficients: c, center: [0.0; 3], scale: 1.0 };
-        let region = Aabb { min: [-1.5, -1.2, -1.0], max: [1.5, 1.2, 1.0] };
-        let params =
-            SliceParams { axis, count: 3, resolution: 20, method: DistanceMethod::Taubin };
+        let sphere = ImplicitPolynomial {
+            degree: 2,
+            coefficients: c,
+            center: [0.0; 3],
+            scale: 1.0,
+        };
+        let region = Aabb {
+            min: [-1.5, -1.2, -1.0],
+            max: [1.5, 1.2, 1.0],
+        };
+        let params = SliceParams {
+            axis,
+            count: 3,
+            resolution: 20,
+            method: DistanceMethod::Taubin,
+        };
         slices(&sphere, &region, &params).unwrap().swap_remove(1)
     }
 
@@ -228,7 +286,10 @@ mod tests {
             }
             let attrs = &layer.attributes.other;
             assert_eq!(attrs[&Text::from("sliceIndex")], AttributeValue::I32(1));
-            assert_eq!(attrs[&Text::from("sliceAxis")], AttributeValue::Text(Text::from("x")));
+            assert_eq!(
+                attrs[&Text::from("sliceAxis")],
+                AttributeValue::Text(Text::from("x"))
+            );
         }
     }
 

@@ -87,7 +87,11 @@ pub fn write_glb(
         limit: u64::from(u32::MAX),
     })?;
     let glb = gltf::binary::Glb {
-        header: gltf::binary::Header { magic: *b"glTF", version: 2, length },
+        header: gltf::binary::Header {
+            magic: *b"glTF",
+            version: 2,
+            length,
+        },
         json: Cow::Owned(json_bytes),
         bin: Some(Cow::Owned(bin)),
     };
@@ -125,12 +129,16 @@ pub fn write_gltf(
     opts: &GltfOptions,
 ) -> Result<(), ExportError> {
     if bin_uri.is_empty() {
-        return Err(ExportError::InvalidMesh("the .bin URI of a .gltf must not be empty".into()));
+        return Err(ExportError::InvalidMesh(
+            "the .bin URI of a .gltf must not be empty".into(),
+        ));
     }
     let (root, bin) = encode(mesh, opts, Some(bin_uri))?;
     let json_bytes = json::serialize::to_vec_pretty(&root)
         .map_err(|e| ExportError::Format(format!("cannot serialize glTF JSON: {e}")))?;
-    json_out.write_all(&json_bytes).map_err(ExportError::Write)?;
+    json_out
+        .write_all(&json_bytes)
+        .map_err(ExportError::Write)?;
     json_out.write_all(b"\n").map_err(ExportError::Write)?;
     bin_out.write_all(&bin).map_err(ExportError::Write)
 }
@@ -219,8 +227,11 @@ fn encode(
         extras: Default::default(),
     };
     let position_view = root.push(view(0, position_bytes, json::buffer::Target::ArrayBuffer));
-    let normal_view =
-        root.push(view(position_bytes, position_bytes, json::buffer::Target::ArrayBuffer));
+    let normal_view = root.push(view(
+        position_bytes,
+        position_bytes,
+        json::buffer::Target::ArrayBuffer,
+    ));
     let index_view = root.push(view(
         2 * position_bytes,
         index_bytes,
@@ -250,9 +261,18 @@ fn encode(
         Type::Vec3,
         Some((min, max)),
     ));
-    let normals =
-        root.push(accessor(normal_view, n_vertices, ComponentType::F32, Type::Vec3, None));
-    let index_component = if use_u16 { ComponentType::U16 } else { ComponentType::U32 };
+    let normals = root.push(accessor(
+        normal_view,
+        n_vertices,
+        ComponentType::F32,
+        Type::Vec3,
+        None,
+    ));
+    let index_component = if use_u16 {
+        ComponentType::U16
+    } else {
+        ComponentType::U32
+    };
     let indices = root.push(accessor(
         index_view,
         mesh.triangles.len() * 3,
@@ -319,7 +339,10 @@ pub(crate) fn check_mesh(mesh: &TriangleMesh) -> Result<(), ExportError> {
             n_vertices
         )));
     }
-    if let Some(vertex_idx) = mesh.positions.iter().position(|p| !p.iter().all(|c| c.is_finite()))
+    if let Some(vertex_idx) = mesh
+        .positions
+        .iter()
+        .position(|p| !p.iter().all(|c| c.is_finite()))
     {
         return Err(ExportError::InvalidMesh(format!(
             "vertex {vertex_idx} has a non-finite coordinate"
@@ -330,8 +353,11 @@ pub(crate) fn check_mesh(mesh: &TriangleMesh) -> Result<(), ExportError> {
             "the mesh has {n_vertices} vertices, more than 32-bit indices can address"
         )));
     }
-    if let Some((triangle_idx, t)) =
-        mesh.triangles.iter().enumerate().find(|(_, t)| t.iter().any(|&i| i as usize >= n_vertices))
+    if let Some((triangle_idx, t)) = mesh
+        .triangles
+        .iter()
+        .enumerate()
+        .find(|(_, t)| t.iter().any(|&i| i as usize >= n_vertices))
     {
         return Err(ExportError::InvalidMesh(format!(
             "triangle {triangle_idx} refers to vertex {} of {n_vertices}",
@@ -378,7 +404,14 @@ mod tests {
         let mut glb = Vec::new();
         write_glb(&triangle(), &mut glb, &GltfOptions { up: UpAxis::Z }).unwrap();
         let parsed = gltf::Gltf::from_slice(&glb).unwrap();
-        let prim = parsed.document.meshes().next().unwrap().primitives().next().unwrap();
+        let prim = parsed
+            .document
+            .meshes()
+            .next()
+            .unwrap()
+            .primitives()
+            .next()
+            .unwrap();
         assert_eq!(prim.bounding_box().min, [0.0, 0.0, -2.0]);
         assert_eq!(prim.bounding_box().max, [1.0, 3.0, 0.0]);
     }
@@ -397,8 +430,12 @@ mod tests {
         let mut m = triangle();
         m.positions[0][0] = f64::NAN;
         assert!(write_glb(&m, &mut Vec::new(), &GltfOptions::default()).is_err());
-        assert!(write_glb(&TriangleMesh::default(), &mut Vec::new(), &GltfOptions::default())
-            .is_err());
+        assert!(write_glb(
+            &TriangleMesh::default(),
+            &mut Vec::new(),
+            &GltfOptions::default()
+        )
+        .is_err());
     }
 
     #[test]
@@ -412,7 +449,17 @@ mod tests {
         let mut glb = Vec::new();
         write_glb(&mesh, &mut glb, &GltfOptions::default()).unwrap();
         let parsed = gltf::Gltf::from_slice(&glb).unwrap();
-        let prim = parsed.document.meshes().next().unwrap().primitives().next().unwrap();
-        assert_eq!(prim.indices().unwrap().data_type(), gltf::accessor::DataType::U32);
+        let prim = parsed
+            .document
+            .meshes()
+            .next()
+            .unwrap()
+            .primitives()
+            .next()
+            .unwrap();
+        assert_eq!(
+            prim.indices().unwrap().data_type(),
+            gltf::accessor::DataType::U32
+        );
     }
 }

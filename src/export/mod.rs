@@ -86,12 +86,18 @@ pub fn write_atomic<F>(path: &Path, write: F) -> Result<(), ExportError>
 where
     F: FnOnce(&mut BufWriter<&mut File>) -> Result<(), ExportError>,
 {
-    let io_err = |source| ExportError::Io { path: path.display().to_string(), source };
+    let io_err = |source| ExportError::Io {
+        path: path.display().to_string(),
+        source,
+    };
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
     };
-    let file_name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let file_name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let tmp_path = dir.join(format!(".{file_name}.tmp{}", std::process::id()));
     let result = (|| {
         let mut file = File::create(&tmp_path).map_err(io_err)?;

@@ -30,7 +30,7 @@
 use std::io::Write;
 use std::path::Path;
 
-use serde::{Serialize};
+use serde::Serialize;
 
 use crate::cloud::Aabb;
 use crate::export::ExportError;
@@ -103,7 +103,10 @@ pub fn write_model(model: &ImplicitModel, out: &mut impl Write) -> Result<(), Ex
         degree: p.degree,
         monomial_order: Some(MONOMIAL_ORDER.into()),
         coefficients: p.coefficients.clone(),
-        normalization: Normalization { center: p.center, scale: p.scale },
+        normalization: Normalization {
+            center: p.center,
+            scale: p.scale,
+        },
         bounds: model.bounds,
         fit: model.fit.clone(),
         diagnostics: model.diagnostics.clone(),
@@ -149,20 +152,27 @@ pub fn write_model(model: &ImplicitModel, out: &mut impl Write) -> Result<(), Ex
 /// coefficient count is not (n+1)(n+2)(n+3)/6, a number is not finite, or the scale is not
 /// positive.
 pub fn read_model(bytes: &[u8], path: &Path) -> Result<ImplicitModel, ExportError> {
-    let fail = |reason: String| ExportError::Model { path: path.display().to_string(), reason };
+    let fail = |reason: String| ExportError::Model {
+        path: path.display().to_string(),
+        reason,
+    };
     // serde_json checks the syntax (its errors give line and column); the values are then taken
     // from `parse_exact`, whose numbers are correctly rounded (serde_json's default float parser
     // may be off by one unit in the last place, which would break the exact round trip).
     serde_json::from_slice::<serde::de::IgnoredAny>(bytes)
         .map_err(|e| fail(format!("not valid JSON: {e}")))?;
     let value = parse_exact(bytes).ok_or_else(|| fail("not valid JSON".into()))?;
-    let obj = value.as_object().ok_or_else(|| fail("the top level is not a JSON object".into()))?;
+    let obj = value
+        .as_object()
+        .ok_or_else(|| fail("the top level is not a JSON object".into()))?;
     // Check the format and version first so a different file type gets a clear message rather
     // than a complaint about a missing field.
     match obj.get("format").and_then(|f| f.as_str()) {
         Some(MODEL_FORMAT) => {}
         Some(other) => {
-            return Err(fail(format!("format is \"{other}\", expected \"{MODEL_FORMAT}\"")))
+            return Err(fail(format!(
+                "format is \"{other}\", expected \"{MODEL_FORMAT}\""
+            )))
         }
         None => return Err(fail(format!("no \"format\": \"{MODEL_FORMAT}\" field"))),
     }
@@ -177,7 +187,9 @@ pub fn read_model(bytes: &[u8], path: &Path) -> Result<ImplicitModel, ExportErro
     }
     let degree: u32 = required(obj, "degree", "").map_err(fail)?;
     if degree > MAX_DEGREE {
-        return Err(fail(format!("degree {degree} exceeds the maximum {MAX_DEGREE}")));
+        return Err(fail(format!(
+            "degree {degree} exceeds the maximum {MAX_DEGREE}"
+        )));
     }
     let coefficients: Vec<f64> = required(obj, "coefficients", "").map_err(fail)?;
     let normalization: &serde_json::Map<String, serde_json::Value> = obj
@@ -189,9 +201,19 @@ pub fn read_model(bytes: &[u8], path: &Path) -> Result<ImplicitModel, ExportErro
     let bounds: Option<Aabb> = optional(obj, "box").map_err(fail)?;
     let fit: Option<FitRecord> = optional(obj, "fit").map_err(fail)?;
     let diagnostics: Option<FitDiagnostics> = optional(obj, "diagnostics").map_err(fail)?;
-    let polynomial = ImplicitPolynomial { degree, coefficients, center, scale };
+    let polynomial = ImplicitPolynomial {
+        degree,
+        coefficients,
+        center,
+        scale,
+    };
     check_polynomial(&polynomial, bounds.as_ref()).map_err(fail)?;
-    Ok(ImplicitModel { polynomial, bounds, fit, diagnostics })
+    Ok(ImplicitModel {
+        polynomial,
+        bounds,
+        fit,
+        diagnostics,
+    })
 }
 
 type JsonObject = serde_json::Map<String, serde_json::Value>;
@@ -202,7 +224,9 @@ fn required<T: serde::de::DeserializeOwned>(
     name: &str,
     prefix: &str,
 ) -> Result<T, String> {
-    let value = obj.get(name).ok_or_else(|| format!("missing field \"{prefix}{name}\""))?;
+    let value = obj
+        .get(name)
+        .ok_or_else(|| format!("missing field \"{prefix}{name}\""))?;
     T::deserialize(value).map_err(|e| format!("field \"{prefix}{name}\": {e}"))
 }
 
@@ -213,9 +237,9 @@ fn optional<T: serde::de::DeserializeOwned>(
 ) -> Result<Option<T>, String> {
     match obj.get(name) {
         None | Some(serde_json::Value::Null) => Ok(None),
-        Some(value) => {
-            T::deserialize(value).map(Some).map_err(|e| format!("field \"{name}\": {e}"))
-        }
+        Some(value) => T::deserialize(value)
+            .map(Some)
+            .map_err(|e| format!("field \"{name}\": {e}")),
     }
 }
 
@@ -288,9 +312,11 @@ fn parse_value(s: &[u8], at: &mut usize) -> Option<serde_json::Value> {
         }
         b'"' => parse_string(s, at).map(Value::String),
         b't' | b'f' | b'n' => {
-            for (word, value) in
-                [("true", Value::Bool(true)), ("false", Value::Bool(false)), ("null", Value::Null)]
-            {
+            for (word, value) in [
+                ("true", Value::Bool(true)),
+                ("false", Value::Bool(false)),
+                ("null", Value::Null),
+            ] {
                 if s[*at..].starts_with(word.as_bytes()) {
                     *at += word.len();
                     return Some(value);
@@ -300,7 +326,10 @@ fn parse_value(s: &[u8], at: &mut usize) -> Option<serde_json::Value> {
         }
         _ => {
             let start = *at;
-            while s.get(*at).is_some_and(|c| matches!(c, b'-' | b'+' | b'.' | b'e' | b'E' | b'0'..=b'9')) {
+            while s
+                .get(*at)
+                .is_some_and(|c| matches!(c, b'-' | b'+' | b'.' | b'e' | b'E' | b'0'..=b'9'))
+            {
                 *at += 1;
             }
             let text = std::str::from_utf8(&s[start..*at]).ok()?;
@@ -354,7 +383,10 @@ fn check_polynomial(p: &ImplicitPolynomial, bounds: Option<&Aabb>) -> Result<(),
         return Err("normalization.center is not finite".into());
     }
     if !(p.scale.is_finite() && p.scale > 0.0) {
-        return Err(format!("normalization.scale is {}, it must be a finite number > 0", p.scale));
+        return Err(format!(
+            "normalization.scale is {}, it must be a finite number > 0",
+            p.scale
+        ));
     }
     if let Some(b) = bounds {
         let finite = b.min.iter().chain(&b.max).all(|c| c.is_finite());
@@ -371,7 +403,9 @@ mod tests {
 
     fn sample_model() -> ImplicitModel {
         let c = n_coefficients(4);
-        let coefficients = (0..c).map(|l| ((l as f64) * 0.731).sin() / 3.0 + 1e-17 * l as f64).collect();
+        let coefficients = (0..c)
+            .map(|l| ((l as f64) * 0.731).sin() / 3.0 + 1e-17 * l as f64)
+            .collect();
         ImplicitModel {
             polynomial: ImplicitPolynomial {
                 degree: 4,
@@ -379,7 +413,10 @@ mod tests {
                 center: [0.1, -2.0 / 3.0, 1e300],
                 scale: std::f64::consts::PI,
             },
-            bounds: Some(Aabb { min: [-1.0, -2.0, -3.0], max: [0.1, 0.2, 0.30000000000000004] }),
+            bounds: Some(Aabb {
+                min: [-1.0, -2.0, -3.0],
+                max: [0.1, 0.2, 0.30000000000000004],
+            }),
             fit: Some(FitRecord {
                 method: "3lrr".into(),
                 epsilon: 0.05,
@@ -408,7 +445,12 @@ mod tests {
         write_model(&model, &mut bytes).unwrap();
         let back = read_model(&bytes, Path::new("m.json")).unwrap();
         assert_eq!(back, model);
-        for (a, b) in back.polynomial.coefficients.iter().zip(&model.polynomial.coefficients) {
+        for (a, b) in back
+            .polynomial
+            .coefficients
+            .iter()
+            .zip(&model.polynomial.coefficients)
+        {
             assert_eq!(a.to_bits(), b.to_bits());
         }
         let text = String::from_utf8(bytes.clone()).unwrap();
@@ -429,14 +471,26 @@ mod tests {
         let cases = [
             (good.replace("\"scale\": 1", "\"scale\": 0"), "scale"),
             (good.replace("\"scale\": 1", "\"scale\": -2"), "scale"),
-            (good.replace("\"degree\": 2", "\"degree\": 3"), "20 coefficients"),
-            (good.replace("\"version\": 1", "\"version\": 7"), "version 7"),
+            (
+                good.replace("\"degree\": 2", "\"degree\": 3"),
+                "20 coefficients",
+            ),
+            (
+                good.replace("\"version\": 1", "\"version\": 7"),
+                "version 7",
+            ),
             (good.replace("implicit-polynomial", "mesh"), "format"),
             (good.replace("[-1, 0,", "[1e999, 0,"), "JSON"),
             (good.replace(", \"scale\": 1", ""), "scale"),
             (good.replace("[0, 0, 0]", "[0, 0]"), "center"),
             (good[..40].to_string(), "JSON"),
-            (good.replace("[-1, 0, 0, 0, 1, 0, 0, 1, 0, 1]", "[0, 0, 0, 0, 0, 0, 0, 0, 0, 0]"), "zero"),
+            (
+                good.replace(
+                    "[-1, 0, 0, 0, 1, 0, 0, 1, 0, 1]",
+                    "[0, 0, 0, 0, 0, 0, 0, 0, 0, 0]",
+                ),
+                "zero",
+            ),
         ];
         for (text, needle) in cases {
             let err = read_model(text.as_bytes(), Path::new("dir/x.json")).unwrap_err();
@@ -450,13 +504,19 @@ mod tests {
     fn non_finite_values_are_refused_on_write() {
         let mut m = sample_model();
         m.polynomial.coefficients[3] = f64::NAN;
-        assert!(matches!(write_model(&m, &mut Vec::new()), Err(ExportError::ModelValue(_))));
+        assert!(matches!(
+            write_model(&m, &mut Vec::new()),
+            Err(ExportError::ModelValue(_))
+        ));
         let mut m = sample_model();
         if let Some(d) = m.diagnostics.as_mut() {
             d.condition_number = f64::INFINITY;
         }
         let mut out = Vec::new();
-        assert!(matches!(write_model(&m, &mut out), Err(ExportError::ModelValue(_))));
+        assert!(matches!(
+            write_model(&m, &mut out),
+            Err(ExportError::ModelValue(_))
+        ));
         assert!(out.is_empty());
     }
 }

@@ -106,7 +106,11 @@ pub fn write(
             "{n_vertices} vertices exceed the PLY `int` index range"
         )));
     }
-    if let Some(vertex_idx) = mesh.normals.iter().position(|n| !n.iter().all(|c| c.is_finite())) {
+    if let Some(vertex_idx) = mesh
+        .normals
+        .iter()
+        .position(|n| !n.iter().all(|c| c.is_finite()))
+    {
         return Err(ExportError::InvalidMesh(format!(
             "vertex {vertex_idx} has a non-finite normal"
         )));
@@ -128,7 +132,8 @@ pub fn write(
         "element face {}\nproperty list uchar int vertex_indices\nend_header\n",
         mesh.triangles.len()
     ));
-    out.write_all(header.as_bytes()).map_err(ExportError::Write)?;
+    out.write_all(header.as_bytes())
+        .map_err(ExportError::Write)?;
 
     let mut buf: Vec<u8> = Vec::with_capacity(CHUNK_BYTES + 256);
     let mut flush = |buf: &mut Vec<u8>, force: bool| -> Result<(), ExportError> {
@@ -202,8 +207,11 @@ pub fn nearest_point_distances(
     vertices: &[[f64; 3]],
     points: &[[f64; 3]],
 ) -> Result<Vec<f32>, ExportError> {
-    let finite: Vec<[f64; 3]> =
-        points.iter().copied().filter(|p| p.iter().all(|c| c.is_finite())).collect();
+    let finite: Vec<[f64; 3]> = points
+        .iter()
+        .copied()
+        .filter(|p| p.iter().all(|c| c.is_finite()))
+        .collect();
     if finite.is_empty() {
         return Err(ExportError::InvalidMesh(
             "no finite input point to measure vertex quality against".into(),
@@ -217,7 +225,10 @@ pub fn nearest_point_distances(
             if !v.iter().all(|c| c.is_finite()) {
                 return f32::NAN;
             }
-            let nearest = tree.query(v).nearest_one::<SquaredEuclidean<f64>>().execute();
+            let nearest = tree
+                .query(v)
+                .nearest_one::<SquaredEuclidean<f64>>()
+                .execute();
             nearest.distance.sqrt() as f32
         })
         .collect())
@@ -229,7 +240,12 @@ mod tests {
 
     fn quad() -> TriangleMesh {
         TriangleMesh {
-            positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]],
+            positions: vec![
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [1.0, 1.0, 0.0],
+                [0.0, 1.0, 0.0],
+            ],
             normals: vec![[0.0, 0.0, 1.0]; 4],
             triangles: vec![[0, 1, 2], [0, 2, 3]],
         }
@@ -247,8 +263,14 @@ mod tests {
         assert_eq!(x1, 1.0);
         let faces = &body[96..];
         assert_eq!(faces[0], 3);
-        assert_eq!(i32::from_le_bytes(faces[1 + 13..5 + 13].try_into().unwrap()), 0);
-        assert_eq!(i32::from_le_bytes(faces[9 + 13..13 + 13].try_into().unwrap()), 3);
+        assert_eq!(
+            i32::from_le_bytes(faces[1 + 13..5 + 13].try_into().unwrap()),
+            0
+        );
+        assert_eq!(
+            i32::from_le_bytes(faces[9 + 13..13 + 13].try_into().unwrap()),
+            3
+        );
     }
 
     #[test]
@@ -259,8 +281,18 @@ mod tests {
         let quality = [0.5f32, 1.5, 2.5, 3.5];
         for encoding in [PlyEncoding::BinaryLittleEndian, PlyEncoding::Ascii] {
             let mut out = Vec::new();
-            write(&mesh, &mut out, &PlyOptions { encoding, quality: Some(&quality) }).unwrap();
-            let ply = Parser::<DefaultElement>::new().read_ply(&mut out.as_slice()).unwrap();
+            write(
+                &mesh,
+                &mut out,
+                &PlyOptions {
+                    encoding,
+                    quality: Some(&quality),
+                },
+            )
+            .unwrap();
+            let ply = Parser::<DefaultElement>::new()
+                .read_ply(&mut out.as_slice())
+                .unwrap();
             let vertices = &ply.payload["vertex"];
             assert_eq!(vertices.len(), 4);
             assert_eq!(vertices[2]["y"], Property::Float(1.0));
@@ -273,16 +305,31 @@ mod tests {
     #[test]
     fn wrong_quality_length_is_an_error() {
         let q = [1.0f32];
-        let r = write(&quad(), &mut Vec::new(), &PlyOptions { quality: Some(&q), ..Default::default() });
+        let r = write(
+            &quad(),
+            &mut Vec::new(),
+            &PlyOptions {
+                quality: Some(&q),
+                ..Default::default()
+            },
+        );
         assert!(matches!(r, Err(ExportError::InvalidMesh(_))));
     }
 
     #[test]
     fn nearest_distances_match_brute_force() {
-        let points: Vec<[f64; 3]> =
-            (0..500).map(|i| [(i as f64 * 0.37).sin(), (i as f64 * 0.11).cos(), i as f64 * 0.01]).collect();
-        let vertices: Vec<[f64; 3]> =
-            (0..50).map(|i| [(i as f64 * 0.7).cos(), 0.3, i as f64 * 0.09]).collect();
+        let points: Vec<[f64; 3]> = (0..500)
+            .map(|i| {
+                [
+                    (i as f64 * 0.37).sin(),
+                    (i as f64 * 0.11).cos(),
+                    i as f64 * 0.01,
+                ]
+            })
+            .collect();
+        let vertices: Vec<[f64; 3]> = (0..50)
+            .map(|i| [(i as f64 * 0.7).cos(), 0.3, i as f64 * 0.09])
+            .collect();
         let d = nearest_point_distances(&vertices, &points).unwrap();
         for (v, dv) in vertices.iter().zip(&d) {
             let brute = points

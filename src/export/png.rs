@@ -94,8 +94,7 @@ pub fn write_preview(slice: &Slice, out: &mut impl Write) -> Result<(), ExportEr
             ];
             for n in neighbours.into_iter().flatten() {
                 // Ties go to the negative side so exactly one pixel of each pair is drawn.
-                if (v < 0.0) != (n < 0.0)
-                    && (v.abs() < n.abs() || (v.abs() == n.abs() && v < 0.0))
+                if (v < 0.0) != (n < 0.0) && (v.abs() < n.abs() || (v.abs() == n.abs() && v < 0.0))
                 {
                     on_zero = true;
                 }
