@@ -181,12 +181,32 @@ pub fn crust(points: &[[f64; 3]]) -> Result<Crust, NormalsError> {
     Ok(Crust { triangles, pole_vectors, on_hull, n_poles })
 }
 
-/// Normal of the planar fan around `p` made of `tris` (each containing `p`), or `None` when the
-/// fan is ill-structured.
-fn fan_normal(points: &[[f64; 3]], p: u32, tris: &[[u32; 3]], cos_max: f64) -> Option<[f64; 3]> {
+/// Normal of the fan of crust triangles `tris` around sample `p`, or `None` when the fan is
+/// ill-structured.
+///
+/// A planar fan (link = one cycle, or one path at a boundary) is walked in order, which winds
+/// every triangle the same way (the right-hand rule). The raw crust also holds all four faces of
+/// the flat "sliver" tetrahedra that four nearly co-circular samples make; such a fan is not
+/// planar but its triangles are all nearly tangent, so they are aligned with the pole vector
+/// instead. Each triangle (p, a, b) contributes (a − p) × (b − p) / (|a − p|² |b − p|²), the
+/// weights of Max (1999, "Weights for computing vertex normals from facet normals"), exact for
+/// samples of a sphere. The fan is rejected when a triangle's aligned normal is more than the
+/// angle whose cosine is `cos_max` away from the result.
+fn fan_normal(points: &[[f64; 3]], p: u32, tris: &[[u32; 3]], pole: Option<[f64; 3]>, cos_max: f64) -> Option<[f64; 3]> {
     if tris.is_empty() {
         return None;
     }
+    let o = &points[p as usize];
+    let weighted = |a: u32, b: u32| {
+        let ea = sub(&points[a as usize], o);
+        let eb = sub(&points[b as usize], o);
+        let w = dot(&ea, &ea) * dot(&eb, &eb);
+        if w > 0.0 {
+            scale(&cross(&ea, &eb), 1.0 / w)
+        } else {
+            [0.0; 3]
+        }
+    };
     // Link edges a → b from each triangle (p, a, b) in its own winding.
     let link: Vec<(u32, u32)> = tris
         .iter()
@@ -195,8 +215,46 @@ fn fan_normal(points: &[[f64; 3]], p: u32, tris: &[[u32; 3]], cos_max: f64) -> O
             (t[(k + 1) % 3], t[(k + 2) % 3])
         })
         .collect();
+    let normals: Vec<[f64; 3]> = match ordered_ring(&link) {
+        Some(ring) => ring.windows(2).map(|w| weighted(w[0], w[1])).collect(),
+        None => {
+            let reference = match pole {
+                Some(v) => v,
+                None => link.iter().map(|&(a, b)| weighted(a, b)).max_by(|x, y| norm(x).total_cmp(&norm(y)))?,
+            };
+            link.iter()
+                .map(|&(a, b)| {
+                    let nrm = weighted(a, b);
+                    if dot(&nrm, &reference) < 0.0 {
+                        scale(&nrm, -1.0)
+                    } else {
+                        nrm
+                    }
+                })
+                .collect()
+        }
+    };
+    let sum = normals.iter().fold([0.0; 3], |acc, x| add(&acc, x));
+    let unit = normalized(&sum)?;
+    for nrm in &normals {
+        let l = norm(nrm);
+        if l > 0.0 && dot(nrm, &unit) < cos_max * l {
+            return None;
+        }
+    }
+    if let Some(v) = pole {
+        if dot(&v, &unit).abs() < cos_max {
+            return None;
+        }
+    }
+    Some(unit)
+}
+
+/// The link vertices in order when the link edges form one cycle (first vertex repeated at the
+/// end) or one path; `None` otherwise.
+fn ordered_ring(link: &[(u32, u32)]) -> Option<Vec<u32>> {
     let mut verts: Vec<(u32, u32)> = Vec::with_capacity(2 * link.len());
-    for &(a, b) in &link {
+    for &(a, b) in link {
         for v in [a, b] {
             match verts.iter_mut().find(|x| x.0 == v) {
                 Some(x) => x.1 += 1,
@@ -212,7 +270,6 @@ fn fan_normal(points: &[[f64; 3]], p: u32, tris: &[[u32; 3]], cos_max: f64) -> O
     if !(is_cycle && link.len() >= 3 || ends.len() == 2 && link.len() >= 2) {
         return None;
     }
-    // Walk the link, orienting each edge along the walk (the right-hand rule alignment).
     let mut used = vec![false; link.len()];
     let mut ring = vec![if is_cycle { link[0].0 } else { ends[0] }];
     let mut cur = ring[0];
@@ -225,20 +282,7 @@ fn fan_normal(points: &[[f64; 3]], p: u32, tris: &[[u32; 3]], cos_max: f64) -> O
     if is_cycle && cur != ring[0] {
         return None;
     }
-    let o = &points[p as usize];
-    let normals: Vec<[f64; 3]> = ring
-        .windows(2)
-        .map(|w| cross(&sub(&points[w[0] as usize], o), &sub(&points[w[1] as usize], o)))
-        .collect();
-    let sum = normals.iter().fold([0.0; 3], |acc, x| add(&acc, x));
-    let unit = normalized(&sum)?;
-    for nrm in &normals {
-        let l = norm(nrm);
-        if l > 0.0 && dot(nrm, &unit) < cos_max * l {
-            return None;
-        }
-    }
-    Some(unit)
+    Some(ring)
 }
 
 /// Crust normals and what the stage reports about them.
@@ -282,7 +326,7 @@ pub fn crust_normals(points: &[[f64; 3]], params: &NormalsParams) -> Result<Crus
     let cos_max = params.max_fan_angle_deg.to_radians().cos();
     let fans: Vec<Option<[f64; 3]>> = (0..n)
         .into_par_iter()
-        .map(|v| fan_normal(points, v as u32, &incident[start[v]..start[v + 1]], cos_max))
+        .map(|v| fan_normal(points, v as u32, &incident[start[v]..start[v + 1]], c.pole_vectors[v], cos_max))
         .collect();
     let knn = pca::knn(points, params.k_neighbours);
     let mut n_plane_fits = 0;
@@ -305,4 +349,40 @@ pub fn crust_normals(points: &[[f64; 3]], params: &NormalsParams) -> Result<Crus
         ));
     }
     Ok(CrustNormals { normals, triangles: c.triangles, n_plane_fits, warnings })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn circumcentre_is_equidistant() {
+        let q = [[0.1, 0.2, 0.3], [1.3, 0.1, -0.2], [0.4, 1.7, 0.2], [0.3, 0.5, 1.9]];
+        let c = circumcentre(&q[0], &q[1], &q[2], &q[3]);
+        let r0 = norm(&sub(&c, &q[0]));
+        for p in &q[1..] {
+            assert!((norm(&sub(&c, p)) - r0).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn sphere_crust_is_a_closed_triangulation() {
+        // Points of a Fibonacci sphere are all on the convex hull: the crust is the hull, 2n − 4
+        // triangles, every vertex in a planar fan.
+        let n = 500;
+        let points: Vec<[f64; 3]> = (0..n)
+            .map(|i| {
+                let z = 1.0 - (2.0 * i as f64 + 1.0) / n as f64;
+                let r = (1.0 - z * z).sqrt();
+                let a = i as f64 * 2.399_963_229_728_653;
+                [r * a.cos(), r * a.sin(), z]
+            })
+            .collect();
+        let c = crust(&points).unwrap();
+        assert_eq!(c.triangles.len(), 2 * n - 4);
+        assert!(c.on_hull.iter().all(|&h| h));
+        for (p, v) in points.iter().zip(&c.pole_vectors) {
+            assert!(dot(p, &v.unwrap()) > 0.99, "the pole vector of a hull point is the outward normal");
+        }
+    }
 }
