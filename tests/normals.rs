@@ -82,18 +82,26 @@ fn torus(n: usize, seed: u64) -> Sample {
     Sample { points, normals, size: 2.0 * (big + small) }
 }
 
-/// A genus-2 "eight": the surface at distance about `r` from the figure-eight curve
-/// x⁴ − x² + y² = 0, z = 0 (the lemniscate of Gerono), as the zero set of
-/// f = (x⁴ − x² + y²)² + z² − r².
+/// A genus-2 "eight": two tori (R = 0.65, r = 0.35) side by side, centres 1.6 apart, joined by a
+/// smooth union of their signed distances, f = −ln(e^(−k·d₁) + e^(−k·d₂))/k with k = 16.
 fn eight(n: usize, seed: u64) -> Sample {
-    let r = 0.16;
-    let f = |p: [f64; 3]| {
-        let g = p[0].powi(4) - p[0] * p[0] + p[1] * p[1];
-        g * g + p[2] * p[2] - r * r
+    let (big, small, offset, k) = (0.65, 0.35, 0.8, 16.0);
+    // Signed distance to a torus centred at (cx, 0, 0) and its gradient.
+    let torus_sdf = |p: [f64; 3], cx: f64| {
+        let (x, y, z) = (p[0] - cx, p[1], p[2]);
+        let rho = (x * x + y * y).sqrt().max(1e-12);
+        let q = rho - big;
+        let len = (q * q + z * z).sqrt().max(1e-12);
+        (len - small, [q / len * x / rho, q / len * y / rho, z / len])
     };
-    let grad = |p: [f64; 3]| {
-        let g = p[0].powi(4) - p[0] * p[0] + p[1] * p[1];
-        [2.0 * g * (4.0 * p[0].powi(3) - 2.0 * p[0]), 2.0 * g * 2.0 * p[1], 2.0 * p[2]]
+    let field = |p: [f64; 3]| {
+        let (d1, g1) = torus_sdf(p, -offset);
+        let (d2, g2) = torus_sdf(p, offset);
+        let m = d1.min(d2);
+        let (e1, e2) = ((-k * (d1 - m)).exp(), (-k * (d2 - m)).exp());
+        let f = m - (e1 + e2).ln() / k;
+        let (w1, w2) = (e1 / (e1 + e2), e2 / (e1 + e2));
+        (f, [w1 * g1[0] + w2 * g2[0], w1 * g1[1] + w2 * g2[1], w1 * g1[2] + w2 * g2[2]])
     };
     let mut rng = Rng(seed);
     let mut points = Vec::new();
@@ -101,24 +109,25 @@ fn eight(n: usize, seed: u64) -> Sample {
     // Uniform points in a thin shell around the surface (density ∝ area), then projected.
     let shell = 0.004;
     while points.len() < n {
-        let mut p = [2.6 * rng.uniform() - 1.3, 1.6 * rng.uniform() - 0.8, 0.4 * rng.uniform() - 0.2];
-        let gr = grad(p);
-        let gl = dot(&gr, &gr).sqrt();
-        if gl < 1e-9 || f(p).abs() / gl > shell {
+        let mut p = [3.8 * rng.uniform() - 1.9, 2.2 * rng.uniform() - 1.1, 0.8 * rng.uniform() - 0.4];
+        let (f0, g0) = field(p);
+        let gl = dot(&g0, &g0).sqrt();
+        if gl < 1e-9 || f0.abs() / gl > shell {
             continue;
         }
-        for _ in 0..30 {
-            let gr = grad(p);
-            let s = f(p) / dot(&gr, &gr);
-            p = [p[0] - s * gr[0], p[1] - s * gr[1], p[2] - s * gr[2]];
+        for _ in 0..20 {
+            let (f, g) = field(p);
+            let s = f / dot(&g, &g);
+            p = [p[0] - s * g[0], p[1] - s * g[1], p[2] - s * g[2]];
         }
-        if f(p).abs() > 1e-12 {
+        let (f, g) = field(p);
+        if f.abs() > 1e-12 {
             continue;
         }
         points.push(p);
-        normals.push(unit(grad(p)));
+        normals.push(unit(g));
     }
-    Sample { points, normals, size: 2.0 * 1.2 }
+    Sample { points, normals, size: 2.0 * (offset + big + small) }
 }
 
 fn with_noise(s: &Sample, fraction: f64, seed: u64) -> Sample {

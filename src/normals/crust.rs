@@ -329,14 +329,17 @@ pub fn crust_normals(points: &[[f64; 3]], params: &NormalsParams) -> Result<Crus
         .map(|v| fan_normal(points, v as u32, &incident[start[v]..start[v + 1]], c.pole_vectors[v], cos_max))
         .collect();
     let knn = pca::knn(points, params.k_neighbours);
+    let (fits, noisy) = pca::adaptive_normals(points, &knn, params.max_k_neighbours);
     let mut n_plane_fits = 0;
+    let mut n_noisy = 0;
     let mut normals: Vec<[f64; 3]> = Vec::with_capacity(n);
-    for (v, fan) in fans.iter().enumerate() {
-        match fan {
-            Some(f) => normals.push(*f),
-            None => {
+    for v in 0..n {
+        match fans[v] {
+            Some(f) if !noisy[v] => normals.push(f),
+            _ => {
                 n_plane_fits += 1;
-                normals.push(pca::plane_normal(points, v, &knn[v]));
+                n_noisy += usize::from(noisy[v]);
+                normals.push(fits[v]);
             }
         }
     }
@@ -344,8 +347,7 @@ pub fn crust_normals(points: &[[f64; 3]], params: &NormalsParams) -> Result<Crus
     let mut warnings = Vec::new();
     if n_plane_fits > 0 {
         warnings.push(format!(
-            "crust fan ill-structured at {n_plane_fits} of {n} points; used pca plane fits (k = {}) there",
-            params.k_neighbours
+            "crust fan ill-structured at {n_plane_fits} of {n} points ({n_noisy} of them noisy); used pca plane fits there"
         ));
     }
     Ok(CrustNormals { normals, triangles: c.triangles, n_plane_fits, warnings })

@@ -165,6 +165,11 @@ pub struct NormalsParams {
     /// Neighbours (besides the point itself) used by the plane fits and by the orientation
     /// graph. Default 16; raise it (24–48) for noisy scans.
     pub k_neighbours: usize,
+    /// Largest neighbourhood of a plane fit. Where the data is noisy at the scale of
+    /// `k_neighbours` points, plane fits double their neighbourhood while that makes them
+    /// flatter, up to this many points (and such points use the plane fit, not the crust fan).
+    /// Default 128; set it equal to `k_neighbours` for fixed neighbourhoods.
+    pub max_k_neighbours: usize,
     /// Largest angle, in degrees, between a crust triangle's normal and the mean normal of the
     /// fan around a point before that fan counts as ill-structured (replaced by a plane fit).
     /// Default 40.
@@ -173,7 +178,7 @@ pub struct NormalsParams {
 
 impl Default for NormalsParams {
     fn default() -> Self {
-        NormalsParams { source: NormalSource::Auto, k_neighbours: 16, max_fan_angle_deg: 40.0 }
+        NormalsParams { source: NormalSource::Auto, k_neighbours: 16, max_k_neighbours: 128, max_fan_angle_deg: 40.0 }
     }
 }
 
@@ -221,6 +226,12 @@ pub fn estimate_normals(cloud: &PointCloud, params: &NormalsParams) -> Result<No
         return Err(NormalsError::InvalidParams(format!(
             "k_neighbours is {}, choose a value between 3 and 1000",
             params.k_neighbours
+        )));
+    }
+    if params.max_k_neighbours < params.k_neighbours || params.max_k_neighbours > 4096 {
+        return Err(NormalsError::InvalidParams(format!(
+            "max_k_neighbours is {}, choose a value between k_neighbours ({}) and 4096",
+            params.max_k_neighbours, params.k_neighbours
         )));
     }
     if !(params.max_fan_angle_deg > 0.0 && params.max_fan_angle_deg <= 180.0) {

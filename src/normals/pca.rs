@@ -16,37 +16,38 @@ use rayon::prelude::*;
 use crate::normals::vec3::{dot, normalized, sub};
 use crate::normals::NormalsParams;
 
+/// A k-d tree over the points (`None` only when kiddo refuses the input).
+pub fn build_tree(points: &[[f64; 3]]) -> Option<ImmutableKdTree<f64, 3>> {
+    ImmutableKdTree::<f64, 3>::new_from_slice(points).ok()
+}
+
+/// The `k` nearest neighbours of point `i` (itself excluded), nearest first, ties by index.
+pub fn nearest(tree: &ImmutableKdTree<f64, 3>, points: &[[f64; 3]], i: usize, k: usize) -> Vec<u32> {
+    let Some(qty) = std::num::NonZeroUsize::new((k + 1).min(points.len())) else {
+        return Vec::new();
+    };
+    let mut found = tree.query(&points[i]).nearest_n::<SquaredEuclidean<f64>>(qty).execute();
+    // Sort by (distance, index) so that ties are broken the same way on every run.
+    found.sort_by(|a, b| a.distance.total_cmp(&b.distance).then(a.item.cmp(&b.item)));
+    found.into_iter().map(|r| r.item).filter(|&j| j as usize != i).take(k).collect()
+}
+
 /// The k nearest neighbours of every point (the point itself excluded), nearest first.
 pub fn knn(points: &[[f64; 3]], k: usize) -> Vec<Vec<u32>> {
-    let k = k.min(points.len().saturating_sub(1));
-    if k == 0 {
-        return vec![Vec::new(); points.len()];
+    match build_tree(points) {
+        Some(tree) => (0..points.len()).into_par_iter().map(|i| nearest(&tree, points, i, k)).collect(),
+        None => vec![Vec::new(); points.len()],
     }
-    let Ok(tree) = ImmutableKdTree::<f64, 3>::new_from_slice(points) else {
-        return vec![Vec::new(); points.len()];
-    };
-    let Some(qty) = std::num::NonZeroUsize::new(k + 1) else {
-        return vec![Vec::new(); points.len()];
-    };
-    points
-        .par_iter()
-        .enumerate()
-        .map(|(i, p)| {
-            let mut found = tree.query(p).nearest_n::<SquaredEuclidean<f64>>(qty).execute();
-            // Sort by (distance, index) so that ties are broken the same way on every run.
-            found.sort_by(|a, b| a.distance.total_cmp(&b.distance).then(a.item.cmp(&b.item)));
-            found
-                .into_iter()
-                .map(|r| r.item)
-                .filter(|&j| j as usize != i)
-                .take(k)
-                .collect()
-        })
-        .collect()
 }
 
 /// Normal of the least-squares plane through `centre` and `neighbours`.
 pub fn plane_normal(points: &[[f64; 3]], centre: usize, neighbours: &[u32]) -> [f64; 3] {
+    plane_fit(points, centre, neighbours).0
+}
+
+/// Normal of the least-squares plane through `centre` and `neighbours`, and the neighbourhood's
+/// thickness: √(λ₀/λ₁), the spread across the plane over the spread along it.
+pub fn plane_fit(points: &[[f64; 3]], centre: usize, neighbours: &[u32]) -> ([f64; 3], f64) {
     let idx = std::iter::once(centre as u32).chain(neighbours.iter().copied());
     let count = (neighbours.len() + 1) as f64;
     let mut mean = [0.0; 3];
@@ -65,11 +66,79 @@ pub fn plane_normal(points: &[[f64; 3]], centre: usize, neighbours: &[u32]) -> [
             }
         }
     }
-    smallest_eigenvector(cov)
+    let (normal, l0, l1) = smallest_eigen(cov);
+    let thickness = if l1 > 0.0 { (l0.max(0.0) / l1).sqrt() } else { 1.0 };
+    (normal, thickness)
+}
+
+/// Below this thickness a neighbourhood counts as clean and is never grown.
+const CLEAN_THICKNESS: f64 = 0.05;
+
+/// A plane fit whose neighbourhood grows where noise dominates (an adaptive choice of scale).
+///
+/// A neighbourhood of k₀ = `neighbours.len()` points thicker than 0.05 (thickness √(λ₀/λ₁),
+/// the spread across the plane over the spread along it) is tried at 2k₀, 4k₀, … up to `max_k`
+/// points, and the flattest one wins. Noise makes the thickness fall like 1/radius as the
+/// neighbourhood grows, curvature or a nearby sheet make it rise, so the flattest scale is where
+/// the two balance (Mitra & Nguyen 2003 choose the scale from the same trade-off). The small
+/// neighbourhood is kept unless the flattest is at least 20% flatter. Returns the normal and the
+/// number of neighbours used.
+pub fn adaptive_plane_fit(
+    tree: &ImmutableKdTree<f64, 3>,
+    points: &[[f64; 3]],
+    i: usize,
+    neighbours: &[u32],
+    max_k: usize,
+) -> ([f64; 3], usize) {
+    let (first_normal, first_thickness) = plane_fit(points, i, neighbours);
+    let (mut normal, mut thickness) = (first_normal, first_thickness);
+    let k0 = neighbours.len();
+    if thickness <= CLEAN_THICKNESS || 2 * k0 > max_k || k0 == 0 {
+        return (normal, k0);
+    }
+    let wide = nearest(tree, points, i, max_k);
+    let mut best_k = k0;
+    let mut k = 2 * k0;
+    while k <= wide.len() {
+        let (n2, t2) = plane_fit(points, i, &wide[..k]);
+        if t2 < thickness {
+            normal = n2;
+            thickness = t2;
+            best_k = k;
+        }
+        k *= 2;
+    }
+    // Curvature alone changes the thickness little from one scale to the next; only a clear
+    // drop says that noise dominated the small neighbourhood.
+    if thickness > 0.8 * first_thickness {
+        return (first_normal, k0);
+    }
+    (normal, best_k)
+}
+
+/// Plane-fit normals with the adaptive neighbourhood, in parallel; also returns, per point,
+/// whether its neighbourhood had to grow (the data is noisy at the k₀ scale there).
+pub fn adaptive_normals(points: &[[f64; 3]], neighbours: &[Vec<u32>], max_k: usize) -> (Vec<[f64; 3]>, Vec<bool>) {
+    let Some(tree) = build_tree(points) else {
+        return ((0..points.len()).map(|i| plane_normal(points, i, &neighbours[i])).collect(), vec![false; points.len()]);
+    };
+    let fits: Vec<([f64; 3], bool)> = (0..points.len())
+        .into_par_iter()
+        .map(|i| {
+            let (n, k) = adaptive_plane_fit(&tree, points, i, &neighbours[i], max_k);
+            (n, k > neighbours[i].len())
+        })
+        .collect();
+    fits.into_iter().unzip()
 }
 
 /// Unit eigenvector of the smallest eigenvalue of a symmetric 3×3 matrix (cyclic Jacobi).
-pub fn smallest_eigenvector(mut a: [[f64; 3]; 3]) -> [f64; 3] {
+pub fn smallest_eigenvector(a: [[f64; 3]; 3]) -> [f64; 3] {
+    smallest_eigen(a).0
+}
+
+/// Unit eigenvector of the smallest eigenvalue, that eigenvalue and the middle one.
+fn smallest_eigen(mut a: [[f64; 3]; 3]) -> ([f64; 3], f64, f64) {
     let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
     for _sweep in 0..32 {
         let off = a[0][1].abs() + a[0][2].abs() + a[1][2].abs();
@@ -114,21 +183,18 @@ pub fn smallest_eigenvector(mut a: [[f64; 3]; 3]) -> [f64; 3] {
         }
     }
     let e = [v[0][best], v[1][best], v[2][best]];
-    normalized(&e).unwrap_or([0.0, 0.0, 1.0])
+    let mut rest = [0usize, 1, 2].into_iter().filter(|&i| i != best).map(|i| a[i][i]);
+    let middle = match (rest.next(), rest.next()) {
+        (Some(x), Some(y)) => x.min(y),
+        _ => 0.0,
+    };
+    (normalized(&e).unwrap_or([0.0, 0.0, 1.0]), a[best][best], middle)
 }
 
-/// Unoriented plane-fit normals for all points with their k nearest neighbours.
-pub fn unoriented_normals(points: &[[f64; 3]], neighbours: &[Vec<u32>]) -> Vec<[f64; 3]> {
-    (0..points.len())
-        .into_par_iter()
-        .map(|i| plane_normal(points, i, &neighbours[i]))
-        .collect()
-}
-
-/// The `pca` source: plane fits, oriented consistently and outward.
+/// The `pca` source: adaptive plane fits, oriented consistently and outward.
 pub fn pca_normals(points: &[[f64; 3]], params: &NormalsParams) -> Vec<[f64; 3]> {
     let neighbours = knn(points, params.k_neighbours);
-    let mut normals = unoriented_normals(points, &neighbours);
+    let (mut normals, _) = adaptive_normals(points, &neighbours, params.max_k_neighbours);
     crate::normals::orient::orient_outward(points, &mut normals, &[], &neighbours);
     normals
 }
