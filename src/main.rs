@@ -368,8 +368,8 @@ fn write_mesh(mesh: &TriangleMesh, path: &Path, ascii: bool, up: cli::UpArg) -> 
             let bin_uri = bin_path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
             let (mut json, mut bin) = (Vec::new(), Vec::new());
             export::gltf::write_gltf(mesh, &mut json, &mut bin, &bin_uri, &gltf)?;
-            export::write_atomic(&bin_path, |w| w.write_all(&bin).map_err(export::ExportError::from_io))?;
-            export::write_atomic(path, |w| w.write_all(&json).map_err(export::ExportError::from_io))?;
+            export::write_atomic(&bin_path, |w| w.write_all(&bin).map_err(export::ExportError::Write))?;
+            export::write_atomic(path, |w| w.write_all(&json).map_err(export::ExportError::Write))?;
         }
         _ => {
             let encoding = if ascii { export::ply::PlyEncoding::Ascii } else { export::ply::PlyEncoding::BinaryLittleEndian };
@@ -389,24 +389,25 @@ fn cmd_slices(args: cli::SlicesArgs, verbosity: Verbosity) -> Result<()> {
         Some(b) => b,
         None => pipeline::meshing_region(&model),
     };
-    let params = export::exr::SliceParams {
+    let params = stablesurf::distance::SliceParams {
         axis: match args.axis {
-            cli::AxisArg::X => export::exr::Axis::X,
-            cli::AxisArg::Y => export::exr::Axis::Y,
-            cli::AxisArg::Z => export::exr::Axis::Z,
+            cli::AxisArg::X => stablesurf::distance::Axis::X,
+            cli::AxisArg::Y => stablesurf::distance::Axis::Y,
+            cli::AxisArg::Z => stablesurf::distance::Axis::Z,
         },
         count: args.count,
         resolution: args.resolution,
         method: match args.distance {
-            cli::DistanceArg::Taubin => export::exr::DistanceMethod::Taubin,
-            cli::DistanceArg::Exact => export::exr::DistanceMethod::Exact,
+            cli::DistanceArg::Taubin => stablesurf::distance::DistanceMethod::Taubin,
+            cli::DistanceArg::Exact => stablesurf::distance::DistanceMethod::Exact,
         },
     };
-    let slices = stablesurf::distance::slices(&model.polynomial, &region, &params);
+    let slices = stablesurf::distance::slices(&model.polynomial, &region, &params)
+        .with_context(|| format!("computing distance slices of {}", args.model.display()))?;
     std::fs::create_dir_all(&args.output).with_context(|| format!("creating {}", args.output.display()))?;
     for slice in &slices {
         let stem: PathBuf = args.output.join(format!("slice_{:03}", slice.index));
-        export::write_atomic(&stem.with_extension("exr"), |w| export::exr::write_slice(slice, w))?;
+        export::write_atomic(&stem.with_extension("exr"), |w| export::exr::write_slice(slice, &export::exr::ExrOptions::default(), w))?;
         export::write_atomic(&stem.with_extension("png"), |w| export::png::write_preview(slice, w))?;
     }
     if verbosity != Verbosity::Quiet {

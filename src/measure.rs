@@ -137,25 +137,6 @@ pub fn point_to_mesh_distances(points: &[[f64; 3]], mesh: &TriangleMesh) -> Vec<
         .collect()
 }
 
-/// Distance from each point of `from` to the nearest point of `to`.
-pub fn point_to_point_distances(from: &[[f64; 3]], to: &[[f64; 3]]) -> Vec<f64> {
-    if to.is_empty() {
-        return Vec::new();
-    }
-    let Ok(tree) = ImmutableKdTree::<f64, 3>::new_from_slice(to) else {
-        return Vec::new();
-    };
-    from.par_iter()
-        .map(|p| {
-            tree.query(p)
-                .nearest_one::<SquaredEuclidean<f64>>()
-                .execute()
-                .distance
-                .sqrt()
-        })
-        .collect()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

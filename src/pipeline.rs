@@ -9,6 +9,7 @@
 //! first file is written, and each file is written atomically, so a failed or killed run leaves
 //! no partial output file.
 
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -49,6 +50,9 @@ pub enum PipelineError {
     /// Writing an output failed.
     #[error("writing outputs failed")]
     Export(#[from] ExportError),
+    /// Computing the distance slices failed.
+    #[error("distance slices failed")]
+    Distance(#[from] crate::distance::DistanceError),
     /// The cache could not be written.
     #[error("cache failed")]
     Cache(#[from] cache::CacheError),
@@ -136,7 +140,7 @@ pub struct PipelineConfig {
     /// Drop zero-set components with no data point near them.
     pub keep: Keep,
     /// Distance slice parameters.
-    pub slices: export::exr::SliceParams,
+    pub slices: crate::distance::SliceParams,
     /// glTF options.
     pub gltf: export::gltf::GltfOptions,
     /// Which files to write.
@@ -483,6 +487,9 @@ pub fn run(
     Ok(report)
 }
 
+/// The writer `write_atomic` hands to an exporter.
+type FileWriter<'a> = std::io::BufWriter<&'a mut std::fs::File>;
+
 /// Computes every output in memory, then writes each file atomically.
 fn write_outputs(
     out_dir: &Path,
@@ -494,7 +501,7 @@ fn write_outputs(
 ) -> Result<Vec<String>, PipelineError> {
     let want = |f| config.formats.contains(&f);
     let slices = if want(OutputFormat::Exr) || want(OutputFormat::Png) {
-        crate::distance::slices(&model.polynomial, region, &config.slices)
+        crate::distance::slices(&model.polynomial, region, &config.slices)?
     } else {
         Vec::new()
     };
@@ -505,9 +512,9 @@ fn write_outputs(
     std::fs::create_dir_all(out_dir).map_err(dir_err(out_dir))?;
     let mut written = Vec::new();
     let mut put = |name: &str,
-                   f: &dyn Fn(&mut dyn std::io::Write) -> Result<(), ExportError>|
+                   f: &dyn Fn(&mut FileWriter<'_>) -> Result<(), ExportError>|
      -> Result<(), PipelineError> {
-        export::write_atomic(&out_dir.join(name), |w| f(w))?;
+        export::write_atomic(&out_dir.join(name), f)?;
         written.push(name.to_string());
         Ok(())
     };
@@ -521,15 +528,12 @@ fn write_outputs(
         let mut bin = Vec::new();
         let mut json = Vec::new();
         export::gltf::write_gltf(mesh, &mut json, &mut bin, "mesh.bin", &config.gltf)?;
-        put("mesh.bin", &|w| w.write_all(&bin).map_err(ExportError::from_io))?;
-        put("mesh.gltf", &|w| w.write_all(&json).map_err(ExportError::from_io))?;
+        put("mesh.bin", &|w| w.write_all(&bin).map_err(ExportError::Write))?;
+        put("mesh.gltf", &|w| w.write_all(&json).map_err(ExportError::Write))?;
     }
     if want(OutputFormat::Ply) {
-        let quality: Vec<f32> = measure::point_to_point_distances(&mesh.positions, &cloud.points)
-            .into_iter()
-            .map(|d| d as f32)
-            .collect();
-        let opts = export::ply::PlyOptions { quality: Some(quality), ..Default::default() };
+        let quality = export::ply::nearest_point_distances(&mesh.positions, &cloud.points)?;
+        let opts = export::ply::PlyOptions { quality: Some(&quality), ..Default::default() };
         put("mesh.ply", &|w| export::ply::write(mesh, w, &opts))?;
     }
     if want(OutputFormat::Png) {
@@ -542,7 +546,7 @@ fn write_outputs(
         for slice in &slices {
             if want(OutputFormat::Exr) {
                 let name = format!("slices/slice_{:03}.exr", slice.index);
-                put(&name, &|w| export::exr::write_slice(slice, w))?;
+                put(&name, &|w| export::exr::write_slice(slice, &export::exr::ExrOptions::default(), w))?;
             }
             if want(OutputFormat::Png) {
                 let name = format!("slices/slice_{:03}.png", slice.index);

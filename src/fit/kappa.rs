@@ -317,7 +317,7 @@ fn mesh_components(positions: &[[f64; 3]], triangles: &[[u32; 3]], weld: f64) ->
 /// Rules (c) and (d) on coarse meshes of the zero set of `poly` (normalized coordinates).
 fn zero_set_check(poly: &ImplicitPolynomial, radius: f64, data: &DataPieces) -> ZeroSetCheck {
     use crate::polygonize::{polygonize, PolygonizeParams};
-    let params = PolygonizeParams { depth: CHECK_DEPTH };
+    let params = PolygonizeParams { depth: CHECK_DEPTH, ..Default::default() };
     // (c): the inner box.
     let inner = Aabb {
         min: [-INNER_BOX; 3],
