@@ -116,8 +116,8 @@ fn encode(slice: &Slice, opts: &ExrOptions) -> Result<Vec<u8>, ExportError> {
     let m = &slice.grid_to_world;
     let mut matrix = Vec::with_capacity(128);
     for row in 0..4 {
-        for col in 0..4 {
-            matrix.extend_from_slice(&m[col][row].to_le_bytes());
+        for column in m {
+            matrix.extend_from_slice(&column[row].to_le_bytes());
         }
     }
     set(

@@ -115,7 +115,7 @@ pub fn write_glb(
 /// let (mut json, mut bin) = (Vec::new(), Vec::new());
 /// write_gltf(&mesh, &mut json, &mut bin, "mesh.bin", &GltfOptions { up: UpAxis::Z }).unwrap();
 /// let text = String::from_utf8(json).unwrap();
-/// assert!(text.contains("\"uri\":\"mesh.bin\"") && text.contains("stablesurf"));
+/// assert!(text.contains("\"uri\": \"mesh.bin\"") && text.contains("\"generator\": \"stablesurf\""));
 /// assert_eq!(bin.len(), 3 * 12 + 3 * 12 + 8); // positions, normals, u16 indices padded to 4
 /// ```
 ///
