@@ -66,10 +66,8 @@ impl Aabb {
             max: first,
         };
         for p in finite {
-            for a in 0..3 {
-                b.min[a] = b.min[a].min(p[a]);
-                b.max[a] = b.max[a].max(p[a]);
-            }
+            b.min = [0, 1, 2].map(|a| b.min[a].min(p[a]));
+            b.max = [0, 1, 2].map(|a| b.max[a].max(p[a]));
         }
         Some(b)
     }

@@ -326,12 +326,18 @@ fn encode(
 /// Checks what glTF requires of the mesh: at least one triangle, finite positions, one normal
 /// per position, indices in range.
 pub(crate) fn check_mesh(mesh: &TriangleMesh) -> Result<(), ExportError> {
-    let n_vertices = mesh.positions.len();
-    if mesh.triangles.is_empty() || n_vertices == 0 {
+    if mesh.triangles.is_empty() || mesh.positions.is_empty() {
         return Err(ExportError::InvalidMesh(
             "the mesh has no triangles; check that the surface crosses the meshing box".into(),
         ));
     }
+    check_vertices(mesh)
+}
+
+/// Checks the vertex data of a mesh that may have no triangles (a point set with normals):
+/// one normal per position, finite positions, indices in range.
+pub(crate) fn check_vertices(mesh: &TriangleMesh) -> Result<(), ExportError> {
+    let n_vertices = mesh.positions.len();
     if mesh.normals.len() != n_vertices {
         return Err(ExportError::InvalidMesh(format!(
             "the mesh has {} normals for {} vertices",

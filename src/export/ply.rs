@@ -91,7 +91,11 @@ pub fn write(
     out: &mut impl Write,
     opts: &PlyOptions<'_>,
 ) -> Result<(), ExportError> {
-    crate::export::gltf::check_mesh(mesh)?;
+    // PLY also holds point sets (`stablesurf normals` writes points with normals and no faces).
+    if mesh.positions.is_empty() {
+        return Err(ExportError::InvalidMesh("the mesh has no vertices".into()));
+    }
+    crate::export::gltf::check_vertices(mesh)?;
     let n_vertices = mesh.positions.len();
     if let Some(q) = opts.quality {
         if q.len() != n_vertices {
