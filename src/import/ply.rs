@@ -646,6 +646,19 @@ fn read_face_lists<const BIG: bool>(
             .and_then(|size| body.get(pos..pos.checked_add(size)?))
             .ok_or(FaceError::Truncated(face))?;
         pos += items.len();
+        if n == 3 {
+            // Triangles, the common case, skip the polygon buffer.
+            let mut triangle = [0u32; 3];
+            for (slot, chunk) in triangle.iter_mut().zip(items.chunks_exact(item_size)) {
+                let index = scalar_i64::<BIG>(chunk, item_ty).ok_or(FaceError::Truncated(face))?;
+                *slot = match u32::try_from(index) {
+                    Ok(i) if u64::from(i) < n_vertices => i,
+                    _ => return Err(FaceError::Index { face, index }),
+                };
+            }
+            triangles.push(triangle);
+            continue;
+        }
         polygon.clear();
         for chunk in items.chunks_exact(item_size) {
             let index = scalar_i64::<BIG>(chunk, item_ty).ok_or(FaceError::Truncated(face))?;
@@ -693,14 +706,19 @@ fn read_vertex_records<const BIG: bool>(
             .and_then(|b| scalar_f64::<BIG>(b, s))
             .unwrap_or(f64::NAN)
     };
+    // Written out rather than with `array::map`, which profiling showed was not inlined here.
     for record in records.chunks_exact(stride) {
-        points.push(xyz.map(|f| read(record, f)));
+        points.push([
+            read(record, xyz[0]),
+            read(record, xyz[1]),
+            read(record, xyz[2]),
+        ]);
     }
     if let (Some(out), Some(n)) = (normals.as_mut(), plan.normals) {
-        let nxyz = n.map(field);
+        let n = n.map(field);
         out.reserve(n_records);
         for record in records.chunks_exact(stride) {
-            out.push(nxyz.map(|f| read(record, f)));
+            out.push([read(record, n[0]), read(record, n[1]), read(record, n[2])]);
         }
     }
 }
