@@ -505,13 +505,7 @@ fn read_binary<const BIG: bool>(
                 .ok()
                 .and_then(|n| n.checked_mul(stride))
                 .filter(|&size| size <= remaining)
-                .ok_or_else(|| {
-                    truncated(if stride == 0 {
-                        0
-                    } else {
-                        (remaining / stride) as u64
-                    })
-                })?;
+                .ok_or_else(|| truncated(remaining.checked_div(stride).unwrap_or(0) as u64))?;
             let records = &body[pos..pos + size];
             pos += size;
             if e == plan.vertex && stride > 0 {
