@@ -20,10 +20,11 @@
 //! tokens; only the wanted tokens are converted.
 //!
 //! Why not ply-rs-bw's reader: it parses binary through `Read` and a name-keyed setter per
-//! property per entry, which `benches/import.rs` measures as several times slower than this
-//! slice reader, and its ascii grammar rejects `nan`, `inf` and `1.`, which real scans contain
-//! (a NaN must reach `stablesurf info`, not stop the parse). ply-rs-bw remains the writer of the
-//! round-trip test files and the baseline of the bench.
+//! property per entry. `cargo bench --bench import` (2 shared cores, load ≈ 10) timed the
+//! 1M-vertex, 2M-triangle binary file at 223 ms with this reader against 896 ms with ply-rs-bw,
+//! and the 3 MB ascii bunny at 82 ms against 170 ms. Its ascii grammar also rejects `nan`, `inf`
+//! and `1.`, which real scans contain (a NaN must reach `stablesurf info`, not stop the parse).
+//! ply-rs-bw stays the writer of the round-trip test files and the baseline of the bench.
 
 use crate::cloud::PointCloud;
 use crate::import::{push_fan, ImportError, Lines, ScanFormat};
