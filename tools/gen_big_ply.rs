@@ -4,7 +4,9 @@
 //! triangles per grid cell as `list uchar int vertex_indices`); n = 1000 gives 1,000,000
 //! vertices, 1,996,002 triangles and about 50 MB. `benches/import.rs` uses the same generator.
 //!
-//! Usage: `cargo run --release --example gen_big_ply -- OUT.ply [N]`.
+//! Usage: `cargo run --release --example gen_big_ply -- OUT.ply [N] [--time K]`; with `--time K`
+//! it then reads the file K times with `read_scan` and prints wall and CPU time per read (CPU time
+//! is the steadier figure on a shared machine).
 
 use std::io::Write;
 
@@ -51,22 +53,68 @@ pub fn big_ply(n: usize) -> Vec<u8> {
     out
 }
 
+/// CPU time (user + system) of this process in seconds, from /proc/self/stat (Linux only;
+/// `None` elsewhere). Its resolution is one clock tick, usually 10 ms.
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name, which is in parentheses and may hold spaces.
+    let rest = stat.get(stat.rfind(')')? + 2..)?;
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
 fn main() -> std::io::Result<()> {
-    let mut args = std::env::args().skip(1);
-    let Some(out) = args.next() else {
-        eprintln!("usage: gen_big_ply OUT.ply [N]   (N x N vertices, default 1000)");
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let usage = || -> ! {
+        eprintln!(
+            "usage: gen_big_ply OUT.ply [N] [--time K]\n  writes N x N vertices (default 1000); \
+             --time K then reads the file K times with stablesurf's importer and prints wall and \
+             CPU time per read"
+        );
         std::process::exit(2);
     };
-    let n = match args.next().map(|a| a.parse::<usize>()) {
-        None => 1000,
-        Some(Ok(n)) if n >= 2 => n,
-        Some(_) => {
-            eprintln!("gen_big_ply: error: N must be a whole number of at least 2");
-            std::process::exit(2);
+    let Some(out) = args.first() else { usage() };
+    let mut n = 1000;
+    let mut repeats = 0;
+    let mut rest = args[1..].iter();
+    while let Some(arg) = rest.next() {
+        match arg.as_str() {
+            "--time" => match rest.next().map(|k| k.parse::<usize>()) {
+                Some(Ok(k)) => repeats = k,
+                _ => usage(),
+            },
+            other => match other.parse::<usize>() {
+                Ok(v) if v >= 2 => n = v,
+                _ => usage(),
+            },
         }
-    };
+    }
     let bytes = big_ply(n);
-    std::fs::File::create(&out)?.write_all(&bytes)?;
+    std::fs::File::create(out)?.write_all(&bytes)?;
     eprintln!("wrote {out}: {} vertices, {} bytes", n * n, bytes.len());
+    if repeats > 0 {
+        let path = std::path::Path::new(out);
+        let mb = bytes.len() as f64 / 1e6;
+        let (wall, cpu) = (std::time::Instant::now(), cpu_seconds());
+        for _ in 0..repeats {
+            let scan = stablesurf::import::read_scan(path).map_err(std::io::Error::other)?;
+            std::hint::black_box(scan);
+        }
+        let wall = wall.elapsed().as_secs_f64() / repeats as f64;
+        println!(
+            "read_scan: wall {:.1} ms/read ({:.0} MB/s)",
+            wall * 1e3,
+            mb / wall
+        );
+        if let (Some(start), Some(end)) = (cpu, cpu_seconds()) {
+            let cpu = (end - start) / repeats as f64;
+            println!(
+                "read_scan: cpu  {:.1} ms/read ({:.0} MB/s)",
+                cpu * 1e3,
+                mb / cpu
+            );
+        }
+    }
     Ok(())
 }

@@ -457,6 +457,7 @@ pub(crate) fn position_key(p: [f64; 3]) -> [u64; 3] {
 
 /// Appends the fan triangulation of `polygon` (indices already 0-based) to `triangles`.
 /// Polygons with fewer than three corners add nothing.
+#[inline]
 pub(crate) fn push_fan(triangles: &mut Vec<[u32; 3]>, polygon: &[u32]) {
     if let Some((&first, rest)) = polygon.split_first() {
         for pair in rest.windows(2) {

@@ -16,8 +16,10 @@
 //! (split normals along hard edges, vertices without a normal) the normals are dropped, since
 //! the `normals` stage can estimate them.
 //!
-//! Hand-written rather than `tobj`: tobj reports errors without a line number and with no face
-//! number, and `benches/import.rs` compares the two speeds.
+//! Hand-written rather than `tobj`: tobj rebuilds the vertex list of each `o`/`g` group from
+//! the faces that use it, so unreferenced vertices vanish and shared ones repeat (counts would
+//! not be as stored); its errors carry no line number. It is also slower: `cargo bench --bench
+//! import` read max_planck.obj in 12.9 ms here against 18.3 ms with tobj (2 shared cores).
 
 use crate::cloud::PointCloud;
 use crate::import::{parse_f64, push_fan, ImportError, Lines};

@@ -164,12 +164,11 @@ pub(crate) fn read_ascii(bytes: &[u8], path: &str) -> Result<PointCloud, ImportE
             None => {}
             Some("solid") => open_solid = true,
             Some("endsolid") => open_solid = false,
-            Some("facet") => {
-                // The facet normal is ignored: it is per facet, not per point.
-                if in_loop {
-                    return Err(malformed("`facet` inside an open `outer loop`".into()));
-                }
+            // The facet normal is ignored: it is per facet, not per point.
+            Some("facet") if in_loop => {
+                return Err(malformed("`facet` inside an open `outer loop`".into()))
             }
+            Some("facet") => {}
             Some("outer") => {
                 polygon.clear();
                 in_loop = true;
