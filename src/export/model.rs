@@ -434,6 +434,7 @@ mod tests {
                 mean_distance_relative: 1e-4,
                 max_distance_relative: 5e-4,
                 warnings: vec!["a \"quoted\" warning".into()],
+                ..Default::default()
             }),
         }
     }
