@@ -173,13 +173,8 @@ fn gltf_options(up: cli::UpArg) -> export::gltf::GltfOptions {
     export::gltf::GltfOptions { up, ..Default::default() }
 }
 
-fn parse_bounds(b: &Option<Vec<f64>>) -> Result<Option<Aabb>> {
-    let Some(v) = b else { return Ok(None) };
-    let bounds = Aabb { min: [v[0], v[1], v[2]], max: [v[3], v[4], v[5]] };
-    if v.iter().any(|c| !c.is_finite()) || (0..3).any(|a| bounds.min[a] >= bounds.max[a]) {
-        return Err(usage("--bounds needs xmin,ymin,zmin,xmax,ymax,zmax with each min below its max"));
-    }
-    Ok(Some(bounds))
+fn region_from(bounds: Option<[f64; 6]>) -> Option<Aabb> {
+    bounds.map(|v| Aabb { min: [v[0], v[1], v[2]], max: [v[3], v[4], v[5]] })
 }
 
 fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
@@ -335,7 +330,7 @@ fn cmd_mesh(args: cli::MeshArgs, verbosity: Verbosity) -> Result<()> {
         return Err(usage(format!("-o {}: the mesh format comes from the extension: .glb, .gltf or .ply", args.output.display())));
     }
     let model = read_model(&args.model)?;
-    let region = match parse_bounds(&args.bounds)? {
+    let region = match region_from(args.bounds) {
         Some(b) => b,
         None => model.bounds.ok_or_else(|| {
             anyhow!("{} has no \"box\": pass the meshing region with --bounds xmin,ymin,zmin,xmax,ymax,zmax", args.model.display())
@@ -385,7 +380,7 @@ fn cmd_slices(args: cli::SlicesArgs, verbosity: Verbosity) -> Result<()> {
         return Err(usage("--count must be at least 1 and --resolution at least 2"));
     }
     let model = read_model(&args.model)?;
-    let region = match parse_bounds(&args.bounds)? {
+    let region = match region_from(args.bounds) {
         Some(b) => b,
         None => pipeline::meshing_region(&model),
     };

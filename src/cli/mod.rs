@@ -199,8 +199,8 @@ pub struct MeshArgs {
     #[arg(short, long, value_name = "OUT")]
     pub output: PathBuf,
     /// Meshing region in input coordinates: xmin,ymin,zmin,xmax,ymax,zmax (overrides the model's box).
-    #[arg(long, value_delimiter = ',', num_args = 6, allow_negative_numbers = true)]
-    pub bounds: Option<Vec<f64>>,
+    #[arg(long, value_name = "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX", allow_hyphen_values = true, value_parser = parse_bounds)]
+    pub bounds: Option<[f64; 6]>,
     /// Write a text PLY instead of binary.
     #[arg(long)]
     pub ascii: bool,
@@ -253,8 +253,8 @@ pub struct SlicesArgs {
     #[arg(long, value_enum, default_value_t = DistanceArg::Exact)]
     pub distance: DistanceArg,
     /// Region in input coordinates: xmin,ymin,zmin,xmax,ymax,zmax (overrides the model's box).
-    #[arg(long, value_delimiter = ',', num_args = 6, allow_negative_numbers = true)]
-    pub bounds: Option<Vec<f64>>,
+    #[arg(long, value_name = "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX", allow_hyphen_values = true, value_parser = parse_bounds)]
+    pub bounds: Option<[f64; 6]>,
 }
 
 /// `stablesurf render`.
@@ -301,6 +301,21 @@ pub enum CacheAction {
     Info,
     /// Remove every entry.
     Clear,
+}
+
+/// Parses `xmin,ymin,zmin,xmax,ymax,zmax`: six finite numbers, each min below its max.
+fn parse_bounds(text: &str) -> Result<[f64; 6], String> {
+    let values: Vec<f64> = text
+        .split(',')
+        .map(|v| v.trim().parse::<f64>().map_err(|_| format!("'{v}' is not a number")))
+        .collect::<Result<_, _>>()?;
+    let v: [f64; 6] = values
+        .try_into()
+        .map_err(|v: Vec<f64>| format!("expected 6 numbers xmin,ymin,zmin,xmax,ymax,zmax, got {}", v.len()))?;
+    if v.iter().any(|c| !c.is_finite()) || (0..3).any(|a| v[a] >= v[a + 3]) {
+        return Err("each min must be a finite number below its max".into());
+    }
+    Ok(v)
 }
 
 #[cfg(test)]
@@ -360,8 +375,11 @@ mod tests {
         else {
             panic!()
         };
-        assert_eq!(m.bounds, Some(vec![-1.0, -1.0, -1.0, 1.0, 1.0, 1.0]));
-        assert!(Cli::try_parse_from(["stablesurf", "mesh", "m", "-o", "x", "--bounds", "1,2"]).is_err());
+        assert_eq!(m.bounds, Some([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0]));
+        for bad in ["1,2", "0,0,0,1,1,x", "0,0,0,0,1,1", "0,0,0,1,1,inf"] {
+            let r = Cli::try_parse_from(["stablesurf", "mesh", "m", "-o", "x", "--bounds", bad]);
+            assert_eq!(r.unwrap_err().exit_code(), 2, "{bad}");
+        }
     }
 
     #[test]
