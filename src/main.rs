@@ -15,9 +15,11 @@ use anyhow::{anyhow, Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use stablesurf::cache::Cache;
 use crate::cli::{Cli, CommandArgs};
-use stablesurf::pipeline::{self, Keep, Observer, OutputFormat, PipelineConfig, ScanSource, StageRecord};
+use stablesurf::cache::Cache;
+use stablesurf::pipeline::{
+    self, Keep, Observer, OutputFormat, PipelineConfig, ScanSource, StageRecord,
+};
 use stablesurf::{export, fit, import, normals, polygonize, Aabb, TriangleMesh};
 
 /// A command line that parsed but makes no sense (exit code 2).
@@ -64,7 +66,13 @@ fn real_main(cli: Cli) -> Result<()> {
             .build_global()
             .context("setting up the thread pool")?;
     }
-    let verbosity = if cli.quiet { Verbosity::Quiet } else if cli.verbose > 0 { Verbosity::Verbose } else { Verbosity::Normal };
+    let verbosity = if cli.quiet {
+        Verbosity::Quiet
+    } else if cli.verbose > 0 {
+        Verbosity::Verbose
+    } else {
+        Verbosity::Normal
+    };
     match cli.command {
         CommandArgs::Run(args) => cmd_run(args, verbosity),
         CommandArgs::Normals(args) => cmd_normals(args, verbosity),
@@ -92,14 +100,17 @@ struct StderrObserver {
 
 impl StderrObserver {
     fn new(verbosity: Verbosity) -> Self {
-        StderrObserver { verbosity, bar: None }
+        StderrObserver {
+            verbosity,
+            bar: None,
+        }
     }
 }
 
 impl Observer for StderrObserver {
     fn stage_started(&mut self, stage: &'static str) {
-        let on_terminal = std::io::stderr().is_terminal()
-            && std::env::var_os("TERM").is_none_or(|t| t != "dumb");
+        let on_terminal =
+            std::io::stderr().is_terminal() && std::env::var_os("TERM").is_none_or(|t| t != "dumb");
         if self.verbosity != Verbosity::Quiet && on_terminal {
             let bar = ProgressBar::new_spinner();
             if let Ok(style) = ProgressStyle::with_template("{spinner} {msg} {elapsed}") {
@@ -128,26 +139,44 @@ fn open_cache(opts: &cli::CacheOpts) -> Result<Cache> {
     if opts.no_cache {
         return Ok(Cache::disabled());
     }
-    match opts.cache_dir.clone().or_else(stablesurf::cache::default_dir) {
+    match opts
+        .cache_dir
+        .clone()
+        .or_else(stablesurf::cache::default_dir)
+    {
         Some(dir) => Ok(Cache::at(dir)),
-        None => Err(usage("no cache directory: set HOME or XDG_CACHE_HOME, pass --cache-dir, or use --no-cache")),
+        None => Err(usage(
+            "no cache directory: set HOME or XDG_CACHE_HOME, pass --cache-dir, or use --no-cache",
+        )),
     }
 }
 
 fn normals_params(opts: &cli::NormalsOpts) -> Result<normals::NormalsParams> {
-    let source = normals::NormalSource::from_str(&opts.source).map_err(|e| usage(format!("--normals: {e}")))?;
-    Ok(normals::NormalsParams { source, ..Default::default() })
+    let source = normals::NormalSource::from_str(&opts.source)
+        .map_err(|e| usage(format!("--normals: {e}")))?;
+    Ok(normals::NormalsParams {
+        source,
+        ..Default::default()
+    })
 }
 
 fn fit_params(opts: &cli::FitOpts) -> Result<fit::FitParams> {
-    let method = fit::FitMethod::from_str(&opts.method).map_err(|e| usage(format!("--method: {e}")))?;
+    let method =
+        fit::FitMethod::from_str(&opts.method).map_err(|e| usage(format!("--method: {e}")))?;
     let kappa = fit::Kappa::from_str(&opts.kappa).map_err(|e| usage(format!("--kappa: {e}")))?;
-    let kappa_rule = fit::KappaRule::from_str(&opts.kappa_rule).map_err(|e| usage(format!("--kappa-rule: {e}")))?;
+    let kappa_rule = fit::KappaRule::from_str(&opts.kappa_rule)
+        .map_err(|e| usage(format!("--kappa-rule: {e}")))?;
     if !(opts.epsilon.is_finite() && opts.epsilon > 0.0) {
-        return Err(usage(format!("--epsilon must be a positive number, got {}", opts.epsilon)));
+        return Err(usage(format!(
+            "--epsilon must be a positive number, got {}",
+            opts.epsilon
+        )));
     }
     if !(1..=20).contains(&opts.degree) {
-        return Err(usage(format!("--degree must be between 1 and 20, got {}", opts.degree)));
+        return Err(usage(format!(
+            "--degree must be between 1 and 20, got {}",
+            opts.degree
+        )));
     }
     if opts.degree % 2 == 1 && kappa == fit::Kappa::Auto && method == fit::FitMethod::ThreeLrr {
         return Err(usage(format!(
@@ -155,14 +184,27 @@ fn fit_params(opts: &cli::FitOpts) -> Result<fit::FitParams> {
             opts.degree
         )));
     }
-    Ok(fit::FitParams { degree: opts.degree, method, kappa, kappa_rule, epsilon: opts.epsilon, ..Default::default() })
+    Ok(fit::FitParams {
+        degree: opts.degree,
+        method,
+        kappa,
+        kappa_rule,
+        epsilon: opts.epsilon,
+        ..Default::default()
+    })
 }
 
 fn polygonize_params(opts: &cli::MeshOpts) -> Result<polygonize::PolygonizeParams> {
     if !(1..=12).contains(&opts.depth) {
-        return Err(usage(format!("--depth must be between 1 and 12, got {}", opts.depth)));
+        return Err(usage(format!(
+            "--depth must be between 1 and 12, got {}",
+            opts.depth
+        )));
     }
-    Ok(polygonize::PolygonizeParams { depth: opts.depth, ..Default::default() })
+    Ok(polygonize::PolygonizeParams {
+        depth: opts.depth,
+        ..Default::default()
+    })
 }
 
 fn gltf_options(up: cli::UpArg) -> export::gltf::GltfOptions {
@@ -170,18 +212,28 @@ fn gltf_options(up: cli::UpArg) -> export::gltf::GltfOptions {
         cli::UpArg::Y => export::gltf::UpAxis::Y,
         cli::UpArg::Z => export::gltf::UpAxis::Z,
     };
-    export::gltf::GltfOptions { up, ..Default::default() }
+    export::gltf::GltfOptions {
+        up,
+        ..Default::default()
+    }
 }
 
 fn region_from(bounds: Option<[f64; 6]>) -> Option<Aabb> {
-    bounds.map(|v| Aabb { min: [v[0], v[1], v[2]], max: [v[3], v[4], v[5]] })
+    bounds.map(|v| Aabb {
+        min: [v[0], v[1], v[2]],
+        max: [v[3], v[4], v[5]],
+    })
 }
 
 fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
     let mode = match args.mode.as_str() {
         "global" => pipeline::Mode::Global,
         "detail" => pipeline::Mode::Detail,
-        other => return Err(usage(format!("--mode must be global or detail, got '{other}'"))),
+        other => {
+            return Err(usage(format!(
+                "--mode must be global or detail, got '{other}'"
+            )))
+        }
     };
     let formats = args
         .formats
@@ -227,7 +279,14 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
     }
     let mut observer = StderrObserver::new(verbosity);
     let report = pipeline::run(&source, &args.output, &config, &cache, &mut observer)
-        .with_context(|| format!("running the pipeline on {}", args.input.as_deref().map_or_else(|| "the built-in sample".into(), |p| p.display().to_string())))?;
+        .with_context(|| {
+            format!(
+                "running the pipeline on {}",
+                args.input
+                    .as_deref()
+                    .map_or_else(|| "the built-in sample".into(), |p| p.display().to_string())
+            )
+        })?;
     if verbosity != Verbosity::Quiet {
         let d = report.fit.get("diagnostics");
         eprintln!(
@@ -278,7 +337,10 @@ fn cmd_normals(args: cli::NormalsArgs, verbosity: Verbosity) -> Result<()> {
     let opts = export::ply::PlyOptions::default();
     export::write_atomic(&args.output, |w| export::ply::write(&points, w, &opts))?;
     if let Some(mesh_path) = &args.mesh {
-        let crust = TriangleMesh { triangles: result.crust_triangles.clone(), ..points };
+        let crust = TriangleMesh {
+            triangles: result.crust_triangles.clone(),
+            ..points
+        };
         export::write_atomic(mesh_path, |w| export::ply::write(&crust, w, &opts))?;
     }
     Ok(())
@@ -312,7 +374,10 @@ fn cmd_fit(args: cli::FitArgs, verbosity: Verbosity) -> Result<()> {
     }
     if args.json {
         let mut out = std::io::stdout().lock();
-        serde_json::to_writer_pretty(&mut out, &serde_json::json!({"fit": model.fit, "diagnostics": model.diagnostics}))?;
+        serde_json::to_writer_pretty(
+            &mut out,
+            &serde_json::json!({"fit": model.fit, "diagnostics": model.diagnostics}),
+        )?;
         writeln!(out)?;
     }
     Ok(())
@@ -327,7 +392,10 @@ fn cmd_mesh(args: cli::MeshArgs, verbosity: Verbosity) -> Result<()> {
     let params = polygonize_params(&args.mesh)?;
     let ext = extension(&args.output);
     if !matches!(ext.as_str(), "glb" | "gltf" | "ply") {
-        return Err(usage(format!("-o {}: the mesh format comes from the extension: .glb, .gltf or .ply", args.output.display())));
+        return Err(usage(format!(
+            "-o {}: the mesh format comes from the extension: .glb, .gltf or .ply",
+            args.output.display()
+        )));
     }
     let model = read_model(&args.model)?;
     let region = match region_from(args.bounds) {
@@ -351,7 +419,9 @@ fn cmd_mesh(args: cli::MeshArgs, verbosity: Verbosity) -> Result<()> {
 }
 
 fn extension(path: &Path) -> String {
-    path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default()
+    path.extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default()
 }
 
 fn write_mesh(mesh: &TriangleMesh, path: &Path, ascii: bool, up: cli::UpArg) -> Result<()> {
@@ -360,15 +430,29 @@ fn write_mesh(mesh: &TriangleMesh, path: &Path, ascii: bool, up: cli::UpArg) -> 
         "glb" => export::write_atomic(path, |w| export::gltf::write_glb(mesh, w, &gltf))?,
         "gltf" => {
             let bin_path = path.with_extension("bin");
-            let bin_uri = bin_path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let bin_uri = bin_path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default();
             let (mut json, mut bin) = (Vec::new(), Vec::new());
             export::gltf::write_gltf(mesh, &mut json, &mut bin, &bin_uri, &gltf)?;
-            export::write_atomic(&bin_path, |w| w.write_all(&bin).map_err(export::ExportError::Write))?;
-            export::write_atomic(path, |w| w.write_all(&json).map_err(export::ExportError::Write))?;
+            export::write_atomic(&bin_path, |w| {
+                w.write_all(&bin).map_err(export::ExportError::Write)
+            })?;
+            export::write_atomic(path, |w| {
+                w.write_all(&json).map_err(export::ExportError::Write)
+            })?;
         }
         _ => {
-            let encoding = if ascii { export::ply::PlyEncoding::Ascii } else { export::ply::PlyEncoding::BinaryLittleEndian };
-            let opts = export::ply::PlyOptions { encoding, ..Default::default() };
+            let encoding = if ascii {
+                export::ply::PlyEncoding::Ascii
+            } else {
+                export::ply::PlyEncoding::BinaryLittleEndian
+            };
+            let opts = export::ply::PlyOptions {
+                encoding,
+                ..Default::default()
+            };
             export::write_atomic(path, |w| export::ply::write(mesh, w, &opts))?;
         }
     }
@@ -377,7 +461,9 @@ fn write_mesh(mesh: &TriangleMesh, path: &Path, ascii: bool, up: cli::UpArg) -> 
 
 fn cmd_slices(args: cli::SlicesArgs, verbosity: Verbosity) -> Result<()> {
     if args.count == 0 || args.resolution < 2 {
-        return Err(usage("--count must be at least 1 and --resolution at least 2"));
+        return Err(usage(
+            "--count must be at least 1 and --resolution at least 2",
+        ));
     }
     let model = read_model(&args.model)?;
     let region = match region_from(args.bounds) {
@@ -399,20 +485,30 @@ fn cmd_slices(args: cli::SlicesArgs, verbosity: Verbosity) -> Result<()> {
     };
     let slices = stablesurf::distance::slices(&model.polynomial, &region, &params)
         .with_context(|| format!("computing distance slices of {}", args.model.display()))?;
-    std::fs::create_dir_all(&args.output).with_context(|| format!("creating {}", args.output.display()))?;
+    std::fs::create_dir_all(&args.output)
+        .with_context(|| format!("creating {}", args.output.display()))?;
     for slice in &slices {
         let stem: PathBuf = args.output.join(format!("slice_{:03}", slice.index));
-        export::write_atomic(&stem.with_extension("exr"), |w| export::exr::write_slice(slice, &export::exr::ExrOptions::default(), w))?;
-        export::write_atomic(&stem.with_extension("png"), |w| export::png::write_preview(slice, w))?;
+        export::write_atomic(&stem.with_extension("exr"), |w| {
+            export::exr::write_slice(slice, &export::exr::ExrOptions::default(), w)
+        })?;
+        export::write_atomic(&stem.with_extension("png"), |w| {
+            export::png::write_preview(slice, w)
+        })?;
     }
     if verbosity != Verbosity::Quiet {
-        eprintln!("stablesurf: {} slices written to {}", slices.len(), args.output.display());
+        eprintln!(
+            "stablesurf: {} slices written to {}",
+            slices.len(),
+            args.output.display()
+        );
     }
     Ok(())
 }
 
 fn cmd_info(args: cli::InfoArgs) -> Result<()> {
-    let bytes = std::fs::read(&args.file).with_context(|| format!("reading {}", args.file.display()))?;
+    let bytes =
+        std::fs::read(&args.file).with_context(|| format!("reading {}", args.file.display()))?;
     let looks_like_model = bytes.iter().find(|b| !b.is_ascii_whitespace()) == Some(&b'{');
     let value = if looks_like_model {
         let model = export::model::read_model(&bytes, &args.file)?;
@@ -446,7 +542,9 @@ fn cmd_cache(args: cli::CacheArgs) -> Result<()> {
     let dir = args
         .cache_dir
         .or_else(stablesurf::cache::default_dir)
-        .ok_or_else(|| usage("no cache directory: set HOME or XDG_CACHE_HOME, or pass --cache-dir"))?;
+        .ok_or_else(|| {
+            usage("no cache directory: set HOME or XDG_CACHE_HOME, or pass --cache-dir")
+        })?;
     let cache = Cache::at(&dir);
     match args.action {
         cli::CacheAction::Info => {
@@ -457,7 +555,11 @@ fn cmd_cache(args: cli::CacheArgs) -> Result<()> {
                 writeln!(out, "(empty)")?;
             }
             for (stage, entries, bytes) in usage {
-                writeln!(out, "{stage:<12} {entries:>6} entries {:>12.1} KiB", bytes as f64 / 1024.0)?;
+                writeln!(
+                    out,
+                    "{stage:<12} {entries:>6} entries {:>12.1} KiB",
+                    bytes as f64 / 1024.0
+                )?;
             }
         }
         cli::CacheAction::Clear => {
@@ -469,16 +571,27 @@ fn cmd_cache(args: cli::CacheArgs) -> Result<()> {
 }
 
 fn cmd_render(args: cli::RenderArgs) -> Result<()> {
-    let view = stablesurf::render::View::from_str(&args.view).map_err(|e| usage(format!("--view: {e}")))?;
+    let view = stablesurf::render::View::from_str(&args.view)
+        .map_err(|e| usage(format!("--view: {e}")))?;
     if !(16..=8192).contains(&args.size) {
-        return Err(usage(format!("--size must be between 16 and 8192, got {}", args.size)));
+        return Err(usage(format!(
+            "--size must be between 16 and 8192, got {}",
+            args.size
+        )));
     }
     let cloud = read_cloud(&args.mesh)?;
     if cloud.triangles.is_empty() {
-        return Err(anyhow!("{} has no faces to render (it is a point cloud)", args.mesh.display()));
+        return Err(anyhow!(
+            "{} has no faces to render (it is a point cloud)",
+            args.mesh.display()
+        ));
     }
     let mesh = stablesurf::render::with_face_normals(cloud.points, cloud.triangles);
-    let params = stablesurf::render::RenderParams { size: args.size, view, ..Default::default() };
+    let params = stablesurf::render::RenderParams {
+        size: args.size,
+        view,
+        ..Default::default()
+    };
     let image = stablesurf::render::render(&mesh, &params);
     export::write_atomic(&args.output, |w| export::png::write_rgb(&image, w))?;
     Ok(())

@@ -311,9 +311,11 @@ impl Ctx<'_> {
 /// Reads the scan bytes and the name to report.
 fn scan_bytes(source: &ScanSource) -> Result<(Vec<u8>, PathBuf, String), PipelineError> {
     match source {
-        ScanSource::Sample => {
-            Ok((SAMPLE_SCAN.to_vec(), PathBuf::from("spot.obj"), SAMPLE_NAME.to_string()))
-        }
+        ScanSource::Sample => Ok((
+            SAMPLE_SCAN.to_vec(),
+            PathBuf::from("spot.obj"),
+            SAMPLE_NAME.to_string(),
+        )),
         ScanSource::File(path) => {
             let bytes = std::fs::read(path).map_err(|source| PipelineError::Read {
                 path: path.display().to_string(),
@@ -337,8 +339,12 @@ fn fit_stages(
         ));
     }
     let (bytes, path, _) = scan_bytes(source)?;
-    let (cloud, cloud_key) =
-        ctx.stage("import", IMPORT_VERSION, b"", &Key::of_bytes(&bytes), || {
+    let (cloud, cloud_key) = ctx.stage(
+        "import",
+        IMPORT_VERSION,
+        b"",
+        &Key::of_bytes(&bytes),
+        || {
             let cloud = import::import_bytes(&bytes, &path)?;
             let figures = serde_json::json!({
                 "points": cloud.points.len(),
@@ -346,7 +352,8 @@ fn fit_stages(
                 "has_normals": cloud.normals.is_some(),
             });
             Ok((cloud, figures))
-        })?;
+        },
+    )?;
     drop(bytes);
     let (oriented, oriented_key) = ctx.stage(
         "normals",
@@ -362,8 +369,12 @@ fn fit_stages(
             Ok((normals.cloud, figures))
         },
     )?;
-    let (model, model_key) =
-        ctx.stage("fit", FIT_VERSION, &cache::params_bytes(&config.fit), &oriented_key, || {
+    let (model, model_key) = ctx.stage(
+        "fit",
+        FIT_VERSION,
+        &cache::params_bytes(&config.fit),
+        &oriented_key,
+        || {
             let model = fit::fit(&oriented, &config.fit)?;
             let figures = serde_json::json!({
                 "degree": model.polynomial.degree,
@@ -371,7 +382,8 @@ fn fit_stages(
                 "bounded": model.diagnostics.as_ref().map(|d| d.bounded),
             });
             Ok((model, figures))
-        })?;
+        },
+    )?;
     Ok((cloud, oriented, model, model_key))
 }
 
@@ -385,7 +397,11 @@ pub fn fit_model(
     cache: &Cache,
     observer: &mut dyn Observer,
 ) -> Result<(ImplicitModel, OrientedCloud, Vec<StageRecord>), PipelineError> {
-    let mut ctx = Ctx { cache, observer, stages: Vec::new() };
+    let mut ctx = Ctx {
+        cache,
+        observer,
+        stages: Vec::new(),
+    };
     let (_, oriented, model, _) = fit_stages(&mut ctx, source, config)?;
     Ok((model, oriented, ctx.stages))
 }
@@ -414,7 +430,11 @@ pub fn run(
     observer: &mut dyn Observer,
 ) -> Result<RunReport, PipelineError> {
     let start = Instant::now();
-    let mut ctx = Ctx { cache, observer, stages: Vec::new() };
+    let mut ctx = Ctx {
+        cache,
+        observer,
+        stages: Vec::new(),
+    };
     let input_name = match source {
         ScanSource::Sample => SAMPLE_NAME.to_string(),
         ScanSource::File(p) => p.display().to_string(),
@@ -444,7 +464,13 @@ pub fn run(
         let (kept, dropped) =
             mesh::drop_components_far_from(&mesh, &cloud.points, 0.02 * data_diagonal);
         mesh = kept;
-        ctx.finish("keep", "none", t, None, serde_json::json!({ "dropped_components": dropped }));
+        ctx.finish(
+            "keep",
+            "none",
+            t,
+            None,
+            serde_json::json!({ "dropped_components": dropped }),
+        );
     }
 
     let t = Instant::now();
@@ -464,7 +490,13 @@ pub fn run(
 
     let t = Instant::now();
     let outputs = write_outputs(out_dir, config, &model, &mesh, &cloud, &region)?;
-    ctx.finish("export", "none", t, None, serde_json::json!({ "files": outputs.len() }));
+    ctx.finish(
+        "export",
+        "none",
+        t,
+        None,
+        serde_json::json!({ "files": outputs.len() }),
+    );
 
     let mut report = RunReport {
         input: input_name,
@@ -522,18 +554,27 @@ fn write_outputs(
         put("model.json", &|w| export::model::write_model(model, w))?;
     }
     if want(OutputFormat::Glb) {
-        put("mesh.glb", &|w| export::gltf::write_glb(mesh, w, &config.gltf))?;
+        put("mesh.glb", &|w| {
+            export::gltf::write_glb(mesh, w, &config.gltf)
+        })?;
     }
     if want(OutputFormat::Gltf) {
         let mut bin = Vec::new();
         let mut json = Vec::new();
         export::gltf::write_gltf(mesh, &mut json, &mut bin, "mesh.bin", &config.gltf)?;
-        put("mesh.bin", &|w| w.write_all(&bin).map_err(ExportError::Write))?;
-        put("mesh.gltf", &|w| w.write_all(&json).map_err(ExportError::Write))?;
+        put("mesh.bin", &|w| {
+            w.write_all(&bin).map_err(ExportError::Write)
+        })?;
+        put("mesh.gltf", &|w| {
+            w.write_all(&json).map_err(ExportError::Write)
+        })?;
     }
     if want(OutputFormat::Ply) {
         let quality = export::ply::nearest_point_distances(&mesh.positions, &cloud.points)?;
-        let opts = export::ply::PlyOptions { quality: Some(&quality), ..Default::default() };
+        let opts = export::ply::PlyOptions {
+            quality: Some(&quality),
+            ..Default::default()
+        };
         put("mesh.ply", &|w| export::ply::write(mesh, w, &opts))?;
     }
     if want(OutputFormat::Png) {
@@ -546,7 +587,9 @@ fn write_outputs(
         for slice in &slices {
             if want(OutputFormat::Exr) {
                 let name = format!("slices/slice_{:03}.exr", slice.index);
-                put(&name, &|w| export::exr::write_slice(slice, &export::exr::ExrOptions::default(), w))?;
+                put(&name, &|w| {
+                    export::exr::write_slice(slice, &export::exr::ExrOptions::default(), w)
+                })?;
             }
             if want(OutputFormat::Png) {
                 let name = format!("slices/slice_{:03}.png", slice.index);

@@ -75,11 +75,24 @@ fn info_json_has_the_documented_keys() {
 fn bad_input_is_exit_1_and_names_the_file() {
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("broken.ply");
-    fs::write(&bad, "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n").unwrap();
-    let out = bin().args(["fit"]).arg(&bad).args(["-o"]).arg(dir.path().join("m.json")).output().unwrap();
+    fs::write(
+        &bad,
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n",
+    )
+    .unwrap();
+    let out = bin()
+        .args(["fit"])
+        .arg(&bad)
+        .args(["-o"])
+        .arg(dir.path().join("m.json"))
+        .output()
+        .unwrap();
     assert_eq!(out.status.code(), Some(1));
     let err = stderr_of(&out);
-    assert!(err.contains("stablesurf: error:") && err.contains("broken.ply"), "{err}");
+    assert!(
+        err.contains("stablesurf: error:") && err.contains("broken.ply"),
+        "{err}"
+    );
     assert!(!dir.path().join("m.json").exists());
     let missing = bin().args(["info", "does-not-exist.ply"]).output().unwrap();
     assert_eq!(missing.status.code(), Some(1));
@@ -98,8 +111,15 @@ fn usage_errors_are_exit_2() {
         let out = bin().args(&args).output().unwrap();
         assert_eq!(out.status.code(), Some(2), "{args:?}: {}", stderr_of(&out));
     }
-    let odd = bin().args(["run", "-o", "x", "--degree", "5"]).output().unwrap();
-    assert!(stderr_of(&odd).contains("even degree"), "{}", stderr_of(&odd));
+    let odd = bin()
+        .args(["run", "-o", "x", "--degree", "5"])
+        .output()
+        .unwrap();
+    assert!(
+        stderr_of(&odd).contains("even degree"),
+        "{}",
+        stderr_of(&odd)
+    );
 }
 
 #[test]
@@ -112,7 +132,15 @@ fn rerun_hits_cache_and_depth_change_reuses_the_fit() {
             .arg("run")
             .arg(&input)
             .args(["-o", &dir.path().join(out).display().to_string()])
-            .args(["--degree", "4", "--depth", depth, "--formats", "ply,json", "-v"])
+            .args([
+                "--degree",
+                "4",
+                "--depth",
+                depth,
+                "--formats",
+                "ply,json",
+                "-v",
+            ])
             .arg("--cache-dir")
             .arg(&cache)
             .output()
@@ -130,7 +158,11 @@ fn rerun_hits_cache_and_depth_change_reuses_the_fit() {
     }
     // Byte-identical outputs from a cold and a warm run.
     for f in ["mesh.ply", "model.json"] {
-        assert_eq!(fs::read(dir.path().join("a").join(f)).unwrap(), fs::read(dir.path().join("b").join(f)).unwrap(), "{f}");
+        assert_eq!(
+            fs::read(dir.path().join("a").join(f)).unwrap(),
+            fs::read(dir.path().join("b").join(f)).unwrap(),
+            "{f}"
+        );
     }
     let deeper = run("6", "c");
     for stage in ["import", "normals", "fit"] {
@@ -164,12 +196,25 @@ fn no_cache_writes_no_cache() {
         .arg(&input)
         .args(["-o"])
         .arg(dir.path().join("out"))
-        .args(["--degree", "2", "--depth", "4", "--formats", "json", "--no-cache", "-q"])
+        .args([
+            "--degree",
+            "2",
+            "--depth",
+            "4",
+            "--formats",
+            "json",
+            "--no-cache",
+            "-q",
+        ])
         .env("XDG_CACHE_HOME", dir.path().join("xdg"))
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", stderr_of(&out));
-    assert!(out.stderr.is_empty(), "-q must print nothing: {}", stderr_of(&out));
+    assert!(
+        out.stderr.is_empty(),
+        "-q must print nothing: {}",
+        stderr_of(&out)
+    );
     assert!(!dir.path().join("xdg").exists());
     let report: serde_json::Value =
         serde_json::from_slice(&fs::read(dir.path().join("out/report.json")).unwrap()).unwrap();
@@ -192,8 +237,15 @@ fn unwritable_output_is_exit_1_and_leaves_no_file() {
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(1));
-    assert!(stderr_of(&out).contains("model.json"), "{}", stderr_of(&out));
-    let leftovers: Vec<_> = fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert!(
+        stderr_of(&out).contains("model.json"),
+        "{}",
+        stderr_of(&out)
+    );
+    let leftovers: Vec<_> = fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
     assert_eq!(leftovers.len(), 2, "{leftovers:?}");
 }
 
@@ -206,10 +258,20 @@ fn json_goes_to_stdout_only() {
         .arg(&input)
         .arg("-o")
         .arg(dir.path().join("out"))
-        .args(["--degree", "2", "--depth", "4", "--formats", "json", "--no-cache", "--json"])
+        .args([
+            "--degree",
+            "2",
+            "--depth",
+            "4",
+            "--formats",
+            "json",
+            "--no-cache",
+            "--json",
+        ])
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", stderr_of(&out));
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("stdout is one JSON document");
+    let v: serde_json::Value =
+        serde_json::from_slice(&out.stdout).expect("stdout is one JSON document");
     assert_eq!(v["stages"][0]["stage"], "import");
 }

@@ -51,12 +51,22 @@ fn summary(case: &Path) -> String {
         ..Default::default()
     };
     let out = tempfile::tempdir().unwrap();
-    let report = pipeline::run(&source, out.path(), &config, &Cache::disabled(), &mut Silent)
-        .unwrap_or_else(|e| panic!("{}: {e:#}", case.display()));
+    let report = pipeline::run(
+        &source,
+        out.path(),
+        &config,
+        &Cache::disabled(),
+        &mut Silent,
+    )
+    .unwrap_or_else(|e| panic!("{}: {e:#}", case.display()));
     let model: serde_json::Value =
         serde_json::from_slice(&fs::read(out.path().join("model.json")).unwrap()).unwrap();
-    let coefficients: Vec<f64> =
-        model["coefficients"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let coefficients: Vec<f64> = model["coefficients"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
     let d = &report.fit["diagnostics"];
     let f = &report.fit["fit"];
     let figure = |v: &serde_json::Value| format!("{:.9e}", v.as_f64().unwrap_or(f64::NAN));
@@ -67,18 +77,36 @@ fn summary(case: &Path) -> String {
     line("degree", model["degree"].to_string());
     line("kappa", figure(&f["kappa"]));
     line("bounded", d["bounded"].to_string());
-    line("leading_form_min_relative", figure(&d["leading_form_min_relative"]));
-    line("coefficients_abs_sum", format!("{:.9e}", coefficients.iter().map(|c| c.abs()).sum::<f64>()));
+    line(
+        "leading_form_min_relative",
+        figure(&d["leading_form_min_relative"]),
+    );
+    line(
+        "coefficients_abs_sum",
+        format!("{:.9e}", coefficients.iter().map(|c| c.abs()).sum::<f64>()),
+    );
     line("coefficient_0", format!("{:.9e}", coefficients[0]));
-    line("fit_mean_distance_relative", figure(&d["mean_distance_relative"]));
+    line(
+        "fit_mean_distance_relative",
+        figure(&d["mean_distance_relative"]),
+    );
     line("mesh_vertices", report.mesh.vertices.to_string());
     line("mesh_faces", report.mesh.faces.to_string());
     line("components", report.mesh.components.to_string());
     line("boundary_edges", report.mesh.boundary_edges.to_string());
-    line("non_manifold_edges", report.mesh.non_manifold_edges.to_string());
-    line("euler_characteristic", report.mesh.euler_characteristic.to_string());
+    line(
+        "non_manifold_edges",
+        report.mesh.non_manifold_edges.to_string(),
+    );
+    line(
+        "euler_characteristic",
+        report.mesh.euler_characteristic.to_string(),
+    );
     line("watertight", report.mesh.watertight.to_string());
-    line("mesh_mean_distance_relative", format!("{:.9e}", report.accuracy.mean_relative));
+    line(
+        "mesh_mean_distance_relative",
+        format!("{:.9e}", report.accuracy.mean_relative),
+    );
     s
 }
 
@@ -98,17 +126,27 @@ fn check(case: &Path) -> Vec<String> {
         fs::write(&expected_path, &actual).unwrap();
         return Vec::new();
     }
-    let expected = fs::read_to_string(&expected_path)
-        .unwrap_or_else(|_| panic!("{} missing: run UPDATE_GOLDEN=1 cargo test --test golden", expected_path.display()));
+    let expected = fs::read_to_string(&expected_path).unwrap_or_else(|_| {
+        panic!(
+            "{} missing: run UPDATE_GOLDEN=1 cargo test --test golden",
+            expected_path.display()
+        )
+    });
     let mut problems = Vec::new();
     let parse = |text: &str| -> Vec<(String, String)> {
         text.lines()
-            .filter_map(|l| l.split_once(' ').map(|(k, v)| (k.to_string(), v.to_string())))
+            .filter_map(|l| {
+                l.split_once(' ')
+                    .map(|(k, v)| (k.to_string(), v.to_string()))
+            })
             .collect()
     };
     let (e, a) = (parse(&expected), parse(&actual));
     if e.iter().map(|p| &p.0).ne(a.iter().map(|p| &p.0)) {
-        problems.push(format!("{}: keys differ:\n{expected}\nvs\n{actual}", case.display()));
+        problems.push(format!(
+            "{}: keys differ:\n{expected}\nvs\n{actual}",
+            case.display()
+        ));
         return problems;
     }
     for ((k, ev), (_, av)) in e.iter().zip(&a) {
@@ -129,5 +167,9 @@ fn golden_cases() {
     cases.sort();
     assert!(cases.len() >= 3, "golden cases missing");
     let problems: Vec<String> = cases.iter().flat_map(|c| check(c)).collect();
-    assert!(problems.is_empty(), "golden mismatches:\n{}", problems.join("\n"));
+    assert!(
+        problems.is_empty(),
+        "golden mismatches:\n{}",
+        problems.join("\n")
+    );
 }

@@ -307,11 +307,18 @@ pub enum CacheAction {
 fn parse_bounds(text: &str) -> Result<[f64; 6], String> {
     let values: Vec<f64> = text
         .split(',')
-        .map(|v| v.trim().parse::<f64>().map_err(|_| format!("'{v}' is not a number")))
+        .map(|v| {
+            v.trim()
+                .parse::<f64>()
+                .map_err(|_| format!("'{v}' is not a number"))
+        })
         .collect::<Result<_, _>>()?;
-    let v: [f64; 6] = values
-        .try_into()
-        .map_err(|v: Vec<f64>| format!("expected 6 numbers xmin,ymin,zmin,xmax,ymax,zmax, got {}", v.len()))?;
+    let v: [f64; 6] = values.try_into().map_err(|v: Vec<f64>| {
+        format!(
+            "expected 6 numbers xmin,ymin,zmin,xmax,ymax,zmax, got {}",
+            v.len()
+        )
+    })?;
     if v.iter().any(|c| !c.is_finite()) || (0..3).any(|a| v[a] >= v[a + 3]) {
         return Err("each min must be a finite number below its max".into());
     }
@@ -335,7 +342,9 @@ mod tests {
 
     #[test]
     fn run_without_input_uses_defaults() {
-        let CommandArgs::Run(r) = parse(&["run", "-o", "out"]).command else { panic!() };
+        let CommandArgs::Run(r) = parse(&["run", "-o", "out"]).command else {
+            panic!()
+        };
         assert!(r.input.is_none());
         assert_eq!(r.fit.degree, 6);
         assert_eq!(r.fit.kappa, "auto");
@@ -346,14 +355,44 @@ mod tests {
     #[test]
     fn run_flags_parse() {
         let cli = parse(&[
-            "run", "scan.ply", "-o", "out", "--degree", "8", "--kappa", "1e-3", "--epsilon",
-            "0.01", "--method", "3l", "--depth", "7", "--formats", "glb,gltf", "--cache-dir",
-            "c", "--no-cache", "--normals", "pca", "--kappa-rule", "paper", "--keep", "data",
-            "--up", "z", "--json", "-v", "-v", "-j", "1",
+            "run",
+            "scan.ply",
+            "-o",
+            "out",
+            "--degree",
+            "8",
+            "--kappa",
+            "1e-3",
+            "--epsilon",
+            "0.01",
+            "--method",
+            "3l",
+            "--depth",
+            "7",
+            "--formats",
+            "glb,gltf",
+            "--cache-dir",
+            "c",
+            "--no-cache",
+            "--normals",
+            "pca",
+            "--kappa-rule",
+            "paper",
+            "--keep",
+            "data",
+            "--up",
+            "z",
+            "--json",
+            "-v",
+            "-v",
+            "-j",
+            "1",
         ]);
         assert_eq!(cli.verbose, 2);
         assert_eq!(cli.threads, Some(1));
-        let CommandArgs::Run(r) = cli.command else { panic!() };
+        let CommandArgs::Run(r) = cli.command else {
+            panic!()
+        };
         assert_eq!(r.fit.degree, 8);
         assert_eq!(r.fit.kappa, "1e-3");
         assert_eq!(r.fit.epsilon, 0.01);
@@ -370,8 +409,15 @@ mod tests {
 
     #[test]
     fn mesh_bounds_take_six_numbers() {
-        let CommandArgs::Mesh(m) =
-            parse(&["mesh", "m.json", "-o", "x.ply", "--bounds", "-1,-1,-1,1,1,1"]).command
+        let CommandArgs::Mesh(m) = parse(&[
+            "mesh",
+            "m.json",
+            "-o",
+            "x.ply",
+            "--bounds",
+            "-1,-1,-1,1,1,1",
+        ])
+        .command
         else {
             panic!()
         };
@@ -385,21 +431,37 @@ mod tests {
     #[test]
     fn slices_and_info_and_cache_parse() {
         let CommandArgs::Slices(s) = parse(&[
-            "slices", "m.json", "-o", "d", "--axis", "x", "--count", "4", "--resolution", "64",
-            "--distance", "taubin",
+            "slices",
+            "m.json",
+            "-o",
+            "d",
+            "--axis",
+            "x",
+            "--count",
+            "4",
+            "--resolution",
+            "64",
+            "--distance",
+            "taubin",
         ])
         .command
         else {
             panic!()
         };
-        assert_eq!((s.axis, s.count, s.resolution, s.distance), (AxisArg::X, 4, 64, DistanceArg::Taubin));
-        let CommandArgs::Info(i) = parse(&["info", "f.ply", "--json"]).command else { panic!() };
+        assert_eq!(
+            (s.axis, s.count, s.resolution, s.distance),
+            (AxisArg::X, 4, 64, DistanceArg::Taubin)
+        );
+        let CommandArgs::Info(i) = parse(&["info", "f.ply", "--json"]).command else {
+            panic!()
+        };
         assert!(i.json);
         let CommandArgs::Cache(c) = parse(&["cache", "clear", "--cache-dir", "x"]).command else {
             panic!()
         };
         assert!(matches!(c.action, CacheAction::Clear));
-        let CommandArgs::Normals(n) = parse(&["normals", "a.xyz", "-o", "n.ply", "--mesh", "c.ply"]).command
+        let CommandArgs::Normals(n) =
+            parse(&["normals", "a.xyz", "-o", "n.ply", "--mesh", "c.ply"]).command
         else {
             panic!()
         };

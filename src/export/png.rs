@@ -164,7 +164,12 @@ pub fn write_rgb(image: &image::RgbImage, out: &mut impl Write) -> Result<(), Ex
     use image::ImageEncoder;
     let mut bytes = Vec::new();
     image::codecs::png::PngEncoder::new(&mut bytes)
-        .write_image(image.as_raw(), image.width(), image.height(), image::ExtendedColorType::Rgb8)
+        .write_image(
+            image.as_raw(),
+            image.width(),
+            image.height(),
+            image::ExtendedColorType::Rgb8,
+        )
         .map_err(|e| ExportError::Format(format!("png encoding failed: {e}")))?;
     out.write_all(&bytes).map_err(ExportError::Write)
 }
