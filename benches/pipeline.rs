@@ -1,0 +1,48 @@
+//! End-to-end benchmark: import → normals → fit → polygonize → checks with a cold (disabled)
+//! cache, on the Stanford bunny from ../shared/data when present, else on the built-in sample.
+//! Prints the per-stage breakdown of one run before the criterion measurement.
+//!
+//! Run: `cargo bench --bench pipeline`.
+
+use std::path::Path;
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use stablesurf::cache::Cache;
+use stablesurf::pipeline::{self, OutputFormat, PipelineConfig, ScanSource, Silent};
+
+fn source() -> (ScanSource, &'static str) {
+    let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/bunny_zipper.ply");
+    if bunny.exists() {
+        (ScanSource::File(bunny), "bunny")
+    } else {
+        (ScanSource::Sample, "sample")
+    }
+}
+
+fn bench(c: &mut Criterion) {
+    let (source, name) = source();
+    let out = tempfile::tempdir().unwrap();
+    for (label, formats) in [
+        ("no files", vec![]),
+        ("glb+ply+json", vec![OutputFormat::Glb, OutputFormat::Ply, OutputFormat::Json]),
+    ] {
+        let config = PipelineConfig { formats: formats.clone(), ..Default::default() };
+        let report =
+            pipeline::run(&source, out.path(), &config, &Cache::disabled(), &mut Silent).unwrap();
+        eprintln!("{name}, {label}: {:.3} s in all", report.seconds);
+        for s in &report.stages {
+            eprintln!("  {:<10} {:>8.3} s  {}", s.stage, s.seconds, s.figures);
+        }
+        let mut group = c.benchmark_group("pipeline");
+        group.sample_size(10);
+        group.bench_function(format!("{name}/cold/{label}"), |b| {
+            b.iter(|| {
+                pipeline::run(&source, out.path(), &config, &Cache::disabled(), &mut Silent).unwrap()
+            })
+        });
+        group.finish();
+    }
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
