@@ -79,13 +79,18 @@ const KUHN: [[usize; 3]; 6] = [
     [2, 1, 0],
 ];
 
-/// Triangles of all surface leaves, as crossed edges, in leaf order; and evaluations spent.
+/// The triangles of all surface leaves: the crossed edges (sorted, unique) that become the mesh
+/// vertices, f at their two ends (smaller key first), the triangles as indices into them (in
+/// leaf order), and the evaluations spent.
+#[allow(clippy::type_complexity)]
 pub(crate) fn triangulate<F: ImplicitFunction + ?Sized>(
     function: &F,
     grid: &Grid,
     octree: &Octree,
-) -> (Vec<[EdgeKey; 3]>, u64) {
-    let parts: Vec<(Vec<[EdgeKey; 3]>, u64)> = octree
+) -> (Vec<EdgeKey>, Vec<[f64; 2]>, Vec<[u32; 3]>, u64) {
+    // Each task names its crossed edges once (local indices), so the global sort below handles
+    // each edge about once per task that sees it rather than once per triangle corner.
+    let parts: Vec<(Vec<EdgeKey>, Vec<[f64; 2]>, Vec<[u32; 3]>, u64)> = octree
         .leaves
         .par_chunks(LEAVES_PER_TASK)
         .map(|chunk| {
@@ -100,17 +105,56 @@ pub(crate) fn triangulate<F: ImplicitFunction + ?Sized>(
             for &leaf in chunk {
                 ctx.leaf(leaf);
             }
-            (ctx.triangles, ctx.evaluations)
+            let mut local: HashMap<EdgeKey, u32, BuildHasherDefault<MultiplyHasher>> =
+                HashMap::default();
+            let mut edges = Vec::new();
+            let triangles = ctx
+                .triangles
+                .iter()
+                .map(|tri| {
+                    tri.map(|key| {
+                        *local.entry(key).or_insert_with(|| {
+                            edges.push(key);
+                            (edges.len() - 1) as u32
+                        })
+                    })
+                })
+                .collect();
+            // Every end of a crossed edge was evaluated in this task.
+            let ends = edges
+                .iter()
+                .map(|&key| {
+                    let value = |k: u64| ctx.values.get(&k).copied().unwrap_or(f64::NAN);
+                    [value((key >> 64) as u64), value(key as u64)]
+                })
+                .collect();
+            (edges, ends, triangles, ctx.evaluations)
         })
         .collect();
-    let total: usize = parts.iter().map(|p| p.0.len()).sum();
-    let mut triangles = Vec::with_capacity(total);
-    let mut evaluations = 0;
-    for (t, e) in parts {
-        triangles.extend(t);
-        evaluations += e;
+    let mut edges: Vec<EdgeKey> = parts.iter().flat_map(|p| p.0.iter().copied()).collect();
+    edges.par_sort_unstable();
+    edges.dedup();
+    let remapped: Vec<(Vec<u32>, Vec<[u32; 3]>)> = parts
+        .par_iter()
+        .map(|(local_edges, _, triangles, _)| {
+            let global: Vec<u32> = local_edges
+                .iter()
+                .map(|key| edges.binary_search(key).unwrap_or(0) as u32)
+                .collect();
+            let triangles = triangles.iter().map(|t| t.map(|i| global[i as usize])).collect();
+            (global, triangles)
+        })
+        .collect();
+    // Tasks that share an edge computed the same end values (one formula per lattice point).
+    let mut end_values = vec![[f64::NAN; 2]; edges.len()];
+    for ((global, _), part) in remapped.iter().zip(&parts) {
+        for (&g, &ends) in global.iter().zip(&part.1) {
+            end_values[g as usize] = ends;
+        }
     }
-    (triangles, evaluations)
+    let evaluations = parts.iter().map(|p| p.3).sum();
+    let triangles = remapped.into_iter().flat_map(|(_, t)| t).collect();
+    (edges, end_values, triangles, evaluations)
 }
 
 /// An elementary square on a leaf face.
@@ -458,14 +502,17 @@ pub(crate) fn place_vertices<F: ImplicitFunction + ?Sized>(
     function: &F,
     grid: &Grid,
     edges: &[EdgeKey],
+    end_values: &[[f64; 2]],
     projection_tolerance: f64,
 ) -> Vec<PlacedVertex> {
     edges
         .par_chunks(EDGES_PER_TASK)
-        .map(|chunk| {
+        .zip(end_values.par_chunks(EDGES_PER_TASK))
+        .map(|(chunk, values)| {
             chunk
                 .iter()
-                .map(|&key| place_vertex(function, grid, key, projection_tolerance))
+                .zip(values)
+                .map(|(&key, &ends)| place_vertex(function, grid, key, ends, projection_tolerance))
                 .collect::<Vec<_>>()
         })
         .collect::<Vec<_>>()
@@ -476,12 +523,12 @@ fn place_vertex<F: ImplicitFunction + ?Sized>(
     function: &F,
     grid: &Grid,
     key: EdgeKey,
+    [fa, fb]: [f64; 2],
     tolerance: f64,
 ) -> PlacedVertex {
     let a = grid.point(unpack((key >> 64) as u64));
     let b = grid.point(unpack(key as u64));
-    let (fa, fb) = (function.value(a), function.value(b));
-    let mut evaluations = 2;
+    let mut evaluations = 0;
     // Orient the edge from its negative end (f < 0) to its positive end (f ≥ 0).
     let (neg, f_neg, pos, f_pos) = if fa < 0.0 { (a, fa, b, fb) } else { (b, fb, a, fa) };
     let direction = [0, 1, 2].map(|k| pos[k] - neg[k]);

@@ -34,6 +34,17 @@ use crate::poly::ImplicitPolynomial;
 /// Highest degree evaluated on stack buffers; higher degrees fall back to allocating paths.
 const STACK_DEGREE: usize = 24;
 
+/// Guaranteed enclosures of f and ∇f over a box (see [`ImplicitFunction::enclosure_on_box`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Enclosure {
+    /// `(lo, hi)` with lo ≤ value(p) ≤ hi on the box.
+    pub value: (f64, f64),
+    /// Enclosures of ∂f/∂x, ∂f/∂y, ∂f/∂z (input coordinates) on the box.
+    pub gradient: [(f64, f64); 3],
+    /// A bound on |value(p) − f(p)|, the rounding error of a point value, on the box.
+    pub value_error: f64,
+}
+
 /// What the `polygonize` stage needs from an implicit model f (f < 0 inside, f > 0 outside), in
 /// input coordinates.
 ///
@@ -70,10 +81,16 @@ pub trait ImplicitFunction: Sync {
     /// refines that cell to its cap.
     fn gradient_bounds_on_box(&self, b: &Aabb) -> [(f64, f64); 3];
 
-    /// Both enclosures at once: `(bounds_on_box(b), gradient_bounds_on_box(b))`. Override it when
-    /// the two share work (the polynomial computes one local expansion for both).
-    fn bounds_with_gradient_on_box(&self, b: &Aabb) -> ((f64, f64), [(f64, f64); 3]) {
-        (self.bounds_on_box(b), self.gradient_bounds_on_box(b))
+    /// Both enclosures at once, with a bound on the rounding error of [`ImplicitFunction::value`]
+    /// over the box. The default combines the two methods above and assumes exact point values
+    /// (`value_error` 0); override it when the two share work (the polynomial computes one local
+    /// expansion for both) or when point values round.
+    fn enclosure_on_box(&self, b: &Aabb) -> Enclosure {
+        Enclosure {
+            value: self.bounds_on_box(b),
+            gradient: self.gradient_bounds_on_box(b),
+            value_error: 0.0,
+        }
     }
 
     /// Why the model cannot be meshed (a malformed model), or `Ok(())`.
@@ -156,28 +173,33 @@ impl ImplicitFunction for ImplicitPolynomial {
 
     fn bounds_on_box(&self, b: &Aabb) -> (f64, f64) {
         match self.taylor(b) {
-            Some(t) => t.value_bounds(),
+            Some(t) => t.bounds().0,
             None => (f64::NEG_INFINITY, f64::INFINITY),
         }
     }
 
     fn gradient_bounds_on_box(&self, b: &Aabb) -> [(f64, f64); 3] {
-        self.bounds_with_gradient_on_box(b).1
+        self.enclosure_on_box(b).gradient
     }
 
-    fn bounds_with_gradient_on_box(&self, b: &Aabb) -> ((f64, f64), [(f64, f64); 3]) {
-        let mut gradient = [(f64::NEG_INFINITY, f64::INFINITY); 3];
+    fn enclosure_on_box(&self, b: &Aabb) -> Enclosure {
         let Some(t) = self.taylor(b) else {
-            return ((f64::NEG_INFINITY, f64::INFINITY), gradient);
+            return Enclosure {
+                value: (f64::NEG_INFINITY, f64::INFINITY),
+                gradient: [(f64::NEG_INFINITY, f64::INFINITY); 3],
+                value_error: f64::INFINITY,
+            };
         };
+        let (value, derivatives) = t.bounds();
+        let mut gradient = [(f64::NEG_INFINITY, f64::INFINITY); 3];
         for (axis, slot) in gradient.iter_mut().enumerate() {
             let per_t = self.scale * t.half_width[axis];
             if per_t > 0.0 && per_t.is_finite() {
-                let (lo, hi) = t.derivative_bounds(axis);
+                let (lo, hi) = derivatives[axis];
                 *slot = (lo / per_t, hi / per_t);
             }
         }
-        (t.value_bounds(), gradient)
+        Enclosure { value, gradient, value_error: t.value_margin }
     }
 
     fn validate(&self) -> Result<(), String> {
@@ -317,44 +339,37 @@ impl ImplicitPolynomial {
 }
 
 impl LocalTaylor {
-    /// Enclosure of f over the box.
-    fn value_bounds(&self) -> (f64, f64) {
+    /// Enclosures of f and of ∂f/∂t_axis (local coordinates) over the box, in one pass.
+    fn bounds(&self) -> ((f64, f64), [(f64, f64); 3]) {
         let (n, m) = (self.degree, self.degree + 1);
-        let mut lo = 0.0;
-        let mut hi = 0.0;
+        let mut value = (0.0, 0.0);
+        let mut derivatives = [(0.0, 0.0); 3];
         for i in 0..=n {
             for j in 0..=n - i {
                 for k in 0..=n - i - j {
                     let b = self.coefficients[(i * m + j) * m + k];
-                    accumulate(&mut lo, &mut hi, b, [i, j, k]);
-                }
-            }
-        }
-        (lo - self.value_margin, hi + self.value_margin)
-    }
-
-    /// Enclosure of ∂f/∂t_axis over the box (local coordinates).
-    fn derivative_bounds(&self, axis: usize) -> (f64, f64) {
-        let (n, m) = (self.degree, self.degree + 1);
-        let mut lo = 0.0;
-        let mut hi = 0.0;
-        for i in 0..=n {
-            for j in 0..=n - i {
-                for k in 0..=n - i - j {
-                    let mut e = [i, j, k];
-                    if e[axis] == 0 {
+                    if b == 0.0 {
                         continue;
                     }
-                    let b = self.coefficients[(i * m + j) * m + k] * e[axis] as f64;
-                    e[axis] -= 1;
-                    accumulate(&mut lo, &mut hi, b, e);
+                    let e = [i, j, k];
+                    accumulate(&mut value.0, &mut value.1, b, e);
+                    for axis in 0..3 {
+                        if e[axis] > 0 {
+                            let mut ed = e;
+                            ed[axis] -= 1;
+                            let slot = &mut derivatives[axis];
+                            accumulate(&mut slot.0, &mut slot.1, b * e[axis] as f64, ed);
+                        }
+                    }
                 }
             }
         }
-        (
-            lo - self.derivative_margin[axis],
-            hi + self.derivative_margin[axis],
-        )
+        let value = (value.0 - self.value_margin, value.1 + self.value_margin);
+        let derivatives = [0, 1, 2].map(|a| {
+            let (lo, hi) = derivatives[a];
+            (lo - self.derivative_margin[a], hi + self.derivative_margin[a])
+        });
+        (value, derivatives)
     }
 }
 
@@ -422,6 +437,9 @@ mod tests {
             let b = Aabb { min: [0.1, -0.3, 0.2], max: [0.1 + h, -0.3 + h, 0.2 + h] };
             let (lo, hi) = f.bounds_on_box(&b);
             let grads = f.gradient_bounds_on_box(&b);
+            let enclosure = f.enclosure_on_box(&b);
+            assert_eq!((enclosure.value, enclosure.gradient), ((lo, hi), grads));
+            assert!(enclosure.value_error > 0.0 && enclosure.value_error < 1e-10);
             let (mut smin, mut smax) = (f64::INFINITY, f64::NEG_INFINITY);
             for ix in 0..=6 {
                 for iy in 0..=6 {

@@ -177,20 +177,11 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
     let grid = Grid::new(*region, params.depth, params.depth + params.guard_levels);
 
     let tree = octree::build(function, &grid);
-    let (triangles, extraction_evaluations) = extract::triangulate(function, &grid, &tree);
-
-    let mut edges: Vec<extract::EdgeKey> = triangles.iter().flatten().copied().collect();
-    rayon::slice::ParallelSliceMut::par_sort_unstable(edges.as_mut_slice());
-    edges.dedup();
+    let (edges, end_values, triangles, extraction_evaluations) =
+        extract::triangulate(function, &grid, &tree);
     let diagonal = region.diagonal();
-    let vertices =
-        extract::place_vertices(function, &grid, &edges, PROJECTION_TOLERANCE * diagonal);
-
-    use rayon::prelude::*;
-    let triangles: Vec<[u32; 3]> = triangles
-        .par_iter()
-        .map(|tri| tri.map(|key| edges.binary_search(&key).unwrap_or(0) as u32))
-        .collect();
+    let tolerance = PROJECTION_TOLERANCE * diagonal;
+    let vertices = extract::place_vertices(function, &grid, &edges, &end_values, tolerance);
     let mesh = TriangleMesh {
         positions: vertices.iter().map(|v| v.position).collect(),
         normals: vertices.iter().map(|v| v.normal).collect(),
