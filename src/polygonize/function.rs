@@ -32,7 +32,7 @@ use crate::cloud::Aabb;
 use crate::poly::ImplicitPolynomial;
 
 /// Highest degree evaluated on stack buffers; higher degrees fall back to allocating paths.
-const STACK_DEGREE: usize = 24;
+const STACK_DEGREE: usize = 14;
 
 /// Guaranteed enclosures of f and ∇f over a box (see [`ImplicitFunction::enclosure_on_box`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -105,28 +105,30 @@ pub trait ImplicitFunction: Sync {
 impl ImplicitFunction for ImplicitPolynomial {
     fn value(&self, p: [f64; 3]) -> f64 {
         let n = self.degree as usize;
-        if n > STACK_DEGREE {
+        if n > STACK_DEGREE || self.coefficients.len() != crate::poly::n_coefficients(self.degree) {
             return self.eval(p);
         }
-        let q = self.normalize(p);
+        let q = normalized(self, p);
         let mut px = [0.0; STACK_DEGREE + 1];
-        let mut py = [0.0; STACK_DEGREE + 1];
-        let mut pz = [0.0; STACK_DEGREE + 1];
         fill_powers(&mut px[..=n], q[0]);
-        fill_powers(&mut py[..=n], q[1]);
-        fill_powers(&mut pz[..=n], q[2]);
-        let mut coefficients = self.coefficients.iter();
+        // y^j z^k for j + k = s, at s(s+1)/2 + k: the same order as the coefficients inside
+        // every degree block, so each block is a dot product with a prefix of this table.
+        let mut yz = [0.0; YZ_LEN];
+        let n_yz = (n + 1) * (n + 2) / 2;
+        fill_yz(&mut yz[..n_yz], q[1], q[2], n);
         let mut sum = 0.0;
+        let mut offset = 0;
         for r in 0..=n {
+            let block = &self.coefficients[offset..offset + (r + 1) * (r + 2) / 2];
+            offset += block.len();
+            let mut start = 0;
             for s in 0..=r {
-                // Σ_k a_(r−s, s−k, k) y^(s−k) z^k, then times x^(r−s).
-                let mut inner = 0.0;
-                for k in 0..=s {
-                    let Some(&a) = coefficients.next() else {
-                        return sum + px[r - s] * inner;
-                    };
-                    inner += a * py[s - k] * pz[k];
-                }
+                let inner: f64 = block[start..=start + s]
+                    .iter()
+                    .zip(&yz[start..=start + s])
+                    .map(|(a, m)| a * m)
+                    .sum();
+                start += s + 1;
                 sum += px[r - s] * inner;
             }
         }
@@ -135,33 +137,54 @@ impl ImplicitFunction for ImplicitPolynomial {
 
     fn value_gradient(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
         let n = self.degree as usize;
-        if n > STACK_DEGREE {
+        if n > STACK_DEGREE || self.coefficients.len() != crate::poly::n_coefficients(self.degree) {
             return self.eval_gradient(p);
         }
-        let q = self.normalize(p);
+        let q = normalized(self, p);
+        // px[e + 1] = x^e, px[0] = 0 (the x^(−1) of a derivative's zero term).
         let mut px = [0.0; STACK_DEGREE + 2];
-        let mut py = [0.0; STACK_DEGREE + 2];
-        let mut pz = [0.0; STACK_DEGREE + 2];
-        // Index 0 holds 0 (the "x^(−1)" of a derivative), index e + 1 holds x^e.
         fill_powers(&mut px[1..=n + 1], q[0]);
-        fill_powers(&mut py[1..=n + 1], q[1]);
-        fill_powers(&mut pz[1..=n + 1], q[2]);
-        let mut coefficients = self.coefficients.iter();
+        let n_yz = (n + 1) * (n + 2) / 2;
+        let mut yz = [0.0; YZ_LEN];
+        let mut yz_dy = [0.0; YZ_LEN];
+        let mut yz_dz = [0.0; YZ_LEN];
+        fill_yz(&mut yz[..n_yz], q[1], q[2], n);
+        // ∂(y^j z^k)/∂y = j y^(j−1) z^k and ∂/∂z = k y^j z^(k−1), from the degree s − 1 row.
+        let mut row = 0;
+        for s in 0..=n {
+            for k in 0..=s {
+                let j = s - k;
+                let below = row - s; // start of the degree s − 1 row
+                if j > 0 {
+                    yz_dy[row + k] = j as f64 * yz[below + k];
+                }
+                if k > 0 {
+                    yz_dz[row + k] = k as f64 * yz[below + k - 1];
+                }
+            }
+            row += s + 1;
+        }
         let mut f = 0.0;
         let mut g = [0.0; 3];
-        'outer: for r in 0..=n {
+        let mut offset = 0;
+        for r in 0..=n {
+            let block = &self.coefficients[offset..offset + (r + 1) * (r + 2) / 2];
+            offset += block.len();
+            let mut start = 0;
             for s in 0..=r {
                 let i = r - s;
                 let (mut v, mut vy, mut vz) = (0.0, 0.0, 0.0);
-                for k in 0..=s {
-                    let Some(&a) = coefficients.next() else {
-                        break 'outer;
-                    };
-                    let j = s - k;
-                    v += a * py[j + 1] * pz[k + 1];
-                    vy += a * j as f64 * py[j] * pz[k + 1];
-                    vz += a * k as f64 * py[j + 1] * pz[k];
+                for (((a, m), my), mz) in block[start..=start + s]
+                    .iter()
+                    .zip(&yz[start..=start + s])
+                    .zip(&yz_dy[start..=start + s])
+                    .zip(&yz_dz[start..=start + s])
+                {
+                    v += a * m;
+                    vy += a * my;
+                    vz += a * mz;
                 }
+                start += s + 1;
                 f += px[i + 1] * v;
                 g[0] += i as f64 * px[i] * v;
                 g[1] += px[i + 1] * vy;
@@ -199,7 +222,11 @@ impl ImplicitFunction for ImplicitPolynomial {
                 *slot = (lo / per_t, hi / per_t);
             }
         }
-        Enclosure { value, gradient, value_error: t.value_margin }
+        Enclosure {
+            value,
+            gradient,
+            value_error: t.value_margin,
+        }
     }
 
     fn validate(&self) -> Result<(), String> {
@@ -214,7 +241,8 @@ impl ImplicitFunction for ImplicitPolynomial {
         if self.coefficients.iter().any(|a| !a.is_finite()) {
             return Err("the model has a non-finite coefficient".into());
         }
-        if !(self.scale > 0.0 && self.scale.is_finite()) || self.center.iter().any(|c| !c.is_finite())
+        if !(self.scale > 0.0 && self.scale.is_finite())
+            || self.center.iter().any(|c| !c.is_finite())
         {
             return Err(format!(
                 "the normalization needs a finite centre and a scale > 0, got centre {:?} and scale {}",
@@ -222,6 +250,37 @@ impl ImplicitFunction for ImplicitPolynomial {
             ));
         }
         Ok(())
+    }
+}
+
+/// (p − center)/scale, written out so that it inlines in the hot loops.
+#[inline]
+fn normalized(f: &ImplicitPolynomial, p: [f64; 3]) -> [f64; 3] {
+    [
+        (p[0] - f.center[0]) / f.scale,
+        (p[1] - f.center[1]) / f.scale,
+        (p[2] - f.center[2]) / f.scale,
+    ]
+}
+
+/// Length of the y^j z^k table for degrees up to [`STACK_DEGREE`].
+const YZ_LEN: usize = (STACK_DEGREE + 1) * (STACK_DEGREE + 2) / 2;
+
+/// `out[s(s+1)/2 + k] = y^(s−k) z^k` for s ≤ n.
+fn fill_yz(out: &mut [f64], y: f64, z: f64, n: usize) {
+    let mut row = 0;
+    for s in 0..=n {
+        if s == 0 {
+            out[0] = 1.0;
+        } else {
+            let below = row - s;
+            // y^(s−k) z^k = y · (y^(s−1−k) z^k) for k < s, and z · z^(s−1) for k = s.
+            for k in 0..s {
+                out[row + k] = y * out[below + k];
+            }
+            out[row + s] = z * out[below + s - 1];
+        }
+        row += s + 1;
     }
 }
 
@@ -367,7 +426,10 @@ impl LocalTaylor {
         let value = (value.0 - self.value_margin, value.1 + self.value_margin);
         let derivatives = [0, 1, 2].map(|a| {
             let (lo, hi) = derivatives[a];
-            (lo - self.derivative_margin[a], hi + self.derivative_margin[a])
+            (
+                lo - self.derivative_margin[a],
+                hi + self.derivative_margin[a],
+            )
         });
         (value, derivatives)
     }
@@ -407,7 +469,12 @@ mod tests {
                 ((state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
             })
             .collect();
-        ImplicitPolynomial { degree: n, coefficients, center: [0.3, -0.2, 0.5], scale: 1.7 }
+        ImplicitPolynomial {
+            degree: n,
+            coefficients,
+            center: [0.3, -0.2, 0.5],
+            scale: 1.7,
+        }
     }
 
     #[test]
@@ -422,7 +489,10 @@ mod tests {
                 assert!((f.value(p) - reference).abs() < tol, "degree {n}");
                 assert!((v - rv).abs() < tol, "degree {n}");
                 for a in 0..3 {
-                    assert!((g[a] - rg[a]).abs() < 1e-11 * (1.0 + rg[a].abs()), "degree {n}");
+                    assert!(
+                        (g[a] - rg[a]).abs() < 1e-11 * (1.0 + rg[a].abs()),
+                        "degree {n}"
+                    );
                 }
             }
         }
@@ -434,7 +504,10 @@ mod tests {
         let mut previous_excess = f64::INFINITY;
         for level in 0..6 {
             let h = 0.8 / f64::from(1u32 << level);
-            let b = Aabb { min: [0.1, -0.3, 0.2], max: [0.1 + h, -0.3 + h, 0.2 + h] };
+            let b = Aabb {
+                min: [0.1, -0.3, 0.2],
+                max: [0.1 + h, -0.3 + h, 0.2 + h],
+            };
             let (lo, hi) = f.bounds_on_box(&b);
             let grads = f.gradient_bounds_on_box(&b);
             let enclosure = f.enclosure_on_box(&b);
@@ -459,7 +532,10 @@ mod tests {
             // The centred form's overestimation shrinks about 4× per halving (quadratic).
             let excess = (hi - lo) - (smax - smin);
             if level >= 3 {
-                assert!(excess < 0.4 * previous_excess, "level {level}: {excess} vs {previous_excess}");
+                assert!(
+                    excess < 0.4 * previous_excess,
+                    "level {level}: {excess} vs {previous_excess}"
+                );
             }
             previous_excess = excess;
         }

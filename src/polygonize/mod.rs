@@ -53,8 +53,8 @@
 //! # Ok::<(), stablesurf::polygonize::PolygonizeError>(())
 //! ```
 
-pub mod function;
 mod extract;
+pub mod function;
 mod grid;
 mod octree;
 pub mod shapes;
@@ -122,7 +122,10 @@ pub struct PolygonizeParams {
 
 impl Default for PolygonizeParams {
     fn default() -> Self {
-        PolygonizeParams { depth: 8, guard_levels: 3 }
+        PolygonizeParams {
+            depth: 8,
+            guard_levels: 3,
+        }
     }
 }
 
@@ -163,7 +166,10 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
         region.min[a].is_finite() && region.max[a].is_finite() && region.min[a] < region.max[a]
     });
     if !valid_region {
-        return Err(PolygonizeError::InvalidRegion { min: region.min, max: region.max });
+        return Err(PolygonizeError::InvalidRegion {
+            min: region.min,
+            max: region.max,
+        });
     }
     let cap = params.depth.checked_add(params.guard_levels);
     if params.depth == 0 || cap.is_none_or(|c| c > MAX_LEVEL) {

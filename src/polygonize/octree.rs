@@ -31,8 +31,8 @@ use std::collections::HashSet;
 use rayon::prelude::*;
 
 use super::function::{Enclosure, ImplicitFunction};
-use crate::cloud::Aabb;
 use super::grid::Grid;
+use crate::cloud::Aabb;
 
 /// Levels below which the children of a cell are processed in parallel (8³ = 512 tasks).
 const PARALLEL_LEVELS: u32 = 3;
@@ -77,7 +77,10 @@ impl Part {
 
 /// Builds the octree of `function` over `grid`.
 pub(crate) fn build<F: ImplicitFunction + ?Sized>(function: &F, grid: &Grid) -> Octree {
-    let root = Cell { level: 0, coords: [0, 0, 0] };
+    let root = Cell {
+        level: 0,
+        coords: [0, 0, 0],
+    };
     let part = visit(function, grid, root, None);
     let guard_splits = part.internal.len() as u64;
     Octree {
@@ -112,8 +115,7 @@ fn visit<F: ImplicitFunction + ?Sized>(
         }
     }
     let in_guard_zone = cell.level >= grid.depth && cell.level < grid.cap;
-    let passes_guard_by_parent =
-        parent.is_some_and(|p| normal_variation_small(&p.gradient));
+    let passes_guard_by_parent = parent.is_some_and(|p| normal_variation_small(&p.gradient));
     let leaf_without_own_enclosure = cell.level >= grid.depth
         && (cell.level == grid.cap || (in_guard_zone && passes_guard_by_parent));
     if leaf_without_own_enclosure {
@@ -204,15 +206,34 @@ mod tests {
 
     #[test]
     fn guard_condition() {
-        assert!(normal_variation_small(&[(1.0, 2.0), (-0.1, 0.1), (0.0, 0.0)]));
-        assert!(!normal_variation_small(&[(1.0, 2.0), (-2.0, 2.0), (0.0, 0.0)]));
-        assert!(!normal_variation_small(&[(-1.0, 1.0), (-1.0, 1.0), (-1.0, 1.0)]));
-        assert!(!normal_variation_small(&[(f64::NEG_INFINITY, 1.0), (1.0, 1.0), (1.0, 1.0)]));
+        assert!(normal_variation_small(&[
+            (1.0, 2.0),
+            (-0.1, 0.1),
+            (0.0, 0.0)
+        ]));
+        assert!(!normal_variation_small(&[
+            (1.0, 2.0),
+            (-2.0, 2.0),
+            (0.0, 0.0)
+        ]));
+        assert!(!normal_variation_small(&[
+            (-1.0, 1.0),
+            (-1.0, 1.0),
+            (-1.0, 1.0)
+        ]));
+        assert!(!normal_variation_small(&[
+            (f64::NEG_INFINITY, 1.0),
+            (1.0, 1.0),
+            (1.0, 1.0)
+        ]));
     }
 
     #[test]
     fn children_tile_parent() {
-        let c = children(Cell { level: 2, coords: [1, 2, 3] });
+        let c = children(Cell {
+            level: 2,
+            coords: [1, 2, 3],
+        });
         assert_eq!(c[0].coords, [2, 4, 6]);
         assert_eq!(c[7].coords, [3, 5, 7]);
         assert_eq!(c[1].coords, [3, 4, 6]);
