@@ -63,7 +63,8 @@ pub struct Enclosure {
 /// let sphere = ImplicitPolynomial { degree: 2, coefficients, center: [0.0; 3], scale: 1.0 };
 /// assert_eq!(sphere.value([1.0, 0.0, 0.0]), 0.0);
 /// let (lo, hi) = sphere.bounds_on_box(&Aabb { min: [2.0, 0.0, 0.0], max: [3.0, 1.0, 1.0] });
-/// assert!(lo > 0.0 && lo <= 3.0 && hi >= 18.0);
+/// // f ranges over [3, 10] on this box; the enclosure contains that and excludes 0.
+/// assert!(lo > 0.0 && lo <= 3.0 && hi >= 10.0);
 /// ```
 pub trait ImplicitFunction: Sync {
     /// f at the input-space point `p`.
