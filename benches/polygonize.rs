@@ -15,17 +15,26 @@ fn bench_degree_eight(c: &mut Criterion) {
         (
             "genus_two_deg8",
             shapes::genus_two(),
-            Aabb { min: [-1.2, -0.7, -0.2], max: [1.2, 0.7, 0.2] },
+            Aabb {
+                min: [-1.2, -0.7, -0.2],
+                max: [1.2, 0.7, 0.2],
+            },
         ),
         (
             "linked_tori_deg8",
             shapes::linked_tori(),
-            Aabb { min: [-1.4, -1.4, -1.4], max: [2.4, 1.4, 1.4] },
+            Aabb {
+                min: [-1.4, -1.4, -1.4],
+                max: [2.4, 1.4, 1.4],
+            },
         ),
     ];
     for (name, f, region) in &cases {
         for depth in [7, 8] {
-            let params = PolygonizeParams { depth, ..PolygonizeParams::default() };
+            let params = PolygonizeParams {
+                depth,
+                ..PolygonizeParams::default()
+            };
             group.bench_function(format!("{name}/depth={depth}"), |b| {
                 b.iter(|| polygonize(f, region, &params).expect("valid input"))
             });

@@ -113,13 +113,13 @@ pub fn component_labels(mesh: &TriangleMesh) -> (usize, Vec<u32>) {
     let mut labels = vec![u32::MAX; n];
     let mut root_label = vec![u32::MAX; n];
     let mut count = 0u32;
-    for i in 0..n {
+    for (i, label) in labels.iter_mut().enumerate() {
         let root = find(&mut parent, i as u32) as usize;
         if root_label[root] == u32::MAX {
             root_label[root] = count;
             count += 1;
         }
-        labels[i] = root_label[root];
+        *label = root_label[root];
     }
     (count as usize, labels)
 }
@@ -216,7 +216,9 @@ pub fn check(mesh: &TriangleMesh) -> MeshReport {
                 parent[a.max(b)] = a.min(b);
             }
         }
-        let fans = (0..around.len()).filter(|&i| root(&mut parent, i) == i).count();
+        let fans = (0..around.len())
+            .filter(|&i| root(&mut parent, i) == i)
+            .count();
         if fans > 1 {
             non_manifold_vertices += 1;
         }
@@ -270,7 +272,11 @@ pub fn drop_components_far_from(
     let (n_components, labels) = component_labels(mesh);
     // Hash the vertices into cubes of side max_distance; a point's near vertices lie in the 27
     // cubes around it.
-    let cell = if max_distance > 0.0 && max_distance.is_finite() { max_distance } else { 1.0 };
+    let cell = if max_distance > 0.0 && max_distance.is_finite() {
+        max_distance
+    } else {
+        1.0
+    };
     let key = |p: [f64; 3]| p.map(|c| (c / cell).floor() as i64);
     let mut buckets: std::collections::HashMap<[i64; 3], Vec<u32>> =
         std::collections::HashMap::new();

@@ -4,7 +4,9 @@
 
 use std::collections::HashMap;
 
-use stablesurf::mesh::{check, component_labels, drop_components_far_from, MeshReport, TriangleMesh};
+use stablesurf::mesh::{
+    check, component_labels, drop_components_far_from, MeshReport, TriangleMesh,
+};
 use stablesurf::polygonize::{polygonize, shapes, ImplicitFunction, PolygonizeParams, Polygonized};
 use stablesurf::{Aabb, ImplicitPolynomial};
 
@@ -13,13 +15,19 @@ fn boxed(min: [f64; 3], max: [f64; 3]) -> Aabb {
 }
 
 fn run(f: &ImplicitPolynomial, region: &Aabb, depth: u32) -> Polygonized {
-    let params = PolygonizeParams { depth, ..PolygonizeParams::default() };
+    let params = PolygonizeParams {
+        depth,
+        ..PolygonizeParams::default()
+    };
     polygonize(f, region, &params).expect("valid input")
 }
 
 /// The longest side of a finest (level `depth`) cell.
 fn finest_cell(region: &Aabb, depth: u32) -> f64 {
-    (0..3).map(|a| region.max[a] - region.min[a]).fold(0.0, f64::max) / f64::from(1u32 << depth)
+    (0..3)
+        .map(|a| region.max[a] - region.min[a])
+        .fold(0.0, f64::max)
+        / f64::from(1u32 << depth)
 }
 
 fn assert_closed(report: &MeshReport, components: usize, euler: i64) {
@@ -148,7 +156,10 @@ fn surface_to_mesh(samples: &[[f64; 3]], mesh: &TriangleMesh, cell: f64) -> f64 
     let key = |p: [f64; 3]| p.map(|c| (c / cell).floor() as i64);
     let mut buckets: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
     for (ti, t) in mesh.triangles.iter().enumerate() {
-        buckets.entry(key(mesh.positions[t[0] as usize])).or_default().push(ti);
+        buckets
+            .entry(key(mesh.positions[t[0] as usize]))
+            .or_default()
+            .push(ti);
     }
     let mut worst: f64 = 0.0;
     for &s in samples {
@@ -157,7 +168,11 @@ fn surface_to_mesh(samples: &[[f64; 3]], mesh: &TriangleMesh, cell: f64) -> f64 
         for dx in -2..=2 {
             for dy in -2..=2 {
                 for dz in -2..=2 {
-                    for &ti in buckets.get(&[k[0] + dx, k[1] + dy, k[2] + dz]).into_iter().flatten() {
+                    for &ti in buckets
+                        .get(&[k[0] + dx, k[1] + dy, k[2] + dz])
+                        .into_iter()
+                        .flatten()
+                    {
                         let t = mesh.triangles[ti].map(|i| mesh.positions[i as usize]);
                         best = best.min(point_triangle_distance(s, t[0], t[1], t[2]));
                     }
@@ -187,7 +202,11 @@ fn assert_accurate(
     assert!(backward < cell, "surface → mesh {backward} ≥ cell {cell}");
     // Projection: |f|/|∇f| below 1e-6 of the region's diagonal at every vertex.
     let diagonal = region.diagonal();
-    assert!(out.max_projection_residual < 1e-6, "{}", out.max_projection_residual);
+    assert!(
+        out.max_projection_residual < 1e-6,
+        "{}",
+        out.max_projection_residual
+    );
     for (p, n) in out.mesh.positions.iter().zip(&out.mesh.normals) {
         let (v, g) = f.value_gradient(*p);
         assert!(v.abs() / norm(g) < 1e-6 * diagonal, "vertex {p:?}");
@@ -208,7 +227,9 @@ fn sphere_with_center_and_scale() {
     let out = run(&f, &region, depth);
     assert_closed(&check(&out.mesh), 1, 2);
     assert_eq!(out.max_level, depth);
-    assert_accurate(&f, &region, depth, &out, |p| norm(sub(p, [1.0, 2.0, 3.0])) - 2.0);
+    assert_accurate(&f, &region, depth, &out, |p| {
+        norm(sub(p, [1.0, 2.0, 3.0])) - 2.0
+    });
 }
 
 #[test]
@@ -259,22 +280,32 @@ fn two_spheres_are_two_components() {
     let (n, labels) = component_labels(&out.mesh);
     assert_eq!(n, 2);
     for (p, &l) in out.mesh.positions.iter().zip(&labels) {
-        assert_eq!(l == labels[0], (p[0] > 0.0) == (out.mesh.positions[0][0] > 0.0));
+        assert_eq!(
+            l == labels[0],
+            (p[0] > 0.0) == (out.mesh.positions[0][0] > 0.0)
+        );
     }
     // Keeping only the component near a data point drops the other sphere.
     let (kept, dropped) = drop_components_far_from(&out.mesh, &[[1.6, 0.0, 0.0]], 0.1);
     assert_eq!(dropped, 1);
     assert_closed(&check(&kept), 1, 2);
     assert!(kept.positions.iter().all(|p| p[0] > 0.0));
-    let (all, none_dropped) = drop_components_far_from(&out.mesh, &[[1.6, 0.0, 0.0], [-0.4, 0.0, 0.0]], 0.1);
-    assert_eq!((none_dropped, all.triangles.len()), (0, out.mesh.triangles.len()));
+    let (all, none_dropped) =
+        drop_components_far_from(&out.mesh, &[[1.6, 0.0, 0.0], [-0.4, 0.0, 0.0]], 0.1);
+    assert_eq!(
+        (none_dropped, all.triangles.len()),
+        (0, out.mesh.triangles.len())
+    );
 }
 
 #[test]
 fn identical_output_with_one_and_two_threads() {
     let f = shapes::genus_two();
     let region = boxed([-1.2, -0.7, -0.2], [1.2, 0.7, 0.2]);
-    let params = PolygonizeParams { depth: 6, guard_levels: 3 };
+    let params = PolygonizeParams {
+        depth: 6,
+        guard_levels: 3,
+    };
     let in_pool = |threads: usize| {
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -284,7 +315,12 @@ fn identical_output_with_one_and_two_threads() {
     };
     let (one, two) = (in_pool(1), in_pool(2));
     let bits = |m: &TriangleMesh| -> Vec<u64> {
-        m.positions.iter().chain(&m.normals).flatten().map(|c| c.to_bits()).collect()
+        m.positions
+            .iter()
+            .chain(&m.normals)
+            .flatten()
+            .map(|c| c.to_bits())
+            .collect()
     };
     assert!(!one.mesh.triangles.is_empty());
     assert_eq!(bits(&one.mesh), bits(&two.mesh));
@@ -323,7 +359,10 @@ fn surface_leaving_the_region_is_cut_with_boundary_edges() {
     }
     for ((a, b), n) in uses {
         if n == 1 {
-            let (pa, pb) = (out.mesh.positions[a as usize], out.mesh.positions[b as usize]);
+            let (pa, pb) = (
+                out.mesh.positions[a as usize],
+                out.mesh.positions[b as usize],
+            );
             assert!(pa[2].abs() < 1e-9 && pb[2].abs() < 1e-9, "{pa:?} {pb:?}");
         }
     }
@@ -336,13 +375,27 @@ fn topology_guard_finds_a_component_smaller_than_a_cell() {
     f.center = [0.31, -0.19, 0.44];
     f.scale = 0.03;
     let region = boxed([-1.0; 3], [1.0; 3]);
-    let guarded = polygonize(&f, &region, &PolygonizeParams { depth: 4, guard_levels: 3 })
-        .expect("valid input");
+    let guarded = polygonize(
+        &f,
+        &region,
+        &PolygonizeParams {
+            depth: 4,
+            guard_levels: 3,
+        },
+    )
+    .expect("valid input");
     assert!(guarded.guard_splits > 0 && guarded.max_level > 4);
     assert_closed(&check(&guarded.mesh), 1, 2);
     // Without the guard the corners of the depth-4 cell all lie outside: nothing is meshed.
-    let unguarded = polygonize(&f, &region, &PolygonizeParams { depth: 4, guard_levels: 0 })
-        .expect("valid input");
+    let unguarded = polygonize(
+        &f,
+        &region,
+        &PolygonizeParams {
+            depth: 4,
+            guard_levels: 0,
+        },
+    )
+    .expect("valid input");
     assert!(unguarded.mesh.triangles.is_empty());
 }
 
@@ -354,10 +407,22 @@ fn mixed_levels_stay_manifold_around_a_singular_point() {
     coefficients[4] = 1.0;
     coefficients[7] = 1.0;
     coefficients[9] = -1.0;
-    let cone = ImplicitPolynomial { degree: 2, coefficients, center: [0.01, 0.02, 0.03], scale: 1.0 };
+    let cone = ImplicitPolynomial {
+        degree: 2,
+        coefficients,
+        center: [0.01, 0.02, 0.03],
+        scale: 1.0,
+    };
     let region = boxed([-1.0; 3], [1.0; 3]);
-    let out = polygonize(&cone, &region, &PolygonizeParams { depth: 4, guard_levels: 3 })
-        .expect("valid input");
+    let out = polygonize(
+        &cone,
+        &region,
+        &PolygonizeParams {
+            depth: 4,
+            guard_levels: 3,
+        },
+    )
+    .expect("valid input");
     assert_eq!(out.max_level, 7);
     let report = check(&out.mesh);
     assert_eq!(report.non_manifold_edges, 0, "{report:?}");
@@ -381,8 +446,14 @@ fn bad_input_is_an_error() {
     assert!(polygonize(&f, &flat, &PolygonizeParams::default()).is_err());
     let region = boxed([-1.0; 3], [1.0; 3]);
     for params in [
-        PolygonizeParams { depth: 0, guard_levels: 0 },
-        PolygonizeParams { depth: 15, guard_levels: 2 },
+        PolygonizeParams {
+            depth: 0,
+            guard_levels: 0,
+        },
+        PolygonizeParams {
+            depth: 15,
+            guard_levels: 2,
+        },
     ] {
         assert!(polygonize(&f, &region, &params).is_err());
     }

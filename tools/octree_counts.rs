@@ -12,17 +12,26 @@ fn main() {
         (
             "torus (deg 4)",
             shapes::torus(1.0, 0.4),
-            Aabb { min: [-1.6; 3], max: [1.6; 3] },
+            Aabb {
+                min: [-1.6; 3],
+                max: [1.6; 3],
+            },
         ),
         (
             "genus two (deg 8)",
             shapes::genus_two(),
-            Aabb { min: [-1.2, -0.7, -0.2], max: [1.2, 0.7, 0.2] },
+            Aabb {
+                min: [-1.2, -0.7, -0.2],
+                max: [1.2, 0.7, 0.2],
+            },
         ),
         (
             "linked tori (deg 8)",
             shapes::linked_tori(),
-            Aabb { min: [-1.4, -1.4, -1.4], max: [2.4, 1.4, 1.4] },
+            Aabb {
+                min: [-1.4, -1.4, -1.4],
+                max: [2.4, 1.4, 1.4],
+            },
         ),
     ];
     println!(
@@ -32,7 +41,10 @@ fn main() {
     for (name, f, region) in &cases {
         let mut previous: Option<u64> = None;
         for depth in 6..=9 {
-            let params = PolygonizeParams { depth, ..PolygonizeParams::default() };
+            let params = PolygonizeParams {
+                depth,
+                ..PolygonizeParams::default()
+            };
             let start = std::time::Instant::now();
             let out = match polygonize(f, region, &params) {
                 Ok(out) => out,

@@ -79,13 +79,18 @@ const KUHN: [[usize; 3]; 6] = [
     [2, 1, 0],
 ];
 
-/// Triangles of all surface leaves, as crossed edges, in leaf order; and evaluations spent.
+/// The triangles of all surface leaves: the crossed edges (sorted, unique) that become the mesh
+/// vertices, f at their two ends (smaller key first), the triangles as indices into them (in
+/// leaf order), and the evaluations spent.
+#[allow(clippy::type_complexity)]
 pub(crate) fn triangulate<F: ImplicitFunction + ?Sized>(
     function: &F,
     grid: &Grid,
     octree: &Octree,
-) -> (Vec<[EdgeKey; 3]>, u64) {
-    let parts: Vec<(Vec<[EdgeKey; 3]>, u64)> = octree
+) -> (Vec<EdgeKey>, Vec<[f64; 2]>, Vec<[u32; 3]>, u64) {
+    // Each task names its crossed edges once (local indices), so the global sort below handles
+    // each edge about once per task that sees it rather than once per triangle corner.
+    let parts: Vec<(Vec<EdgeKey>, Vec<[f64; 2]>, Vec<[u32; 3]>, u64)> = octree
         .leaves
         .par_chunks(LEAVES_PER_TASK)
         .map(|chunk| {
@@ -100,17 +105,59 @@ pub(crate) fn triangulate<F: ImplicitFunction + ?Sized>(
             for &leaf in chunk {
                 ctx.leaf(leaf);
             }
-            (ctx.triangles, ctx.evaluations)
+            let mut local: HashMap<EdgeKey, u32, BuildHasherDefault<MultiplyHasher>> =
+                HashMap::default();
+            let mut edges = Vec::new();
+            let triangles = ctx
+                .triangles
+                .iter()
+                .map(|tri| {
+                    tri.map(|key| {
+                        *local.entry(key).or_insert_with(|| {
+                            edges.push(key);
+                            (edges.len() - 1) as u32
+                        })
+                    })
+                })
+                .collect();
+            // Every end of a crossed edge was evaluated in this task.
+            let ends = edges
+                .iter()
+                .map(|&key| {
+                    let value = |k: u64| ctx.values.get(&k).copied().unwrap_or(f64::NAN);
+                    [value((key >> 64) as u64), value(key as u64)]
+                })
+                .collect();
+            (edges, ends, triangles, ctx.evaluations)
         })
         .collect();
-    let total: usize = parts.iter().map(|p| p.0.len()).sum();
-    let mut triangles = Vec::with_capacity(total);
-    let mut evaluations = 0;
-    for (t, e) in parts {
-        triangles.extend(t);
-        evaluations += e;
+    let mut edges: Vec<EdgeKey> = parts.iter().flat_map(|p| p.0.iter().copied()).collect();
+    edges.par_sort_unstable();
+    edges.dedup();
+    let remapped: Vec<(Vec<u32>, Vec<[u32; 3]>)> = parts
+        .par_iter()
+        .map(|(local_edges, _, triangles, _)| {
+            let global: Vec<u32> = local_edges
+                .iter()
+                .map(|key| edges.binary_search(key).unwrap_or(0) as u32)
+                .collect();
+            let triangles = triangles
+                .iter()
+                .map(|t| t.map(|i| global[i as usize]))
+                .collect();
+            (global, triangles)
+        })
+        .collect();
+    // Tasks that share an edge computed the same end values (one formula per lattice point).
+    let mut end_values = vec![[f64::NAN; 2]; edges.len()];
+    for ((global, _), part) in remapped.iter().zip(&parts) {
+        for (&g, &ends) in global.iter().zip(&part.1) {
+            end_values[g as usize] = ends;
+        }
     }
-    (triangles, evaluations)
+    let evaluations = parts.iter().map(|p| p.3).sum();
+    let triangles = remapped.into_iter().flat_map(|(_, t)| t).collect();
+    (edges, end_values, triangles, evaluations)
 }
 
 /// An elementary square on a leaf face.
@@ -144,7 +191,10 @@ impl<F: ImplicitFunction + ?Sized> LeafContext<'_, F> {
         if !self.grid.in_range(level, coords) {
             return false;
         }
-        let cell = Cell { level, coords: coords.map(|c| c as u32) };
+        let cell = Cell {
+            level,
+            coords: coords.map(|c| c as u32),
+        };
         self.octree.internal.contains(&self.grid.cell_key(cell))
     }
 
@@ -204,11 +254,7 @@ impl<F: ImplicitFunction + ?Sized> LeafContext<'_, F> {
             let b1 = 1 << perm[0];
             let b2 = b1 | 1 << perm[1];
             let ids = [0, b1, b2, 7];
-            march(
-                ids.map(corner),
-                ids.map(|i| values[i]),
-                &mut self.triangles,
-            );
+            march(ids.map(corner), ids.map(|i| values[i]), &mut self.triangles);
         }
     }
 
@@ -268,7 +314,12 @@ impl<F: ImplicitFunction + ?Sized> LeafContext<'_, F> {
             let side = self.grid.cell_side(level);
             let mut min = coords.map(|c| c.max(0) as u64 * side);
             min[axis] = plane;
-            out.push(Square { axis, min, side, level });
+            out.push(Square {
+                axis,
+                min,
+                side,
+                level,
+            });
             return;
         }
         let (u, v) = other_axes(axis);
@@ -368,7 +419,9 @@ impl Hasher for MultiplyHasher {
     }
 
     fn write_u64(&mut self, key: u64) {
-        self.0 = (self.0 ^ key).wrapping_mul(0x9e37_79b9_7f4a_7c15).rotate_left(29);
+        self.0 = (self.0 ^ key)
+            .wrapping_mul(0x9e37_79b9_7f4a_7c15)
+            .rotate_left(29);
     }
 }
 
@@ -395,7 +448,9 @@ fn march(points: [[u64; 3]; 4], values: [f64; 4], out: &mut Vec<[EdgeKey; 3]>) {
     let n_positive = positive.iter().filter(|&&p| p).count();
     match n_positive {
         1 | 3 => {
-            let lone = (0..4).position(|i| positive[i] == (n_positive == 1)).unwrap_or(0);
+            let lone = (0..4)
+                .position(|i| positive[i] == (n_positive == 1))
+                .unwrap_or(0);
             let others: Vec<usize> = (0..4).filter(|&i| i != lone).collect();
             let reference = if n_positive == 1 { lone } else { others[0] };
             let tri = [0, 1, 2].map(|t| (lone, others[t]));
@@ -404,7 +459,12 @@ fn march(points: [[u64; 3]; 4], values: [f64; 4], out: &mut Vec<[EdgeKey; 3]>) {
         2 => {
             let pos: Vec<usize> = (0..4).filter(|&i| positive[i]).collect();
             let neg: Vec<usize> = (0..4).filter(|&i| !positive[i]).collect();
-            let quad = [(pos[0], neg[0]), (pos[0], neg[1]), (pos[1], neg[1]), (pos[1], neg[0])];
+            let quad = [
+                (pos[0], neg[0]),
+                (pos[0], neg[1]),
+                (pos[1], neg[1]),
+                (pos[1], neg[0]),
+            ];
             emit(&points, [quad[0], quad[1], quad[2]], pos[0], out);
             emit(&points, [quad[0], quad[2], quad[3]], pos[0], out);
         }
@@ -458,14 +518,17 @@ pub(crate) fn place_vertices<F: ImplicitFunction + ?Sized>(
     function: &F,
     grid: &Grid,
     edges: &[EdgeKey],
+    end_values: &[[f64; 2]],
     projection_tolerance: f64,
 ) -> Vec<PlacedVertex> {
     edges
         .par_chunks(EDGES_PER_TASK)
-        .map(|chunk| {
+        .zip(end_values.par_chunks(EDGES_PER_TASK))
+        .map(|(chunk, values)| {
             chunk
                 .iter()
-                .map(|&key| place_vertex(function, grid, key, projection_tolerance))
+                .zip(values)
+                .map(|(&key, &ends)| place_vertex(function, grid, key, ends, projection_tolerance))
                 .collect::<Vec<_>>()
         })
         .collect::<Vec<_>>()
@@ -476,26 +539,73 @@ fn place_vertex<F: ImplicitFunction + ?Sized>(
     function: &F,
     grid: &Grid,
     key: EdgeKey,
+    [fa, fb]: [f64; 2],
     tolerance: f64,
 ) -> PlacedVertex {
     let a = grid.point(unpack((key >> 64) as u64));
     let b = grid.point(unpack(key as u64));
-    let (fa, fb) = (function.value(a), function.value(b));
-    let mut evaluations = 2;
+    let mut evaluations = 0;
     // Orient the edge from its negative end (f < 0) to its positive end (f ≥ 0).
-    let (neg, f_neg, pos, f_pos) = if fa < 0.0 { (a, fa, b, fb) } else { (b, fb, a, fa) };
+    let (neg, f_neg, pos, f_pos) = if fa < 0.0 {
+        (a, fa, b, fb)
+    } else {
+        (b, fb, a, fa)
+    };
     let direction = [0, 1, 2].map(|k| pos[k] - neg[k]);
     let length = norm(direction);
     let at = |s: f64| [0, 1, 2].map(|k| neg[k] + s * direction[k]);
-    // Start from the linear interpolation of the end values; the Newton steps below converge
-    // from there in one or two steps on a smooth surface. Regula falsi on the edge is the
+    // Start from the linear interpolation of the end values, refined once; the Newton steps
+    // below converge from there in one or two steps on a smooth surface. Regula falsi on the edge is the
     // fallback when they do not (a flat or turning gradient).
-    let s_linear = if f_pos == 0.0 { 1.0 } else { f_neg / (f_neg - f_pos) };
-    let mut x = at(s_linear.clamp(0.0, 1.0));
+    let s_linear = if f_pos == 0.0 {
+        1.0
+    } else {
+        (f_neg / (f_neg - f_pos)).clamp(0.0, 1.0)
+    };
+    let mut x = at(s_linear);
+    if f_pos != 0.0 {
+        // One more value on the edge, then the root of the parabola through the three samples
+        // (inverse quadratic interpolation): its error is third order in the edge length, so the
+        // first gradient evaluation below usually meets the tolerance already.
+        let g_mid = function.value(x);
+        evaluations += 1;
+        let s_next = if g_mid == 0.0 {
+            s_linear
+        } else {
+            let samples = [(0.0, f_neg), (s_linear, g_mid), (1.0, f_pos)];
+            let mut s_root = 0.0;
+            for (i, &(si, fi)) in samples.iter().enumerate() {
+                let mut weight = si;
+                for (j, &(_, fj)) in samples.iter().enumerate() {
+                    if i != j {
+                        weight *= -fj / (fi - fj);
+                    }
+                }
+                s_root += weight;
+            }
+            // Keep it inside the sub-bracket that holds the sign change, else regula falsi there.
+            let (lo, f_lo, hi, f_hi) = if g_mid < 0.0 {
+                (s_linear, g_mid, 1.0, f_pos)
+            } else {
+                (0.0, f_neg, s_linear, g_mid)
+            };
+            if s_root > lo && s_root < hi {
+                s_root
+            } else {
+                lo + (hi - lo) * (-f_lo / (f_hi - f_lo))
+            }
+        };
+        if s_next.is_finite() {
+            x = at(s_next.clamp(0.0, 1.0));
+        }
+    }
     let (vertex, spent) = newton(function, x, length, tolerance);
     evaluations += spent;
     if let Some(vertex) = vertex {
-        return PlacedVertex { evaluations, ..vertex };
+        return PlacedVertex {
+            evaluations,
+            ..vertex
+        };
     }
     x = if f_pos == 0.0 {
         pos
@@ -505,7 +615,11 @@ fn place_vertex<F: ImplicitFunction + ?Sized>(
         let mut last_side = 0;
         let mut s = 0.5;
         for _ in 0..64 {
-            s = if g1 > g0 { (s0 * g1 - s1 * g0) / (g1 - g0) } else { 0.5 * (s0 + s1) };
+            s = if g1 > g0 {
+                (s0 * g1 - s1 * g0) / (g1 - g0)
+            } else {
+                0.5 * (s0 + s1)
+            };
             if !(s > s0 && s < s1) {
                 s = 0.5 * (s0 + s1);
             }
@@ -566,7 +680,12 @@ fn place_vertex<F: ImplicitFunction + ?Sized>(
         // A singular point of f: fall back to the edge direction (negative to positive).
         direction.map(|d| d / length)
     };
-    PlacedVertex { position: x, normal, residual, evaluations }
+    PlacedVertex {
+        position: x,
+        normal,
+        residual,
+        evaluations,
+    }
 }
 
 /// Newton steps from `x` along the gradient: the vertex if |f|/|∇f| ≤ `tolerance` is reached

@@ -32,7 +32,18 @@ use crate::cloud::Aabb;
 use crate::poly::ImplicitPolynomial;
 
 /// Highest degree evaluated on stack buffers; higher degrees fall back to allocating paths.
-const STACK_DEGREE: usize = 24;
+const STACK_DEGREE: usize = 14;
+
+/// Guaranteed enclosures of f and ∇f over a box (see [`ImplicitFunction::enclosure_on_box`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Enclosure {
+    /// `(lo, hi)` with lo ≤ value(p) ≤ hi on the box.
+    pub value: (f64, f64),
+    /// Enclosures of ∂f/∂x, ∂f/∂y, ∂f/∂z (input coordinates) on the box.
+    pub gradient: [(f64, f64); 3],
+    /// A bound on |value(p) − f(p)|, the rounding error of a point value, on the box.
+    pub value_error: f64,
+}
 
 /// What the `polygonize` stage needs from an implicit model f (f < 0 inside, f > 0 outside), in
 /// input coordinates.
@@ -52,7 +63,8 @@ const STACK_DEGREE: usize = 24;
 /// let sphere = ImplicitPolynomial { degree: 2, coefficients, center: [0.0; 3], scale: 1.0 };
 /// assert_eq!(sphere.value([1.0, 0.0, 0.0]), 0.0);
 /// let (lo, hi) = sphere.bounds_on_box(&Aabb { min: [2.0, 0.0, 0.0], max: [3.0, 1.0, 1.0] });
-/// assert!(lo > 0.0 && lo <= 3.0 && hi >= 18.0);
+/// // f ranges over [3, 10] on this box; the enclosure contains that and excludes 0.
+/// assert!(lo > 0.0 && lo <= 3.0 && hi >= 10.0);
 /// ```
 pub trait ImplicitFunction: Sync {
     /// f at the input-space point `p`.
@@ -70,10 +82,16 @@ pub trait ImplicitFunction: Sync {
     /// refines that cell to its cap.
     fn gradient_bounds_on_box(&self, b: &Aabb) -> [(f64, f64); 3];
 
-    /// Both enclosures at once: `(bounds_on_box(b), gradient_bounds_on_box(b))`. Override it when
-    /// the two share work (the polynomial computes one local expansion for both).
-    fn bounds_with_gradient_on_box(&self, b: &Aabb) -> ((f64, f64), [(f64, f64); 3]) {
-        (self.bounds_on_box(b), self.gradient_bounds_on_box(b))
+    /// Both enclosures at once, with a bound on the rounding error of [`ImplicitFunction::value`]
+    /// over the box. The default combines the two methods above and assumes exact point values
+    /// (`value_error` 0); override it when the two share work (the polynomial computes one local
+    /// expansion for both) or when point values round.
+    fn enclosure_on_box(&self, b: &Aabb) -> Enclosure {
+        Enclosure {
+            value: self.bounds_on_box(b),
+            gradient: self.gradient_bounds_on_box(b),
+            value_error: 0.0,
+        }
     }
 
     /// Why the model cannot be meshed (a malformed model), or `Ok(())`.
@@ -88,28 +106,30 @@ pub trait ImplicitFunction: Sync {
 impl ImplicitFunction for ImplicitPolynomial {
     fn value(&self, p: [f64; 3]) -> f64 {
         let n = self.degree as usize;
-        if n > STACK_DEGREE {
+        if n > STACK_DEGREE || self.coefficients.len() != crate::poly::n_coefficients(self.degree) {
             return self.eval(p);
         }
-        let q = self.normalize(p);
+        let q = normalized(self, p);
         let mut px = [0.0; STACK_DEGREE + 1];
-        let mut py = [0.0; STACK_DEGREE + 1];
-        let mut pz = [0.0; STACK_DEGREE + 1];
         fill_powers(&mut px[..=n], q[0]);
-        fill_powers(&mut py[..=n], q[1]);
-        fill_powers(&mut pz[..=n], q[2]);
-        let mut coefficients = self.coefficients.iter();
+        // y^j z^k for j + k = s, at s(s+1)/2 + k: the same order as the coefficients inside
+        // every degree block, so each block is a dot product with a prefix of this table.
+        let mut yz = [0.0; YZ_LEN];
+        let n_yz = (n + 1) * (n + 2) / 2;
+        fill_yz(&mut yz[..n_yz], q[1], q[2], n);
         let mut sum = 0.0;
+        let mut offset = 0;
         for r in 0..=n {
+            let block = &self.coefficients[offset..offset + (r + 1) * (r + 2) / 2];
+            offset += block.len();
+            let mut start = 0;
             for s in 0..=r {
-                // Σ_k a_(r−s, s−k, k) y^(s−k) z^k, then times x^(r−s).
-                let mut inner = 0.0;
-                for k in 0..=s {
-                    let Some(&a) = coefficients.next() else {
-                        return sum + px[r - s] * inner;
-                    };
-                    inner += a * py[s - k] * pz[k];
-                }
+                let inner: f64 = block[start..=start + s]
+                    .iter()
+                    .zip(&yz[start..=start + s])
+                    .map(|(a, m)| a * m)
+                    .sum();
+                start += s + 1;
                 sum += px[r - s] * inner;
             }
         }
@@ -118,33 +138,54 @@ impl ImplicitFunction for ImplicitPolynomial {
 
     fn value_gradient(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
         let n = self.degree as usize;
-        if n > STACK_DEGREE {
+        if n > STACK_DEGREE || self.coefficients.len() != crate::poly::n_coefficients(self.degree) {
             return self.eval_gradient(p);
         }
-        let q = self.normalize(p);
+        let q = normalized(self, p);
+        // px[e + 1] = x^e, px[0] = 0 (the x^(−1) of a derivative's zero term).
         let mut px = [0.0; STACK_DEGREE + 2];
-        let mut py = [0.0; STACK_DEGREE + 2];
-        let mut pz = [0.0; STACK_DEGREE + 2];
-        // Index 0 holds 0 (the "x^(−1)" of a derivative), index e + 1 holds x^e.
         fill_powers(&mut px[1..=n + 1], q[0]);
-        fill_powers(&mut py[1..=n + 1], q[1]);
-        fill_powers(&mut pz[1..=n + 1], q[2]);
-        let mut coefficients = self.coefficients.iter();
+        let n_yz = (n + 1) * (n + 2) / 2;
+        let mut yz = [0.0; YZ_LEN];
+        let mut yz_dy = [0.0; YZ_LEN];
+        let mut yz_dz = [0.0; YZ_LEN];
+        fill_yz(&mut yz[..n_yz], q[1], q[2], n);
+        // ∂(y^j z^k)/∂y = j y^(j−1) z^k and ∂/∂z = k y^j z^(k−1), from the degree s − 1 row.
+        let mut row = 0;
+        for s in 0..=n {
+            for k in 0..=s {
+                let j = s - k;
+                let below = row - s; // start of the degree s − 1 row
+                if j > 0 {
+                    yz_dy[row + k] = j as f64 * yz[below + k];
+                }
+                if k > 0 {
+                    yz_dz[row + k] = k as f64 * yz[below + k - 1];
+                }
+            }
+            row += s + 1;
+        }
         let mut f = 0.0;
         let mut g = [0.0; 3];
-        'outer: for r in 0..=n {
+        let mut offset = 0;
+        for r in 0..=n {
+            let block = &self.coefficients[offset..offset + (r + 1) * (r + 2) / 2];
+            offset += block.len();
+            let mut start = 0;
             for s in 0..=r {
                 let i = r - s;
                 let (mut v, mut vy, mut vz) = (0.0, 0.0, 0.0);
-                for k in 0..=s {
-                    let Some(&a) = coefficients.next() else {
-                        break 'outer;
-                    };
-                    let j = s - k;
-                    v += a * py[j + 1] * pz[k + 1];
-                    vy += a * j as f64 * py[j] * pz[k + 1];
-                    vz += a * k as f64 * py[j + 1] * pz[k];
+                for (((a, m), my), mz) in block[start..=start + s]
+                    .iter()
+                    .zip(&yz[start..=start + s])
+                    .zip(&yz_dy[start..=start + s])
+                    .zip(&yz_dz[start..=start + s])
+                {
+                    v += a * m;
+                    vy += a * my;
+                    vz += a * mz;
                 }
+                start += s + 1;
                 f += px[i + 1] * v;
                 g[0] += i as f64 * px[i] * v;
                 g[1] += px[i + 1] * vy;
@@ -156,28 +197,37 @@ impl ImplicitFunction for ImplicitPolynomial {
 
     fn bounds_on_box(&self, b: &Aabb) -> (f64, f64) {
         match self.taylor(b) {
-            Some(t) => t.value_bounds(),
+            Some(t) => t.bounds().0,
             None => (f64::NEG_INFINITY, f64::INFINITY),
         }
     }
 
     fn gradient_bounds_on_box(&self, b: &Aabb) -> [(f64, f64); 3] {
-        self.bounds_with_gradient_on_box(b).1
+        self.enclosure_on_box(b).gradient
     }
 
-    fn bounds_with_gradient_on_box(&self, b: &Aabb) -> ((f64, f64), [(f64, f64); 3]) {
-        let mut gradient = [(f64::NEG_INFINITY, f64::INFINITY); 3];
+    fn enclosure_on_box(&self, b: &Aabb) -> Enclosure {
         let Some(t) = self.taylor(b) else {
-            return ((f64::NEG_INFINITY, f64::INFINITY), gradient);
+            return Enclosure {
+                value: (f64::NEG_INFINITY, f64::INFINITY),
+                gradient: [(f64::NEG_INFINITY, f64::INFINITY); 3],
+                value_error: f64::INFINITY,
+            };
         };
+        let (value, derivatives) = t.bounds();
+        let mut gradient = [(f64::NEG_INFINITY, f64::INFINITY); 3];
         for (axis, slot) in gradient.iter_mut().enumerate() {
             let per_t = self.scale * t.half_width[axis];
             if per_t > 0.0 && per_t.is_finite() {
-                let (lo, hi) = t.derivative_bounds(axis);
+                let (lo, hi) = derivatives[axis];
                 *slot = (lo / per_t, hi / per_t);
             }
         }
-        (t.value_bounds(), gradient)
+        Enclosure {
+            value,
+            gradient,
+            value_error: t.value_margin,
+        }
     }
 
     fn validate(&self) -> Result<(), String> {
@@ -192,7 +242,8 @@ impl ImplicitFunction for ImplicitPolynomial {
         if self.coefficients.iter().any(|a| !a.is_finite()) {
             return Err("the model has a non-finite coefficient".into());
         }
-        if !(self.scale > 0.0 && self.scale.is_finite()) || self.center.iter().any(|c| !c.is_finite())
+        if !(self.scale > 0.0 && self.scale.is_finite())
+            || self.center.iter().any(|c| !c.is_finite())
         {
             return Err(format!(
                 "the normalization needs a finite centre and a scale > 0, got centre {:?} and scale {}",
@@ -200,6 +251,37 @@ impl ImplicitFunction for ImplicitPolynomial {
             ));
         }
         Ok(())
+    }
+}
+
+/// (p − center)/scale, written out so that it inlines in the hot loops.
+#[inline]
+fn normalized(f: &ImplicitPolynomial, p: [f64; 3]) -> [f64; 3] {
+    [
+        (p[0] - f.center[0]) / f.scale,
+        (p[1] - f.center[1]) / f.scale,
+        (p[2] - f.center[2]) / f.scale,
+    ]
+}
+
+/// Length of the y^j z^k table for degrees up to [`STACK_DEGREE`].
+const YZ_LEN: usize = (STACK_DEGREE + 1) * (STACK_DEGREE + 2) / 2;
+
+/// `out[s(s+1)/2 + k] = y^(s−k) z^k` for s ≤ n.
+fn fill_yz(out: &mut [f64], y: f64, z: f64, n: usize) {
+    let mut row = 0;
+    for s in 0..=n {
+        if s == 0 {
+            out[0] = 1.0;
+        } else {
+            let below = row - s;
+            // y^(s−k) z^k = y · (y^(s−1−k) z^k) for k < s, and z · z^(s−1) for k = s.
+            for k in 0..s {
+                out[row + k] = y * out[below + k];
+            }
+            out[row + s] = z * out[below + s - 1];
+        }
+        row += s + 1;
     }
 }
 
@@ -317,44 +399,40 @@ impl ImplicitPolynomial {
 }
 
 impl LocalTaylor {
-    /// Enclosure of f over the box.
-    fn value_bounds(&self) -> (f64, f64) {
+    /// Enclosures of f and of ∂f/∂t_axis (local coordinates) over the box, in one pass.
+    fn bounds(&self) -> ((f64, f64), [(f64, f64); 3]) {
         let (n, m) = (self.degree, self.degree + 1);
-        let mut lo = 0.0;
-        let mut hi = 0.0;
+        let mut value = (0.0, 0.0);
+        let mut derivatives = [(0.0, 0.0); 3];
         for i in 0..=n {
             for j in 0..=n - i {
                 for k in 0..=n - i - j {
                     let b = self.coefficients[(i * m + j) * m + k];
-                    accumulate(&mut lo, &mut hi, b, [i, j, k]);
-                }
-            }
-        }
-        (lo - self.value_margin, hi + self.value_margin)
-    }
-
-    /// Enclosure of ∂f/∂t_axis over the box (local coordinates).
-    fn derivative_bounds(&self, axis: usize) -> (f64, f64) {
-        let (n, m) = (self.degree, self.degree + 1);
-        let mut lo = 0.0;
-        let mut hi = 0.0;
-        for i in 0..=n {
-            for j in 0..=n - i {
-                for k in 0..=n - i - j {
-                    let mut e = [i, j, k];
-                    if e[axis] == 0 {
+                    if b == 0.0 {
                         continue;
                     }
-                    let b = self.coefficients[(i * m + j) * m + k] * e[axis] as f64;
-                    e[axis] -= 1;
-                    accumulate(&mut lo, &mut hi, b, e);
+                    let e = [i, j, k];
+                    accumulate(&mut value.0, &mut value.1, b, e);
+                    for axis in 0..3 {
+                        if e[axis] > 0 {
+                            let mut ed = e;
+                            ed[axis] -= 1;
+                            let slot = &mut derivatives[axis];
+                            accumulate(&mut slot.0, &mut slot.1, b * e[axis] as f64, ed);
+                        }
+                    }
                 }
             }
         }
-        (
-            lo - self.derivative_margin[axis],
-            hi + self.derivative_margin[axis],
-        )
+        let value = (value.0 - self.value_margin, value.1 + self.value_margin);
+        let derivatives = [0, 1, 2].map(|a| {
+            let (lo, hi) = derivatives[a];
+            (
+                lo - self.derivative_margin[a],
+                hi + self.derivative_margin[a],
+            )
+        });
+        (value, derivatives)
     }
 }
 
@@ -392,7 +470,12 @@ mod tests {
                 ((state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
             })
             .collect();
-        ImplicitPolynomial { degree: n, coefficients, center: [0.3, -0.2, 0.5], scale: 1.7 }
+        ImplicitPolynomial {
+            degree: n,
+            coefficients,
+            center: [0.3, -0.2, 0.5],
+            scale: 1.7,
+        }
     }
 
     #[test]
@@ -407,7 +490,10 @@ mod tests {
                 assert!((f.value(p) - reference).abs() < tol, "degree {n}");
                 assert!((v - rv).abs() < tol, "degree {n}");
                 for a in 0..3 {
-                    assert!((g[a] - rg[a]).abs() < 1e-11 * (1.0 + rg[a].abs()), "degree {n}");
+                    assert!(
+                        (g[a] - rg[a]).abs() < 1e-11 * (1.0 + rg[a].abs()),
+                        "degree {n}"
+                    );
                 }
             }
         }
@@ -419,9 +505,15 @@ mod tests {
         let mut previous_excess = f64::INFINITY;
         for level in 0..6 {
             let h = 0.8 / f64::from(1u32 << level);
-            let b = Aabb { min: [0.1, -0.3, 0.2], max: [0.1 + h, -0.3 + h, 0.2 + h] };
+            let b = Aabb {
+                min: [0.1, -0.3, 0.2],
+                max: [0.1 + h, -0.3 + h, 0.2 + h],
+            };
             let (lo, hi) = f.bounds_on_box(&b);
             let grads = f.gradient_bounds_on_box(&b);
+            let enclosure = f.enclosure_on_box(&b);
+            assert_eq!((enclosure.value, enclosure.gradient), ((lo, hi), grads));
+            assert!(enclosure.value_error > 0.0 && enclosure.value_error < 1e-10);
             let (mut smin, mut smax) = (f64::INFINITY, f64::NEG_INFINITY);
             for ix in 0..=6 {
                 for iy in 0..=6 {
@@ -441,7 +533,10 @@ mod tests {
             // The centred form's overestimation shrinks about 4× per halving (quadratic).
             let excess = (hi - lo) - (smax - smin);
             if level >= 3 {
-                assert!(excess < 0.4 * previous_excess, "level {level}: {excess} vs {previous_excess}");
+                assert!(
+                    excess < 0.4 * previous_excess,
+                    "level {level}: {excess} vs {previous_excess}"
+                );
             }
             previous_excess = excess;
         }

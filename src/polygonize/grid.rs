@@ -55,7 +55,13 @@ impl Grid {
             n as u64 * depth_side
         });
         let step = [0, 1, 2].map(|a| sides[a] / extent[a] as f64);
-        Grid { depth, cap, origin: region.min, step, extent }
+        Grid {
+            depth,
+            cap,
+            origin: region.min,
+            step,
+            extent,
+        }
     }
 
     /// Side of a level-`level` cell in lattice steps.
@@ -70,8 +76,13 @@ impl Grid {
     }
 
     /// Input-space coordinates of the lattice point `l`.
+    #[inline]
     pub fn point(&self, l: [u64; 3]) -> [f64; 3] {
-        [0, 1, 2].map(|a| self.origin[a] + l[a] as f64 * self.step[a])
+        [
+            self.origin[0] + l[0] as f64 * self.step[0],
+            self.origin[1] + l[1] as f64 * self.step[1],
+            self.origin[2] + l[2] as f64 * self.step[2],
+        ]
     }
 
     /// Whether `cell` lies wholly outside the region.
@@ -86,7 +97,10 @@ impl Grid {
         let min = self.cell_min(cell);
         let side = self.cell_side(cell.level);
         let max = [0, 1, 2].map(|a| (min[a] + side).min(self.extent[a]));
-        Aabb { min: self.point(min), max: self.point(max) }
+        Aabb {
+            min: self.point(min),
+            max: self.point(max),
+        }
     }
 
     /// A unique key for a cell (level and coordinates).
@@ -111,7 +125,11 @@ pub(crate) fn pack(l: [u64; 3]) -> u64 {
 /// Inverse of [`pack`].
 pub(crate) fn unpack(key: u64) -> [u64; 3] {
     let mask = (1u64 << POINT_BITS) - 1;
-    [key & mask, (key >> POINT_BITS) & mask, key >> (2 * POINT_BITS)]
+    [
+        key & mask,
+        (key >> POINT_BITS) & mask,
+        key >> (2 * POINT_BITS),
+    ]
 }
 
 #[cfg(test)]
@@ -128,17 +146,44 @@ mod tests {
     #[test]
     fn cell_box_corners_are_lattice_points() {
         // Longest side 4 along y: level-2 cells of side 1; x has 2 of them, z one (shrunk to 0.5).
-        let region = Aabb { min: [-1.0, 0.0, 2.0], max: [1.0, 4.0, 2.5] };
+        let region = Aabb {
+            min: [-1.0, 0.0, 2.0],
+            max: [1.0, 4.0, 2.5],
+        };
         let g = Grid::new(region, 2, 4);
-        let root = g.cell_box(Cell { level: 0, coords: [0, 0, 0] });
+        let root = g.cell_box(Cell {
+            level: 0,
+            coords: [0, 0, 0],
+        });
         assert_eq!(root, region);
-        let b = g.cell_box(Cell { level: 2, coords: [1, 3, 0] });
-        assert_eq!(b, Aabb { min: [0.0, 3.0, 2.0], max: [1.0, 4.0, 2.5] });
-        assert!(g.is_outside(Cell { level: 2, coords: [2, 0, 0] }));
-        assert!(g.is_outside(Cell { level: 2, coords: [0, 0, 1] }));
-        assert!(!g.is_outside(Cell { level: 1, coords: [0, 1, 0] }));
+        let b = g.cell_box(Cell {
+            level: 2,
+            coords: [1, 3, 0],
+        });
+        assert_eq!(
+            b,
+            Aabb {
+                min: [0.0, 3.0, 2.0],
+                max: [1.0, 4.0, 2.5]
+            }
+        );
+        assert!(g.is_outside(Cell {
+            level: 2,
+            coords: [2, 0, 0]
+        }));
+        assert!(g.is_outside(Cell {
+            level: 2,
+            coords: [0, 0, 1]
+        }));
+        assert!(!g.is_outside(Cell {
+            level: 1,
+            coords: [0, 1, 0]
+        }));
         // A level-4 cell below the depth keeps its shrunk z side: 0.5 / 4.
-        let c = g.cell_box(Cell { level: 4, coords: [0, 0, 3] });
+        let c = g.cell_box(Cell {
+            level: 4,
+            coords: [0, 0, 3],
+        });
         assert!((c.max[2] - c.min[2] - 0.125).abs() < 1e-15);
     }
 }

@@ -53,8 +53,8 @@
 //! # Ok::<(), stablesurf::polygonize::PolygonizeError>(())
 //! ```
 
-pub mod function;
 mod extract;
+pub mod function;
 mod grid;
 mod octree;
 pub mod shapes;
@@ -122,7 +122,10 @@ pub struct PolygonizeParams {
 
 impl Default for PolygonizeParams {
     fn default() -> Self {
-        PolygonizeParams { depth: 8, guard_levels: 3 }
+        PolygonizeParams {
+            depth: 8,
+            guard_levels: 3,
+        }
     }
 }
 
@@ -163,7 +166,10 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
         region.min[a].is_finite() && region.max[a].is_finite() && region.min[a] < region.max[a]
     });
     if !valid_region {
-        return Err(PolygonizeError::InvalidRegion { min: region.min, max: region.max });
+        return Err(PolygonizeError::InvalidRegion {
+            min: region.min,
+            max: region.max,
+        });
     }
     let cap = params.depth.checked_add(params.guard_levels);
     if params.depth == 0 || cap.is_none_or(|c| c > MAX_LEVEL) {
@@ -177,20 +183,11 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
     let grid = Grid::new(*region, params.depth, params.depth + params.guard_levels);
 
     let tree = octree::build(function, &grid);
-    let (triangles, extraction_evaluations) = extract::triangulate(function, &grid, &tree);
-
-    let mut edges: Vec<extract::EdgeKey> = triangles.iter().flatten().copied().collect();
-    rayon::slice::ParallelSliceMut::par_sort_unstable(edges.as_mut_slice());
-    edges.dedup();
+    let (edges, end_values, triangles, extraction_evaluations) =
+        extract::triangulate(function, &grid, &tree);
     let diagonal = region.diagonal();
-    let vertices =
-        extract::place_vertices(function, &grid, &edges, PROJECTION_TOLERANCE * diagonal);
-
-    use rayon::prelude::*;
-    let triangles: Vec<[u32; 3]> = triangles
-        .par_iter()
-        .map(|tri| tri.map(|key| edges.binary_search(&key).unwrap_or(0) as u32))
-        .collect();
+    let tolerance = PROJECTION_TOLERANCE * diagonal;
+    let vertices = extract::place_vertices(function, &grid, &edges, &end_values, tolerance);
     let mesh = TriangleMesh {
         positions: vertices.iter().map(|v| v.position).collect(),
         normals: vertices.iter().map(|v| v.normal).collect(),

@@ -30,8 +30,9 @@ use std::collections::HashSet;
 
 use rayon::prelude::*;
 
-use super::function::ImplicitFunction;
+use super::function::{Enclosure, ImplicitFunction};
 use super::grid::Grid;
+use crate::cloud::Aabb;
 
 /// Levels below which the children of a cell are processed in parallel (8³ = 512 tasks).
 const PARALLEL_LEVELS: u32 = 3;
@@ -76,8 +77,11 @@ impl Part {
 
 /// Builds the octree of `function` over `grid`.
 pub(crate) fn build<F: ImplicitFunction + ?Sized>(function: &F, grid: &Grid) -> Octree {
-    let root = Cell { level: 0, coords: [0, 0, 0] };
-    let part = visit(function, grid, root);
+    let root = Cell {
+        level: 0,
+        coords: [0, 0, 0],
+    };
+    let part = visit(function, grid, root, None);
     let guard_splits = part.internal.len() as u64;
     Octree {
         leaves: part.leaves,
@@ -87,29 +91,45 @@ pub(crate) fn build<F: ImplicitFunction + ?Sized>(function: &F, grid: &Grid) -> 
     }
 }
 
-fn visit<F: ImplicitFunction + ?Sized>(function: &F, grid: &Grid, cell: Cell) -> Part {
+/// Visits `cell`; `parent` is the enclosure of its parent's box (None for the root).
+///
+/// A child is first tested by the mean-value form with its parent's gradient enclosure G:
+/// f(box) ⊂ f(c) ± Σ_a max|G_a|·h_a (plus twice the rounding error of a point value), which
+/// costs one point value. Only a cell that survives and must be split, or whose parent's
+/// gradient enclosure fails the guard, computes its own (tighter, costlier) enclosure.
+fn visit<F: ImplicitFunction + ?Sized>(
+    function: &F,
+    grid: &Grid,
+    cell: Cell,
+    parent: Option<&Enclosure>,
+) -> Part {
     if grid.is_outside(cell) {
         return Part::default();
     }
     let cell_box = grid.cell_box(cell);
-    // Between `depth` and the cap the guard needs the gradient's enclosure too: get both at once.
-    let guarded = cell.level >= grid.depth && cell.level < grid.cap;
-    let ((lo, hi), gradient) = if guarded {
-        let (value, gradient) = function.bounds_with_gradient_on_box(&cell_box);
-        (value, Some(gradient))
-    } else {
-        (function.bounds_on_box(&cell_box), None)
-    };
-    let mut part = Part { evaluations: 1, ..Part::default() };
+    let mut part = Part::default();
+    if let Some(parent) = parent {
+        part.evaluations += 1;
+        if mean_value_excludes_zero(function, &cell_box, parent) {
+            return part;
+        }
+    }
+    let in_guard_zone = cell.level >= grid.depth && cell.level < grid.cap;
+    let passes_guard_by_parent = parent.is_some_and(|p| normal_variation_small(&p.gradient));
+    let leaf_without_own_enclosure = cell.level >= grid.depth
+        && (cell.level == grid.cap || (in_guard_zone && passes_guard_by_parent));
+    if leaf_without_own_enclosure {
+        part.leaves.push(cell);
+        return part;
+    }
+    let enclosure = function.enclosure_on_box(&cell_box);
+    part.evaluations += 1;
+    let (lo, hi) = enclosure.value;
     // Values ≥ 0 count as outside, so a cell is empty when f > 0 or f < 0 throughout.
     if lo > 0.0 || hi < 0.0 {
         return part;
     }
-    let split = match gradient {
-        _ if cell.level < grid.depth => true,
-        Some(gradient) => !normal_variation_small(&gradient),
-        None => false,
-    };
+    let split = cell.level < grid.depth || !normal_variation_small(&enclosure.gradient);
     if !split {
         part.leaves.push(cell);
         return part;
@@ -121,18 +141,41 @@ fn visit<F: ImplicitFunction + ?Sized>(function: &F, grid: &Grid, cell: Cell) ->
     let parts: Vec<Part> = if cell.level < PARALLEL_LEVELS {
         children
             .par_iter()
-            .map(|&child| visit(function, grid, child))
+            .map(|&child| visit(function, grid, child, Some(&enclosure)))
             .collect()
     } else {
         children
             .iter()
-            .map(|&child| visit(function, grid, child))
+            .map(|&child| visit(function, grid, child, Some(&enclosure)))
             .collect()
     };
     for p in parts {
         part.append(p);
     }
     part
+}
+
+/// Whether the mean-value form with the parent's gradient enclosure shows that f has one strict
+/// sign on `b` (a sub-box of the parent's box).
+fn mean_value_excludes_zero<F: ImplicitFunction + ?Sized>(
+    function: &F,
+    b: &Aabb,
+    parent: &Enclosure,
+) -> bool {
+    let center = b.center();
+    let v = function.value(center);
+    let mut reach = 0.0;
+    for a in 0..3 {
+        let (lo, hi) = parent.gradient[a];
+        reach += lo.abs().max(hi.abs()) * 0.5 * (b.max[a] - b.min[a]);
+    }
+    // The relative 1e-12 covers the rounding of this sum and of the centre; the value error
+    // covers the point value here and at any other point of the box.
+    let slack = reach * (1.0 + 1e-12) + 2.0 * parent.value_error;
+    if !(slack.is_finite() && v.is_finite()) {
+        return false;
+    }
+    v - slack > 0.0 || v + slack < 0.0
 }
 
 /// The 8 children of `cell`, x fastest.
@@ -163,15 +206,34 @@ mod tests {
 
     #[test]
     fn guard_condition() {
-        assert!(normal_variation_small(&[(1.0, 2.0), (-0.1, 0.1), (0.0, 0.0)]));
-        assert!(!normal_variation_small(&[(1.0, 2.0), (-2.0, 2.0), (0.0, 0.0)]));
-        assert!(!normal_variation_small(&[(-1.0, 1.0), (-1.0, 1.0), (-1.0, 1.0)]));
-        assert!(!normal_variation_small(&[(f64::NEG_INFINITY, 1.0), (1.0, 1.0), (1.0, 1.0)]));
+        assert!(normal_variation_small(&[
+            (1.0, 2.0),
+            (-0.1, 0.1),
+            (0.0, 0.0)
+        ]));
+        assert!(!normal_variation_small(&[
+            (1.0, 2.0),
+            (-2.0, 2.0),
+            (0.0, 0.0)
+        ]));
+        assert!(!normal_variation_small(&[
+            (-1.0, 1.0),
+            (-1.0, 1.0),
+            (-1.0, 1.0)
+        ]));
+        assert!(!normal_variation_small(&[
+            (f64::NEG_INFINITY, 1.0),
+            (1.0, 1.0),
+            (1.0, 1.0)
+        ]));
     }
 
     #[test]
     fn children_tile_parent() {
-        let c = children(Cell { level: 2, coords: [1, 2, 3] });
+        let c = children(Cell {
+            level: 2,
+            coords: [1, 2, 3],
+        });
         assert_eq!(c[0].coords, [2, 4, 6]);
         assert_eq!(c[7].coords, [3, 5, 7]);
         assert_eq!(c[1].coords, [3, 4, 6]);

@@ -67,7 +67,12 @@ impl Sparse {
         for (e, c) in self.0 {
             coefficients[monomial_index(e)] += c;
         }
-        ImplicitPolynomial { degree, coefficients, center: [0.0; 3], scale: 1.0 }
+        ImplicitPolynomial {
+            degree,
+            coefficients,
+            center: [0.0; 3],
+            scale: 1.0,
+        }
     }
 }
 
