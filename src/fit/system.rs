@@ -1,0 +1,605 @@
+//! The fit's linear system, accumulated in one streaming pass: radial normalization (paper 2.2),
+//! the 3L layers (5.5), the moments that make up MᵀM and Mᵀb, and the ridge matrix D (6.18).
+//!
+//! Every entry of MᵀM is a moment: (MᵀM)_{lm} = Σ_rows m_l(q) m_m(q) = Σ_rows q^{e_l + e_m}, a
+//! monomial of degree ≤ 2n. So instead of the 3N×c matrix M the pass accumulates the
+//! C(2n+3, 3) moments Σ x^a y^b z^c over the rows (969 at n = 8 against c² = 27,225 Gram entries)
+//! and the c weighted moments Σ b_row q^e that make Mᵀb, plus β_r = Σ_t |p̂_t|^{2r} over the
+//! data points. Memory is O(moments), independent of N.
+//!
+//! ```text
+//! points ─▶ fixed chunks of 2,048 points ─(rayon, 32 chunks at a time)─▶ per-chunk moments
+//!        ─▶ summed in chunk order (deterministic for any thread count) ─▶ MᵀM, Mᵀb, β
+//! ```
+//!
+//! Inside a chunk the rows are processed in blocks of 64 in structure-of-arrays form: for each
+//! (a, b) the product x^a y^b is formed once for the block and dotted with every z^c; the dot
+//! products run over eight independent lanes so they vectorize (AVX2 when the CPU has it, the
+//! same lane arithmetic otherwise, so the sums are bit-identical either way).
+
+use rayon::prelude::*;
+
+use crate::cloud::OrientedCloud;
+use crate::poly::{exponents, monomial_index, n_coefficients};
+
+/// Rows per structure-of-arrays block.
+const BLOCK: usize = 64;
+/// Points per chunk (the unit of parallel work and of the fixed reduction order).
+const CHUNK_POINTS: usize = 2048;
+/// Chunks processed in parallel before their sums are added (in order) to the total; bounds
+/// memory independently of N.
+const CHUNKS_PER_BATCH: usize = 32;
+
+/// Radial normalization p̂ = (p − center)/scale (paper 2.2).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Normalization {
+    /// The centroid μ of the data points.
+    pub center: [f64; 3],
+    /// The mean distance s of the data points to μ.
+    pub scale: f64,
+}
+
+impl Normalization {
+    /// Centroid and mean radial distance, both summed in fixed chunks in a fixed order.
+    pub fn of(points: &[[f64; 3]]) -> Normalization {
+        let n = points.len().max(1) as f64;
+        let sums: Vec<[f64; 3]> = points
+            .par_chunks(CHUNK_POINTS)
+            .map(|chunk| {
+                let mut s = [0.0; 3];
+                for p in chunk {
+                    for a in 0..3 {
+                        s[a] += p[a];
+                    }
+                }
+                s
+            })
+            .collect();
+        let mut center = [0.0; 3];
+        for s in &sums {
+            for a in 0..3 {
+                center[a] += s[a];
+            }
+        }
+        let center = center.map(|c| c / n);
+        let dists: Vec<f64> = points
+            .par_chunks(CHUNK_POINTS)
+            .map(|chunk| {
+                chunk
+                    .iter()
+                    .map(|p| {
+                        let d = [0, 1, 2].map(|a| p[a] - center[a]);
+                        (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+                    })
+                    .sum::<f64>()
+            })
+            .collect();
+        let scale = dists.iter().sum::<f64>() / n;
+        Normalization { center, scale }
+    }
+
+    /// p̂ for an input point.
+    pub fn apply(&self, p: [f64; 3]) -> [f64; 3] {
+        [0, 1, 2].map(|a| (p[a] - self.center[a]) / self.scale)
+    }
+}
+
+/// Which rows the system has.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Rows {
+    /// Only the data points, no right-hand side (plain least squares, paper section 4).
+    Data,
+    /// The 3L layers p̂, p̂ + εn, p̂ − εn with targets 0, +ε, −ε (paper 5.5).
+    ThreeLayers {
+        /// Layer offset ε in normalized units.
+        epsilon: f64,
+    },
+}
+
+/// The accumulated system of one fit.
+#[derive(Clone, Debug)]
+pub(crate) struct System {
+    /// Fit degree n.
+    pub degree: u32,
+    /// Moments Σ q^e over all rows for every e of degree ≤ 2n, in the paper's graded order.
+    pub moments: Vec<f64>,
+    /// Mᵀb in the paper's order (zero for [`Rows::Data`]).
+    pub rhs: Vec<f64>,
+    /// β_r = Σ_t |p̂_t|^{2r} over the data points, r = 0 … n.
+    pub beta: Vec<f64>,
+}
+
+impl System {
+    /// The Gram matrix MᵀM (c×c, row-major) assembled from the moments.
+    pub fn gram(&self) -> Vec<f64> {
+        let e = exponents(self.degree);
+        let c = e.len();
+        let mut g = vec![0.0; c * c];
+        for l in 0..c {
+            for m in l..c {
+                let sum = [e[l][0] + e[m][0], e[l][1] + e[m][1], e[l][2] + e[m][2]];
+                let v = self.moments[monomial_index(sum)];
+                g[l * c + m] = v;
+                g[m * c + l] = v;
+            }
+        }
+        g
+    }
+
+    /// The diagonal of the ridge matrix D (6.18): D_ll = β_{i+j+k} / T_ll with the trinomial
+    /// coefficient T_ll = (i+j+k)!/(i! j! k!).
+    pub fn ridge_diagonal(&self) -> Vec<f64> {
+        ridge_diagonal(self.degree, &self.beta)
+    }
+}
+
+/// D_ll = β_{i+j+k} / T_ll for every monomial of degree ≤ `degree`.
+pub(crate) fn ridge_diagonal(degree: u32, beta: &[f64]) -> Vec<f64> {
+    exponents(degree)
+        .iter()
+        .map(|e| {
+            let r = (e[0] + e[1] + e[2]) as usize;
+            beta[r] / trinomial(*e)
+        })
+        .collect()
+}
+
+/// (i+j+k)!/(i! j! k!) as f64 (exact for the degrees used here).
+fn trinomial(e: [u32; 3]) -> f64 {
+    let mut t = 1.0;
+    let mut n = 0.0;
+    for &ei in &e {
+        for m in 1..=ei {
+            n += 1.0;
+            t = t * n / m as f64;
+        }
+    }
+    t.round()
+}
+
+/// Index layout of the per-chunk "tensor" accumulator: for a, then b, a contiguous run over c.
+struct TensorLayout {
+    max_degree: usize,
+    /// (a, b, offset) with the run c = 0 ..= max_degree − a − b at `offset`.
+    pairs: Vec<(usize, usize, usize)>,
+    len: usize,
+}
+
+impl TensorLayout {
+    fn new(max_degree: usize) -> TensorLayout {
+        let mut pairs = Vec::new();
+        let mut len = 0;
+        for a in 0..=max_degree {
+            for b in 0..=(max_degree - a) {
+                pairs.push((a, b, len));
+                len += max_degree - a - b + 1;
+            }
+        }
+        TensorLayout {
+            max_degree,
+            pairs,
+            len,
+        }
+    }
+
+    /// Reorders tensor-layout sums into the paper's graded order.
+    fn to_graded(&self, tensor: &[f64]) -> Vec<f64> {
+        let mut out = vec![0.0; n_coefficients(self.max_degree as u32)];
+        for &(a, b, offset) in &self.pairs {
+            for c in 0..=(self.max_degree - a - b) {
+                out[monomial_index([a as u32, b as u32, c as u32])] = tensor[offset + c];
+            }
+        }
+        out
+    }
+}
+
+/// Per-chunk partial sums.
+struct Partial {
+    moments: Vec<f64>,
+    rhs: Vec<f64>,
+    beta: Vec<f64>,
+}
+
+/// Accumulates the system of a fit of degree `degree` over `cloud` (already validated: finite,
+/// unit normals), in the normalization `norm`.
+pub(crate) fn accumulate(
+    cloud: &OrientedCloud,
+    norm: &Normalization,
+    degree: u32,
+    rows: Rows,
+) -> System {
+    let n = degree as usize;
+    let gram_layout = TensorLayout::new(2 * n);
+    let rhs_layout = TensorLayout::new(n);
+    let n_points = cloud.points.len();
+    let mut total = Partial {
+        moments: vec![0.0; gram_layout.len],
+        rhs: vec![0.0; rhs_layout.len],
+        beta: vec![0.0; n + 1],
+    };
+    let n_chunks = n_points.div_ceil(CHUNK_POINTS);
+    let mut chunk_start = 0;
+    while chunk_start < n_chunks {
+        let chunk_end = (chunk_start + CHUNKS_PER_BATCH).min(n_chunks);
+        let partials: Vec<Partial> = (chunk_start..chunk_end)
+            .into_par_iter()
+            .map(|chunk| {
+                let lo = chunk * CHUNK_POINTS;
+                let hi = (lo + CHUNK_POINTS).min(n_points);
+                accumulate_chunk(cloud, lo..hi, norm, n, rows, &gram_layout, &rhs_layout)
+            })
+            .collect();
+        for p in partials {
+            for (t, v) in total.moments.iter_mut().zip(&p.moments) {
+                *t += v;
+            }
+            for (t, v) in total.rhs.iter_mut().zip(&p.rhs) {
+                *t += v;
+            }
+            for (t, v) in total.beta.iter_mut().zip(&p.beta) {
+                *t += v;
+            }
+        }
+        chunk_start = chunk_end;
+    }
+    System {
+        degree,
+        moments: gram_layout.to_graded(&total.moments),
+        rhs: rhs_layout.to_graded(&total.rhs),
+        beta: total.beta,
+    }
+}
+
+/// Structure-of-arrays scratch for one block of rows.
+struct BlockScratch {
+    /// px[e][t] = x_t^e, e ≤ 2n (x⁰ is 0 for padding rows, so they contribute nothing).
+    px: Vec<[f64; BLOCK]>,
+    py: Vec<[f64; BLOCK]>,
+    pz: Vec<[f64; BLOCK]>,
+    /// Row weights b (targets) for Mᵀb.
+    w: [f64; BLOCK],
+    xs: [f64; BLOCK],
+    ys: [f64; BLOCK],
+    zs: [f64; BLOCK],
+    len: usize,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn accumulate_chunk(
+    cloud: &OrientedCloud,
+    range: std::ops::Range<usize>,
+    norm: &Normalization,
+    n: usize,
+    rows: Rows,
+    gram_layout: &TensorLayout,
+    rhs_layout: &TensorLayout,
+) -> Partial {
+    let two_n = 2 * n;
+    let mut partial = Partial {
+        moments: vec![0.0; gram_layout.len],
+        rhs: vec![0.0; rhs_layout.len],
+        beta: vec![0.0; n + 1],
+    };
+    let mut scratch = BlockScratch {
+        px: vec![[0.0; BLOCK]; two_n + 1],
+        py: vec![[0.0; BLOCK]; two_n + 1],
+        // Three extra powers of z pad the last group of four dot products.
+        pz: vec![[0.0; BLOCK]; two_n + 4],
+        w: [0.0; BLOCK],
+        xs: [0.0; BLOCK],
+        ys: [0.0; BLOCK],
+        zs: [0.0; BLOCK],
+        len: 0,
+    };
+    let use_fma = fma_available();
+    let flush = |scratch: &mut BlockScratch, partial: &mut Partial| {
+        if scratch.len == 0 {
+            return;
+        }
+        fill_powers(scratch, two_n);
+        #[cfg(target_arch = "x86_64")]
+        if use_fma {
+            // SAFETY: only called when the CPU reports AVX2 and FMA.
+            unsafe { accumulate_block_fma(scratch, n, gram_layout, rhs_layout, partial) };
+            scratch.len = 0;
+            return;
+        }
+        let _ = use_fma;
+        accumulate_block::<PortableDots>(scratch, n, gram_layout, rhs_layout, partial);
+        scratch.len = 0;
+    };
+    for t in range {
+        let q = norm.apply(cloud.points[t]);
+        // β_r over the data points.
+        let r2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
+        let mut pw = 1.0;
+        for b in partial.beta.iter_mut() {
+            *b += pw;
+            pw *= r2;
+        }
+        let push = |scratch: &mut BlockScratch, partial: &mut Partial, p: [f64; 3], w: f64| {
+            let i = scratch.len;
+            scratch.xs[i] = p[0];
+            scratch.ys[i] = p[1];
+            scratch.zs[i] = p[2];
+            scratch.w[i] = w;
+            scratch.len += 1;
+            if scratch.len == BLOCK {
+                flush(scratch, partial);
+            }
+        };
+        push(&mut scratch, &mut partial, q, 0.0);
+        if let Rows::ThreeLayers { epsilon } = rows {
+            let nrm = cloud.normals[t];
+            let outer = [0, 1, 2].map(|a| q[a] + epsilon * nrm[a]);
+            let inner = [0, 1, 2].map(|a| q[a] - epsilon * nrm[a]);
+            push(&mut scratch, &mut partial, outer, epsilon);
+            push(&mut scratch, &mut partial, inner, -epsilon);
+        }
+    }
+    flush(&mut scratch, &mut partial);
+    partial
+}
+
+fn fma_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Power tables of the block; padding rows get x⁰ = 0 so every product involving them is 0.
+fn fill_powers(s: &mut BlockScratch, two_n: usize) {
+    for t in 0..BLOCK {
+        let live = if t < s.len { 1.0 } else { 0.0 };
+        s.px[0][t] = live;
+        s.py[0][t] = 1.0;
+        s.pz[0][t] = 1.0;
+        if t >= s.len {
+            s.xs[t] = 0.0;
+            s.ys[t] = 0.0;
+            s.zs[t] = 0.0;
+            s.w[t] = 0.0;
+        }
+    }
+    for e in 1..=two_n {
+        for t in 0..BLOCK {
+            s.px[e][t] = s.px[e - 1][t] * s.xs[t];
+            s.py[e][t] = s.py[e - 1][t] * s.ys[t];
+        }
+    }
+    for e in 1..s.pz.len() {
+        for t in 0..BLOCK {
+            s.pz[e][t] = s.pz[e - 1][t] * s.zs[t];
+        }
+    }
+}
+
+/// The dot products of one block: a portable version and an AVX2+FMA one.
+trait Dots {
+    /// Four dot products of `x` at once.
+    fn dot4(x: &[f64; BLOCK], ys: [&[f64; BLOCK]; 4]) -> [f64; 4];
+}
+
+/// Portable dot products: eight independent lanes, a fixed pairwise sum of the lanes.
+struct PortableDots;
+
+impl Dots for PortableDots {
+    #[inline(always)]
+    fn dot4(x: &[f64; BLOCK], ys: [&[f64; BLOCK]; 4]) -> [f64; 4] {
+        dot4(x, ys)
+    }
+}
+
+/// AVX2+FMA dot products (fused multiply-add, so the last bits differ from [`PortableDots`];
+/// each is deterministic on its own).
+#[cfg(target_arch = "x86_64")]
+struct FmaDots;
+
+#[cfg(target_arch = "x86_64")]
+impl Dots for FmaDots {
+    #[inline(always)]
+    fn dot4(x: &[f64; BLOCK], ys: [&[f64; BLOCK]; 4]) -> [f64; 4] {
+        // SAFETY: FmaDots is only used inside `accumulate_block_fma`, which requires AVX2 + FMA.
+        unsafe { dot4_fma(x, ys) }
+    }
+}
+
+/// Four dot products with eight 4-wide accumulators (two per output), then a fixed reduction.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+unsafe fn dot4_fma(x: &[f64; BLOCK], ys: [&[f64; BLOCK]; 4]) -> [f64; 4] {
+    use std::arch::x86_64::*;
+    let mut acc = [[_mm256_setzero_pd(); 2]; 4];
+    for i in 0..BLOCK / 8 {
+        // SAFETY: i * 8 + 4 + 4 ≤ BLOCK, so every load is in bounds.
+        let (x0, x1) = unsafe { (_mm256_loadu_pd(x.as_ptr().add(i * 8)), _mm256_loadu_pd(x.as_ptr().add(i * 8 + 4))) };
+        for k in 0..4 {
+            // SAFETY: as above.
+            let (y0, y1) = unsafe { (_mm256_loadu_pd(ys[k].as_ptr().add(i * 8)), _mm256_loadu_pd(ys[k].as_ptr().add(i * 8 + 4))) };
+            acc[k][0] = _mm256_fmadd_pd(x0, y0, acc[k][0]);
+            acc[k][1] = _mm256_fmadd_pd(x1, y1, acc[k][1]);
+        }
+    }
+    let mut out = [0.0; 4];
+    for k in 0..4 {
+        let mut lanes = [0.0; 8];
+        // SAFETY: `lanes` holds eight f64.
+        unsafe {
+            _mm256_storeu_pd(lanes.as_mut_ptr(), acc[k][0]);
+            _mm256_storeu_pd(lanes.as_mut_ptr().add(4), acc[k][1]);
+        }
+        out[k] = ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3])) + ((lanes[4] + lanes[5]) + (lanes[6] + lanes[7]));
+    }
+    out
+}
+
+/// [`accumulate_block`] with AVX2 + FMA dot products.
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn accumulate_block_fma(
+    s: &BlockScratch,
+    n: usize,
+    gram_layout: &TensorLayout,
+    rhs_layout: &TensorLayout,
+    partial: &mut Partial,
+) {
+    accumulate_block::<FmaDots>(s, n, gram_layout, rhs_layout, partial);
+}
+
+/// Adds the block's moments to `partial`.
+#[inline(always)]
+fn accumulate_block<D: Dots>(
+    s: &BlockScratch,
+    n: usize,
+    gram_layout: &TensorLayout,
+    rhs_layout: &TensorLayout,
+    partial: &mut Partial,
+) {
+    let two_n = 2 * n;
+    let mut pxy = [0.0; BLOCK];
+    let mut wxy = [0.0; BLOCK];
+    let mut rhs_pair = 0;
+    for &(a, b, offset) in &gram_layout.pairs {
+        let (xa, yb) = (&s.px[a], &s.py[b]);
+        for t in 0..BLOCK {
+            pxy[t] = xa[t] * yb[t];
+        }
+        let run = &mut partial.moments[offset..=offset + two_n - a - b];
+        add_dots::<D>(&pxy, &s.pz, run);
+        if a + b <= n {
+            debug_assert_eq!(rhs_layout.pairs[rhs_pair].0, a);
+            let rhs_offset = rhs_layout.pairs[rhs_pair].2;
+            rhs_pair += 1;
+            for t in 0..BLOCK {
+                wxy[t] = pxy[t] * s.w[t];
+            }
+            let run = &mut partial.rhs[rhs_offset..=rhs_offset + n - a - b];
+            add_dots::<D>(&wxy, &s.pz, run);
+        }
+    }
+}
+
+/// run[c] += Σ_t x_t z_t^c for every c of the run, four at a time; the last group is padded
+/// with the extra powers the table holds (their sums are dropped), which is cheaper than
+/// single dot products that cannot hide the add latency.
+#[inline(always)]
+fn add_dots<D: Dots>(x: &[f64; BLOCK], pz: &[[f64; BLOCK]], run: &mut [f64]) {
+    let mut c = 0;
+    while c < run.len() {
+        let sums = D::dot4(x, [&pz[c], &pz[c + 1], &pz[c + 2], &pz[c + 3]]);
+        for (k, v) in sums.into_iter().enumerate() {
+            if let Some(acc) = run.get_mut(c + k) {
+                *acc += v;
+            }
+        }
+        c += 4;
+    }
+}
+
+/// Four dot products of `x` with `ys` at once (x is loaded once per lane group; sixteen
+/// independent accumulators hide the add latency). Each sum uses the same lane order and final
+/// pairwise reduction as [`dot`], so results are identical whichever function computed them.
+#[inline(always)]
+fn dot4(x: &[f64; BLOCK], ys: [&[f64; BLOCK]; 4]) -> [f64; 4] {
+    let mut lanes = [[0.0; 8]; 4];
+    for i in 0..BLOCK / 8 {
+        for k in 0..4 {
+            for l in 0..8 {
+                lanes[k][l] += x[i * 8 + l] * ys[k][i * 8 + l];
+            }
+        }
+    }
+    lanes.map(|v| ((v[0] + v[1]) + (v[2] + v[3])) + ((v[4] + v[5]) + (v[6] + v[7])))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn trinomials() {
+        assert_eq!(trinomial([2, 0, 0]), 1.0);
+        assert_eq!(trinomial([1, 1, 0]), 2.0);
+        assert_eq!(trinomial([1, 1, 1]), 6.0);
+        assert_eq!(trinomial([2, 2, 2]), 90.0);
+    }
+
+    #[test]
+    fn degree_two_ridge_matches_design() {
+        let beta = [3.0, 5.0, 7.0];
+        let d = ridge_diagonal(2, &beta);
+        assert_eq!(d, vec![3.0, 5.0, 5.0, 5.0, 7.0, 3.5, 3.5, 7.0, 3.5, 7.0]);
+    }
+
+    #[test]
+    fn moments_match_explicit_gram() {
+        // A few points; compare the moment-assembled Gram matrix and Mᵀb with explicit rows.
+        let points: Vec<[f64; 3]> = (0..150)
+            .map(|i| {
+                let t = i as f64 * 0.37;
+                [
+                    t.sin() * 2.0 + 1.0,
+                    (1.3 * t).cos() - 0.5,
+                    (0.7 * t).sin() * 1.5,
+                ]
+            })
+            .collect();
+        let normals: Vec<[f64; 3]> = points
+            .iter()
+            .map(|p| {
+                let n = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                p.map(|c| c / n)
+            })
+            .collect();
+        let cloud = OrientedCloud { points, normals };
+        let norm = Normalization::of(&cloud.points);
+        let eps = 0.05;
+        let sys = accumulate(&cloud, &norm, 3, Rows::ThreeLayers { epsilon: eps });
+        let g = sys.gram();
+        let e = exponents(3);
+        let c = e.len();
+        let mono = |q: [f64; 3], ex: [u32; 3]| {
+            q[0].powi(ex[0] as i32) * q[1].powi(ex[1] as i32) * q[2].powi(ex[2] as i32)
+        };
+        let mut g_ref = vec![0.0; c * c];
+        let mut r_ref = vec![0.0; c];
+        for (p, nrm) in cloud.points.iter().zip(&cloud.normals) {
+            let q = norm.apply(*p);
+            for (t, w) in [(0.0, 0.0), (eps, eps), (-eps, -eps)] {
+                let row = [0, 1, 2].map(|a| q[a] + t * nrm[a]);
+                for l in 0..c {
+                    r_ref[l] += w * mono(row, e[l]);
+                    for m in 0..c {
+                        g_ref[l * c + m] += mono(row, e[l]) * mono(row, e[m]);
+                    }
+                }
+            }
+        }
+        for i in 0..c * c {
+            assert!(
+                (g[i] - g_ref[i]).abs() <= 1e-10 * g_ref[i].abs().max(1.0),
+                "gram entry {i}"
+            );
+        }
+        for l in 0..c {
+            assert!(
+                (sys.rhs[l] - r_ref[l]).abs() <= 1e-12 * r_ref[l].abs().max(1.0),
+                "rhs entry {l}"
+            );
+        }
+        assert_eq!(sys.beta[0], 150.0);
+    }
+}
