@@ -3,7 +3,9 @@
 //! analytic shapes (sphere, torus, a genus-2 "eight") with and without noise; sign agreement with
 //! the original meshes of real scans; clear errors on degenerate input.
 
-use stablesurf::normals::delaunay::{face_vertices, insphere, orient3d, tetrahedralize, NO_NEIGHBOUR};
+use stablesurf::normals::delaunay::{
+    face_vertices, insphere, orient3d, tetrahedralize, NO_NEIGHBOUR,
+};
 use stablesurf::normals::{estimate_normals, NormalSource, NormalsError, NormalsParams};
 use stablesurf::PointCloud;
 
@@ -59,7 +61,11 @@ fn sphere(n: usize, seed: u64) -> Sample {
         points.push([1.0 + u[0], 2.0 + u[1], -0.5 + u[2]]);
         normals.push(u);
     }
-    Sample { points, normals, size: 2.0 }
+    Sample {
+        points,
+        normals,
+        size: 2.0,
+    }
 }
 
 fn torus(n: usize, seed: u64) -> Sample {
@@ -74,12 +80,20 @@ fn torus(n: usize, seed: u64) -> Sample {
         if rng.uniform() * (big + small) > big + small * theta.cos() {
             continue;
         }
-        let nrm = [phi.cos() * theta.cos(), phi.sin() * theta.cos(), theta.sin()];
+        let nrm = [
+            phi.cos() * theta.cos(),
+            phi.sin() * theta.cos(),
+            theta.sin(),
+        ];
         let rho = big + small * theta.cos();
         points.push([rho * phi.cos(), rho * phi.sin(), small * theta.sin()]);
         normals.push(nrm);
     }
-    Sample { points, normals, size: 2.0 * (big + small) }
+    Sample {
+        points,
+        normals,
+        size: 2.0 * (big + small),
+    }
 }
 
 /// A genus-2 "eight": two tori (R = 0.65, r = 0.35) side by side, centres 1.6 apart, joined by a
@@ -101,7 +115,14 @@ fn eight(n: usize, seed: u64) -> Sample {
         let (e1, e2) = ((-k * (d1 - m)).exp(), (-k * (d2 - m)).exp());
         let f = m - (e1 + e2).ln() / k;
         let (w1, w2) = (e1 / (e1 + e2), e2 / (e1 + e2));
-        (f, [w1 * g1[0] + w2 * g2[0], w1 * g1[1] + w2 * g2[1], w1 * g1[2] + w2 * g2[2]])
+        (
+            f,
+            [
+                w1 * g1[0] + w2 * g2[0],
+                w1 * g1[1] + w2 * g2[1],
+                w1 * g1[2] + w2 * g2[2],
+            ],
+        )
     };
     let mut rng = Rng(seed);
     let mut points = Vec::new();
@@ -109,7 +130,11 @@ fn eight(n: usize, seed: u64) -> Sample {
     // Uniform points in a thin shell around the surface (density ∝ area), then projected.
     let shell = 0.004;
     while points.len() < n {
-        let mut p = [3.8 * rng.uniform() - 1.9, 2.2 * rng.uniform() - 1.1, 0.8 * rng.uniform() - 0.4];
+        let mut p = [
+            3.8 * rng.uniform() - 1.9,
+            2.2 * rng.uniform() - 1.1,
+            0.8 * rng.uniform() - 0.4,
+        ];
         let (f0, g0) = field(p);
         let gl = dot(&g0, &g0).sqrt();
         if gl < 1e-9 || f0.abs() / gl > shell {
@@ -127,7 +152,11 @@ fn eight(n: usize, seed: u64) -> Sample {
         points.push(p);
         normals.push(unit(g));
     }
-    Sample { points, normals, size: 2.0 * (offset + big + small) }
+    Sample {
+        points,
+        normals,
+        size: 2.0 * (offset + big + small),
+    }
 }
 
 fn with_noise(s: &Sample, fraction: f64, seed: u64) -> Sample {
@@ -136,9 +165,19 @@ fn with_noise(s: &Sample, fraction: f64, seed: u64) -> Sample {
     let points = s
         .points
         .iter()
-        .map(|p| [p[0] + sigma * rng.gauss(), p[1] + sigma * rng.gauss(), p[2] + sigma * rng.gauss()])
+        .map(|p| {
+            [
+                p[0] + sigma * rng.gauss(),
+                p[1] + sigma * rng.gauss(),
+                p[2] + sigma * rng.gauss(),
+            ]
+        })
         .collect();
-    Sample { points, normals: s.normals.clone(), size: s.size }
+    Sample {
+        points,
+        normals: s.normals.clone(),
+        size: s.size,
+    }
 }
 
 /// (mean angular error in degrees, fraction of outward normals).
@@ -147,18 +186,30 @@ fn score(truth: &[[f64; 3]], got: &[[f64; 3]]) -> (f64, f64) {
     let mut outward = 0;
     for (t, g) in truth.iter().zip(got) {
         let c = dot(t, g);
-        assert!((dot(g, g) - 1.0).abs() < 1e-9, "normal {g:?} is not unit length");
+        assert!(
+            (dot(g, g) - 1.0).abs() < 1e-9,
+            "normal {g:?} is not unit length"
+        );
         sum += c.abs().min(1.0).acos().to_degrees();
         if c > 0.0 {
             outward += 1;
         }
     }
-    (sum / truth.len() as f64, outward as f64 / truth.len() as f64)
+    (
+        sum / truth.len() as f64,
+        outward as f64 / truth.len() as f64,
+    )
 }
 
 fn run(points: &[[f64; 3]], source: NormalSource) -> stablesurf::normals::Normals {
-    let cloud = PointCloud { points: points.to_vec(), ..Default::default() };
-    let params = NormalsParams { source, ..Default::default() };
+    let cloud = PointCloud {
+        points: points.to_vec(),
+        ..Default::default()
+    };
+    let params = NormalsParams {
+        source,
+        ..Default::default()
+    };
     estimate_normals(&cloud, &params).expect("normals")
 }
 
@@ -170,12 +221,17 @@ fn check_delaunay(points: &[[f64; 3]]) -> usize {
     assert_eq!(dt.n_rejected, 0);
     for (t, tet) in dt.tets.iter().enumerate() {
         let q = tet.map(|v| points[v as usize]);
-        assert!(orient3d(&q[0], &q[1], &q[2], &q[3]) > 0.0, "tet {t} is not positively oriented");
+        assert!(
+            orient3d(&q[0], &q[1], &q[2], &q[3]) > 0.0,
+            "tet {t} is not positively oriented"
+        );
         for (i, &u) in dt.neighbours[t].iter().enumerate() {
             if u == NO_NEIGHBOUR {
                 continue;
             }
-            let back = dt.neighbours[u as usize].iter().position(|&x| x as usize == t);
+            let back = dt.neighbours[u as usize]
+                .iter()
+                .position(|&x| x as usize == t);
             let j = back.expect("adjacency is symmetric");
             let mut f = face_vertices(*tet, i).to_vec();
             let mut g = face_vertices(dt.tets[u as usize], j).to_vec();
@@ -187,7 +243,10 @@ fn check_delaunay(points: &[[f64; 3]]) -> usize {
             if tet.contains(&(k as u32)) || dt.representative[k] as usize != k {
                 continue;
             }
-            assert!(insphere(&q[0], &q[1], &q[2], &q[3], p) <= 0.0, "point {k} inside the circumsphere of tet {t}");
+            assert!(
+                insphere(&q[0], &q[1], &q[2], &q[3], p) <= 0.0,
+                "point {k} inside the circumsphere of tet {t}"
+            );
         }
     }
     // Hull faces point away from the opposite vertex.
@@ -206,7 +265,8 @@ fn volume(points: &[[f64; 3]], tets: &[[u32; 4]]) -> f64 {
             let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
             let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
             let w = [d[0] - a[0], d[1] - a[1], d[2] - a[2]];
-            (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0]) + u[2] * (v[0] * w[1] - v[1] * w[0]))
+            (u[0] * (v[1] * w[2] - v[2] * w[1]) - u[1] * (v[0] * w[2] - v[2] * w[0])
+                + u[2] * (v[0] * w[1] - v[1] * w[0]))
                 .abs()
                 / 6.0
         })
@@ -216,7 +276,9 @@ fn volume(points: &[[f64; 3]], tets: &[[u32; 4]]) -> f64 {
 #[test]
 fn delaunay_of_random_points_is_valid() {
     let mut rng = Rng(7);
-    let points: Vec<[f64; 3]> = (0..400).map(|_| [rng.uniform(), rng.uniform(), rng.uniform()]).collect();
+    let points: Vec<[f64; 3]> = (0..400)
+        .map(|_| [rng.uniform(), rng.uniform(), rng.uniform()])
+        .collect();
     let n_tets = check_delaunay(&points);
     assert!(n_tets > 400);
 }
@@ -275,29 +337,93 @@ fn delaunay_of_points_on_two_planes_is_valid() {
 
 #[test]
 fn degenerate_clouds_give_clear_errors() {
-    let params = NormalsParams { source: NormalSource::Crust, ..Default::default() };
-    let few = PointCloud { points: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], ..Default::default() };
-    assert!(matches!(estimate_normals(&few, &params), Err(NormalsError::TooFewPoints { .. })));
-    let dups = PointCloud { points: vec![[1.0, 2.0, 3.0]; 50], ..Default::default() };
-    assert!(matches!(estimate_normals(&dups, &params), Err(NormalsError::TooFewPoints { .. })));
-    let line = PointCloud { points: (0..20).map(|i| [i as f64, 2.0 * i as f64, -(i as f64)]).collect(), ..Default::default() };
-    assert!(matches!(estimate_normals(&line, &params), Err(NormalsError::Collinear)));
-    let plane = PointCloud {
-        points: (0..100).map(|i| [(i % 10) as f64, (i / 10) as f64, 0.5 * (i % 10) as f64 + 3.0]).collect(),
+    let params = NormalsParams {
+        source: NormalSource::Crust,
         ..Default::default()
     };
-    assert!(matches!(estimate_normals(&plane, &params), Err(NormalsError::Coplanar)));
-    let nan = PointCloud { points: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, f64::NAN], [0.0, 0.0, 1.0], [1.0; 3]], ..Default::default() };
-    assert!(matches!(estimate_normals(&nan, &params), Err(NormalsError::NonFinitePoint { index: 2 })));
+    let few = PointCloud {
+        points: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        ..Default::default()
+    };
+    assert!(matches!(
+        estimate_normals(&few, &params),
+        Err(NormalsError::TooFewPoints { .. })
+    ));
+    let dups = PointCloud {
+        points: vec![[1.0, 2.0, 3.0]; 50],
+        ..Default::default()
+    };
+    assert!(matches!(
+        estimate_normals(&dups, &params),
+        Err(NormalsError::TooFewPoints { .. })
+    ));
+    let line = PointCloud {
+        points: (0..20)
+            .map(|i| [i as f64, 2.0 * i as f64, -(i as f64)])
+            .collect(),
+        ..Default::default()
+    };
+    assert!(matches!(
+        estimate_normals(&line, &params),
+        Err(NormalsError::Collinear)
+    ));
+    let plane = PointCloud {
+        points: (0..100)
+            .map(|i| {
+                [
+                    (i % 10) as f64,
+                    (i / 10) as f64,
+                    0.5 * (i % 10) as f64 + 3.0,
+                ]
+            })
+            .collect(),
+        ..Default::default()
+    };
+    assert!(matches!(
+        estimate_normals(&plane, &params),
+        Err(NormalsError::Coplanar)
+    ));
+    let nan = PointCloud {
+        points: vec![
+            [0.0; 3],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, f64::NAN],
+            [0.0, 0.0, 1.0],
+            [1.0; 3],
+        ],
+        ..Default::default()
+    };
+    assert!(matches!(
+        estimate_normals(&nan, &params),
+        Err(NormalsError::NonFinitePoint { index: 2 })
+    ));
     for source in [NormalSource::Pca, NormalSource::Auto] {
-        let p = NormalsParams { source, ..Default::default() };
+        let p = NormalsParams {
+            source,
+            ..Default::default()
+        };
         assert!(estimate_normals(&plane, &p).is_err());
     }
-    let p = NormalsParams { source: NormalSource::Input, ..Default::default() };
-    let s = PointCloud { points: sphere(50, 1).points, ..Default::default() };
-    assert!(matches!(estimate_normals(&s, &p), Err(NormalsError::NoInputNormals)));
-    let p = NormalsParams { source: NormalSource::Mesh, ..Default::default() };
-    assert!(matches!(estimate_normals(&s, &p), Err(NormalsError::NoMeshFaces)));
+    let p = NormalsParams {
+        source: NormalSource::Input,
+        ..Default::default()
+    };
+    let s = PointCloud {
+        points: sphere(50, 1).points,
+        ..Default::default()
+    };
+    assert!(matches!(
+        estimate_normals(&s, &p),
+        Err(NormalsError::NoInputNormals)
+    ));
+    let p = NormalsParams {
+        source: NormalSource::Mesh,
+        ..Default::default()
+    };
+    assert!(matches!(
+        estimate_normals(&s, &p),
+        Err(NormalsError::NoMeshFaces)
+    ));
     let message = estimate_normals(&plane, &params).unwrap_err().to_string();
     assert!(message.contains("plane"), "{message}");
 }
@@ -323,9 +449,16 @@ fn lattice_and_duplicates_get_outward_normals() {
     let c = (m - 1) as f64 / 2.0;
     for (k, (p, nrm)) in out.cloud.points.iter().zip(&out.cloud.normals).enumerate() {
         let radial = [p[0] - c, p[1] - c, p[2] - c];
-        assert!(dot(nrm, &radial) > 0.0, "point {k} normal {nrm:?} points inward");
+        assert!(
+            dot(nrm, &radial) > 0.0,
+            "point {k} normal {nrm:?} points inward"
+        );
         if k >= n {
-            assert_eq!(*nrm, out.cloud.normals[k - n], "a duplicate gets its twin's normal");
+            assert_eq!(
+                *nrm,
+                out.cloud.normals[k - n],
+                "a duplicate gets its twin's normal"
+            );
         }
     }
     // Face centres (away from edges) have the exact face normal.
@@ -339,7 +472,13 @@ fn check_clean(s: &Sample, name: &str) {
     let out = run(&s.points, NormalSource::Crust);
     assert_eq!(out.source_used, NormalSource::Crust);
     let (mean, outward) = score(&s.normals, &out.cloud.normals);
-    println!("{name}: {} points, mean error {mean:.3}°, outward {:.4}, {} crust triangles, {:?}", s.points.len(), outward, out.crust_triangles.len(), out.warnings);
+    println!(
+        "{name}: {} points, mean error {mean:.3}°, outward {:.4}, {} crust triangles, {:?}",
+        s.points.len(),
+        outward,
+        out.crust_triangles.len(),
+        out.warnings
+    );
     assert!(mean < 2.0, "{name}: mean angular error {mean}° ≥ 2°");
     assert_eq!(outward, 1.0, "{name}: not every normal points outward");
 }
@@ -348,8 +487,14 @@ fn check_noisy(s: &Sample, name: &str, source: NormalSource) {
     let noisy = with_noise(s, 0.01, 99);
     let out = run(&noisy.points, source);
     let (mean, outward) = score(&s.normals, &out.cloud.normals);
-    println!("{name} noisy ({source}): mean error {mean:.3}°, outward {outward:.4}, {:?}", out.warnings);
-    assert!(mean < 10.0, "{name} noisy: mean angular error {mean}° ≥ 10°");
+    println!(
+        "{name} noisy ({source}): mean error {mean:.3}°, outward {outward:.4}, {:?}",
+        out.warnings
+    );
+    assert!(
+        mean < 10.0,
+        "{name} noisy: mean angular error {mean}° ≥ 10°"
+    );
     assert!(outward >= 0.99, "{name} noisy: only {outward} outward");
 }
 
@@ -398,7 +543,10 @@ fn pca_clean_shapes() {
 }
 
 /// A torus as a (u, v) grid mesh, each triangle wound at random, with the true normals.
-fn torus_mesh(nu: usize, nv: usize) -> (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[u32; 3]>) {
+/// Points, true normals and triangles of a mesh.
+type Mesh = (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[u32; 3]>);
+
+fn torus_mesh(nu: usize, nv: usize) -> Mesh {
     let (big, small) = (1.0, 0.4);
     let mut points = Vec::new();
     let mut normals = Vec::new();
@@ -408,7 +556,11 @@ fn torus_mesh(nu: usize, nv: usize) -> (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[u32; 
             let theta = std::f64::consts::TAU * j as f64 / nv as f64;
             let rho = big + small * theta.cos();
             points.push([rho * phi.cos(), rho * phi.sin(), small * theta.sin()]);
-            normals.push([phi.cos() * theta.cos(), phi.sin() * theta.cos(), theta.sin()]);
+            normals.push([
+                phi.cos() * theta.cos(),
+                phi.sin() * theta.cos(),
+                theta.sin(),
+            ]);
         }
     }
     let id = |i: usize, j: usize| ((i % nu) * nv + (j % nv)) as u32;
@@ -416,8 +568,15 @@ fn torus_mesh(nu: usize, nv: usize) -> (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[u32; 
     let mut triangles = Vec::new();
     for i in 0..nu {
         for j in 0..nv {
-            for t in [[id(i, j), id(i + 1, j), id(i + 1, j + 1)], [id(i, j), id(i + 1, j + 1), id(i, j + 1)]] {
-                triangles.push(if rng.uniform() < 0.5 { [t[0], t[2], t[1]] } else { t });
+            for t in [
+                [id(i, j), id(i + 1, j), id(i + 1, j + 1)],
+                [id(i, j), id(i + 1, j + 1), id(i, j + 1)],
+            ] {
+                triangles.push(if rng.uniform() < 0.5 {
+                    [t[0], t[2], t[1]]
+                } else {
+                    t
+                });
             }
         }
     }
@@ -427,17 +586,32 @@ fn torus_mesh(nu: usize, nv: usize) -> (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[u32; 
 #[test]
 fn mesh_and_input_sources_orient_outward() {
     let (points, truth, triangles) = torus_mesh(120, 48);
-    let cloud = PointCloud { points: points.clone(), normals: None, triangles };
+    let cloud = PointCloud {
+        points: points.clone(),
+        normals: None,
+        triangles,
+    };
     let out = estimate_normals(&cloud, &NormalsParams::default()).unwrap();
     assert_eq!(out.source_used, NormalSource::Mesh);
     let (mean, outward) = score(&truth, &out.cloud.normals);
-    println!("torus mesh: mean {mean:.3}°, outward {outward}, {:?}", out.warnings);
+    println!(
+        "torus mesh: mean {mean:.3}°, outward {outward}, {:?}",
+        out.warnings
+    );
     assert!(mean < 1.0);
     assert_eq!(outward, 1.0);
 
     let s = torus(4000, 51);
-    let inward: Vec<[f64; 3]> = s.normals.iter().map(|n| [-3.0 * n[0], -3.0 * n[1], -3.0 * n[2]]).collect();
-    let cloud = PointCloud { points: s.points.clone(), normals: Some(inward), triangles: Vec::new() };
+    let inward: Vec<[f64; 3]> = s
+        .normals
+        .iter()
+        .map(|n| [-3.0 * n[0], -3.0 * n[1], -3.0 * n[2]])
+        .collect();
+    let cloud = PointCloud {
+        points: s.points.clone(),
+        normals: Some(inward),
+        triangles: Vec::new(),
+    };
     let out = estimate_normals(&cloud, &NormalsParams::default()).unwrap();
     assert_eq!(out.source_used, NormalSource::Input);
     let (mean, outward) = score(&s.normals, &out.cloud.normals);
@@ -449,7 +623,10 @@ fn mesh_and_input_sources_orient_outward() {
 #[test]
 fn normals_do_not_depend_on_thread_count() {
     let s = torus(3000, 61);
-    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
     let a = one.install(|| run(&s.points, NormalSource::Crust));
     let b = run(&s.points, NormalSource::Crust);
     assert_eq!(a.cloud, b.cloud);
@@ -466,7 +643,11 @@ fn data_dir() -> std::path::PathBuf {
 /// `uchar count, int indices`), binary little endian or ASCII.
 fn read_ply(path: &std::path::Path) -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
     let bytes = std::fs::read(path).unwrap();
-    let end = bytes.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+    let end = bytes
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .unwrap()
+        + 11;
     let header = std::str::from_utf8(&bytes[..end]).unwrap();
     let mut n_vertices = 0;
     let mut n_faces = 0;
@@ -510,11 +691,21 @@ fn read_ply(path: &std::path::Path) -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
         let body = std::str::from_utf8(&bytes[end..]).unwrap();
         let mut lines = body.lines();
         for _ in 0..n_vertices {
-            let v: Vec<f64> = lines.next().unwrap().split_whitespace().map(|x| x.parse().unwrap()).collect();
+            let v: Vec<f64> = lines
+                .next()
+                .unwrap()
+                .split_whitespace()
+                .map(|x| x.parse().unwrap())
+                .collect();
             points.push([v[0], v[1], v[2]]);
         }
         for _ in 0..n_faces {
-            let v: Vec<u32> = lines.next().unwrap().split_whitespace().map(|x| x.parse().unwrap()).collect();
+            let v: Vec<u32> = lines
+                .next()
+                .unwrap()
+                .split_whitespace()
+                .map(|x| x.parse().unwrap())
+                .collect();
             for k in 2..v[0] as usize {
                 faces.push([v[1], v[k], v[k + 1]]);
             }
@@ -530,7 +721,11 @@ fn mesh_vertex_normals(points: &[[f64; 3]], faces: &[[u32; 3]]) -> Vec<[f64; 3]>
         let [a, b, c] = f.map(|v| points[v as usize]);
         let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
         let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-        let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+        let n = [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ];
         for &k in f {
             for a in 0..3 {
                 sums[k as usize][a] += n[a];
@@ -547,7 +742,12 @@ fn real_scans_agree_with_their_meshes() {
         println!("skipping: {} not found", dir.display());
         return;
     }
-    for (file, min_agree) in [("duck.ply", 0.99), ("patella_vhf_left.ply", 0.99), ("fertility.ply", 0.99), ("bunny_zipper.ply", 0.99)] {
+    for (file, min_agree) in [
+        ("duck.ply", 0.99),
+        ("patella_vhf_left.ply", 0.99),
+        ("fertility.ply", 0.99),
+        ("bunny_zipper.ply", 0.99),
+    ] {
         let path = dir.join(file);
         if !path.exists() {
             println!("skipping {file}: not found");
@@ -566,12 +766,18 @@ fn real_scans_agree_with_their_meshes() {
                     let p = points[v as usize];
                     [p[0] - centre[0], p[1] - centre[1], p[2] - centre[2]]
                 });
-                a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) + a[2] * (b[0] * c[1] - b[1] * c[0])
+                a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+                    + a[2] * (b[0] * c[1] - b[1] * c[0])
             })
             .sum();
         if signed_volume < 0.0 {
-            println!("{file}: faces wound inward (signed volume {:e}); reference normals negated", signed_volume / 6.0);
-            reference.iter_mut().for_each(|r| *r = [-r[0], -r[1], -r[2]]);
+            println!(
+                "{file}: faces wound inward (signed volume {:e}); reference normals negated",
+                signed_volume / 6.0
+            );
+            reference
+                .iter_mut()
+                .for_each(|r| *r = [-r[0], -r[1], -r[2]]);
         }
         let out = run(&points, NormalSource::Crust);
         let mut counted = 0;
@@ -586,7 +792,14 @@ fn real_scans_agree_with_their_meshes() {
             }
         }
         let fraction = agree as f64 / counted as f64;
-        println!("{file}: {} points, sign agreement {fraction:.4}, {:?}", points.len(), out.warnings);
-        assert!(fraction >= min_agree, "{file}: only {fraction} of the normals agree with the mesh");
+        println!(
+            "{file}: {} points, sign agreement {fraction:.4}, {:?}",
+            points.len(),
+            out.warnings
+        );
+        assert!(
+            fraction >= min_agree,
+            "{file}: only {fraction} of the normals agree with the mesh"
+        );
     }
 }

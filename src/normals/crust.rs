@@ -21,13 +21,20 @@
 //! second tetrahedralization: they lie outside the convex hull of the samples, where they only
 //! remove hull faces that the crust may keep anyway, and they would spoil the spatial sort.
 //!
-//! Normals: around each sample the incident crust triangles must form a planar fan (their link
-//! is one cycle, or one path at a boundary); the fan is walked in order so that every triangle
-//! is wound the same way (the right-hand rule of the paper's figure 3a), and the triangle normals
-//! are summed (area-weighted) and normalised. Ill-structured fans (no triangle, a link that is
-//! not one cycle or path, or a triangle more than `max_fan_angle_deg` away from the mean) get the
-//! plane-fit normal of [`crate::normals::pca`]. Signs are then fixed by
-//! [`crate::normals::orient`].
+//! The raw crust is not a manifold: four nearly co-circular samples make a flat "sliver"
+//! tetrahedron in both tetrahedralizations, and all four of its faces are crust triangles. ABK
+//! remove them with a normal filter and a manifold extraction; for normals that is unnecessary,
+//! since all those faces are nearly tangent to the surface.
+//!
+//! Normals (paper section 5.2): around each sample, a planar fan of crust triangles (its link is
+//! one cycle, or one path at a boundary) is walked in order so that every triangle is wound the
+//! same way (the right-hand rule of the paper's figure 3a); a non-planar fan (slivers) has its
+//! triangle normals aligned with the pole vector instead. The aligned normals are summed with the
+//! weights of Max (1999), exact for samples of a sphere, and normalised. A fan is ill-structured
+//! when it is empty, when a triangle is more than `max_fan_angle_deg` from the result, when the
+//! result is more than that from the pole vector's line, or when the data is noisy at the scale
+//! of the fan (the adaptive plane fit of [`crate::normals::pca`] had to grow its neighbourhood);
+//! such points get that plane fit. Signs are then fixed by [`crate::normals::orient`].
 
 use rayon::prelude::*;
 
@@ -63,7 +70,10 @@ fn circumcentre(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], d: &[f64; 3]) -> [f64;
     let bc = cross(&ba, &ca);
     let det = dot(&ba, &cd);
     let s = 0.5 / det;
-    let off = scale(&add(&add(&scale(&cd, lb), &scale(&db, lc)), &scale(&bc, ld)), s);
+    let off = scale(
+        &add(&add(&scale(&cd, lb), &scale(&db, lc)), &scale(&bc, ld)),
+        s,
+    );
     add(a, &off)
 }
 
@@ -85,7 +95,14 @@ pub fn crust(points: &[[f64; 3]]) -> Result<Crust, NormalsError> {
     let centres: Vec<[f64; 3]> = dt
         .tets
         .par_iter()
-        .map(|t| circumcentre(&points[t[0] as usize], &points[t[1] as usize], &points[t[2] as usize], &points[t[3] as usize]))
+        .map(|t| {
+            circumcentre(
+                &points[t[0] as usize],
+                &points[t[1] as usize],
+                &points[t[2] as usize],
+                &points[t[3] as usize],
+            )
+        })
         .collect();
 
     // Convex hull: outward normals of hull faces, summed per vertex (area-weighted).
@@ -93,7 +110,11 @@ pub fn crust(points: &[[f64; 3]]) -> Result<Crust, NormalsError> {
     let mut on_hull = vec![false; n];
     for (t, i) in dt.hull_faces() {
         let f = face_vertices(dt.tets[t], i);
-        let nrm = triangle_normal(&points[f[0] as usize], &points[f[1] as usize], &points[f[2] as usize]);
+        let nrm = triangle_normal(
+            &points[f[0] as usize],
+            &points[f[1] as usize],
+            &points[f[2] as usize],
+        );
         for v in f {
             on_hull[v as usize] = true;
             hull_normal[v as usize] = add(&hull_normal[v as usize], &nrm);
@@ -133,7 +154,9 @@ pub fn crust(points: &[[f64; 3]]) -> Result<Crust, NormalsError> {
             continue;
         }
         for &v in tet {
-            let Some(pv) = pole_vectors[v as usize] else { continue };
+            let Some(pv) = pole_vectors[v as usize] else {
+                continue;
+            };
             let r = sub(&c, &points[v as usize]);
             if dot(&r, &pv) < 0.0 {
                 let d = norm(&r);
@@ -145,7 +168,10 @@ pub fn crust(points: &[[f64; 3]]) -> Result<Crust, NormalsError> {
     }
 
     // The poles (each Voronoi vertex once), without the far ones.
-    let bbox = Aabb::from_points(points).ok_or(NormalsError::TooFewPoints { n_points: 0, min: 5 })?;
+    let bbox = Aabb::from_points(points).ok_or(NormalsError::TooFewPoints {
+        n_points: 0,
+        min: 5,
+    })?;
     let centre = bbox.center();
     let limit = 2.0 * bbox.diagonal();
     let mut is_pole = vec![false; dt.tets.len()];
@@ -178,7 +204,12 @@ pub fn crust(points: &[[f64; 3]]) -> Result<Crust, NormalsError> {
             }
         }
     }
-    Ok(Crust { triangles, pole_vectors, on_hull, n_poles })
+    Ok(Crust {
+        triangles,
+        pole_vectors,
+        on_hull,
+        n_poles,
+    })
 }
 
 /// Normal of the fan of crust triangles `tris` around sample `p`, or `None` when the fan is
@@ -192,7 +223,13 @@ pub fn crust(points: &[[f64; 3]]) -> Result<Crust, NormalsError> {
 /// weights of Max (1999, "Weights for computing vertex normals from facet normals"), exact for
 /// samples of a sphere. The fan is rejected when a triangle's aligned normal is more than the
 /// angle whose cosine is `cos_max` away from the result.
-fn fan_normal(points: &[[f64; 3]], p: u32, tris: &[[u32; 3]], pole: Option<[f64; 3]>, cos_max: f64) -> Option<[f64; 3]> {
+fn fan_normal(
+    points: &[[f64; 3]],
+    p: u32,
+    tris: &[[u32; 3]],
+    pole: Option<[f64; 3]>,
+    cos_max: f64,
+) -> Option<[f64; 3]> {
     if tris.is_empty() {
         return None;
     }
@@ -220,7 +257,10 @@ fn fan_normal(points: &[[f64; 3]], p: u32, tris: &[[u32; 3]], pole: Option<[f64;
         None => {
             let reference = match pole {
                 Some(v) => v,
-                None => link.iter().map(|&(a, b)| weighted(a, b)).max_by(|x, y| norm(x).total_cmp(&norm(y)))?,
+                None => link
+                    .iter()
+                    .map(|&(a, b)| weighted(a, b))
+                    .max_by(|x, y| norm(x).total_cmp(&norm(y)))?,
             };
             link.iter()
                 .map(|&(a, b)| {
@@ -276,7 +316,11 @@ fn ordered_ring(link: &[(u32, u32)]) -> Option<Vec<u32>> {
     for _ in 0..link.len() {
         let next = (0..link.len()).find(|&e| !used[e] && (link[e].0 == cur || link[e].1 == cur))?;
         used[next] = true;
-        cur = if link[next].0 == cur { link[next].1 } else { link[next].0 };
+        cur = if link[next].0 == cur {
+            link[next].1
+        } else {
+            link[next].0
+        };
         ring.push(cur);
     }
     if is_cycle && cur != ring[0] {
@@ -302,7 +346,10 @@ pub struct CrustNormals {
 ///
 /// # Errors
 /// Fewer than 5 distinct points, a non-finite coordinate, or all points on a line or a plane.
-pub fn crust_normals(points: &[[f64; 3]], params: &NormalsParams) -> Result<CrustNormals, NormalsError> {
+pub fn crust_normals(
+    points: &[[f64; 3]],
+    params: &NormalsParams,
+) -> Result<CrustNormals, NormalsError> {
     let n = points.len();
     let c = crust(points)?;
     // Incident triangles per point, in compressed rows.
@@ -326,7 +373,15 @@ pub fn crust_normals(points: &[[f64; 3]], params: &NormalsParams) -> Result<Crus
     let cos_max = params.max_fan_angle_deg.to_radians().cos();
     let fans: Vec<Option<[f64; 3]>> = (0..n)
         .into_par_iter()
-        .map(|v| fan_normal(points, v as u32, &incident[start[v]..start[v + 1]], c.pole_vectors[v], cos_max))
+        .map(|v| {
+            fan_normal(
+                points,
+                v as u32,
+                &incident[start[v]..start[v + 1]],
+                c.pole_vectors[v],
+                cos_max,
+            )
+        })
         .collect();
     let knn = pca::knn(points, params.k_neighbours);
     let (fits, noisy) = pca::adaptive_normals(points, &knn, params.max_k_neighbours);
@@ -350,7 +405,12 @@ pub fn crust_normals(points: &[[f64; 3]], params: &NormalsParams) -> Result<Crus
             "crust fan ill-structured at {n_plane_fits} of {n} points ({n_noisy} of them noisy); used pca plane fits there"
         ));
     }
-    Ok(CrustNormals { normals, triangles: c.triangles, n_plane_fits, warnings })
+    Ok(CrustNormals {
+        normals,
+        triangles: c.triangles,
+        n_plane_fits,
+        warnings,
+    })
 }
 
 #[cfg(test)]
@@ -359,7 +419,12 @@ mod tests {
 
     #[test]
     fn circumcentre_is_equidistant() {
-        let q = [[0.1, 0.2, 0.3], [1.3, 0.1, -0.2], [0.4, 1.7, 0.2], [0.3, 0.5, 1.9]];
+        let q = [
+            [0.1, 0.2, 0.3],
+            [1.3, 0.1, -0.2],
+            [0.4, 1.7, 0.2],
+            [0.3, 0.5, 1.9],
+        ];
         let c = circumcentre(&q[0], &q[1], &q[2], &q[3]);
         let r0 = norm(&sub(&c, &q[0]));
         for p in &q[1..] {
@@ -384,7 +449,10 @@ mod tests {
         assert_eq!(c.triangles.len(), 2 * n - 4);
         assert!(c.on_hull.iter().all(|&h| h));
         for (p, v) in points.iter().zip(&c.pole_vectors) {
-            assert!(dot(p, &v.unwrap()) > 0.99, "the pole vector of a hull point is the outward normal");
+            assert!(
+                dot(p, &v.unwrap()) > 0.99,
+                "the pole vector of a hull point is the outward normal"
+            );
         }
     }
 }

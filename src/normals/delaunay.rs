@@ -62,10 +62,11 @@ pub struct Tetrahedralization {
 impl Tetrahedralization {
     /// Faces of the convex hull as `(tet, i)`: face `i` (opposite vertex `i`) of tetrahedron `tet`.
     pub fn hull_faces(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
-        self.neighbours
-            .iter()
-            .enumerate()
-            .flat_map(|(t, n)| (0..4).filter(move |&i| n[i] == NO_NEIGHBOUR).map(move |i| (t, i)))
+        self.neighbours.iter().enumerate().flat_map(|(t, n)| {
+            (0..4)
+                .filter(move |&i| n[i] == NO_NEIGHBOUR)
+                .map(move |i| (t, i))
+        })
     }
 }
 
@@ -83,7 +84,11 @@ pub fn face_vertices(tet: [u32; 4], i: usize) -> [u32; 3] {
 
 #[inline]
 fn c3(p: &[f64; 3]) -> robust::Coord3D<f64> {
-    robust::Coord3D { x: p[0], y: p[1], z: p[2] }
+    robust::Coord3D {
+        x: p[0],
+        y: p[1],
+        z: p[2],
+    }
 }
 
 /// Shewchuk's exact orientation: positive when `d` lies below the plane of `a, b, c`.
@@ -118,7 +123,10 @@ pub(crate) fn check_spans_3d(points: &[[f64; 3]]) -> Result<(), NormalsError> {
     }
     let distinct = count_distinct(points);
     if distinct < 5 {
-        return Err(NormalsError::TooFewPoints { n_points: distinct, min: 5 });
+        return Err(NormalsError::TooFewPoints {
+            n_points: distinct,
+            min: 5,
+        });
     }
     let p0 = points[0];
     let Some(p1) = points.iter().find(|p| **p != p0).copied() else {
@@ -152,7 +160,10 @@ pub(crate) fn check_spans_3d(points: &[[f64; 3]]) -> Result<(), NormalsError> {
 }
 
 fn count_distinct(points: &[[f64; 3]]) -> usize {
-    let mut keys: Vec<[u64; 3]> = points.iter().map(|p| p.map(|c| (c + 0.0).to_bits())).collect();
+    let mut keys: Vec<[u64; 3]> = points
+        .iter()
+        .map(|p| p.map(|c| (c + 0.0).to_bits()))
+        .collect();
     keys.sort_unstable();
     keys.dedup();
     keys.len()
@@ -213,7 +224,8 @@ fn brio_order(points: &[[f64; 3]], ids: &mut [u32]) {
     let cells = f64::from((1u32 << BITS) - 1);
     let key = |i: u32| {
         let p = points[i as usize];
-        let q = [0, 1, 2].map(|a| (((p[a] - bbox.min[a]) / scale) * cells).clamp(0.0, cells) as u32);
+        let q =
+            [0, 1, 2].map(|a| (((p[a] - bbox.min[a]) / scale) * cells).clamp(0.0, cells) as u32);
         hilbert_index(q, BITS)
     };
     let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
@@ -250,15 +262,27 @@ pub fn tetrahedralize(points: &[[f64; 3]]) -> Result<Tetrahedralization, Normals
     if n >= (u32::MAX - 8) as usize {
         return Err(NormalsError::TooManyPoints { n_points: n });
     }
-    let bbox = crate::cloud::Aabb::from_points(points).ok_or(NormalsError::TooFewPoints { n_points: 0, min: 5 })?;
+    let bbox = crate::cloud::Aabb::from_points(points).ok_or(NormalsError::TooFewPoints {
+        n_points: 0,
+        min: 5,
+    })?;
     let centre = bbox.center();
     let radius = (0.5 * bbox.diagonal()).max(f64::MIN_POSITIVE);
     // The inscribed sphere of this tetrahedron has radius k / sqrt(3) > 1000 * radius.
     let k = 2000.0 * radius;
     let mut all: Vec<[f64; 3]> = Vec::with_capacity(n + 4);
     all.extend_from_slice(points);
-    for s in [[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0]] {
-        all.push([centre[0] + k * s[0], centre[1] + k * s[1], centre[2] + k * s[2]]);
+    for s in [
+        [1.0, 1.0, 1.0],
+        [1.0, -1.0, -1.0],
+        [-1.0, 1.0, -1.0],
+        [-1.0, -1.0, 1.0],
+    ] {
+        all.push([
+            centre[0] + k * s[0],
+            centre[1] + k * s[1],
+            centre[2] + k * s[2],
+        ]);
     }
     let s0 = n as u32;
     let mut first = [s0, s0 + 1, s0 + 2, s0 + 3];
@@ -291,13 +315,18 @@ pub fn tetrahedralize(points: &[[f64; 3]]) -> Result<Tetrahedralization, Normals
             representative[sorted[w] as usize] = representative[sorted[w - 1] as usize];
         }
     }
-    let mut order: Vec<u32> = (0..n as u32).filter(|&i| representative[i as usize] == i).collect();
+    let mut order: Vec<u32> = (0..n as u32)
+        .filter(|&i| representative[i as usize] == i)
+        .collect();
     brio_order(points, &mut order);
     let mut n_rejected = 0;
     let mut last = 0u32;
     for &v in &order {
         let t = b.locate(last, v);
-        if let Some(dup) = b.tets[t as usize].iter().find(|&&w| all[w as usize] == all[v as usize]) {
+        if let Some(dup) = b.tets[t as usize]
+            .iter()
+            .find(|&&w| all[w as usize] == all[v as usize])
+        {
             representative[v as usize] = *dup;
             continue;
         }
@@ -329,10 +358,21 @@ pub fn tetrahedralize(points: &[[f64; 3]]) -> Result<Tetrahedralization, Normals
     for (t, tet) in b.tets.iter().enumerate() {
         if new_index[t] != NO_NEIGHBOUR {
             debug_assert!(tet[0] != NO_NEIGHBOUR);
-            neighbours.push(b.neighbours[t].map(|u| if u == NO_NEIGHBOUR { NO_NEIGHBOUR } else { new_index[u as usize] }));
+            neighbours.push(b.neighbours[t].map(|u| {
+                if u == NO_NEIGHBOUR {
+                    NO_NEIGHBOUR
+                } else {
+                    new_index[u as usize]
+                }
+            }));
         }
     }
-    Ok(Tetrahedralization { tets, neighbours, representative, n_rejected })
+    Ok(Tetrahedralization {
+        tets,
+        neighbours,
+        representative,
+        n_rejected,
+    })
 }
 
 struct Builder<'a> {
@@ -418,8 +458,14 @@ impl Builder<'_> {
         // Symbolic perturbation: the point with the largest index is lifted most. Lifting the
         // new point puts it outside; lifting tet vertex j moves the sphere towards the side of
         // the opposite face where vertex j is, so p is inside when it is on that side.
-        let mut order = [(tet[0], 0usize), (tet[1], 1), (tet[2], 2), (tet[3], 3), (v, 4)];
-        order.sort_unstable_by(|a, b| b.0.cmp(&a.0));
+        let mut order = [
+            (tet[0], 0usize),
+            (tet[1], 1),
+            (tet[2], 2),
+            (tet[3], 3),
+            (v, 4),
+        ];
+        order.sort_unstable_by_key(|x| std::cmp::Reverse(x.0));
         for (_, j) in order {
             if j == 4 {
                 return false;
@@ -474,7 +520,10 @@ impl Builder<'_> {
                     let back = if u == NO_NEIGHBOUR {
                         4
                     } else {
-                        self.neighbours[u as usize].iter().position(|&x| x == c).unwrap_or(4)
+                        self.neighbours[u as usize]
+                            .iter()
+                            .position(|&x| x == c)
+                            .unwrap_or(4)
                     };
                     self.boundary.push((verts, i, u, back));
                 }
@@ -549,7 +598,9 @@ mod tests {
 
     #[test]
     fn hilbert_index_is_a_bijection_on_a_small_grid() {
-        let mut keys: Vec<u64> = (0..512u32).map(|i| hilbert_index([i & 7, (i >> 3) & 7, i >> 6], 3)).collect();
+        let mut keys: Vec<u64> = (0..512u32)
+            .map(|i| hilbert_index([i & 7, (i >> 3) & 7, i >> 6], 3))
+            .collect();
         keys.sort_unstable();
         keys.dedup();
         assert_eq!(keys.len(), 512);

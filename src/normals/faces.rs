@@ -31,7 +31,9 @@ pub fn mesh_normals(
     let n = points.len();
     let mut tris: Vec<[u32; 3]> = triangles
         .iter()
-        .filter(|t| t[0] != t[1] && t[1] != t[2] && t[0] != t[2] && t.iter().all(|&v| (v as usize) < n))
+        .filter(|t| {
+            t[0] != t[1] && t[1] != t[2] && t[0] != t[2] && t.iter().all(|&v| (v as usize) < n)
+        })
         .copied()
         .collect();
     if tris.is_empty() {
@@ -127,7 +129,11 @@ pub fn mesh_normals(
     }
     let mut sums = vec![[0.0; 3]; n];
     for tri in &tris {
-        let nrm = triangle_normal(&points[tri[0] as usize], &points[tri[1] as usize], &points[tri[2] as usize]);
+        let nrm = triangle_normal(
+            &points[tri[0] as usize],
+            &points[tri[1] as usize],
+            &points[tri[2] as usize],
+        );
         for &v in tri {
             sums[v as usize] = add(&sums[v as usize], &nrm);
         }
@@ -135,10 +141,18 @@ pub fn mesh_normals(
     let mut normals: Vec<Option<[f64; 3]>> = sums.iter().map(normalized).collect();
     let missing = normals.iter().filter(|x| x.is_none()).count();
     if missing > 0 {
-        warnings.push(format!("{missing} points belong to no usable face; used pca plane fits there"));
+        warnings.push(format!(
+            "{missing} points belong to no usable face; used pca plane fits there"
+        ));
         fill_missing(points, &mut normals, params);
     }
-    Ok((normals.into_iter().map(|x| x.unwrap_or([0.0, 0.0, 1.0])).collect(), warnings))
+    Ok((
+        normals
+            .into_iter()
+            .map(|x| x.unwrap_or([0.0, 0.0, 1.0]))
+            .collect(),
+        warnings,
+    ))
 }
 
 /// Replaces `None` normals by plane fits signed like the sum of their neighbours' known normals
@@ -151,7 +165,10 @@ fn fill_missing(points: &[[f64; 3]], normals: &mut [Option<[f64; 3]>], params: &
             continue;
         }
         let mut nrm = pca::plane_normal(points, i, &knn[i]);
-        let reference = knn[i].iter().filter_map(|&j| normals[j as usize]).fold([0.0; 3], |a, x| add(&a, &x));
+        let reference = knn[i]
+            .iter()
+            .filter_map(|&j| normals[j as usize])
+            .fold([0.0; 3], |a, x| add(&a, &x));
         let r = dot(&nrm, &reference);
         if r < 0.0 {
             nrm = scale(&nrm, -1.0);
@@ -162,7 +179,10 @@ fn fill_missing(points: &[[f64; 3]], normals: &mut [Option<[f64; 3]>], params: &
         normals[i] = Some(nrm);
     }
     if !orphans.is_empty() {
-        let mut all: Vec<[f64; 3]> = normals.iter().map(|x| x.unwrap_or([0.0, 0.0, 1.0])).collect();
+        let mut all: Vec<[f64; 3]> = normals
+            .iter()
+            .map(|x| x.unwrap_or([0.0, 0.0, 1.0]))
+            .collect();
         let known: Vec<bool> = (0..points.len()).map(|i| !orphans.contains(&i)).collect();
         if known.iter().all(|k| !k) {
             orient::orient_outward(points, &mut all, &[], &knn);
@@ -174,7 +194,11 @@ fn fill_missing(points: &[[f64; 3]], normals: &mut [Option<[f64; 3]>], params: &
 }
 
 /// Unit outward normals from the file's normals. Returns the normals and warnings.
-pub fn input_normals(points: &[[f64; 3]], given: &[[f64; 3]], params: &NormalsParams) -> (Vec<[f64; 3]>, Vec<String>) {
+pub fn input_normals(
+    points: &[[f64; 3]],
+    given: &[[f64; 3]],
+    params: &NormalsParams,
+) -> (Vec<[f64; 3]>, Vec<String>) {
     let mut warnings = Vec::new();
     let knn = pca::knn(points, params.k_neighbours);
     let mut n_bad = 0;
@@ -191,7 +215,9 @@ pub fn input_normals(points: &[[f64; 3]], given: &[[f64; 3]], params: &NormalsPa
         })
         .collect();
     if n_bad > 0 {
-        warnings.push(format!("{n_bad} input normals are zero or not finite; used pca plane fits there"));
+        warnings.push(format!(
+            "{n_bad} input normals are zero or not finite; used pca plane fits there"
+        ));
     }
     let mut pairs = 0usize;
     let mut disagree = 0usize;
@@ -216,7 +242,9 @@ pub fn input_normals(points: &[[f64; 3]], given: &[[f64; 3]], params: &NormalsPa
     }
     let flipped = orient::orient_outward_pieces(points, &mut normals, &label);
     if flipped > 0 {
-        warnings.push(format!("input normals pointed inward on {flipped} piece(s); flipped them"));
+        warnings.push(format!(
+            "input normals pointed inward on {flipped} piece(s); flipped them"
+        ));
     }
     (normals, warnings)
 }

@@ -19,12 +19,14 @@
 //!    (the farthest vertex of its Voronoi cell, and the farthest on the other side), the Delaunay
 //!    tetrahedralization ([`delaunay`]) of the samples and the poles, and the triangles whose three
 //!    vertices are samples.
-//! 2. Each sample's incident crust triangles are put in order around it (their link must be one
-//!    cycle or one path: a "planar" fan); their normals, aligned by the right-hand rule along the
-//!    fan, are summed with area weights. A fan that is not planar, or whose triangles disagree by
-//!    more than [`NormalsParams::max_fan_angle_deg`], is ill-structured and replaced by the normal
-//!    of the least-squares plane through the point and its [`NormalsParams::k_neighbours`]
-//!    nearest neighbours ([`pca`]).
+//! 2. Each sample's incident crust triangles are aligned (by the right-hand rule along a planar
+//!    fan, or with the Voronoi pole vector where sliver tetrahedra make the fan non-planar) and
+//!    summed with Max's (1999) weights. An ill-structured fan (empty, triangles more than
+//!    [`NormalsParams::max_fan_angle_deg`] apart, or on data that is noisy at the fan's scale) is
+//!    replaced by the normal of the least-squares plane through the point and its neighbours
+//!    ([`pca`]): [`NormalsParams::k_neighbours`] of them, grown up to
+//!    [`NormalsParams::max_k_neighbours`] where that makes the neighbourhood clearly flatter
+//!    (noise).
 //! 3. [`orient`]: signs are made consistent by propagation along a minimum spanning tree of the
 //!    neighbour graph (crust edges, then k-nearest-neighbour edges) weighted by 1 − |nᵢ·nⱼ|
 //!    (Hoppe et al. 1992), the robust form of the paper's "reference normal, dot product test,
@@ -32,7 +34,7 @@
 //!    farthest from any centre the outward normal points away from that centre, and the farthest
 //!    points of the piece vote.
 //!
-//! The other sources ([`NormalSource`]) skip step 1–2: `pca` uses plane fits everywhere, `mesh`
+//! The other sources ([`NormalSource`]) skip steps 1–2: `pca` uses the adaptive plane fits everywhere, `mesh`
 //! the area-weighted normals of the file's faces after making their winding consistent, `input`
 //! the file's normals.
 
@@ -152,7 +154,9 @@ impl FromStr for NormalSource {
             "pca" => Ok(NormalSource::Pca),
             "mesh" => Ok(NormalSource::Mesh),
             "input" => Ok(NormalSource::Input),
-            other => Err(format!("unknown normal source `{other}`; expected auto, crust, pca, mesh or input")),
+            other => Err(format!(
+                "unknown normal source `{other}`; expected auto, crust, pca, mesh or input"
+            )),
         }
     }
 }
@@ -178,7 +182,12 @@ pub struct NormalsParams {
 
 impl Default for NormalsParams {
     fn default() -> Self {
-        NormalsParams { source: NormalSource::Auto, k_neighbours: 16, max_k_neighbours: 128, max_fan_angle_deg: 40.0 }
+        NormalsParams {
+            source: NormalSource::Auto,
+            k_neighbours: 16,
+            max_k_neighbours: 128,
+            max_fan_angle_deg: 40.0,
+        }
     }
 }
 
@@ -221,7 +230,10 @@ pub struct Normals {
 ///     assert!(p[0] * n[0] + p[1] * n[1] + p[2] * n[2] > 0.95); // outward, close to radial
 /// }
 /// ```
-pub fn estimate_normals(cloud: &PointCloud, params: &NormalsParams) -> Result<Normals, NormalsError> {
+pub fn estimate_normals(
+    cloud: &PointCloud,
+    params: &NormalsParams,
+) -> Result<Normals, NormalsError> {
     if params.k_neighbours < 3 || params.k_neighbours > 1000 {
         return Err(NormalsError::InvalidParams(format!(
             "k_neighbours is {}, choose a value between 3 and 1000",
@@ -241,7 +253,9 @@ pub fn estimate_normals(cloud: &PointCloud, params: &NormalsParams) -> Result<No
         )));
     }
     if cloud.points.len() >= (u32::MAX / 4) as usize {
-        return Err(NormalsError::TooManyPoints { n_points: cloud.points.len() });
+        return Err(NormalsError::TooManyPoints {
+            n_points: cloud.points.len(),
+        });
     }
     delaunay::check_spans_3d(&cloud.points)?;
     let source = match params.source {
@@ -257,21 +271,32 @@ pub fn estimate_normals(cloud: &PointCloud, params: &NormalsParams) -> Result<No
         s => s,
     };
     let dedup = Dedup::new(&cloud.points);
-    let mut out = Normals { source_used: source, ..Default::default() };
+    let mut out = Normals {
+        source_used: source,
+        ..Default::default()
+    };
     let unique_normals = match source {
-        NormalSource::Crust | NormalSource::Auto => match crust::crust_normals(&dedup.unique, params) {
-            Ok(r) => {
-                out.warnings.extend(r.warnings);
-                out.crust_triangles = r.triangles.iter().map(|t| t.map(|v| dedup.first[v as usize])).collect();
-                r.normals
+        NormalSource::Crust | NormalSource::Auto => {
+            match crust::crust_normals(&dedup.unique, params) {
+                Ok(r) => {
+                    out.warnings.extend(r.warnings);
+                    out.crust_triangles = r
+                        .triangles
+                        .iter()
+                        .map(|t| t.map(|v| dedup.first[v as usize]))
+                        .collect();
+                    r.normals
+                }
+                Err(e) if params.source == NormalSource::Auto => {
+                    out.warnings.push(format!(
+                        "the crust failed ({e}); used pca plane fits instead"
+                    ));
+                    out.source_used = NormalSource::Pca;
+                    pca::pca_normals(&dedup.unique, params)
+                }
+                Err(e) => return Err(e),
             }
-            Err(e) if params.source == NormalSource::Auto => {
-                out.warnings.push(format!("the crust failed ({e}); used pca plane fits instead"));
-                out.source_used = NormalSource::Pca;
-                pca::pca_normals(&dedup.unique, params)
-            }
-            Err(e) => return Err(e),
-        },
+        }
         NormalSource::Pca => pca::pca_normals(&dedup.unique, params),
         NormalSource::Mesh => {
             let tris = dedup.remap_triangles(&cloud.triangles)?;
@@ -290,7 +315,8 @@ pub fn estimate_normals(cloud: &PointCloud, params: &NormalsParams) -> Result<No
                     n_points: cloud.points.len(),
                 });
             }
-            let unique_given: Vec<[f64; 3]> = dedup.first.iter().map(|&i| given[i as usize]).collect();
+            let unique_given: Vec<[f64; 3]> =
+                dedup.first.iter().map(|&i| given[i as usize]).collect();
             let (normals, warnings) = faces::input_normals(&dedup.unique, &unique_given, params);
             out.warnings.extend(warnings);
             normals
@@ -298,7 +324,11 @@ pub fn estimate_normals(cloud: &PointCloud, params: &NormalsParams) -> Result<No
     };
     out.cloud = OrientedCloud {
         points: cloud.points.clone(),
-        normals: dedup.of_point.iter().map(|&u| unique_normals[u as usize]).collect(),
+        normals: dedup
+            .of_point
+            .iter()
+            .map(|&u| unique_normals[u as usize])
+            .collect(),
     };
     Ok(out)
 }
@@ -343,7 +373,11 @@ impl Dedup {
                 of_point[i] = of_point[first_of[i] as usize];
             }
         }
-        Dedup { unique, first, of_point }
+        Dedup {
+            unique,
+            first,
+            of_point,
+        }
     }
 
     fn remap_triangles(&self, triangles: &[[u32; 3]]) -> Result<Vec<[u32; 3]>, NormalsError> {
@@ -353,7 +387,10 @@ impl Dedup {
             .map(|(index, t)| {
                 let mut r = [0u32; 3];
                 for k in 0..3 {
-                    r[k] = *self.of_point.get(t[k] as usize).ok_or(NormalsError::BadTriangle { index })?;
+                    r[k] = *self
+                        .of_point
+                        .get(t[k] as usize)
+                        .ok_or(NormalsError::BadTriangle { index })?;
                 }
                 Ok(r)
             })
@@ -381,7 +418,11 @@ pub(crate) mod vec3 {
     }
     #[inline]
     pub fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
-        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+        [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ]
     }
     #[inline]
     pub fn norm(a: &[f64; 3]) -> f64 {
@@ -406,7 +447,13 @@ mod tests {
 
     #[test]
     fn source_names_round_trip() {
-        for s in [NormalSource::Auto, NormalSource::Crust, NormalSource::Pca, NormalSource::Mesh, NormalSource::Input] {
+        for s in [
+            NormalSource::Auto,
+            NormalSource::Crust,
+            NormalSource::Pca,
+            NormalSource::Mesh,
+            NormalSource::Input,
+        ] {
             assert_eq!(s.as_str().parse::<NormalSource>().unwrap(), s);
         }
         assert!("poles".parse::<NormalSource>().is_err());
@@ -414,7 +461,13 @@ mod tests {
 
     #[test]
     fn dedup_maps_twins_to_first_occurrence() {
-        let pts = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [-0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]];
+        let pts = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [-0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [2.0, 0.0, 0.0],
+        ];
         let d = Dedup::new(&pts);
         assert_eq!(d.unique.len(), 3);
         assert_eq!(d.first, vec![0, 1, 4]);

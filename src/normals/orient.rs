@@ -68,7 +68,10 @@ fn build_graph(n: usize, triangles: &[[u32; 3]], knn: &[Vec<u32>]) -> Graph {
         entries[fill[e.1 as usize]] = (e.0, f64::from(e.2));
         fill[e.1 as usize] += 1;
     }
-    Graph { start: count, entries }
+    Graph {
+        start: count,
+        entries,
+    }
 }
 
 impl Graph {
@@ -120,7 +123,11 @@ pub fn orient_consistently(
 
 /// Turns each connected piece (`label` from [`orient_consistently`]) outward by the
 /// farthest-points vote. Returns the number of pieces flipped.
-pub fn orient_outward_pieces(points: &[[f64; 3]], normals: &mut [[f64; 3]], label: &[u32]) -> usize {
+pub fn orient_outward_pieces(
+    points: &[[f64; 3]],
+    normals: &mut [[f64; 3]],
+    label: &[u32],
+) -> usize {
     let n_pieces = label.iter().copied().max().map_or(0, |m| m as usize + 1);
     let mut members: Vec<Vec<u32>> = vec![Vec::new(); n_pieces];
     for (i, &l) in label.iter().enumerate() {
@@ -135,8 +142,10 @@ pub fn orient_outward_pieces(points: &[[f64; 3]], normals: &mut [[f64; 3]], labe
                 centre[a] += points[i as usize][a] / count;
             }
         }
-        let mut by_distance: Vec<(f64, u32)> =
-            piece.iter().map(|&i| (norm(&sub(&points[i as usize], &centre)), i)).collect();
+        let mut by_distance: Vec<(f64, u32)> = piece
+            .iter()
+            .map(|&i| (norm(&sub(&points[i as usize], &centre)), i))
+            .collect();
         by_distance.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
         let voters = (piece.len() / 50).max(8).min(piece.len());
         let vote: f64 = by_distance[..voters]
@@ -155,7 +164,12 @@ pub fn orient_outward_pieces(points: &[[f64; 3]], normals: &mut [[f64; 3]], labe
 }
 
 /// Consistent signs, then outward, in one call.
-pub fn orient_outward(points: &[[f64; 3]], normals: &mut [[f64; 3]], triangles: &[[u32; 3]], knn: &[Vec<u32>]) {
+pub fn orient_outward(
+    points: &[[f64; 3]],
+    normals: &mut [[f64; 3]],
+    triangles: &[[u32; 3]],
+    knn: &[Vec<u32>],
+) {
     let label = orient_consistently(points, normals, triangles, knn);
     orient_outward_pieces(points, normals, &label);
 }

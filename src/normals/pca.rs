@@ -4,7 +4,13 @@
 //! Input: distinct points. Output: per point, an unoriented unit normal: the direction of least
 //! variance of the point and its k nearest neighbours (the normal of their least-squares plane,
 //! Hoppe et al. 1992). The sign is arbitrary here; [`crate::normals::orient`] makes it consistent
-//! and outward.
+//! and outward ([`pca_normals`] does both for the `pca` source).
+//!
+//! Noise: with k₀ = 16 neighbours a plane fit is accurate on clean scans but tilts by tens of
+//! degrees when the noise is comparable to the sample spacing. [`adaptive_plane_fit`] therefore
+//! tries 2k₀, 4k₀, … neighbours where the small neighbourhood is thick and keeps the flattest
+//! (measured: noisy sphere, σ = 1% of the size, 10k points: 11.6° mean error at k = 16, 1.9°
+//! adaptive).
 //!
 //! Invariants: every returned normal is unit length and finite (a degenerate neighbourhood gets
 //! the best direction the eigen-solver finds, never NaN); results do not depend on the thread
@@ -22,20 +28,36 @@ pub fn build_tree(points: &[[f64; 3]]) -> Option<ImmutableKdTree<f64, 3>> {
 }
 
 /// The `k` nearest neighbours of point `i` (itself excluded), nearest first, ties by index.
-pub fn nearest(tree: &ImmutableKdTree<f64, 3>, points: &[[f64; 3]], i: usize, k: usize) -> Vec<u32> {
+pub fn nearest(
+    tree: &ImmutableKdTree<f64, 3>,
+    points: &[[f64; 3]],
+    i: usize,
+    k: usize,
+) -> Vec<u32> {
     let Some(qty) = std::num::NonZeroUsize::new((k + 1).min(points.len())) else {
         return Vec::new();
     };
-    let mut found = tree.query(&points[i]).nearest_n::<SquaredEuclidean<f64>>(qty).execute();
+    let mut found = tree
+        .query(&points[i])
+        .nearest_n::<SquaredEuclidean<f64>>(qty)
+        .execute();
     // Sort by (distance, index) so that ties are broken the same way on every run.
     found.sort_by(|a, b| a.distance.total_cmp(&b.distance).then(a.item.cmp(&b.item)));
-    found.into_iter().map(|r| r.item).filter(|&j| j as usize != i).take(k).collect()
+    found
+        .into_iter()
+        .map(|r| r.item)
+        .filter(|&j| j as usize != i)
+        .take(k)
+        .collect()
 }
 
 /// The k nearest neighbours of every point (the point itself excluded), nearest first.
 pub fn knn(points: &[[f64; 3]], k: usize) -> Vec<Vec<u32>> {
     match build_tree(points) {
-        Some(tree) => (0..points.len()).into_par_iter().map(|i| nearest(&tree, points, i, k)).collect(),
+        Some(tree) => (0..points.len())
+            .into_par_iter()
+            .map(|i| nearest(&tree, points, i, k))
+            .collect(),
         None => vec![Vec::new(); points.len()],
     }
 }
@@ -67,7 +89,11 @@ pub fn plane_fit(points: &[[f64; 3]], centre: usize, neighbours: &[u32]) -> ([f6
         }
     }
     let (normal, l0, l1) = smallest_eigen(cov);
-    let thickness = if l1 > 0.0 { (l0.max(0.0) / l1).sqrt() } else { 1.0 };
+    let thickness = if l1 > 0.0 {
+        (l0.max(0.0) / l1).sqrt()
+    } else {
+        1.0
+    };
     (normal, thickness)
 }
 
@@ -118,9 +144,18 @@ pub fn adaptive_plane_fit(
 
 /// Plane-fit normals with the adaptive neighbourhood, in parallel; also returns, per point,
 /// whether its neighbourhood had to grow (the data is noisy at the k₀ scale there).
-pub fn adaptive_normals(points: &[[f64; 3]], neighbours: &[Vec<u32>], max_k: usize) -> (Vec<[f64; 3]>, Vec<bool>) {
+pub fn adaptive_normals(
+    points: &[[f64; 3]],
+    neighbours: &[Vec<u32>],
+    max_k: usize,
+) -> (Vec<[f64; 3]>, Vec<bool>) {
     let Some(tree) = build_tree(points) else {
-        return ((0..points.len()).map(|i| plane_normal(points, i, &neighbours[i])).collect(), vec![false; points.len()]);
+        return (
+            (0..points.len())
+                .map(|i| plane_normal(points, i, &neighbours[i]))
+                .collect(),
+            vec![false; points.len()],
+        );
     };
     let fits: Vec<([f64; 3], bool)> = (0..points.len())
         .into_par_iter()
@@ -138,6 +173,8 @@ pub fn smallest_eigenvector(a: [[f64; 3]; 3]) -> [f64; 3] {
 }
 
 /// Unit eigenvector of the smallest eigenvalue, that eigenvalue and the middle one.
+// Index loops read best for the 3×3 rotations.
+#[allow(clippy::needless_range_loop)]
 fn smallest_eigen(mut a: [[f64; 3]; 3]) -> ([f64; 3], f64, f64) {
     let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
     for _sweep in 0..32 {
@@ -183,12 +220,19 @@ fn smallest_eigen(mut a: [[f64; 3]; 3]) -> ([f64; 3], f64, f64) {
         }
     }
     let e = [v[0][best], v[1][best], v[2][best]];
-    let mut rest = [0usize, 1, 2].into_iter().filter(|&i| i != best).map(|i| a[i][i]);
+    let mut rest = [0usize, 1, 2]
+        .into_iter()
+        .filter(|&i| i != best)
+        .map(|i| a[i][i]);
     let middle = match (rest.next(), rest.next()) {
         (Some(x), Some(y)) => x.min(y),
         _ => 0.0,
     };
-    (normalized(&e).unwrap_or([0.0, 0.0, 1.0]), a[best][best], middle)
+    (
+        normalized(&e).unwrap_or([0.0, 0.0, 1.0]),
+        a[best][best],
+        middle,
+    )
 }
 
 /// The `pca` source: adaptive plane fits, oriented consistently and outward.
