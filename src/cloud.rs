@@ -61,7 +61,10 @@ impl Aabb {
     pub fn from_points(points: &[[f64; 3]]) -> Option<Aabb> {
         let mut finite = points.iter().filter(|p| p.iter().all(|c| c.is_finite()));
         let first = *finite.next()?;
-        let mut b = Aabb { min: first, max: first };
+        let mut b = Aabb {
+            min: first,
+            max: first,
+        };
         for p in finite {
             for a in 0..3 {
                 b.min[a] = b.min[a].min(p[a]);
@@ -78,7 +81,11 @@ impl Aabb {
         let mut b = *self;
         for a in 0..3 {
             let size = self.max[a] - self.min[a];
-            let pad = if size > 0.0 { size * fraction } else { diag * fraction };
+            let pad = if size > 0.0 {
+                size * fraction
+            } else {
+                diag * fraction
+            };
             b.min[a] -= pad;
             b.max[a] += pad;
         }
@@ -110,7 +117,10 @@ mod tests {
 
     #[test]
     fn grown_box_keeps_center_and_scales_sides() {
-        let b = Aabb { min: [0.0, 0.0, 0.0], max: [10.0, 2.0, 0.0] };
+        let b = Aabb {
+            min: [0.0, 0.0, 0.0],
+            max: [10.0, 2.0, 0.0],
+        };
         let g = b.grown(0.1);
         assert_eq!(g.min[0], -1.0);
         assert_eq!(g.max[1], 2.2);

@@ -1,3 +1,942 @@
-//! Signed distance from an implicit polynomial's zero set (for distance slices).
+//! Signed distance from an implicit polynomial's zero set, sampled on slices (the `slices` output).
 //!
-//! (Skeleton: the export helper fills this file.)
+//! Input: an [`ImplicitPolynomial`] f (negative inside, as the 3L fit makes it) and a region
+//! ([`Aabb`], input coordinates). Output: [`Slice`]s, K planes across the region along one axis,
+//! each an R×R grid of signed distances in input units (negative inside), with the affine map
+//! from grid indices to input coordinates. No IO: the EXR and PNG writers live in `export`.
+//!
+//! # Grid
+//!
+//! ```text
+//!   row 0 ─▶ ┌───────────────┐  v = max    pixels are square: h = max(in-plane extents) / R;
+//!            │ (col, row)    │             the R×R square is centred on the region's centre,
+//!            │   centre of   │             so it covers the region's in-plane rectangle;
+//!            │   each pixel  │             slice k lies at w = min_w + (k + ½)·(extent_w / K).
+//!   row R−1  └───────────────┘  v = min
+//!            u = min ──▶ u = max
+//! ```
+//!
+//! In-plane axes (u, v): slicing along z uses (x, y); along y, (x, z); along x, (y, z). Columns
+//! grow with u, rows grow downwards in v, so an image viewer shows v up. [`Slice::grid_to_world`]
+//! maps (col, row, k) of a pixel centre to input coordinates exactly.
+//!
+//! # Methods and their error
+//!
+//! - [`DistanceMethod::Taubin`]: d ≈ f/|∇f| (Taubin 1991, first-order distance), one gradient
+//!   evaluation per pixel. Exact on planes and correct to first order at the surface, with an
+//!   error of order d²: for f = |p|² − r² it gives d(2r + d)/(2(r + d)), off by d²/(2(r + d)),
+//!   so below 1e-4 only for |d| ≲ 0.014·√r; far from the surface it can be wrong by any factor
+//!   and it is unbounded where ∇f vanishes (clamped to ± the region's diagonal there).
+//! - [`DistanceMethod::Exact`] (default): the Euclidean distance to the zero set. The zero set is
+//!   sampled on a grid over the region grown by 25% (sign changes on the edges of a 64-cell grid
+//!   along the longest side, each projected onto f = 0 by Newton steps along ∇f); for a pixel p
+//!   the nearest samples (k-d tree) start Newton's method on the closest-point conditions
+//!   x − p + λ∇f(x) = 0, f(x) = 0 (with the Hessian of f). The result is the distance from p to
+//!   a point x with |f(x)|/|∇f(x)| < 1e-10 (normalized units), so it is never below the true
+//!   distance; it equals the true distance to rounding (≈ 1e-12 relative) whenever one of the
+//!   nearest samples lies in the Newton basin of the true closest point, which holds unless a
+//!   piece of the zero set is smaller than a seed cell (1/64 of the grown region) or the true
+//!   closest point lies outside the grown region. The sign is the sign of f(p). Cost: a few
+//!   Hessian evaluations per pixel, about 10–50× Taubin.
+//!
+//! Invariants: values are finite; the output depends only on the inputs (rayon over fixed rows,
+//! each pixel computed independently), whatever the thread count.
+
+use std::num::NonZero;
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
+
+use crate::cloud::Aabb;
+use crate::poly::{n_coefficients, ImplicitPolynomial};
+
+/// Highest polynomial degree the distance evaluator accepts.
+pub const MAX_DEGREE: u32 = 32;
+
+/// Seed-grid cells along the longest side of the grown region (exact method).
+const SEED_CELLS: usize = 64;
+/// Margin added on each side of the region for the seed grid, as a fraction of its longest side.
+const SEED_MARGIN: f64 = 0.25;
+/// Nearest seeds looked up per pixel (exact method).
+const N_NEAREST: usize = 8;
+/// At most this many of them start a Newton refinement.
+const N_REFINE: usize = 3;
+/// A point is on the zero set when |f|/|∇f| is below this, in normalized units.
+const ON_SURFACE_TOL: f64 = 1e-10;
+
+/// The axis slices are perpendicular to.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Axis {
+    /// Slices perpendicular to x; pixels span (y, z).
+    X,
+    /// Slices perpendicular to y; pixels span (x, z).
+    Y,
+    /// Slices perpendicular to z; pixels span (x, y). The default.
+    #[default]
+    Z,
+}
+
+impl Axis {
+    /// The axis as `"x"`, `"y"` or `"z"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Axis::X => "x",
+            Axis::Y => "y",
+            Axis::Z => "z",
+        }
+    }
+
+    /// World axes (u, v, w): columns, rows, slice normal.
+    fn frame(self) -> [usize; 3] {
+        match self {
+            Axis::X => [1, 2, 0],
+            Axis::Y => [0, 2, 1],
+            Axis::Z => [0, 1, 2],
+        }
+    }
+}
+
+/// How the signed distance is computed (see the module docs for the error of each).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum DistanceMethod {
+    /// First-order estimate f/|∇f|: fast, accurate only near the surface.
+    Taubin,
+    /// Distance to the zero set by closest-point search and Newton projection. The default.
+    #[default]
+    Exact,
+}
+
+impl DistanceMethod {
+    /// The method as `"taubin"` or `"exact"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            DistanceMethod::Taubin => "taubin",
+            DistanceMethod::Exact => "exact",
+        }
+    }
+}
+
+/// Parameters of [`slices`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct SliceParams {
+    /// Axis the slices are perpendicular to; default z.
+    pub axis: Axis,
+    /// Number of slices K across the region, ≥ 1; default 16.
+    pub count: usize,
+    /// Pixels R along each side of a slice, 2 ..= 16384; default 256.
+    pub resolution: usize,
+    /// Distance method; default [`DistanceMethod::Exact`].
+    pub method: DistanceMethod,
+}
+
+impl Default for SliceParams {
+    fn default() -> Self {
+        SliceParams {
+            axis: Axis::Z,
+            count: 16,
+            resolution: 256,
+            method: DistanceMethod::Exact,
+        }
+    }
+}
+
+/// One slice of the signed distance field.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Slice {
+    /// Index k of the slice, 0-based, along the axis from its minimum.
+    pub index: usize,
+    /// Number of slices K in the stack.
+    pub count: usize,
+    /// The axis the slice is perpendicular to.
+    pub axis: Axis,
+    /// The method that computed `data`.
+    pub method: DistanceMethod,
+    /// Pixels R along each side.
+    pub resolution: usize,
+    /// R×R signed distances in input units, negative inside, row-major; row 0 is the top of the
+    /// image (largest v), column 0 the left (smallest u).
+    pub data: Vec<f32>,
+    /// Affine map from grid to input coordinates, column-vector convention:
+    /// `world = M · [col, row, k, 1]ᵀ` with `M = grid_to_world` indexed `[world_axis][grid_axis]`;
+    /// integer (col, row) are pixel centres.
+    pub grid_to_world: [[f64; 4]; 4],
+    /// Spacing along (columns, rows, slices) in input units: (h, h, extent_w / K).
+    pub voxel_size: [f64; 3],
+}
+
+impl Slice {
+    /// Input-space position of the centre of pixel (`col`, `row`).
+    pub fn pixel_center(&self, col: usize, row: usize) -> [f64; 3] {
+        let m = &self.grid_to_world;
+        let g = [col as f64, row as f64, self.index as f64, 1.0];
+        [0, 1, 2].map(|a| (0..4).map(|c| m[a][c] * g[c]).sum())
+    }
+}
+
+/// Errors of the distance computation.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum DistanceError {
+    /// A parameter is out of range; the message names it and its valid range.
+    #[error("{0}")]
+    InvalidParams(String),
+    /// The polynomial is malformed (coefficient count, non-finite numbers, scale ≤ 0, degree).
+    #[error("invalid polynomial: {0}")]
+    InvalidPolynomial(String),
+    /// The region is empty, flat or not finite; give a box with positive extent on every axis.
+    #[error("the slicing region must be finite with positive extent on every axis")]
+    InvalidRegion,
+    /// The exact method found no zero set in the (grown) region; use a region that contains the
+    /// surface, or `--distance taubin`.
+    #[error("the zero set of the polynomial does not cross the slicing region (grown by 25%); use a region around the surface or the taubin distance")]
+    NoSurface,
+}
+
+/// A region for a model without a box: the cube of half-side 2·scale around the normalization
+/// centre (the fitted data have mean radius 1 in normalized units).
+///
+/// ```
+/// use stablesurf::distance::default_region;
+/// use stablesurf::ImplicitPolynomial;
+/// let p = ImplicitPolynomial { degree: 0, coefficients: vec![1.0], center: [1.0, 0.0, 0.0], scale: 0.5 };
+/// assert_eq!(default_region(&p).min, [0.0, -1.0, -1.0]);
+/// ```
+pub fn default_region(poly: &ImplicitPolynomial) -> Aabb {
+    let h = 2.0 * poly.scale;
+    Aabb {
+        min: poly.center.map(|c| c - h),
+        max: poly.center.map(|c| c + h),
+    }
+}
+
+/// Computes the K slices of the signed distance of `poly` across `region`.
+///
+/// ```
+/// use stablesurf::cloud::Aabb;
+/// use stablesurf::distance::{slices, DistanceMethod, SliceParams};
+/// use stablesurf::ImplicitPolynomial;
+/// // The unit sphere: f = x² + y² + z² − 1.
+/// let mut c = vec![0.0; 10];
+/// (c[0], c[4], c[7], c[9]) = (-1.0, 1.0, 1.0, 1.0);
+/// let sphere = ImplicitPolynomial { degree: 2, coefficients: c, center: [0.0; 3], scale: 1.0 };
+/// let region = Aabb { min: [-1.5; 3], max: [1.5; 3] };
+/// let params = SliceParams { count: 3, resolution: 8, ..Default::default() };
+/// let s = slices(&sphere, &region, &params).unwrap();
+/// assert_eq!((s.len(), s[1].data.len()), (3, 64));
+/// let p = s[1].pixel_center(3, 4);
+/// let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+/// assert!((s[1].data[4 * 8 + 3] as f64 - (r - 1.0)).abs() < 1e-6);
+/// ```
+///
+/// # Errors
+/// [`DistanceError::InvalidParams`] for a count of 0 or a resolution outside 2 ..= 16384;
+/// [`DistanceError::InvalidPolynomial`], [`DistanceError::InvalidRegion`]; and, for the exact
+/// method, [`DistanceError::NoSurface`] when no zero set crosses the grown region.
+pub fn slices(
+    poly: &ImplicitPolynomial,
+    region: &Aabb,
+    params: &SliceParams,
+) -> Result<Vec<Slice>, DistanceError> {
+    if params.count == 0 {
+        return Err(DistanceError::InvalidParams(
+            "the slice count must be at least 1".into(),
+        ));
+    }
+    if !(2..=16384).contains(&params.resolution) {
+        return Err(DistanceError::InvalidParams(format!(
+            "the slice resolution must be between 2 and 16384 pixels, not {}",
+            params.resolution
+        )));
+    }
+    check_region(region)?;
+    let eval = Evaluator::new(poly)?;
+    let exact = match params.method {
+        DistanceMethod::Exact => Some(ExactDistance::with_evaluator(eval.clone(), region)?),
+        DistanceMethod::Taubin => None,
+    };
+    let clamp = region.diagonal();
+
+    let [u, v, w] = params.axis.frame();
+    let r = params.resolution;
+    let k_count = params.count;
+    let extent = |a: usize| region.max[a] - region.min[a];
+    let h = extent(u).max(extent(v)) / r as f64;
+    let spacing = extent(w) / k_count as f64;
+    let center = region.center();
+    let half = r as f64 / 2.0;
+
+    // One rayon task per (slice, row): fixed work units, each pixel computed independently.
+    let rows: Vec<Vec<f32>> = (0..k_count * r)
+        .into_par_iter()
+        .map(|task| {
+            let (k, row) = (task / r, task % r);
+            let mut p = [0.0; 3];
+            p[w] = region.min[w] + (k as f64 + 0.5) * spacing;
+            p[v] = center[v] + (half - row as f64 - 0.5) * h;
+            (0..r)
+                .map(|col| {
+                    p[u] = center[u] + (col as f64 + 0.5 - half) * h;
+                    let d = match &exact {
+                        Some(e) => e.distance(p),
+                        None => eval.taubin(p, clamp),
+                    };
+                    d as f32
+                })
+                .collect()
+        })
+        .collect();
+
+    let mut out = Vec::with_capacity(k_count);
+    let mut rows = rows.into_iter();
+    for k in 0..k_count {
+        let mut data = Vec::with_capacity(r * r);
+        for row in rows.by_ref().take(r) {
+            data.extend_from_slice(&row);
+        }
+        let mut m = [[0.0; 4]; 4];
+        m[u][0] = h;
+        m[v][1] = -h;
+        m[w][2] = spacing;
+        m[u][3] = center[u] + (0.5 - half) * h;
+        m[v][3] = center[v] + (half - 0.5) * h;
+        m[w][3] = region.min[w] + 0.5 * spacing;
+        m[3][3] = 1.0;
+        out.push(Slice {
+            index: k,
+            count: k_count,
+            axis: params.axis,
+            method: params.method,
+            resolution: r,
+            data,
+            grid_to_world: m,
+            voxel_size: [h, h, spacing],
+        });
+    }
+    Ok(out)
+}
+
+/// Taubin's first-order signed distance f/|∇f| at `p`, input units. Where ∇f = 0 the result is
+/// ±infinity (0 when f = 0 too); [`slices`] clamps it to the region's diagonal.
+///
+/// # Errors
+/// [`DistanceError::InvalidPolynomial`] when `poly` is malformed.
+pub fn taubin_distance(poly: &ImplicitPolynomial, p: [f64; 3]) -> Result<f64, DistanceError> {
+    Ok(Evaluator::new(poly)?.taubin(p, f64::INFINITY))
+}
+
+fn check_region(region: &Aabb) -> Result<(), DistanceError> {
+    let ok = (0..3).all(|a| {
+        let e = region.max[a] - region.min[a];
+        region.min[a].is_finite() && region.max[a].is_finite() && e > 0.0 && e.is_finite()
+    });
+    if ok {
+        Ok(())
+    } else {
+        Err(DistanceError::InvalidRegion)
+    }
+}
+
+/// The exact distance to the zero set: samples of the zero set in a k-d tree, refined per query
+/// by Newton's method on the closest-point conditions (see the module docs).
+#[derive(Debug)]
+pub struct ExactDistance {
+    eval: Evaluator,
+    /// Zero-set samples in normalized coordinates.
+    seeds: Vec<[f64; 3]>,
+    tree: ImmutableKdTree<f64, 3>,
+    /// Seed-grid cell size, normalized units.
+    cell: f64,
+}
+
+impl ExactDistance {
+    /// Samples the zero set of `poly` over `region` grown by 25%.
+    ///
+    /// # Errors
+    /// [`DistanceError::InvalidPolynomial`], [`DistanceError::InvalidRegion`], or
+    /// [`DistanceError::NoSurface`] when no zero set crosses the grown region.
+    pub fn new(poly: &ImplicitPolynomial, region: &Aabb) -> Result<Self, DistanceError> {
+        check_region(region)?;
+        Self::with_evaluator(Evaluator::new(poly)?, region)
+    }
+
+    fn with_evaluator(eval: Evaluator, region: &Aabb) -> Result<Self, DistanceError> {
+        let longest = (0..3)
+            .map(|a| region.max[a] - region.min[a])
+            .fold(0.0, f64::max);
+        let margin = SEED_MARGIN * longest;
+        // The seed grid in normalized coordinates.
+        let lo = eval.normalize(region.min.map(|c| c - margin));
+        let hi = eval.normalize(region.max.map(|c| c + margin));
+        let cell = (longest + 2.0 * margin) / eval.scale / SEED_CELLS as f64;
+        let n = [0, 1, 2].map(|a| (((hi[a] - lo[a]) / cell).ceil() as usize).max(1));
+        let node = |i: usize, j: usize, k: usize| {
+            [
+                lo[0] + i as f64 * cell,
+                lo[1] + j as f64 * cell,
+                lo[2] + k as f64 * cell,
+            ]
+        };
+        // f at every node, one z layer per task.
+        let values: Vec<Vec<f64>> = (0..=n[2])
+            .into_par_iter()
+            .map(|k| {
+                let mut layer = Vec::with_capacity((n[0] + 1) * (n[1] + 1));
+                for j in 0..=n[1] {
+                    for i in 0..=n[0] {
+                        layer.push(eval.value(node(i, j, k)));
+                    }
+                }
+                layer
+            })
+            .collect();
+        let at = |i: usize, j: usize, k: usize| values[k][j * (n[0] + 1) + i];
+        // A seed on every grid edge whose end values differ in sign, projected onto f = 0.
+        let seeds: Vec<[f64; 3]> = (0..=n[2])
+            .into_par_iter()
+            .map(|k| {
+                let mut out = Vec::new();
+                for j in 0..=n[1] {
+                    for i in 0..=n[0] {
+                        let fa = at(i, j, k);
+                        let a = node(i, j, k);
+                        let neighbours = [
+                            (i < n[0]).then(|| (node(i + 1, j, k), at(i + 1, j, k))),
+                            (j < n[1]).then(|| (node(i, j + 1, k), at(i, j + 1, k))),
+                            (k < n[2]).then(|| (node(i, j, k + 1), at(i, j, k + 1))),
+                        ];
+                        for (b, fb) in neighbours.into_iter().flatten() {
+                            if (fa < 0.0) == (fb < 0.0) || !fa.is_finite() || !fb.is_finite() {
+                                continue;
+                            }
+                            let t = fa / (fa - fb);
+                            let start = [0, 1, 2].map(|c| a[c] + t * (b[c] - a[c]));
+                            if let Some(x) = eval.project(start, 2.0 * cell) {
+                                out.push(x);
+                            }
+                        }
+                    }
+                }
+                out
+            })
+            .flatten_iter()
+            .collect();
+        if seeds.is_empty() {
+            return Err(DistanceError::NoSurface);
+        }
+        let tree = ImmutableKdTree::new_from_slice(&seeds)
+            .map_err(|_| DistanceError::InvalidPolynomial("cannot index the zero set".into()))?;
+        Ok(ExactDistance {
+            eval,
+            seeds,
+            tree,
+            cell,
+        })
+    }
+
+    /// Number of zero-set samples found.
+    pub fn n_samples(&self) -> usize {
+        self.seeds.len()
+    }
+
+    /// Signed distance from `p` (input coordinates) to the zero set, input units, negative where
+    /// f < 0.
+    pub fn distance(&self, p: [f64; 3]) -> f64 {
+        let q = self.eval.normalize(p);
+        let f = self.eval.value(q);
+        if f == 0.0 {
+            return 0.0;
+        }
+        let k = NonZero::new(N_NEAREST.min(self.seeds.len())).unwrap_or(NonZero::<usize>::MIN);
+        let nearest = self
+            .tree
+            .query(&q)
+            .nearest_n::<SquaredEuclidean<f64>>(k)
+            .execute();
+        let mut best = nearest.first().map_or(f64::INFINITY, |n| n.distance.sqrt());
+        // Refine from the nearest seed, then from up to N_REFINE − 1 more that lie more than two
+        // cells from every seed refined so far (seeds that close share a Newton basin) and whose
+        // own distance is below the best found plus a cell (the zero set within a cell of a seed
+        // is at least its distance minus a cell away, so a farther seed cannot lead closer).
+        let mut refined = [[f64::NAN; 3]; N_REFINE];
+        let mut n_refined = 0;
+        for n in &nearest {
+            if n_refined == N_REFINE || n.distance.sqrt() > best + self.cell {
+                break;
+            }
+            let seed = self.seeds[n.item as usize];
+            if refined[..n_refined]
+                .iter()
+                .any(|r| dist(*r, seed) <= 2.0 * self.cell)
+            {
+                continue;
+            }
+            refined[n_refined] = seed;
+            n_refined += 1;
+            if let Some(x) = self.eval.closest_point(q, seed) {
+                best = best.min(dist(q, x));
+            }
+        }
+        best.copysign(f) * self.eval.scale
+    }
+}
+
+fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// The polynomial as a list of non-zero terms, evaluated with its derivatives in normalized
+/// coordinates without allocating.
+#[derive(Clone, Debug)]
+struct Evaluator {
+    terms: Vec<Term>,
+    degree: usize,
+    center: [f64; 3],
+    scale: f64,
+}
+
+/// One term a·x^i y^j z^k with its derivative factors precomputed.
+#[derive(Clone, Debug)]
+struct Term {
+    a: f64,
+    /// (i, j, k).
+    e: [usize; 3],
+    /// (i, j, k) as floats: d/dt t^e = e·t^(e−1).
+    f1: [f64; 3],
+    /// e(e − 1): d²/dt² t^e = e(e − 1)·t^(e−2).
+    f2: [f64; 3],
+}
+
+/// Length of a power table: t^e is stored at e + 2, with two zeros in front so the derivative
+/// lookups t^(e−1), t^(e−2) need no branch.
+const TABLE: usize = MAX_DEGREE as usize + 3;
+
+impl Evaluator {
+    fn new(poly: &ImplicitPolynomial) -> Result<Self, DistanceError> {
+        let bad = |m: String| Err(DistanceError::InvalidPolynomial(m));
+        if poly.degree > MAX_DEGREE {
+            return bad(format!("degree {} exceeds {MAX_DEGREE}", poly.degree));
+        }
+        if poly.coefficients.len() != n_coefficients(poly.degree) {
+            return bad(format!(
+                "degree {} needs {} coefficients, found {}",
+                poly.degree,
+                n_coefficients(poly.degree),
+                poly.coefficients.len()
+            ));
+        }
+        if !poly
+            .coefficients
+            .iter()
+            .chain(&poly.center)
+            .all(|c| c.is_finite())
+        {
+            return bad("a coefficient or the centre is not finite".into());
+        }
+        if !(poly.scale.is_finite() && poly.scale > 0.0) {
+            return bad(format!("the scale is {}, it must be > 0", poly.scale));
+        }
+        let terms = crate::poly::exponents(poly.degree)
+            .into_iter()
+            .zip(&poly.coefficients)
+            .filter(|(_, &a)| a != 0.0)
+            .map(|(e, &a)| {
+                let e = e.map(|x| x as usize);
+                Term {
+                    a,
+                    e,
+                    f1: e.map(|x| x as f64),
+                    f2: e.map(|x| (x * x.max(1) - x) as f64),
+                }
+            })
+            .collect();
+        Ok(Evaluator {
+            terms,
+            degree: poly.degree as usize,
+            center: poly.center,
+            scale: poly.scale,
+        })
+    }
+
+    fn normalize(&self, p: [f64; 3]) -> [f64; 3] {
+        [0, 1, 2].map(|a| (p[a] - self.center[a]) / self.scale)
+    }
+
+    /// Power tables of the three coordinates (see [`TABLE`]).
+    fn powers(&self, q: [f64; 3]) -> [[f64; TABLE]; 3] {
+        let mut t = [[0.0; TABLE]; 3];
+        for a in 0..3 {
+            let mut v = 1.0;
+            for e in 0..=self.degree {
+                t[a][e + 2] = v;
+                v *= q[a];
+            }
+        }
+        t
+    }
+
+    /// f at the normalized point `q`.
+    fn value(&self, q: [f64; 3]) -> f64 {
+        let t = self.powers(q);
+        self.terms
+            .iter()
+            .map(|m| m.a * t[0][m.e[0] + 2] * t[1][m.e[1] + 2] * t[2][m.e[2] + 2])
+            .sum()
+    }
+
+    /// f and ∇f at the normalized point `q`.
+    fn gradient(&self, q: [f64; 3]) -> (f64, [f64; 3]) {
+        let t = self.powers(q);
+        let (mut f, mut g) = (0.0, [0.0; 3]);
+        for m in &self.terms {
+            let [i, j, k] = m.e;
+            let (x0, y0, z0) = (t[0][i + 2], t[1][j + 2], t[2][k + 2]);
+            let (x1, y1, z1) = (
+                m.f1[0] * t[0][i + 1],
+                m.f1[1] * t[1][j + 1],
+                m.f1[2] * t[2][k + 1],
+            );
+            f += m.a * x0 * y0 * z0;
+            g[0] += m.a * x1 * y0 * z0;
+            g[1] += m.a * x0 * y1 * z0;
+            g[2] += m.a * x0 * y0 * z1;
+        }
+        (f, g)
+    }
+
+    /// f, ∇f and the Hessian at the normalized point `q`.
+    fn hessian(&self, q: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
+        let t = self.powers(q);
+        let (mut f, mut g, mut h) = (0.0, [0.0; 3], [[0.0; 3]; 3]);
+        for m in &self.terms {
+            let [i, j, k] = m.e;
+            let (x0, y0, z0) = (t[0][i + 2], t[1][j + 2], t[2][k + 2]);
+            let (x1, y1, z1) = (
+                m.f1[0] * t[0][i + 1],
+                m.f1[1] * t[1][j + 1],
+                m.f1[2] * t[2][k + 1],
+            );
+            let (x2, y2, z2) = (m.f2[0] * t[0][i], m.f2[1] * t[1][j], m.f2[2] * t[2][k]);
+            let a = m.a;
+            f += a * x0 * y0 * z0;
+            g[0] += a * x1 * y0 * z0;
+            g[1] += a * x0 * y1 * z0;
+            g[2] += a * x0 * y0 * z1;
+            h[0][0] += a * x2 * y0 * z0;
+            h[1][1] += a * x0 * y2 * z0;
+            h[2][2] += a * x0 * y0 * z2;
+            h[0][1] += a * x1 * y1 * z0;
+            h[0][2] += a * x1 * y0 * z1;
+            h[1][2] += a * x0 * y1 * z1;
+        }
+        (h[1][0], h[2][0], h[2][1]) = (h[0][1], h[0][2], h[1][2]);
+        (f, g, h)
+    }
+
+    /// Taubin's distance at the input point `p`, input units, clamped to ±`clamp`.
+    fn taubin(&self, p: [f64; 3], clamp: f64) -> f64 {
+        let (f, g) = self.gradient(self.normalize(p));
+        if f == 0.0 {
+            return 0.0;
+        }
+        let norm = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+        let d = f / norm * self.scale;
+        if d.is_nan() {
+            clamp.copysign(f)
+        } else {
+            d.clamp(-clamp, clamp)
+        }
+    }
+
+    /// Newton steps x ← x − f ∇f/|∇f|² from `start` onto f = 0; `None` when they do not converge
+    /// or wander farther than `max_move` (normalized units).
+    fn project(&self, start: [f64; 3], max_move: f64) -> Option<[f64; 3]> {
+        let mut x = start;
+        for _ in 0..30 {
+            let (f, g) = self.gradient(x);
+            let g2 = g[0] * g[0] + g[1] * g[1] + g[2] * g[2];
+            if !(g2 > 0.0 && g2.is_finite()) {
+                return None;
+            }
+            if f.abs() / g2.sqrt() < ON_SURFACE_TOL {
+                return (dist(x, start) <= max_move).then_some(x);
+            }
+            x = [0, 1, 2].map(|a| x[a] - f * g[a] / g2);
+        }
+        None
+    }
+
+    /// The closest point to `q` on f = 0 near the surface point `start`: Newton's method on
+    /// x − q + λ∇f(x) = 0, f(x) = 0 with step halving on the residual; `None` when it fails.
+    fn closest_point(&self, q: [f64; 3], start: [f64; 3]) -> Option<[f64; 3]> {
+        let residual = |x: [f64; 3], lambda: f64| {
+            let (f, g, h) = self.hessian(x);
+            let r = [
+                x[0] - q[0] + lambda * g[0],
+                x[1] - q[1] + lambda * g[1],
+                x[2] - q[2] + lambda * g[2],
+                f,
+            ];
+            (r, f, g, h)
+        };
+        let norm2 = |r: &[f64; 4]| r.iter().map(|c| c * c).sum::<f64>();
+        let mut x = start;
+        let (_, g0) = self.gradient(x);
+        let g2 = g0[0] * g0[0] + g0[1] * g0[1] + g0[2] * g0[2];
+        if !(g2 > 0.0) {
+            return None;
+        }
+        let mut lambda =
+            ((q[0] - x[0]) * g0[0] + (q[1] - x[1]) * g0[1] + (q[2] - x[2]) * g0[2]) / g2;
+        let (mut r, _, mut g, mut h) = residual(x, lambda);
+        for _ in 0..40 {
+            // Converged to rounding: stop before a step that cannot reduce the residual.
+            let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+            let rx = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
+            if r[3].abs() <= 1e-14 * gn && rx <= 1e-12 * (1.0 + dist(q, x)) {
+                break;
+            }
+            let mut jac = [[0.0; 5]; 4];
+            for a in 0..3 {
+                for b in 0..3 {
+                    jac[a][b] = lambda * h[a][b] + if a == b { 1.0 } else { 0.0 };
+                }
+                jac[a][3] = g[a];
+                jac[3][a] = g[a];
+                jac[a][4] = -r[a];
+            }
+            jac[3][4] = -r[3];
+            let step = solve4(jac)?;
+            let scale = 1.0 + x.iter().map(|c| c.abs()).fold(0.0, f64::max);
+            if step[..3].iter().map(|c| c.abs()).fold(0.0, f64::max) < 1e-14 * scale {
+                break;
+            }
+            // Halve the step until the residual decreases.
+            let old = norm2(&r);
+            let mut t = 1.0;
+            let mut accepted = false;
+            for _ in 0..8 {
+                let xt = [0, 1, 2].map(|a| x[a] + t * step[a]);
+                let lt = lambda + t * step[3];
+                let (rt, _, gt, ht) = residual(xt, lt);
+                if norm2(&rt) < old || norm2(&rt) == 0.0 {
+                    (x, lambda, r, g, h) = (xt, lt, rt, gt, ht);
+                    accepted = true;
+                    break;
+                }
+                t *= 0.5;
+            }
+            if !accepted {
+                break;
+            }
+        }
+        let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+        let on_surface = r[3].abs() / gn < ON_SURFACE_TOL;
+        (on_surface && x.iter().all(|c| c.is_finite())).then_some(x)
+    }
+}
+
+/// Solves a 4×4 system given as an augmented matrix (Gaussian elimination, partial pivoting).
+fn solve4(mut m: [[f64; 5]; 4]) -> Option<[f64; 4]> {
+    for col in 0..4 {
+        let pivot = (col..4).max_by(|&a, &b| m[a][col].abs().total_cmp(&m[b][col].abs()))?;
+        if !(m[pivot][col].abs() > 1e-300) {
+            return None;
+        }
+        m.swap(col, pivot);
+        for row in col + 1..4 {
+            let factor = m[row][col] / m[col][col];
+            for c in col..5 {
+                m[row][c] -= factor * m[col][c];
+            }
+        }
+    }
+    let mut x = [0.0; 4];
+    for row in (0..4).rev() {
+        let s: f64 = (row + 1..4).map(|c| m[row][c] * x[c]).sum();
+        x[row] = (m[row][4] - s) / m[row][row];
+    }
+    x.iter().all(|c| c.is_finite()).then_some(x)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The sphere of radius `r` around `c`, fitted-style: normalized by `scale`.
+    fn sphere(c: [f64; 3], r: f64, scale: f64) -> ImplicitPolynomial {
+        let rn = r / scale;
+        let mut coefficients = vec![0.0; 10];
+        coefficients[0] = -rn * rn;
+        coefficients[4] = 1.0;
+        coefficients[7] = 1.0;
+        coefficients[9] = 1.0;
+        ImplicitPolynomial {
+            degree: 2,
+            coefficients,
+            center: c,
+            scale,
+        }
+    }
+
+    /// (x² + y² + z² + R² − r²)² − 4R²(x² + y²): a torus around z, degree 4.
+    fn torus(big: f64, small: f64) -> ImplicitPolynomial {
+        let mut c = vec![0.0; n_coefficients(4)];
+        let mut add = |e: [u32; 3], a: f64| c[crate::poly::monomial_index(e)] += a;
+        let k = big * big - small * small;
+        // (s + k)² − 4R²(x² + y²) with s = x² + y² + z².
+        for (e1, e2) in [
+            ([2, 0, 0], [2, 0, 0]),
+            ([0, 2, 0], [0, 2, 0]),
+            ([0, 0, 2], [0, 0, 2]),
+        ] {
+            add([e1[0] + e2[0], e1[1] + e2[1], e1[2] + e2[2]], 1.0);
+        }
+        add([2, 2, 0], 2.0);
+        add([2, 0, 2], 2.0);
+        add([0, 2, 2], 2.0);
+        for e in [[2, 0, 0], [0, 2, 0], [0, 0, 2]] {
+            add(e, 2.0 * k);
+        }
+        add([0, 0, 0], k * k);
+        add([2, 0, 0], -4.0 * big * big);
+        add([0, 2, 0], -4.0 * big * big);
+        ImplicitPolynomial {
+            degree: 4,
+            coefficients: c,
+            center: [0.0; 3],
+            scale: 1.0,
+        }
+    }
+
+    #[test]
+    fn hessian_matches_finite_differences() {
+        let t = torus(1.0, 0.4);
+        let e = Evaluator::new(&t).unwrap();
+        let q = [0.3, -0.7, 0.2];
+        let (f, g, h) = e.hessian(q);
+        assert!((f - t.eval(q)).abs() < 1e-12);
+        let (_, g_ref) = t.eval_gradient(q);
+        let step = 1e-6;
+        for a in 0..3 {
+            assert!((g[a] - g_ref[a]).abs() < 1e-12);
+            let mut qp = q;
+            let mut qm = q;
+            qp[a] += step;
+            qm[a] -= step;
+            let (_, gp) = e.gradient(qp);
+            let (_, gm) = e.gradient(qm);
+            for b in 0..3 {
+                assert!((h[a][b] - (gp[b] - gm[b]) / (2.0 * step)).abs() < 1e-6);
+            }
+        }
+    }
+
+    #[test]
+    fn exact_distance_to_torus_matches_analytic() {
+        let (big, small) = (1.0, 0.4);
+        let region = Aabb {
+            min: [-1.6, -1.6, -0.6],
+            max: [1.6, 1.6, 0.6],
+        };
+        let exact = ExactDistance::new(&torus(big, small), &region).unwrap();
+        assert!(exact.n_samples() > 1000);
+        for i in 0..400 {
+            let t = i as f64;
+            let p = [
+                1.7 * (t * 0.37).sin(),
+                1.7 * (t * 0.53).cos(),
+                0.7 * (t * 0.29).sin(),
+            ];
+            let rho = (p[0] * p[0] + p[1] * p[1]).sqrt();
+            let truth = ((rho - big).powi(2) + p[2] * p[2]).sqrt() - small;
+            let d = exact.distance(p);
+            assert!((d - truth).abs() < 1e-9, "p = {p:?}: {d} vs {truth}");
+        }
+    }
+
+    #[test]
+    fn taubin_is_second_order_accurate_on_sphere() {
+        let s = sphere([1.0, -2.0, 0.5], 2.0, 0.8);
+        for d in [-0.01, 0.001, 0.02] {
+            let p = [1.0 + (2.0 + d) * 0.6, -2.0, 0.5 + (2.0 + d) * 0.8];
+            let t = taubin_distance(&s, p).unwrap();
+            // f/|∇f| − d = −d²/(2(r + d)).
+            assert!(
+                (t - (d - d * d / (2.0 * (2.0 + d)))).abs() < 1e-12,
+                "{t} at {d}"
+            );
+        }
+    }
+
+    #[test]
+    fn slice_geometry_and_errors() {
+        let s = sphere([0.0; 3], 1.0, 1.0);
+        let region = Aabb {
+            min: [-2.0, -1.0, 0.0],
+            max: [2.0, 1.0, 1.0],
+        };
+        let params = SliceParams {
+            axis: Axis::Y,
+            count: 2,
+            resolution: 4,
+            method: DistanceMethod::Taubin,
+        };
+        let out = slices(&s, &region, &params).unwrap();
+        // Pixels are 1 × 1 (x extent 4 / 4); slices at y = −0.5 and 0.5; row 0 at the top (z max).
+        assert_eq!(out[0].voxel_size, [1.0, 1.0, 1.0]);
+        assert_eq!(out[0].pixel_center(0, 0), [-1.5, -0.5, 2.0]);
+        assert_eq!(out[1].pixel_center(3, 3), [1.5, 0.5, -1.0]);
+        let bad = |p: SliceParams| slices(&s, &region, &p).unwrap_err();
+        assert!(matches!(
+            bad(SliceParams { count: 0, ..params }),
+            DistanceError::InvalidParams(_)
+        ));
+        assert!(matches!(
+            bad(SliceParams {
+                resolution: 1,
+                ..params
+            }),
+            DistanceError::InvalidParams(_)
+        ));
+        let flat = Aabb {
+            min: [0.0; 3],
+            max: [1.0, 1.0, 0.0],
+        };
+        assert_eq!(
+            slices(&s, &flat, &params).unwrap_err(),
+            DistanceError::InvalidRegion
+        );
+        let far = Aabb {
+            min: [10.0; 3],
+            max: [11.0; 3],
+        };
+        let exact = SliceParams {
+            method: DistanceMethod::Exact,
+            ..params
+        };
+        assert_eq!(
+            slices(&s, &far, &exact).unwrap_err(),
+            DistanceError::NoSurface
+        );
+    }
+
+    #[test]
+    fn slices_do_not_depend_on_thread_count() {
+        let t = torus(1.0, 0.3);
+        let region = Aabb {
+            min: [-1.5, -1.5, -0.5],
+            max: [1.5, 1.5, 0.5],
+        };
+        let params = SliceParams {
+            count: 2,
+            resolution: 24,
+            ..Default::default()
+        };
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let a = one.install(|| slices(&t, &region, &params).unwrap());
+        let b = slices(&t, &region, &params).unwrap();
+        assert_eq!(a, b);
+    }
+}

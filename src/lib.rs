@@ -18,11 +18,13 @@ pub mod distance;
 pub mod export;
 pub mod fit;
 pub mod import;
+pub mod measure;
 pub mod mesh;
 pub mod normals;
 pub mod pipeline;
 pub mod poly;
 pub mod polygonize;
+pub mod render;
 
 pub use cloud::{Aabb, OrientedCloud, PointCloud};
 pub use mesh::TriangleMesh;

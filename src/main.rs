@@ -1,2 +1,490 @@
-//! The stablesurf binary.
-fn main() {}
+//! The `stablesurf` binary: parse the command line, call the library, map errors to exit codes.
+//!
+//! Exit codes: 0 success, 1 runtime error (bad input, failed fit, unwritable output), 2 usage
+//! error. stdout carries only machine-readable output (`--json`); everything else goes to stderr.
+
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::str::FromStr;
+use std::time::Duration;
+
+mod cli;
+
+use anyhow::{anyhow, Context, Result};
+use clap::Parser;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use stablesurf::cache::Cache;
+use crate::cli::{Cli, CommandArgs};
+use stablesurf::pipeline::{self, Keep, Observer, OutputFormat, PipelineConfig, ScanSource, StageRecord};
+use stablesurf::{export, fit, import, normals, polygonize, Aabb, TriangleMesh};
+
+/// A command line that parsed but makes no sense (exit code 2).
+#[derive(Debug)]
+struct UsageError(String);
+
+impl std::fmt::Display for UsageError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for UsageError {}
+
+fn usage(msg: impl Into<String>) -> anyhow::Error {
+    anyhow::Error::new(UsageError(msg.into()))
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match real_main(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => {
+            if err.chain().any(|e| {
+                e.downcast_ref::<std::io::Error>()
+                    .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+            }) {
+                return ExitCode::SUCCESS;
+            }
+            eprintln!("stablesurf: error: {err:#}");
+            if err.downcast_ref::<UsageError>().is_some() {
+                ExitCode::from(2)
+            } else {
+                ExitCode::from(1)
+            }
+        }
+    }
+}
+
+fn real_main(cli: Cli) -> Result<()> {
+    if let Some(n) = cli.threads {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(n.max(1))
+            .build_global()
+            .context("setting up the thread pool")?;
+    }
+    let verbosity = if cli.quiet { Verbosity::Quiet } else if cli.verbose > 0 { Verbosity::Verbose } else { Verbosity::Normal };
+    match cli.command {
+        CommandArgs::Run(args) => cmd_run(args, verbosity),
+        CommandArgs::Normals(args) => cmd_normals(args, verbosity),
+        CommandArgs::Fit(args) => cmd_fit(args, verbosity),
+        CommandArgs::Mesh(args) => cmd_mesh(args, verbosity),
+        CommandArgs::Slices(args) => cmd_slices(args, verbosity),
+        CommandArgs::Render(args) => cmd_render(args),
+        CommandArgs::Info(args) => cmd_info(args),
+        CommandArgs::Cache(args) => cmd_cache(args),
+    }
+}
+
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Verbosity {
+    Quiet,
+    Normal,
+    Verbose,
+}
+
+/// Progress on stderr: a spinner per stage on a terminal, one line per stage with `-v`.
+struct StderrObserver {
+    verbosity: Verbosity,
+    bar: Option<ProgressBar>,
+}
+
+impl StderrObserver {
+    fn new(verbosity: Verbosity) -> Self {
+        StderrObserver { verbosity, bar: None }
+    }
+}
+
+impl Observer for StderrObserver {
+    fn stage_started(&mut self, stage: &'static str) {
+        let on_terminal = std::io::stderr().is_terminal()
+            && std::env::var_os("TERM").is_none_or(|t| t != "dumb");
+        if self.verbosity != Verbosity::Quiet && on_terminal {
+            let bar = ProgressBar::new_spinner();
+            if let Ok(style) = ProgressStyle::with_template("{spinner} {msg} {elapsed}") {
+                bar.set_style(style);
+            }
+            bar.set_message(stage);
+            bar.enable_steady_tick(Duration::from_millis(100));
+            self.bar = Some(bar);
+        }
+    }
+
+    fn stage_finished(&mut self, record: &StageRecord) {
+        if let Some(bar) = self.bar.take() {
+            bar.finish_and_clear();
+        }
+        if self.verbosity == Verbosity::Verbose {
+            eprintln!(
+                "stablesurf: {:<10} {:<7} {:>8.3}s  {}",
+                record.stage, record.cache, record.seconds, record.figures
+            );
+        }
+    }
+}
+
+fn open_cache(opts: &cli::CacheOpts) -> Result<Cache> {
+    if opts.no_cache {
+        return Ok(Cache::disabled());
+    }
+    match opts.cache_dir.clone().or_else(stablesurf::cache::default_dir) {
+        Some(dir) => Ok(Cache::at(dir)),
+        None => Err(usage("no cache directory: set HOME or XDG_CACHE_HOME, pass --cache-dir, or use --no-cache")),
+    }
+}
+
+fn normals_params(opts: &cli::NormalsOpts) -> Result<normals::NormalsParams> {
+    let source = normals::NormalSource::from_str(&opts.source).map_err(|e| usage(format!("--normals: {e}")))?;
+    Ok(normals::NormalsParams { source, ..Default::default() })
+}
+
+fn fit_params(opts: &cli::FitOpts) -> Result<fit::FitParams> {
+    let method = fit::FitMethod::from_str(&opts.method).map_err(|e| usage(format!("--method: {e}")))?;
+    let kappa = fit::Kappa::from_str(&opts.kappa).map_err(|e| usage(format!("--kappa: {e}")))?;
+    let kappa_rule = fit::KappaRule::from_str(&opts.kappa_rule).map_err(|e| usage(format!("--kappa-rule: {e}")))?;
+    if !(opts.epsilon.is_finite() && opts.epsilon > 0.0) {
+        return Err(usage(format!("--epsilon must be a positive number, got {}", opts.epsilon)));
+    }
+    if !(1..=20).contains(&opts.degree) {
+        return Err(usage(format!("--degree must be between 1 and 20, got {}", opts.degree)));
+    }
+    if opts.degree % 2 == 1 && kappa == fit::Kappa::Auto && method == fit::FitMethod::ThreeLrr {
+        return Err(usage(format!(
+            "--degree {} is odd: automatic κ needs an even degree (an odd-degree zero set is never bounded); use an even degree or give --kappa a number",
+            opts.degree
+        )));
+    }
+    Ok(fit::FitParams { degree: opts.degree, method, kappa, kappa_rule, epsilon: opts.epsilon, ..Default::default() })
+}
+
+fn polygonize_params(opts: &cli::MeshOpts) -> Result<polygonize::PolygonizeParams> {
+    if !(1..=12).contains(&opts.depth) {
+        return Err(usage(format!("--depth must be between 1 and 12, got {}", opts.depth)));
+    }
+    Ok(polygonize::PolygonizeParams { depth: opts.depth, ..Default::default() })
+}
+
+fn gltf_options(up: cli::UpArg) -> export::gltf::GltfOptions {
+    let up = match up {
+        cli::UpArg::Y => export::gltf::UpAxis::Y,
+        cli::UpArg::Z => export::gltf::UpAxis::Z,
+    };
+    export::gltf::GltfOptions { up, ..Default::default() }
+}
+
+fn parse_bounds(b: &Option<Vec<f64>>) -> Result<Option<Aabb>> {
+    let Some(v) = b else { return Ok(None) };
+    let bounds = Aabb { min: [v[0], v[1], v[2]], max: [v[3], v[4], v[5]] };
+    if v.iter().any(|c| !c.is_finite()) || (0..3).any(|a| bounds.min[a] >= bounds.max[a]) {
+        return Err(usage("--bounds needs xmin,ymin,zmin,xmax,ymax,zmax with each min below its max"));
+    }
+    Ok(Some(bounds))
+}
+
+fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
+    let mode = match args.mode.as_str() {
+        "global" => pipeline::Mode::Global,
+        "detail" => pipeline::Mode::Detail,
+        other => return Err(usage(format!("--mode must be global or detail, got '{other}'"))),
+    };
+    let formats = args
+        .formats
+        .iter()
+        .map(|f| OutputFormat::from_str(f).map_err(|e| usage(format!("--formats: {e}"))))
+        .collect::<Result<Vec<_>>>()?;
+    let config = PipelineConfig {
+        mode,
+        normals: normals_params(&args.normals)?,
+        fit: fit_params(&args.fit)?,
+        polygonize: polygonize_params(&args.mesh)?,
+        keep: match args.keep {
+            cli::KeepArg::All => Keep::All,
+            cli::KeepArg::Data => Keep::Data,
+        },
+        gltf: gltf_options(args.up),
+        formats,
+        ..Default::default()
+    };
+    let cache = open_cache(&args.cache)?;
+    let source = match &args.input {
+        Some(p) => ScanSource::File(p.clone()),
+        None => ScanSource::Sample,
+    };
+    if verbosity != Verbosity::Quiet {
+        let input = match &args.input {
+            Some(p) => p.display().to_string(),
+            None => pipeline::SAMPLE_NAME.to_string(),
+        };
+        eprintln!(
+            "stablesurf: run {input} -> {} (mode {}, normals {}, degree {}, method {}, kappa {}, rule {}, epsilon {}, depth {}, cache {})",
+            args.output.display(),
+            args.mode,
+            args.normals.source,
+            args.fit.degree,
+            args.fit.method,
+            args.fit.kappa,
+            args.fit.kappa_rule,
+            args.fit.epsilon,
+            args.mesh.depth,
+            cache.root().map_or("off".to_string(), |r| r.display().to_string()),
+        );
+    }
+    let mut observer = StderrObserver::new(verbosity);
+    let report = pipeline::run(&source, &args.output, &config, &cache, &mut observer)
+        .with_context(|| format!("running the pipeline on {}", args.input.as_deref().map_or_else(|| "the built-in sample".into(), |p| p.display().to_string())))?;
+    if verbosity != Verbosity::Quiet {
+        let d = report.fit.get("diagnostics");
+        eprintln!(
+            "stablesurf: done in {:.2}s: {} vertices, {} triangles, {} component(s), watertight {}, bounded {}, mean distance {:.2e} of the diagonal; outputs in {}",
+            report.seconds,
+            report.mesh.vertices,
+            report.mesh.faces,
+            report.mesh.components,
+            report.mesh.watertight,
+            d.and_then(|d| d.get("bounded")).map_or("unknown".into(), |b| b.to_string()),
+            report.accuracy.mean_relative,
+            args.output.display()
+        );
+    }
+    if args.json {
+        let mut out = std::io::stdout().lock();
+        serde_json::to_writer_pretty(&mut out, &report)?;
+        writeln!(out)?;
+    }
+    Ok(())
+}
+
+fn read_cloud(path: &Path) -> Result<stablesurf::PointCloud> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    Ok(import::import_bytes(&bytes, path)?)
+}
+
+fn cmd_normals(args: cli::NormalsArgs, verbosity: Verbosity) -> Result<()> {
+    let params = normals_params(&args.normals)?;
+    let cloud = read_cloud(&args.input)?;
+    let result = normals::estimate_normals(&cloud, &params)
+        .with_context(|| format!("estimating normals of {}", args.input.display()))?;
+    if verbosity != Verbosity::Quiet {
+        for w in &result.warnings {
+            eprintln!("stablesurf: warning: {w}");
+        }
+        eprintln!(
+            "stablesurf: {} oriented normals from {}",
+            result.cloud.points.len(),
+            result.source_used.as_str()
+        );
+    }
+    let points = TriangleMesh {
+        positions: result.cloud.points.clone(),
+        normals: result.cloud.normals.clone(),
+        triangles: Vec::new(),
+    };
+    let opts = export::ply::PlyOptions::default();
+    export::write_atomic(&args.output, |w| export::ply::write(&points, w, &opts))?;
+    if let Some(mesh_path) = &args.mesh {
+        let crust = TriangleMesh { triangles: result.crust_triangles.clone(), ..points };
+        export::write_atomic(mesh_path, |w| export::ply::write(&crust, w, &opts))?;
+    }
+    Ok(())
+}
+
+fn cmd_fit(args: cli::FitArgs, verbosity: Verbosity) -> Result<()> {
+    let config = PipelineConfig {
+        normals: normals_params(&args.normals)?,
+        fit: fit_params(&args.fit)?,
+        ..Default::default()
+    };
+    let mut observer = StderrObserver::new(verbosity);
+    let (model, _, _) = pipeline::fit_model(
+        &ScanSource::File(args.input.clone()),
+        &config,
+        &Cache::disabled(),
+        &mut observer,
+    )
+    .with_context(|| format!("fitting {}", args.input.display()))?;
+    export::write_atomic(&args.output, |w| export::model::write_model(&model, w))?;
+    if verbosity != Verbosity::Quiet {
+        if let (Some(f), Some(d)) = (&model.fit, &model.diagnostics) {
+            eprintln!(
+                "stablesurf: degree {} {} fit, kappa {:e} ({}), bounded {}, mean distance {:.2e} of the diagonal",
+                model.polynomial.degree, f.method, f.kappa, f.kappa_rule, d.bounded, d.mean_distance_relative
+            );
+            for w in &d.warnings {
+                eprintln!("stablesurf: warning: {w}");
+            }
+        }
+    }
+    if args.json {
+        let mut out = std::io::stdout().lock();
+        serde_json::to_writer_pretty(&mut out, &serde_json::json!({"fit": model.fit, "diagnostics": model.diagnostics}))?;
+        writeln!(out)?;
+    }
+    Ok(())
+}
+
+fn read_model(path: &Path) -> Result<stablesurf::ImplicitModel> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    Ok(export::model::read_model(&bytes, path)?)
+}
+
+fn cmd_mesh(args: cli::MeshArgs, verbosity: Verbosity) -> Result<()> {
+    let params = polygonize_params(&args.mesh)?;
+    let ext = extension(&args.output);
+    if !matches!(ext.as_str(), "glb" | "gltf" | "ply") {
+        return Err(usage(format!("-o {}: the mesh format comes from the extension: .glb, .gltf or .ply", args.output.display())));
+    }
+    let model = read_model(&args.model)?;
+    let region = match parse_bounds(&args.bounds)? {
+        Some(b) => b,
+        None => model.bounds.ok_or_else(|| {
+            anyhow!("{} has no \"box\": pass the meshing region with --bounds xmin,ymin,zmin,xmax,ymax,zmax", args.model.display())
+        })?,
+    };
+    let out = polygonize::polygonize(&model.polynomial, &region, &params)
+        .with_context(|| format!("meshing {}", args.model.display()))?;
+    let mesh = out.mesh;
+    write_mesh(&mesh, &args.output, args.ascii, args.up)?;
+    if verbosity != Verbosity::Quiet {
+        let check = stablesurf::mesh::check(&mesh);
+        eprintln!(
+            "stablesurf: {} vertices, {} triangles, {} component(s), {} boundary edges, watertight {}",
+            check.vertices, check.faces, check.components, check.boundary_edges, check.watertight
+        );
+    }
+    Ok(())
+}
+
+fn extension(path: &Path) -> String {
+    path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default()
+}
+
+fn write_mesh(mesh: &TriangleMesh, path: &Path, ascii: bool, up: cli::UpArg) -> Result<()> {
+    let gltf = gltf_options(up);
+    match extension(path).as_str() {
+        "glb" => export::write_atomic(path, |w| export::gltf::write_glb(mesh, w, &gltf))?,
+        "gltf" => {
+            let bin_path = path.with_extension("bin");
+            let bin_uri = bin_path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let (mut json, mut bin) = (Vec::new(), Vec::new());
+            export::gltf::write_gltf(mesh, &mut json, &mut bin, &bin_uri, &gltf)?;
+            export::write_atomic(&bin_path, |w| w.write_all(&bin).map_err(export::ExportError::Write))?;
+            export::write_atomic(path, |w| w.write_all(&json).map_err(export::ExportError::Write))?;
+        }
+        _ => {
+            let encoding = if ascii { export::ply::PlyEncoding::Ascii } else { export::ply::PlyEncoding::BinaryLittleEndian };
+            let opts = export::ply::PlyOptions { encoding, ..Default::default() };
+            export::write_atomic(path, |w| export::ply::write(mesh, w, &opts))?;
+        }
+    }
+    Ok(())
+}
+
+fn cmd_slices(args: cli::SlicesArgs, verbosity: Verbosity) -> Result<()> {
+    if args.count == 0 || args.resolution < 2 {
+        return Err(usage("--count must be at least 1 and --resolution at least 2"));
+    }
+    let model = read_model(&args.model)?;
+    let region = match parse_bounds(&args.bounds)? {
+        Some(b) => b,
+        None => pipeline::meshing_region(&model),
+    };
+    let params = stablesurf::distance::SliceParams {
+        axis: match args.axis {
+            cli::AxisArg::X => stablesurf::distance::Axis::X,
+            cli::AxisArg::Y => stablesurf::distance::Axis::Y,
+            cli::AxisArg::Z => stablesurf::distance::Axis::Z,
+        },
+        count: args.count,
+        resolution: args.resolution,
+        method: match args.distance {
+            cli::DistanceArg::Taubin => stablesurf::distance::DistanceMethod::Taubin,
+            cli::DistanceArg::Exact => stablesurf::distance::DistanceMethod::Exact,
+        },
+    };
+    let slices = stablesurf::distance::slices(&model.polynomial, &region, &params)
+        .with_context(|| format!("computing distance slices of {}", args.model.display()))?;
+    std::fs::create_dir_all(&args.output).with_context(|| format!("creating {}", args.output.display()))?;
+    for slice in &slices {
+        let stem: PathBuf = args.output.join(format!("slice_{:03}", slice.index));
+        export::write_atomic(&stem.with_extension("exr"), |w| export::exr::write_slice(slice, &export::exr::ExrOptions::default(), w))?;
+        export::write_atomic(&stem.with_extension("png"), |w| export::png::write_preview(slice, w))?;
+    }
+    if verbosity != Verbosity::Quiet {
+        eprintln!("stablesurf: {} slices written to {}", slices.len(), args.output.display());
+    }
+    Ok(())
+}
+
+fn cmd_info(args: cli::InfoArgs) -> Result<()> {
+    let bytes = std::fs::read(&args.file).with_context(|| format!("reading {}", args.file.display()))?;
+    let looks_like_model = bytes.iter().find(|b| !b.is_ascii_whitespace()) == Some(&b'{');
+    let value = if looks_like_model {
+        let model = export::model::read_model(&bytes, &args.file)?;
+        serde_json::json!({
+            "format": "stablesurf.implicit-polynomial",
+            "degree": model.polynomial.degree,
+            "coefficients": model.polynomial.coefficients.len(),
+            "center": model.polynomial.center,
+            "scale": model.polynomial.scale,
+            "box": model.bounds,
+            "fit": model.fit,
+            "diagnostics": model.diagnostics,
+        })
+    } else {
+        let scan = import::read_scan_bytes(&bytes, &args.file)?;
+        serde_json::to_value(import::scan_info(&scan))?
+    };
+    let mut out = std::io::stdout().lock();
+    if args.json {
+        serde_json::to_writer(&mut out, &value)?;
+        writeln!(out)?;
+    } else if let serde_json::Value::Object(map) = &value {
+        for (k, v) in map {
+            writeln!(out, "{k:<18} {v}")?;
+        }
+    }
+    Ok(())
+}
+
+fn cmd_cache(args: cli::CacheArgs) -> Result<()> {
+    let dir = args
+        .cache_dir
+        .or_else(stablesurf::cache::default_dir)
+        .ok_or_else(|| usage("no cache directory: set HOME or XDG_CACHE_HOME, or pass --cache-dir"))?;
+    let cache = Cache::at(&dir);
+    match args.action {
+        cli::CacheAction::Info => {
+            let mut out = std::io::stdout().lock();
+            writeln!(out, "cache directory: {}", dir.display())?;
+            let usage = cache.usage();
+            if usage.is_empty() {
+                writeln!(out, "(empty)")?;
+            }
+            for (stage, entries, bytes) in usage {
+                writeln!(out, "{stage:<12} {entries:>6} entries {:>12.1} KiB", bytes as f64 / 1024.0)?;
+            }
+        }
+        cli::CacheAction::Clear => {
+            cache.clear()?;
+            eprintln!("stablesurf: cleared {}", dir.display());
+        }
+    }
+    Ok(())
+}
+
+fn cmd_render(args: cli::RenderArgs) -> Result<()> {
+    let view = stablesurf::render::View::from_str(&args.view).map_err(|e| usage(format!("--view: {e}")))?;
+    if !(16..=8192).contains(&args.size) {
+        return Err(usage(format!("--size must be between 16 and 8192, got {}", args.size)));
+    }
+    let cloud = read_cloud(&args.mesh)?;
+    if cloud.triangles.is_empty() {
+        return Err(anyhow!("{} has no faces to render (it is a point cloud)", args.mesh.display()));
+    }
+    let mesh = stablesurf::render::with_face_normals(cloud.points, cloud.triangles);
+    let params = stablesurf::render::RenderParams { size: args.size, view, ..Default::default() };
+    let image = stablesurf::render::render(&mesh, &params);
+    export::write_atomic(&args.output, |w| export::png::write_rgb(&image, w))?;
+    Ok(())
+}

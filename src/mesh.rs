@@ -3,6 +3,13 @@
 //! Invariants: positions and normals have the same length; normals are unit length; every index
 //! is `< positions.len()`; triangles are wound counter-clockwise seen from outside (the side
 //! where the implicit function is positive).
+//!
+//! Checks ([`check`] → [`MeshReport`]): an edge used by one triangle is a boundary edge, by three
+//! or more a non-manifold edge; a vertex whose triangles form more than one fan (joined through
+//! shared edges) is a non-manifold vertex; the orientation is consistent when every interior edge
+//! is traversed once in each direction; χ = V − E + F. [`component_labels`] labels connected
+//! components (union–find over triangle edges), and [`drop_components_far_from`] removes the
+//! components that no data point comes near (`--keep data`).
 
 use serde::{Deserialize, Serialize};
 
@@ -20,4 +27,306 @@ pub struct TriangleMesh {
 impl TriangleMesh {
     /// Version of this artifact's layout; bump it whenever a field changes.
     pub const FORMAT_VERSION: u32 = 1;
+}
+
+/// Topology and size of a mesh, as [`check`] measures it.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct MeshReport {
+    /// Number of vertices (`positions.len()`).
+    pub vertices: usize,
+    /// Number of triangles.
+    pub faces: usize,
+    /// Number of undirected edges.
+    pub edges: usize,
+    /// Number of connected components (vertices joined by triangle edges; an unreferenced vertex
+    /// is a component of its own).
+    pub components: usize,
+    /// Edges used by exactly one triangle: the mesh's boundary (where the zero set leaves the
+    /// meshing region).
+    pub boundary_edges: usize,
+    /// Edges used by three or more triangles.
+    pub non_manifold_edges: usize,
+    /// Vertices whose triangles do not form a single fan (two surface sheets touching at a
+    /// point).
+    pub non_manifold_vertices: usize,
+    /// Triangles with a repeated vertex index or an index out of range (not counted elsewhere).
+    pub degenerate_faces: usize,
+    /// V − E + F (2 per sphere-like closed component, 2 − 2g for genus g).
+    pub euler_characteristic: i64,
+    /// Every edge shared by two triangles is traversed in opposite directions by them.
+    pub orientation_consistent: bool,
+    /// The mesh has triangles, no boundary edge, no non-manifold edge or vertex and no
+    /// degenerate face: a closed 2-manifold.
+    pub watertight: bool,
+}
+
+/// Per-edge tally used by [`check`].
+#[derive(Clone, Copy, Default)]
+struct EdgeUse {
+    count: u32,
+    /// Uses in the direction smaller index → larger index.
+    forward: u32,
+}
+
+/// Valid triangles (indices in range and distinct).
+fn valid_triangles(mesh: &TriangleMesh) -> impl Iterator<Item = [u32; 3]> + '_ {
+    let n = mesh.positions.len();
+    mesh.triangles.iter().copied().filter(move |t| {
+        t.iter().all(|&i| (i as usize) < n) && t[0] != t[1] && t[1] != t[2] && t[0] != t[2]
+    })
+}
+
+/// Connected components of the mesh: their number and one label per vertex, numbered in order
+/// of each component's smallest vertex index. Vertices are joined by the edges of valid
+/// triangles; an unreferenced vertex forms a component of its own.
+///
+/// ```
+/// use stablesurf::mesh::{component_labels, TriangleMesh};
+/// let mesh = TriangleMesh {
+///     positions: vec![[0.0; 3]; 6],
+///     normals: vec![[0.0, 0.0, 1.0]; 6],
+///     triangles: vec![[0, 1, 2], [3, 4, 5]],
+/// };
+/// assert_eq!(component_labels(&mesh), (2, vec![0, 0, 0, 1, 1, 1]));
+/// ```
+pub fn component_labels(mesh: &TriangleMesh) -> (usize, Vec<u32>) {
+    let n = mesh.positions.len();
+    let mut parent: Vec<u32> = (0..n as u32).collect();
+    fn find(parent: &mut [u32], mut i: u32) -> u32 {
+        while parent[i as usize] != i {
+            let grand = parent[parent[i as usize] as usize];
+            parent[i as usize] = grand;
+            i = grand;
+        }
+        i
+    }
+    for t in valid_triangles(mesh) {
+        for (a, b) in [(t[0], t[1]), (t[1], t[2])] {
+            let (ra, rb) = (find(&mut parent, a), find(&mut parent, b));
+            if ra != rb {
+                // Keep the smaller index as root so labels follow vertex order.
+                let (lo, hi) = if ra < rb { (ra, rb) } else { (rb, ra) };
+                parent[hi as usize] = lo;
+            }
+        }
+    }
+    let mut labels = vec![u32::MAX; n];
+    let mut root_label = vec![u32::MAX; n];
+    let mut count = 0u32;
+    for i in 0..n {
+        let root = find(&mut parent, i as u32) as usize;
+        if root_label[root] == u32::MAX {
+            root_label[root] = count;
+            count += 1;
+        }
+        labels[i] = root_label[root];
+    }
+    (count as usize, labels)
+}
+
+/// Measures a mesh's topology: components, boundary and non-manifold edges, non-manifold
+/// vertices, Euler characteristic and orientation consistency.
+///
+/// ```
+/// use stablesurf::mesh::{check, TriangleMesh};
+/// // A tetrahedron wound consistently: closed, χ = 2.
+/// let mesh = TriangleMesh {
+///     positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+///     normals: vec![[0.0, 0.0, 1.0]; 4],
+///     triangles: vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+/// };
+/// let r = check(&mesh);
+/// assert!(r.watertight && r.orientation_consistent);
+/// assert_eq!((r.euler_characteristic, r.components, r.boundary_edges), (2, 1, 0));
+/// ```
+pub fn check(mesh: &TriangleMesh) -> MeshReport {
+    let n = mesh.positions.len();
+    let triangles: Vec<[u32; 3]> = valid_triangles(mesh).collect();
+    let degenerate_faces = mesh.triangles.len() - triangles.len();
+    let mut edges: std::collections::HashMap<(u32, u32), EdgeUse> =
+        std::collections::HashMap::with_capacity(triangles.len() * 3 / 2 + 1);
+    for t in &triangles {
+        for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+            let e = edges.entry((a.min(b), a.max(b))).or_default();
+            e.count += 1;
+            if a < b {
+                e.forward += 1;
+            }
+        }
+    }
+    let mut boundary_edges = 0;
+    let mut non_manifold_edges = 0;
+    let mut orientation_consistent = true;
+    for e in edges.values() {
+        match e.count {
+            1 => boundary_edges += 1,
+            2 => orientation_consistent &= e.forward == 1,
+            _ => non_manifold_edges += 1,
+        }
+    }
+
+    // Non-manifold vertices: group the triangles around each vertex into fans joined by the
+    // edges through the vertex; more than one fan means sheets touching at a point.
+    let mut offsets = vec![0usize; n + 1];
+    for t in &triangles {
+        for &v in t {
+            offsets[v as usize + 1] += 1;
+        }
+    }
+    for i in 0..n {
+        offsets[i + 1] += offsets[i];
+    }
+    let mut incident = vec![0u32; offsets[n]];
+    let mut fill = offsets.clone();
+    for (ti, t) in triangles.iter().enumerate() {
+        for &v in t {
+            incident[fill[v as usize]] = ti as u32;
+            fill[v as usize] += 1;
+        }
+    }
+    let mut non_manifold_vertices = 0;
+    let mut parent: Vec<usize> = Vec::new();
+    let mut spokes: Vec<(u32, usize)> = Vec::new();
+    for v in 0..n {
+        let around = &incident[offsets[v]..offsets[v + 1]];
+        if around.len() < 2 {
+            continue;
+        }
+        parent.clear();
+        parent.extend(0..around.len());
+        spokes.clear();
+        for (slot, &ti) in around.iter().enumerate() {
+            for &w in &triangles[ti as usize] {
+                if w as usize != v {
+                    spokes.push((w, slot));
+                }
+            }
+        }
+        spokes.sort_unstable();
+        fn root(parent: &mut [usize], mut i: usize) -> usize {
+            while parent[i] != i {
+                parent[i] = parent[parent[i]];
+                i = parent[i];
+            }
+            i
+        }
+        for pair in spokes.windows(2) {
+            if pair[0].0 == pair[1].0 {
+                let (a, b) = (root(&mut parent, pair[0].1), root(&mut parent, pair[1].1));
+                parent[a.max(b)] = a.min(b);
+            }
+        }
+        let fans = (0..around.len()).filter(|&i| root(&mut parent, i) == i).count();
+        if fans > 1 {
+            non_manifold_vertices += 1;
+        }
+    }
+
+    let (components, _) = component_labels(mesh);
+    let n_edges = edges.len();
+    MeshReport {
+        vertices: n,
+        faces: mesh.triangles.len(),
+        edges: n_edges,
+        components,
+        boundary_edges,
+        non_manifold_edges,
+        non_manifold_vertices,
+        degenerate_faces,
+        euler_characteristic: n as i64 - n_edges as i64 + triangles.len() as i64,
+        orientation_consistent,
+        watertight: !triangles.is_empty()
+            && boundary_edges == 0
+            && non_manifold_edges == 0
+            && non_manifold_vertices == 0
+            && degenerate_faces == 0,
+    }
+}
+
+/// Drops the connected components of `mesh` that have no point of `points` within
+/// `max_distance` of one of their vertices (the paper's "extra surface pieces" away from the
+/// data), and returns the remaining mesh with the number of components dropped. Kept vertices and
+/// triangles stay in their original order. Distance is measured to vertices, so choose
+/// `max_distance` at least about one mesh cell.
+///
+/// ```
+/// use stablesurf::mesh::{drop_components_far_from, TriangleMesh};
+/// let mesh = TriangleMesh {
+///     positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0],
+///                     [9.0, 0.0, 0.0], [10.0, 0.0, 0.0], [9.0, 1.0, 0.0]],
+///     normals: vec![[0.0, 0.0, 1.0]; 6],
+///     triangles: vec![[0, 1, 2], [3, 4, 5]],
+/// };
+/// let (kept, dropped) = drop_components_far_from(&mesh, &[[0.1, 0.1, 0.0]], 0.5);
+/// assert_eq!(dropped, 1);
+/// assert_eq!(kept.triangles, vec![[0, 1, 2]]);
+/// ```
+pub fn drop_components_far_from(
+    mesh: &TriangleMesh,
+    points: &[[f64; 3]],
+    max_distance: f64,
+) -> (TriangleMesh, usize) {
+    use rayon::prelude::*;
+    let (n_components, labels) = component_labels(mesh);
+    // Hash the vertices into cubes of side max_distance; a point's near vertices lie in the 27
+    // cubes around it.
+    let cell = if max_distance > 0.0 && max_distance.is_finite() { max_distance } else { 1.0 };
+    let key = |p: [f64; 3]| p.map(|c| (c / cell).floor() as i64);
+    let mut buckets: std::collections::HashMap<[i64; 3], Vec<u32>> =
+        std::collections::HashMap::new();
+    for (i, &p) in mesh.positions.iter().enumerate() {
+        if p.iter().all(|c| c.is_finite()) {
+            buckets.entry(key(p)).or_default().push(i as u32);
+        }
+    }
+    let r2 = max_distance * max_distance;
+    let near: Vec<Vec<u32>> = points
+        .par_chunks(4096)
+        .map(|chunk| {
+            let mut found = Vec::new();
+            for &q in chunk {
+                if !q.iter().all(|c| c.is_finite()) {
+                    continue;
+                }
+                let k = key(q);
+                for d in 0..27 {
+                    let offset = [d % 3 - 1, (d / 3) % 3 - 1, d / 9 - 1];
+                    let kk = [0, 1, 2].map(|a| k[a] + offset[a]);
+                    for &i in buckets.get(&kk).into_iter().flatten() {
+                        let p = mesh.positions[i as usize];
+                        let d2: f64 = (0..3).map(|a| (p[a] - q[a]).powi(2)).sum();
+                        if d2 <= r2 {
+                            found.push(labels[i as usize]);
+                        }
+                    }
+                }
+            }
+            found.sort_unstable();
+            found.dedup();
+            found
+        })
+        .collect();
+    let mut keep = vec![false; n_components];
+    for label in near.into_iter().flatten() {
+        keep[label as usize] = true;
+    }
+    let mut new_index = vec![u32::MAX; mesh.positions.len()];
+    let mut out = TriangleMesh::default();
+    for (i, &label) in labels.iter().enumerate() {
+        if keep[label as usize] {
+            new_index[i] = out.positions.len() as u32;
+            out.positions.push(mesh.positions[i]);
+            if let Some(&n) = mesh.normals.get(i) {
+                out.normals.push(n);
+            }
+        }
+    }
+    for t in &mesh.triangles {
+        let mapped = t.map(|i| new_index.get(i as usize).copied().unwrap_or(u32::MAX));
+        if mapped.iter().all(|&i| i != u32::MAX) {
+            out.triangles.push(mapped);
+        }
+    }
+    let dropped = keep.iter().filter(|&&k| !k).count();
+    (out, dropped)
 }

@@ -1,1 +1,558 @@
-//! The pipeline: chains the stages through the cache (skeleton).
+//! The pipeline: import → normals → fit → polygonize, chained through the stage cache, then
+//! the exports. This is what `stablesurf run` calls.
+//!
+//! Input: a scan (file or the built-in sample), a [`PipelineConfig`] and a [`Cache`].
+//! Output: files in the output directory and a [`RunReport`].
+//!
+//! Each stage's key chains the key of its input artifact (see [`crate::cache`]), so changing
+//! only the meshing depth reuses import, normals and fit. Every output is computed before the
+//! first file is written, and each file is written atomically, so a failed or killed run leaves
+//! no partial output file.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::cache::{self, Artifact, Cache, Key, Lookup};
+use crate::cloud::{Aabb, OrientedCloud, PointCloud};
+use crate::export::{self, ExportError};
+use crate::fit::{self, FitParams};
+use crate::import;
+use crate::measure::{self, DistanceSummary};
+use crate::mesh::{self, MeshReport, TriangleMesh};
+use crate::normals::{self, NormalsParams};
+use crate::poly::ImplicitModel;
+use crate::polygonize::{self, PolygonizeParams};
+
+/// The small real scan built into the binary: "Spot" the cow by Keenan Crane (CC0 1.0),
+/// 2,930 vertices, 5,856 triangles.
+pub const SAMPLE_SCAN: &[u8] = include_bytes!("sample/spot.obj");
+/// The name the sample scan is reported under.
+pub const SAMPLE_NAME: &str = "spot.obj (built-in sample, Keenan Crane, CC0)";
+
+/// Errors of a pipeline run: a stage's error, with the stage named.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    /// Reading the scan failed.
+    #[error("import failed")]
+    Import(#[from] import::ImportError),
+    /// Normal estimation failed.
+    #[error("normal estimation failed")]
+    Normals(#[from] normals::NormalsError),
+    /// Fitting failed.
+    #[error("fit failed")]
+    Fit(#[from] fit::FitError),
+    /// Meshing failed.
+    #[error("meshing failed")]
+    Polygonize(#[from] polygonize::PolygonizeError),
+    /// Writing an output failed.
+    #[error("writing outputs failed")]
+    Export(#[from] ExportError),
+    /// Computing the distance slices failed.
+    #[error("distance slices failed")]
+    Distance(#[from] crate::distance::DistanceError),
+    /// The cache could not be written.
+    #[error("cache failed")]
+    Cache(#[from] cache::CacheError),
+    /// The scan file could not be read.
+    #[error("cannot read {path}")]
+    Read {
+        /// The file.
+        path: String,
+        /// The cause.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The output directory could not be created.
+    #[error("cannot create the output directory {path}")]
+    OutputDir {
+        /// The directory.
+        path: String,
+        /// The cause.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The requested mode is not available.
+    #[error("{0}")]
+    Unsupported(String),
+}
+
+/// Which model the pipeline fits.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub enum Mode {
+    /// One polynomial (the paper's compact, invariant descriptor).
+    #[default]
+    Global,
+    /// A multi-level partition of unity of local fits.
+    Detail,
+}
+
+/// An output file kind of `run`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum OutputFormat {
+    /// `mesh.glb`.
+    Glb,
+    /// `mesh.gltf` + `mesh.bin`.
+    Gltf,
+    /// `mesh.ply` (binary, with normals and per-vertex quality).
+    Ply,
+    /// `slices/slice_NNN.exr` signed-distance slices.
+    Exr,
+    /// `preview.png` (a shaded render of the mesh) and `slices/slice_NNN.png` previews.
+    Png,
+    /// `model.json` and `report.json`.
+    Json,
+}
+
+impl std::str::FromStr for OutputFormat {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        Ok(match s.trim() {
+            "glb" => OutputFormat::Glb,
+            "gltf" => OutputFormat::Gltf,
+            "ply" => OutputFormat::Ply,
+            "exr" => OutputFormat::Exr,
+            "png" => OutputFormat::Png,
+            "json" => OutputFormat::Json,
+            other => {
+                return Err(format!(
+                    "unknown output format '{other}' (choose from glb, gltf, ply, exr, png, json)"
+                ))
+            }
+        })
+    }
+}
+
+/// Everything that decides what `run` computes and writes.
+#[derive(Clone, Debug)]
+pub struct PipelineConfig {
+    /// Global or detail model.
+    pub mode: Mode,
+    /// Normals stage parameters.
+    pub normals: NormalsParams,
+    /// Fit stage parameters.
+    pub fit: FitParams,
+    /// Polygonize stage parameters.
+    pub polygonize: PolygonizeParams,
+    /// Drop zero-set components with no data point near them.
+    pub keep: Keep,
+    /// Distance slice parameters.
+    pub slices: crate::distance::SliceParams,
+    /// glTF options.
+    pub gltf: export::gltf::GltfOptions,
+    /// Which files to write.
+    pub formats: Vec<OutputFormat>,
+}
+
+/// Which zero-set components the mesh keeps.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub enum Keep {
+    /// Every component.
+    #[default]
+    All,
+    /// Only components with a data point within 2% of the data's diagonal.
+    Data,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        PipelineConfig {
+            mode: Mode::Global,
+            normals: NormalsParams::default(),
+            fit: FitParams::default(),
+            polygonize: PolygonizeParams::default(),
+            keep: Keep::All,
+            slices: Default::default(),
+            gltf: Default::default(),
+            formats: vec![
+                OutputFormat::Glb,
+                OutputFormat::Ply,
+                OutputFormat::Exr,
+                OutputFormat::Png,
+                OutputFormat::Json,
+            ],
+        }
+    }
+}
+
+/// Where the scan comes from.
+#[derive(Clone, Debug)]
+pub enum ScanSource {
+    /// A file.
+    File(PathBuf),
+    /// The built-in sample ([`SAMPLE_SCAN`]).
+    Sample,
+}
+
+/// One stage's line in the report.
+#[derive(Clone, Debug, Serialize)]
+pub struct StageRecord {
+    /// Stage name.
+    pub stage: &'static str,
+    /// "hit", "miss" or "corrupt" (recomputed), or "none" for uncached stages.
+    pub cache: &'static str,
+    /// Wall time in seconds.
+    pub seconds: f64,
+    /// Cache key (hex), when cached.
+    pub key: Option<String>,
+    /// Key figures of the stage's output.
+    pub figures: serde_json::Value,
+}
+
+/// What the run produced and measured (written as `report.json`).
+#[derive(Clone, Debug, Serialize)]
+pub struct RunReport {
+    /// The scan (file path or sample name).
+    pub input: String,
+    /// One record per stage, in order.
+    pub stages: Vec<StageRecord>,
+    /// The fitted model's settings and diagnostics.
+    pub fit: serde_json::Value,
+    /// Mesh topology checks.
+    pub mesh: MeshReport,
+    /// Distance from the input points to the mesh, absolute and relative to the data's diagonal.
+    pub accuracy: DistanceSummary,
+    /// Files written, relative to the output directory.
+    pub outputs: Vec<String>,
+    /// Total wall time in seconds.
+    pub seconds: f64,
+}
+
+/// Receives progress events (the CLI turns them into progress bars and `-v` lines).
+pub trait Observer {
+    /// A stage starts.
+    fn stage_started(&mut self, _stage: &'static str) {}
+    /// A stage finished.
+    fn stage_finished(&mut self, _record: &StageRecord) {}
+}
+
+/// An observer that ignores everything.
+pub struct Silent;
+impl Observer for Silent {}
+
+// Stage versions: if you change anything that changes a stage's output for the same input and
+// params (algorithm, defaults, artifact layout), bump its version so old cache entries are not
+// reused.
+const IMPORT_VERSION: u32 = 1;
+const NORMALS_VERSION: u32 = 1;
+const FIT_VERSION: u32 = 1;
+const POLYGONIZE_VERSION: u32 = 1;
+
+struct Ctx<'a> {
+    cache: &'a Cache,
+    observer: &'a mut dyn Observer,
+    stages: Vec<StageRecord>,
+}
+
+impl Ctx<'_> {
+    /// Runs one cached stage: look up, else compute and store. `figures` summarizes the output
+    /// for the report; on a hit the stored figures are reused.
+    fn stage<T: Artifact>(
+        &mut self,
+        stage: &'static str,
+        version: u32,
+        params: &[u8],
+        input_key: &Key,
+        compute: impl FnOnce() -> Result<(T, serde_json::Value), PipelineError>,
+    ) -> Result<(T, Key), PipelineError> {
+        self.observer.stage_started(stage);
+        let start = Instant::now();
+        let key = cache::stage_key(stage, version, params, input_key);
+        let (found, lookup) = self.cache.get::<T>(stage, &key);
+        let (value, figures) = match (found, self.cache.meta(stage, &key)) {
+            (Some(v), Some(meta)) => (v, meta.get("figures").cloned().unwrap_or_default()),
+            (_, _) => {
+                let (v, figures) = compute()?;
+                let meta = serde_json::json!({
+                    "stage": stage,
+                    "stage_version": version,
+                    "cache_format_version": cache::CACHE_FORMAT_VERSION,
+                    "params": serde_json::from_slice::<serde_json::Value>(params).unwrap_or_default(),
+                    "input_key": input_key.hex(),
+                    "seconds": start.elapsed().as_secs_f64(),
+                    "figures": figures,
+                });
+                self.cache.put(stage, &key, &v, &meta)?;
+                (v, figures)
+            }
+        };
+        let lookup = if lookup == Lookup::Hit && self.cache.meta(stage, &key).is_none() {
+            Lookup::Corrupt
+        } else {
+            lookup
+        };
+        self.finish(stage, lookup.as_str(), start, Some(key), figures);
+        Ok((value, key))
+    }
+
+    fn finish(
+        &mut self,
+        stage: &'static str,
+        cache: &'static str,
+        start: Instant,
+        key: Option<Key>,
+        figures: serde_json::Value,
+    ) {
+        let record = StageRecord {
+            stage,
+            cache,
+            seconds: start.elapsed().as_secs_f64(),
+            key: key.map(|k| k.hex()),
+            figures,
+        };
+        self.observer.stage_finished(&record);
+        self.stages.push(record);
+    }
+}
+
+/// Reads the scan bytes and the name to report.
+fn scan_bytes(source: &ScanSource) -> Result<(Vec<u8>, PathBuf, String), PipelineError> {
+    match source {
+        ScanSource::Sample => {
+            Ok((SAMPLE_SCAN.to_vec(), PathBuf::from("spot.obj"), SAMPLE_NAME.to_string()))
+        }
+        ScanSource::File(path) => {
+            let bytes = std::fs::read(path).map_err(|source| PipelineError::Read {
+                path: path.display().to_string(),
+                source,
+            })?;
+            Ok((bytes, path.clone(), path.display().to_string()))
+        }
+    }
+}
+
+/// Imports, estimates normals and fits: the part of the pipeline shared by `run` and `fit`.
+/// Returns the input cloud, the oriented cloud and the model.
+fn fit_stages(
+    ctx: &mut Ctx<'_>,
+    source: &ScanSource,
+    config: &PipelineConfig,
+) -> Result<(PointCloud, OrientedCloud, ImplicitModel, Key), PipelineError> {
+    if config.mode == Mode::Detail {
+        return Err(PipelineError::Unsupported(
+            "--mode detail is not built yet; use --mode global".into(),
+        ));
+    }
+    let (bytes, path, _) = scan_bytes(source)?;
+    let (cloud, cloud_key) =
+        ctx.stage("import", IMPORT_VERSION, b"", &Key::of_bytes(&bytes), || {
+            let cloud = import::import_bytes(&bytes, &path)?;
+            let figures = serde_json::json!({
+                "points": cloud.points.len(),
+                "triangles": cloud.triangles.len(),
+                "has_normals": cloud.normals.is_some(),
+            });
+            Ok((cloud, figures))
+        })?;
+    drop(bytes);
+    let (oriented, oriented_key) = ctx.stage(
+        "normals",
+        NORMALS_VERSION,
+        &cache::params_bytes(&config.normals),
+        &cloud_key,
+        || {
+            let normals = normals::estimate_normals(&cloud, &config.normals)?;
+            let figures = serde_json::json!({
+                "source": normals.source_used.as_str(),
+                "warnings": normals.warnings,
+            });
+            Ok((normals.cloud, figures))
+        },
+    )?;
+    let (model, model_key) =
+        ctx.stage("fit", FIT_VERSION, &cache::params_bytes(&config.fit), &oriented_key, || {
+            let model = fit::fit(&oriented, &config.fit)?;
+            let figures = serde_json::json!({
+                "degree": model.polynomial.degree,
+                "kappa": model.fit.as_ref().map(|f| f.kappa),
+                "bounded": model.diagnostics.as_ref().map(|d| d.bounded),
+            });
+            Ok((model, figures))
+        })?;
+    Ok((cloud, oriented, model, model_key))
+}
+
+/// Fits a model (import, normals, fit through the cache) without meshing: `stablesurf fit`.
+///
+/// # Errors
+/// Any stage's error.
+pub fn fit_model(
+    source: &ScanSource,
+    config: &PipelineConfig,
+    cache: &Cache,
+    observer: &mut dyn Observer,
+) -> Result<(ImplicitModel, OrientedCloud, Vec<StageRecord>), PipelineError> {
+    let mut ctx = Ctx { cache, observer, stages: Vec::new() };
+    let (_, oriented, model, _) = fit_stages(&mut ctx, source, config)?;
+    Ok((model, oriented, ctx.stages))
+}
+
+/// The region a model is meshed in: its stored box, or the normalization sphere's cube.
+pub fn meshing_region(model: &ImplicitModel) -> Aabb {
+    model.bounds.unwrap_or_else(|| {
+        let p = &model.polynomial;
+        let r = 1.6 * p.scale;
+        Aabb {
+            min: [p.center[0] - r, p.center[1] - r, p.center[2] - r],
+            max: [p.center[0] + r, p.center[1] + r, p.center[2] + r],
+        }
+    })
+}
+
+/// Runs the whole pipeline and writes the outputs into `out_dir`.
+///
+/// # Errors
+/// Any stage's error; the output directory or a file cannot be written.
+pub fn run(
+    source: &ScanSource,
+    out_dir: &Path,
+    config: &PipelineConfig,
+    cache: &Cache,
+    observer: &mut dyn Observer,
+) -> Result<RunReport, PipelineError> {
+    let start = Instant::now();
+    let mut ctx = Ctx { cache, observer, stages: Vec::new() };
+    let input_name = match source {
+        ScanSource::Sample => SAMPLE_NAME.to_string(),
+        ScanSource::File(p) => p.display().to_string(),
+    };
+    let (cloud, _oriented, model, model_key) = fit_stages(&mut ctx, source, config)?;
+
+    let region = meshing_region(&model);
+    let (mut mesh, _) = ctx.stage(
+        "polygonize",
+        POLYGONIZE_VERSION,
+        &cache::params_bytes(&config.polygonize),
+        &model_key,
+        || {
+            let out = polygonize::polygonize(&model.polynomial, &region, &config.polygonize)?;
+            let figures = serde_json::json!({
+                "vertices": out.mesh.positions.len(),
+                "triangles": out.mesh.triangles.len(),
+                "evaluations": out.evaluations,
+            });
+            Ok((out.mesh, figures))
+        },
+    )?;
+
+    let data_diagonal = Aabb::from_points(&cloud.points).map_or(0.0, |b| b.diagonal());
+    if config.keep == Keep::Data {
+        let t = Instant::now();
+        let (kept, dropped) =
+            mesh::drop_components_far_from(&mesh, &cloud.points, 0.02 * data_diagonal);
+        mesh = kept;
+        ctx.finish("keep", "none", t, None, serde_json::json!({ "dropped_components": dropped }));
+    }
+
+    let t = Instant::now();
+    let report_mesh = mesh::check(&mesh);
+    let accuracy = DistanceSummary::from_distances(
+        &measure::point_to_mesh_distances(&cloud.points, &mesh),
+        data_diagonal,
+    );
+    ctx.finish(
+        "check",
+        "none",
+        t,
+        None,
+        serde_json::json!({ "watertight": report_mesh.watertight, "components": report_mesh.components,
+                            "mean_distance_relative": accuracy.mean_relative }),
+    );
+
+    let t = Instant::now();
+    let outputs = write_outputs(out_dir, config, &model, &mesh, &cloud, &region)?;
+    ctx.finish("export", "none", t, None, serde_json::json!({ "files": outputs.len() }));
+
+    let mut report = RunReport {
+        input: input_name,
+        stages: ctx.stages,
+        fit: serde_json::json!({ "fit": model.fit, "diagnostics": model.diagnostics }),
+        mesh: report_mesh,
+        accuracy,
+        outputs,
+        seconds: 0.0,
+    };
+    report.seconds = start.elapsed().as_secs_f64();
+    if config.formats.contains(&OutputFormat::Json) {
+        let path = out_dir.join("report.json");
+        export::write_atomic(&path, |w| {
+            serde_json::to_writer_pretty(&mut *w, &report)
+                .map_err(|e| ExportError::Format(e.to_string()))
+        })?;
+        report.outputs.push("report.json".into());
+    }
+    Ok(report)
+}
+
+/// The writer `write_atomic` hands to an exporter.
+type FileWriter<'a> = std::io::BufWriter<&'a mut std::fs::File>;
+
+/// Computes every output in memory, then writes each file atomically.
+fn write_outputs(
+    out_dir: &Path,
+    config: &PipelineConfig,
+    model: &ImplicitModel,
+    mesh: &TriangleMesh,
+    cloud: &PointCloud,
+    region: &Aabb,
+) -> Result<Vec<String>, PipelineError> {
+    let want = |f| config.formats.contains(&f);
+    let slices = if want(OutputFormat::Exr) || want(OutputFormat::Png) {
+        crate::distance::slices(&model.polynomial, region, &config.slices)?
+    } else {
+        Vec::new()
+    };
+    let dir_err = |p: &Path| {
+        let path = p.display().to_string();
+        move |source| PipelineError::OutputDir { path, source }
+    };
+    std::fs::create_dir_all(out_dir).map_err(dir_err(out_dir))?;
+    let mut written = Vec::new();
+    let mut put = |name: &str,
+                   f: &dyn Fn(&mut FileWriter<'_>) -> Result<(), ExportError>|
+     -> Result<(), PipelineError> {
+        export::write_atomic(&out_dir.join(name), f)?;
+        written.push(name.to_string());
+        Ok(())
+    };
+    if want(OutputFormat::Json) {
+        put("model.json", &|w| export::model::write_model(model, w))?;
+    }
+    if want(OutputFormat::Glb) {
+        put("mesh.glb", &|w| export::gltf::write_glb(mesh, w, &config.gltf))?;
+    }
+    if want(OutputFormat::Gltf) {
+        let mut bin = Vec::new();
+        let mut json = Vec::new();
+        export::gltf::write_gltf(mesh, &mut json, &mut bin, "mesh.bin", &config.gltf)?;
+        put("mesh.bin", &|w| w.write_all(&bin).map_err(ExportError::Write))?;
+        put("mesh.gltf", &|w| w.write_all(&json).map_err(ExportError::Write))?;
+    }
+    if want(OutputFormat::Ply) {
+        let quality = export::ply::nearest_point_distances(&mesh.positions, &cloud.points)?;
+        let opts = export::ply::PlyOptions { quality: Some(&quality), ..Default::default() };
+        put("mesh.ply", &|w| export::ply::write(mesh, w, &opts))?;
+    }
+    if want(OutputFormat::Png) {
+        let image = crate::render::render(mesh, &crate::render::RenderParams::default());
+        put("preview.png", &|w| export::png::write_rgb(&image, w))?;
+    }
+    if !slices.is_empty() {
+        let slice_dir = out_dir.join("slices");
+        std::fs::create_dir_all(&slice_dir).map_err(dir_err(&slice_dir))?;
+        for slice in &slices {
+            if want(OutputFormat::Exr) {
+                let name = format!("slices/slice_{:03}.exr", slice.index);
+                put(&name, &|w| export::exr::write_slice(slice, &export::exr::ExrOptions::default(), w))?;
+            }
+            if want(OutputFormat::Png) {
+                let name = format!("slices/slice_{:03}.png", slice.index);
+                put(&name, &|w| export::png::write_preview(slice, w))?;
+            }
+        }
+    }
+    Ok(written)
+}

@@ -281,26 +281,6 @@ fn compact_labels(parent: &mut [u32]) -> (Vec<u32>, usize) {
     (labels, map.len())
 }
 
-/// Components of a triangle mesh by shared vertices, after welding vertices that coincide to
-/// 1e-9 of the box (meshers may duplicate vertices on cell faces). Returns per-vertex labels.
-fn mesh_components(positions: &[[f64; 3]], triangles: &[[u32; 3]], weld: f64) -> (Vec<u32>, usize) {
-    let mut key_to_id = std::collections::HashMap::new();
-    let mut welded = Vec::with_capacity(positions.len());
-    for p in positions {
-        let key = p.map(|c| (c / weld).round() as i64);
-        let next = key_to_id.len() as u32;
-        welded.push(*key_to_id.entry(key).or_insert(next));
-    }
-    let mut parent: Vec<u32> = (0..key_to_id.len() as u32).collect();
-    for t in triangles {
-        let ids = t.map(|v| welded.get(v as usize).copied().unwrap_or(0));
-        union(&mut parent, ids[0], ids[1]);
-        union(&mut parent, ids[0], ids[2]);
-    }
-    let (labels, count) = compact_labels(&mut parent);
-    (welded.iter().map(|&w| labels[w as usize]).collect(), count)
-}
-
 /// The coarse zero set inside a box: its connected pieces, each given by representative points
 /// (mesh vertices, or centres of cells whose corners change sign), how far such a point may be
 /// from the true zero set, and whether the zero set reaches the box's boundary.
@@ -325,11 +305,11 @@ enum Mesher {
 fn coarse_zero_set(poly: &ImplicitPolynomial, half: f64) -> (CoarseZeroSet, Mesher) {
     use crate::polygonize::{polygonize, PolygonizeParams};
     let region = Aabb { min: [-half; 3], max: [half; 3] };
-    let params = PolygonizeParams { depth: CHECK_DEPTH };
+    let params = PolygonizeParams { depth: CHECK_DEPTH, ..Default::default() };
     let cell = 2.0 * half / f64::from(1u32 << CHECK_DEPTH);
     if let Ok(out) = polygonize(poly, &region, &params) {
         let mesh = out.mesh;
-        let (labels, count) = mesh_components(&mesh.positions, &mesh.triangles, 1e-9 * half);
+        let (count, labels) = crate::mesh::component_labels(&mesh);
         let mut components = vec![Vec::new(); count];
         for (p, &l) in mesh.positions.iter().zip(&labels) {
             components[l as usize].push(*p);
@@ -452,23 +432,33 @@ mod tests {
     use super::*;
 
     #[test]
-    fn mesh_components_counts_welded_pieces() {
-        // Two triangles sharing an edge through duplicated vertices, and one apart.
-        let positions = [
-            [0.0, 0.0, 0.0],
-            [1.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0],
-            [1.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0],
-            [1.0, 1.0, 0.0],
-            [5.0, 5.0, 5.0],
-            [6.0, 5.0, 5.0],
-            [5.0, 6.0, 5.0],
-        ];
-        let triangles = [[0, 1, 2], [3, 5, 4], [6, 7, 8]];
-        let (labels, count) = mesh_components(&positions, &triangles, 1e-9);
-        assert_eq!(count, 2);
-        assert_eq!(labels[0], labels[5]);
-        assert_ne!(labels[0], labels[6]);
+    fn sign_grid_counts_two_spheres() {
+        // f = ((x − 1.5)² + y² + z² − 0.25)((x + 1.5)² + y² + z² − 0.25) > 0 far away: two
+        // components, not touching the box [−4, 4]³.
+        let sphere = |cx: f64| {
+            let mut c = vec![0.0; 10];
+            c[0] = cx * cx - 0.25;
+            c[1] = -2.0 * cx;
+            c[4] = 1.0;
+            c[7] = 1.0;
+            c[9] = 1.0;
+            c
+        };
+        let (a, b) = (sphere(1.5), sphere(-1.5));
+        // Product of two quadrics in the paper's order, by exponents.
+        let e2 = crate::poly::exponents(2);
+        let mut coefficients = vec![0.0; crate::poly::n_coefficients(4)];
+        for (l, el) in e2.iter().enumerate() {
+            for (m, em) in e2.iter().enumerate() {
+                let idx = crate::poly::monomial_index([el[0] + em[0], el[1] + em[1], el[2] + em[2]]);
+                coefficients[idx] += a[l] * b[m];
+            }
+        }
+        let poly = ImplicitPolynomial { degree: 4, coefficients, center: [0.0; 3], scale: 1.0 };
+        let zero_set = sign_grid_zero_set(&poly, 4.0, 64);
+        assert_eq!(zero_set.components.len(), 2);
+        assert!(!zero_set.touches_box);
+        let (meshed, _) = coarse_zero_set(&poly, 4.0);
+        assert_eq!(meshed.components.len(), 2);
     }
 }

@@ -1,15 +1,47 @@
 //! Stage `import`: scan file bytes → [`PointCloud`].
 //!
-//! (Skeleton: the import helper replaces this file; the public signatures below are the contract
-//! the CLI and pipeline use.)
+//! Input: the bytes of a scan file and its path (the path only names the file in errors and gives
+//! the extension). Output: a [`Scan`] (the format and a [`PointCloud`] exactly as stored, NaN
+//! coordinates kept) from [`read_scan_bytes`], or a validated [`PointCloud`] from
+//! [`import_bytes`], which the pipeline uses.
+//!
+//! Invariants of a validated cloud: at least one point, every coordinate finite, every triangle
+//! index `< points.len()`, and `normals` (when present) holds one entry per point. Points are
+//! never merged, reordered or rescaled, except that STL corners are welded by exact position
+//! (an STL file stores every triangle corner separately).
+//!
+//! # Formats and how they are chosen
+//!
+//! ```text
+//! bytes ──▶ starts with "ply\n"?            ─▶ ply.rs  (ascii, binary LE, binary BE)
+//!       ──▶ 84 + 50·n == len (n at byte 80)? ─▶ stl.rs  binary (even if it starts with "solid")
+//!       ──▶ starts with "solid" + "facet"?   ─▶ stl.rs  ascii
+//!       ──▶ extension .obj .stl .ply .xyz .pts .txt .csv
+//!       ──▶ no known extension: text whose lines start with `v ` is OBJ, numeric text is XYZ
+//! ```
+//!
+//! The binary STL size rule comes first because many binary STL files start their 80-byte header
+//! with the word `solid` too. Text never satisfies it by chance: the four bytes at offset 80 of a
+//! text file read as a triangle count of at least 0x09090909, which needs a file of gigabytes.
+//!
+//! Every reader is hand-written over the byte slice, so each error can name the line, face or
+//! point at fault, and malformed input is an [`ImportError`], never a panic. Polygons are
+//! fan-triangulated: (v0, v1, v2), (v0, v2, v3), …; PLY faces with fewer than three corners are
+//! skipped (some writers emit them), an OBJ `f` with fewer than three corners is an error.
 
+mod obj;
+mod ply;
+mod stl;
+mod xyz;
+
+use std::collections::HashSet;
 use std::path::Path;
 
 use serde::Serialize;
 
-use crate::cloud::PointCloud;
+use crate::cloud::{Aabb, PointCloud};
 
-/// Errors of the import stage.
+/// Errors of the import stage. Each message names the file, the problem and what to change.
 #[derive(Debug, thiserror::Error)]
 pub enum ImportError {
     /// The file could not be read.
@@ -20,11 +52,125 @@ pub enum ImportError {
         /// The cause.
         source: std::io::Error,
     },
-    /// Not built yet.
-    #[error("{path}: import is not built yet")]
-    NotBuilt {
+    /// The file has no bytes at all.
+    #[error("{path}: the file is empty; export the scan again")]
+    Empty {
         /// The file.
         path: String,
+    },
+    /// Neither the content nor the extension tells the format.
+    #[error(
+        "{path}: unknown scan format: no ply or stl signature and the extension is not one of \
+         .ply .obj .stl .xyz .pts .txt .csv; rename the file with the extension of its format"
+    )]
+    UnknownFormat {
+        /// The file.
+        path: String,
+    },
+    /// The file ends before the data its header or structure announces.
+    #[error("{path}: the file is truncated: {detail}; export it again or fix the header counts")]
+    Truncated {
+        /// The file.
+        path: String,
+        /// What was being read when the bytes ran out.
+        detail: String,
+    },
+    /// A header count disagrees with the data that follows it.
+    #[error(
+        "{path}: the header declares {declared} {what} but the file holds {found}; \
+         fix the count in the header"
+    )]
+    HeaderCountMismatch {
+        /// The file.
+        path: String,
+        /// What is counted, e.g. "`vertex` entries" or "triangles".
+        what: String,
+        /// The count the header states.
+        declared: u64,
+        /// The count the data supports.
+        found: u64,
+    },
+    /// A PLY header line is not valid.
+    #[error("{path}:{line}: bad ply header: {message}")]
+    BadHeader {
+        /// The file.
+        path: String,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong and what is expected.
+        message: String,
+    },
+    /// The PLY `vertex` element lacks a coordinate, or an element has an unusable layout.
+    #[error("{path}: {message}")]
+    BadLayout {
+        /// The file.
+        path: String,
+        /// What is wrong and what is expected.
+        message: String,
+    },
+    /// A text line cannot be parsed.
+    #[error("{path}:{line}: {message}")]
+    Malformed {
+        /// The file.
+        path: String,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong and what is expected.
+        message: String,
+    },
+    /// A face refers to a vertex that does not exist.
+    #[error(
+        "{path}{at}: face {face} refers to vertex {index}, but the file has {n_points} vertices \
+         (0-based indices 0..{n_points}); fix or remove that face",
+        at = line_suffix(.line)
+    )]
+    IndexOutOfRange {
+        /// The file.
+        path: String,
+        /// 1-based line of the face, for text formats that know it.
+        line: Option<usize>,
+        /// 0-based number of the face in file order (before triangulation).
+        face: usize,
+        /// The offending index, 0-based (OBJ's 1-based and negative indices are converted).
+        index: i64,
+        /// Number of vertices in the file.
+        n_points: usize,
+    },
+    /// A point has a NaN or infinite coordinate.
+    #[error(
+        "{path}: point {point} (0-based) has a non-finite coordinate ({x}, {y}, {z}); \
+         remove that point or give it finite coordinates"
+    )]
+    NonFinite {
+        /// The file.
+        path: String,
+        /// 0-based index of the point.
+        point: usize,
+        /// Its x coordinate.
+        x: f64,
+        /// Its y coordinate.
+        y: f64,
+        /// Its z coordinate.
+        z: f64,
+    },
+    /// The file is valid but holds no point.
+    #[error("{path}: the file holds no points; give a scan with at least one vertex")]
+    NoPoints {
+        /// The file.
+        path: String,
+    },
+    /// The normals do not match the points one to one.
+    #[error(
+        "{path}: the file has {normals} normals for {points} points; give one normal per point \
+         or none"
+    )]
+    NormalCountMismatch {
+        /// The file.
+        path: String,
+        /// Number of normals.
+        normals: usize,
+        /// Number of points.
+        points: usize,
     },
 }
 
@@ -47,6 +193,33 @@ pub enum ScanFormat {
     Xyz,
 }
 
+impl ScanFormat {
+    /// The format's name as `stablesurf info` prints it.
+    ///
+    /// ```
+    /// use stablesurf::import::ScanFormat;
+    /// assert_eq!(ScanFormat::PlyBinaryLe.as_str(), "ply-binary-le");
+    /// assert_eq!(ScanFormat::StlAscii.as_str(), "stl-ascii");
+    /// ```
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ScanFormat::PlyAscii => "ply-ascii",
+            ScanFormat::PlyBinaryLe => "ply-binary-le",
+            ScanFormat::PlyBinaryBe => "ply-binary-be",
+            ScanFormat::Obj => "obj",
+            ScanFormat::StlAscii => "stl-ascii",
+            ScanFormat::StlBinary => "stl-binary",
+            ScanFormat::Xyz => "xyz",
+        }
+    }
+}
+
+impl std::fmt::Display for ScanFormat {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
 /// A parsed scan before validation: it may still hold NaN coordinates.
 #[derive(Clone, Debug)]
 pub struct Scan {
@@ -59,50 +232,451 @@ pub struct Scan {
 /// What `stablesurf info` prints about a scan.
 #[derive(Clone, Debug, Serialize)]
 pub struct ScanInfo {
-    /// Format name, e.g. "ply-binary-le".
+    /// Format name, e.g. "ply-binary-le" (see [`ScanFormat::as_str`]).
     pub format: String,
-    /// Number of points as stored.
+    /// Number of points as stored (STL corners welded).
     pub points: usize,
     /// Number of triangles after fan triangulation.
     pub triangles: usize,
     /// Whether the file stores normals.
     pub has_normals: bool,
-    /// Bounding box of the finite points.
+    /// Bounding box of the finite points (NaN, printed as JSON `null`, when there is none).
     pub bbox_min: [f64; 3],
-    /// Bounding box of the finite points.
+    /// Bounding box of the finite points (NaN, printed as JSON `null`, when there is none).
     pub bbox_max: [f64; 3],
-    /// Number of points whose position repeats an earlier point exactly.
+    /// Number of finite points whose position repeats an earlier point exactly.
     pub duplicate_points: usize,
     /// Number of points with a NaN or infinite coordinate.
     pub nan_points: usize,
 }
 
-/// Parses scan bytes; `path` names the file in errors and gives the extension.
-///
-/// # Errors
-/// Malformed or unsupported content.
-pub fn read_scan_bytes(_bytes: &[u8], path: &Path) -> Result<Scan, ImportError> {
-    Err(ImportError::NotBuilt { path: path.display().to_string() })
+/// `:LINE` after a path when the line is known.
+fn line_suffix(line: &Option<usize>) -> String {
+    line.map(|l| format!(":{l}")).unwrap_or_default()
 }
 
-/// Parses and validates scan bytes (finite coordinates, at least one point, indices in range).
+/// The file's name as errors print it.
+fn display_path(path: &Path) -> String {
+    path.display().to_string()
+}
+
+/// Reads and parses a scan file (no validation: NaN coordinates are kept).
 ///
 /// # Errors
-/// Malformed content or invalid data.
+/// [`ImportError::Io`] when the file cannot be read, else as [`read_scan_bytes`].
+pub fn read_scan(path: &Path) -> Result<Scan, ImportError> {
+    let bytes = std::fs::read(path).map_err(|source| ImportError::Io {
+        path: display_path(path),
+        source,
+    })?;
+    read_scan_bytes(&bytes, path)
+}
+
+/// Parses scan bytes; `path` names the file in errors and gives the extension.
+///
+/// The format is chosen by content where possible (see the module docs), else by extension.
+/// Coordinates are kept as stored, NaN included; face indices are checked against the vertex
+/// count because a triangle must index a point.
+///
+/// ```
+/// use std::path::Path;
+/// use stablesurf::import::{read_scan_bytes, ScanFormat};
+/// let scan = read_scan_bytes(b"0 0 0\n1 0 0\nnan 1 0\n", Path::new("pts.xyz")).unwrap();
+/// assert_eq!(scan.format, ScanFormat::Xyz);
+/// assert_eq!(scan.cloud.points.len(), 3);
+/// assert!(scan.cloud.points[2][0].is_nan());
+/// ```
+///
+/// # Errors
+/// Empty, truncated or malformed content, an unknown format, or a face index out of range.
+pub fn read_scan_bytes(bytes: &[u8], path: &Path) -> Result<Scan, ImportError> {
+    let name = display_path(path);
+    if bytes.is_empty() {
+        return Err(ImportError::Empty { path: name });
+    }
+    let detected =
+        detect_format(bytes, path).ok_or(ImportError::UnknownFormat { path: name.clone() })?;
+    read_detected(bytes, &name, detected)
+}
+
+/// Parses scan bytes with the reader of `format`, whatever the content and extension say (for
+/// files whose extension lies). Any PLY variant selects the PLY reader, which takes the encoding
+/// from the header; the STL variants select the binary or the ascii reader.
+///
+/// ```
+/// use std::path::Path;
+/// use stablesurf::import::{read_scan_bytes_as, ScanFormat};
+/// let scan = read_scan_bytes_as(b"v 0 0 0\n", Path::new("scan.dat"), ScanFormat::Obj).unwrap();
+/// assert_eq!(scan.cloud.points, vec![[0.0, 0.0, 0.0]]);
+/// ```
+///
+/// # Errors
+/// As [`read_scan_bytes`], except [`ImportError::UnknownFormat`].
+pub fn read_scan_bytes_as(
+    bytes: &[u8],
+    path: &Path,
+    format: ScanFormat,
+) -> Result<Scan, ImportError> {
+    let name = display_path(path);
+    if bytes.is_empty() {
+        return Err(ImportError::Empty { path: name });
+    }
+    let detected = match format {
+        ScanFormat::PlyAscii | ScanFormat::PlyBinaryLe | ScanFormat::PlyBinaryBe => Detected::Ply,
+        ScanFormat::Obj => Detected::Obj,
+        ScanFormat::StlAscii => Detected::StlAscii,
+        ScanFormat::StlBinary => Detected::StlBinary,
+        ScanFormat::Xyz => Detected::Xyz,
+    };
+    read_detected(bytes, &name, detected)
+}
+
+/// Runs the reader of `detected` on the bytes.
+fn read_detected(bytes: &[u8], name: &str, detected: Detected) -> Result<Scan, ImportError> {
+    let (format, cloud) = match detected {
+        Detected::Ply => ply::read(bytes, name)?,
+        Detected::StlBinary => (ScanFormat::StlBinary, stl::read_binary(bytes, name)?),
+        Detected::StlAscii => (ScanFormat::StlAscii, stl::read_ascii(bytes, name)?),
+        Detected::Obj => (ScanFormat::Obj, obj::read(bytes, name)?),
+        Detected::Xyz => (ScanFormat::Xyz, xyz::read(bytes, name)?),
+    };
+    Ok(Scan { format, cloud })
+}
+
+/// Parses and validates scan bytes (finite coordinates, at least one point, indices in range,
+/// one normal per point when there are normals).
+///
+/// ```
+/// use std::path::Path;
+/// use stablesurf::import::{import_bytes, ImportError};
+/// let cloud = import_bytes(b"0 0 0 0 0 1\n1 0 0 0 0 1\n", Path::new("a.xyz")).unwrap();
+/// assert_eq!(cloud.normals.unwrap().len(), 2);
+/// let err = import_bytes(b"0 0 0\ninf 0 0\n", Path::new("b.xyz")).unwrap_err();
+/// assert!(matches!(err, ImportError::NonFinite { point: 1, .. }));
+/// ```
+///
+/// # Errors
+/// Those of [`read_scan_bytes`], plus [`ImportError::NoPoints`], [`ImportError::NonFinite`],
+/// [`ImportError::IndexOutOfRange`] and [`ImportError::NormalCountMismatch`].
 pub fn import_bytes(bytes: &[u8], path: &Path) -> Result<PointCloud, ImportError> {
-    Ok(read_scan_bytes(bytes, path)?.cloud)
+    let scan = read_scan_bytes(bytes, path)?;
+    validate(&scan.cloud, &display_path(path))?;
+    Ok(scan.cloud)
+}
+
+/// Checks the invariants of a validated [`PointCloud`] (see the module docs).
+fn validate(cloud: &PointCloud, path: &str) -> Result<(), ImportError> {
+    if cloud.points.is_empty() {
+        return Err(ImportError::NoPoints {
+            path: path.to_owned(),
+        });
+    }
+    if let Some((point, p)) = cloud
+        .points
+        .iter()
+        .enumerate()
+        .find(|(_, p)| !p.iter().all(|c| c.is_finite()))
+    {
+        return Err(ImportError::NonFinite {
+            path: path.to_owned(),
+            point,
+            x: p[0],
+            y: p[1],
+            z: p[2],
+        });
+    }
+    let n_points = cloud.points.len();
+    for (face, triangle) in cloud.triangles.iter().enumerate() {
+        if let Some(&index) = triangle.iter().find(|&&i| i as usize >= n_points) {
+            // The readers already check per file face; this catches clouds built elsewhere, where
+            // only the triangle number is known.
+            return Err(ImportError::IndexOutOfRange {
+                path: path.to_owned(),
+                line: None,
+                face,
+                index: i64::from(index),
+                n_points,
+            });
+        }
+    }
+    if let Some(normals) = &cloud.normals {
+        if normals.len() != n_points {
+            return Err(ImportError::NormalCountMismatch {
+                path: path.to_owned(),
+                normals: normals.len(),
+                points: n_points,
+            });
+        }
+    }
+    Ok(())
 }
 
 /// Summarizes a parsed scan for `stablesurf info`.
+///
+/// ```
+/// use std::path::Path;
+/// use stablesurf::import::{read_scan_bytes, scan_info};
+/// let scan = read_scan_bytes(b"0 0 0\n1 2 3\n0 0 0\nnan 0 0\n", Path::new("a.xyz")).unwrap();
+/// let info = scan_info(&scan);
+/// assert_eq!(info.format, "xyz");
+/// assert_eq!((info.points, info.duplicate_points, info.nan_points), (4, 1, 1));
+/// assert_eq!(info.bbox_max, [1.0, 2.0, 3.0]);
+/// ```
 pub fn scan_info(scan: &Scan) -> ScanInfo {
+    let cloud = &scan.cloud;
+    let bbox = Aabb::from_points(&cloud.points);
+    let mut seen = HashSet::with_capacity(cloud.points.len());
+    let mut duplicate_points = 0;
+    let mut nan_points = 0;
+    for p in &cloud.points {
+        if p.iter().all(|c| c.is_finite()) {
+            if !seen.insert(position_key(*p)) {
+                duplicate_points += 1;
+            }
+        } else {
+            nan_points += 1;
+        }
+    }
     ScanInfo {
-        format: String::new(),
-        points: scan.cloud.points.len(),
-        triangles: 0,
-        has_normals: false,
-        bbox_min: [0.0; 3],
-        bbox_max: [0.0; 3],
-        duplicate_points: 0,
-        nan_points: 0,
+        format: scan.format.as_str().to_owned(),
+        points: cloud.points.len(),
+        triangles: cloud.triangles.len(),
+        has_normals: cloud.normals.is_some(),
+        bbox_min: bbox.map_or([f64::NAN; 3], |b| b.min),
+        bbox_max: bbox.map_or([f64::NAN; 3], |b| b.max),
+        duplicate_points,
+        nan_points,
+    }
+}
+
+/// A hashable key for an exact position: the coordinate bits, with -0.0 folded onto 0.0 so the
+/// key agrees with `==` on finite values.
+pub(crate) fn position_key(p: [f64; 3]) -> [u64; 3] {
+    p.map(|c| (c + 0.0).to_bits())
+}
+
+/// Appends the fan triangulation of `polygon` (indices already 0-based) to `triangles`.
+/// Polygons with fewer than three corners add nothing.
+pub(crate) fn push_fan(triangles: &mut Vec<[u32; 3]>, polygon: &[u32]) {
+    if let Some((&first, rest)) = polygon.split_first() {
+        for pair in rest.windows(2) {
+            triangles.push([first, pair[0], pair[1]]);
+        }
+    }
+}
+
+/// Which reader the bytes go to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Detected {
+    Ply,
+    StlBinary,
+    StlAscii,
+    Obj,
+    Xyz,
+}
+
+/// Chooses the reader: content signatures first, then the extension, then a look at the text.
+fn detect_format(bytes: &[u8], path: &Path) -> Option<Detected> {
+    if bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n") {
+        return Some(Detected::Ply);
+    }
+    if stl::is_binary_size(bytes) {
+        return Some(Detected::StlBinary);
+    }
+    if stl::looks_ascii(bytes) {
+        return Some(Detected::StlAscii);
+    }
+    let extension = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    match extension.as_deref() {
+        Some("ply") => return Some(Detected::Ply),
+        Some("obj") => return Some(Detected::Obj),
+        // Neither signature matched, so the binary reader reports the size mismatch.
+        Some("stl") => return Some(Detected::StlBinary),
+        Some("xyz" | "pts" | "txt" | "csv") => return Some(Detected::Xyz),
+        _ => {}
+    }
+    sniff_text(bytes)
+}
+
+/// Guesses OBJ or XYZ from the first meaningful lines of a file with no known extension.
+fn sniff_text(bytes: &[u8]) -> Option<Detected> {
+    let head = &bytes[..bytes.len().min(4096)];
+    // Binary data (NUL bytes or invalid UTF-8 away from the cut) is no text format.
+    if head.contains(&0) {
+        return None;
+    }
+    let text = match std::str::from_utf8(head) {
+        Ok(t) => t,
+        Err(e) if e.error_len().is_none() => std::str::from_utf8(&head[..e.valid_up_to()]).ok()?,
+        Err(_) => return None,
+    };
+    for line in text.lines().map(str::trim).filter(|l| !l.is_empty()) {
+        if line.starts_with('#') {
+            continue;
+        }
+        let first = line.split_ascii_whitespace().next().unwrap_or("");
+        if matches!(
+            first,
+            "v" | "vn" | "vt" | "f" | "o" | "g" | "mtllib" | "usemtl" | "s"
+        ) {
+            return Some(Detected::Obj);
+        }
+        let numeric = line
+            .split(|c: char| c.is_ascii_whitespace() || c == ',')
+            .filter(|t| !t.is_empty())
+            .all(|t| t.parse::<f64>().is_ok());
+        return numeric.then_some(Detected::Xyz);
+    }
+    None
+}
+
+/// A cursor over the lines of a text file that keeps 1-based line numbers for error messages.
+pub(crate) struct Lines<'a> {
+    rest: &'a [u8],
+    line: usize,
+}
+
+impl<'a> Lines<'a> {
+    /// Lines of `bytes`, the first numbered `first_line`.
+    pub(crate) fn new(bytes: &'a [u8], first_line: usize) -> Lines<'a> {
+        Lines {
+            rest: bytes,
+            line: first_line.saturating_sub(1),
+        }
+    }
+
+    /// The next line without its `\n` or `\r\n`, with its number, or `None` at the end.
+    /// Invalid UTF-8 is reported as a [`ImportError::Malformed`] line.
+    pub(crate) fn next_line(
+        &mut self,
+        path: &str,
+    ) -> Option<Result<(usize, &'a str), ImportError>> {
+        if self.rest.is_empty() {
+            return None;
+        }
+        let end = self.rest.iter().position(|&b| b == b'\n');
+        let (raw, rest) = match end {
+            Some(i) => (&self.rest[..i], &self.rest[i + 1..]),
+            None => (self.rest, &self.rest[self.rest.len()..]),
+        };
+        self.rest = rest;
+        self.line += 1;
+        let raw = raw.strip_suffix(b"\r").unwrap_or(raw);
+        Some(match std::str::from_utf8(raw) {
+            Ok(text) => Ok((self.line, text)),
+            Err(_) => Err(ImportError::Malformed {
+                path: path.to_owned(),
+                line: self.line,
+                message: "the line is not text (invalid utf-8): the file is binary or corrupt"
+                    .to_owned(),
+            }),
+        })
+    }
+}
+
+/// Parses one coordinate token (accepts `nan`, `inf`, `1.`, `.5`, exponents).
+pub(crate) fn parse_f64(token: &str) -> Option<f64> {
+    token.parse::<f64>().ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fan_triangulates_polygons_and_skips_short_ones() {
+        let mut t = Vec::new();
+        push_fan(&mut t, &[0, 1, 2, 3, 4]);
+        assert_eq!(t, vec![[0, 1, 2], [0, 2, 3], [0, 3, 4]]);
+        push_fan(&mut t, &[7, 8]);
+        push_fan(&mut t, &[]);
+        assert_eq!(t.len(), 3);
+    }
+
+    #[test]
+    fn position_key_folds_negative_zero() {
+        assert_eq!(
+            position_key([0.0, -0.0, 1.0]),
+            position_key([-0.0, 0.0, 1.0])
+        );
+        assert_ne!(
+            position_key([0.0, 0.0, 1.0]),
+            position_key([0.0, 0.0, -1.0])
+        );
+    }
+
+    #[test]
+    fn detection_uses_content_before_extension() {
+        let p = Path::new("scan.obj");
+        assert_eq!(
+            detect_format(b"ply\nformat ascii 1.0\n", p),
+            Some(Detected::Ply)
+        );
+        // A binary STL whose header starts with "solid".
+        let mut stl = b"solid binary header".to_vec();
+        stl.resize(80, b' ');
+        stl.extend_from_slice(&1u32.to_le_bytes());
+        stl.resize(134, 0);
+        assert_eq!(detect_format(&stl, p), Some(Detected::StlBinary));
+        let ascii = b"solid x\nfacet normal 0 0 1\nouter loop\n";
+        assert_eq!(detect_format(ascii, p), Some(Detected::StlAscii));
+        assert_eq!(
+            detect_format(b"v 0 0 0\n", Path::new("a")),
+            Some(Detected::Obj)
+        );
+        assert_eq!(
+            detect_format(b"# c\n1,2,3\n", Path::new("a")),
+            Some(Detected::Xyz)
+        );
+        assert_eq!(detect_format(b"\x00\x01garbage", Path::new("a.bin")), None);
+        assert_eq!(
+            detect_format(b"1 2 3\n", Path::new("a.PTS")),
+            Some(Detected::Xyz)
+        );
+    }
+
+    #[test]
+    fn lines_strip_carriage_returns_and_count() {
+        let mut lines = Lines::new(b"a\r\nb\n\nc", 1);
+        let mut got = Vec::new();
+        while let Some(l) = lines.next_line("f") {
+            got.push(l.unwrap());
+        }
+        assert_eq!(got, vec![(1, "a"), (2, "b"), (3, ""), (4, "c")]);
+    }
+
+    #[test]
+    fn validate_reports_each_problem() {
+        let ok = PointCloud {
+            points: vec![[0.0; 3]; 3],
+            normals: None,
+            triangles: vec![[0, 1, 2]],
+        };
+        assert!(validate(&ok, "f").is_ok());
+        let mut bad = ok.clone();
+        bad.triangles.push([0, 1, 3]);
+        assert!(matches!(
+            validate(&bad, "f"),
+            Err(ImportError::IndexOutOfRange {
+                face: 1,
+                index: 3,
+                n_points: 3,
+                ..
+            })
+        ));
+        let mut bad = ok.clone();
+        bad.normals = Some(vec![[0.0; 3]; 2]);
+        assert!(matches!(
+            validate(&bad, "f"),
+            Err(ImportError::NormalCountMismatch { .. })
+        ));
+        let empty = PointCloud::default();
+        assert!(matches!(
+            validate(&empty, "f"),
+            Err(ImportError::NoPoints { .. })
+        ));
     }
 }

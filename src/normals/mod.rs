@@ -1,16 +1,103 @@
-//! Stage `normals`: [`PointCloud`] → [`OrientedCloud`] (unit outward normals).
+//! Stage `normals`: [`PointCloud`] → [`Normals`] (an [`OrientedCloud`] with unit outward normals).
 //!
-//! (Skeleton: the normals helper replaces this file; the public signatures below are the
-//! contract the CLI and pipeline use.)
+//! Input: a scan's points, optionally with the file's normals and triangles. Output: the same
+//! points in the same order (duplicates kept, each given the normal of its first occurrence), each
+//! with a unit normal pointing out of the object, plus the crust triangulation when it was used.
+//!
+//! Invariants: `cloud.points == input.points`; every normal is finite and unit length; the output
+//! depends only on the input and [`NormalsParams`] (not on the thread count).
+//!
+//! # Method (Sahin & Unel 2008, sections 5.1 and 5.2)
+//!
+//! ```text
+//! points ─dedupe─▶ Delaunay(P) ─poles─▶ Delaunay(P ∪ poles) ─faces with 3 samples─▶ crust
+//!        crust fans ─right-hand rule, area-weighted─▶ point normals (plane fit where ill-structured)
+//!        ─MST propagation over 1 − |nᵢ·nⱼ|─▶ consistent signs ─farthest points vote─▶ outward
+//! ```
+//!
+//! 1. [`crust`]: the crust of Amenta, Bern & Kamvysselis (1998): the Voronoi poles of each sample
+//!    (the farthest vertex of its Voronoi cell, and the farthest on the other side), the Delaunay
+//!    tetrahedralization ([`delaunay`]) of the samples and the poles, and the triangles whose three
+//!    vertices are samples.
+//! 2. Each sample's incident crust triangles are put in order around it (their link must be one
+//!    cycle or one path: a "planar" fan); their normals, aligned by the right-hand rule along the
+//!    fan, are summed with area weights. A fan that is not planar, or whose triangles disagree by
+//!    more than [`NormalsParams::max_fan_angle_deg`], is ill-structured and replaced by the normal
+//!    of the least-squares plane through the point and its [`NormalsParams::k_neighbours`]
+//!    nearest neighbours ([`pca`]).
+//! 3. [`orient`]: signs are made consistent by propagation along a minimum spanning tree of the
+//!    neighbour graph (crust edges, then k-nearest-neighbour edges) weighted by 1 − |nᵢ·nⱼ|
+//!    (Hoppe et al. 1992), the robust form of the paper's "reference normal, dot product test,
+//!    repeat from each aligned point". Each connected piece is then turned outward: at the point
+//!    farthest from any centre the outward normal points away from that centre, and the farthest
+//!    points of the piece vote.
+//!
+//! The other sources ([`NormalSource`]) skip step 1–2: `pca` uses plane fits everywhere, `mesh`
+//! the area-weighted normals of the file's faces after making their winding consistent, `input`
+//! the file's normals.
+
+pub mod crust;
+pub mod delaunay;
+pub mod faces;
+pub mod orient;
+pub mod pca;
+
+use std::str::FromStr;
 
 use crate::cloud::{OrientedCloud, PointCloud};
 
 /// Errors of the normals stage.
 #[derive(Debug, thiserror::Error)]
 pub enum NormalsError {
-    /// Not built yet.
-    #[error("normal estimation is not built yet")]
-    NotBuilt,
+    /// Fewer distinct points than a surface needs.
+    #[error("the cloud has {n_points} distinct points, at least {min} are needed")]
+    TooFewPoints {
+        /// Distinct points found.
+        n_points: usize,
+        /// Minimum required.
+        min: usize,
+    },
+    /// A coordinate is NaN or infinite.
+    #[error("point {index} has a non-finite coordinate; remove it from the input")]
+    NonFinitePoint {
+        /// Index of the first bad point.
+        index: usize,
+    },
+    /// All points lie on one line.
+    #[error("all points lie on one line, so they bound no surface; use a 3D scan")]
+    Collinear,
+    /// All points lie in one plane.
+    #[error("all points lie in one plane, so they bound no volume; use a 3D scan")]
+    Coplanar,
+    /// More points than the 32-bit indices allow.
+    #[error("the cloud has {n_points} points, more than this stage supports; subsample it")]
+    TooManyPoints {
+        /// Points in the input.
+        n_points: usize,
+    },
+    /// `--normals input` on a file without normals.
+    #[error("the input has no normals; choose another normal source (crust, pca or mesh)")]
+    NoInputNormals,
+    /// The number of normals does not match the number of points.
+    #[error("the input has {n_normals} normals for {n_points} points; fix the file or choose another normal source")]
+    NormalCountMismatch {
+        /// Normals in the input.
+        n_normals: usize,
+        /// Points in the input.
+        n_points: usize,
+    },
+    /// `--normals mesh` on a file without faces.
+    #[error("the input has no faces; choose another normal source (crust or pca)")]
+    NoMeshFaces,
+    /// A triangle refers to a point that does not exist.
+    #[error("triangle {index} refers to a point index out of range; fix the file or choose another normal source")]
+    BadTriangle {
+        /// Index of the first bad triangle.
+        index: usize,
+    },
+    /// A parameter is out of range.
+    #[error("invalid parameter: {0}")]
+    InvalidParams(String),
 }
 
 /// Where the normals come from.
@@ -30,11 +117,69 @@ pub enum NormalSource {
     Input,
 }
 
+impl NormalSource {
+    /// The name used on the command line: `auto`, `crust`, `pca`, `mesh` or `input`.
+    ///
+    /// ```
+    /// use stablesurf::normals::NormalSource;
+    /// assert_eq!(NormalSource::Crust.as_str(), "crust");
+    /// assert_eq!("pca".parse::<NormalSource>().unwrap(), NormalSource::Pca);
+    /// ```
+    pub fn as_str(self) -> &'static str {
+        match self {
+            NormalSource::Auto => "auto",
+            NormalSource::Crust => "crust",
+            NormalSource::Pca => "pca",
+            NormalSource::Mesh => "mesh",
+            NormalSource::Input => "input",
+        }
+    }
+}
+
+impl std::fmt::Display for NormalSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for NormalSource {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "auto" => Ok(NormalSource::Auto),
+            "crust" => Ok(NormalSource::Crust),
+            "pca" => Ok(NormalSource::Pca),
+            "mesh" => Ok(NormalSource::Mesh),
+            "input" => Ok(NormalSource::Input),
+            other => Err(format!("unknown normal source `{other}`; expected auto, crust, pca, mesh or input")),
+        }
+    }
+}
+
 /// Parameters of the normals stage.
-#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct NormalsParams {
-    /// Where the normals come from.
+    /// Where the normals come from. Default: [`NormalSource::Auto`].
     pub source: NormalSource,
+    /// Neighbours (besides the point itself) used by the plane fits and by the orientation
+    /// graph. Default 16; raise it (24–48) for noisy scans.
+    pub k_neighbours: usize,
+    /// Largest neighbourhood of a plane fit. Where the data is noisy at the scale of
+    /// `k_neighbours` points, plane fits double their neighbourhood while that makes them
+    /// flatter, up to this many points (and such points use the plane fit, not the crust fan).
+    /// Default 128; set it equal to `k_neighbours` for fixed neighbourhoods.
+    pub max_k_neighbours: usize,
+    /// Largest angle, in degrees, between a crust triangle's normal and the mean normal of the
+    /// fan around a point before that fan counts as ill-structured (replaced by a plane fit).
+    /// Default 40.
+    pub max_fan_angle_deg: f64,
+}
+
+impl Default for NormalsParams {
+    fn default() -> Self {
+        NormalsParams { source: NormalSource::Auto, k_neighbours: 16, max_k_neighbours: 128, max_fan_angle_deg: 40.0 }
+    }
 }
 
 /// The stage's result: the oriented cloud plus what was done.
@@ -53,7 +198,226 @@ pub struct Normals {
 /// Estimates unit outward normals.
 ///
 /// # Errors
-/// Too few or degenerate points.
-pub fn estimate_normals(_cloud: &PointCloud, _params: &NormalsParams) -> Result<Normals, NormalsError> {
-    Err(NormalsError::NotBuilt)
+/// Fewer than 5 distinct points, a non-finite coordinate, all points on a line or in a plane,
+/// or a source that the input cannot serve (`input` without normals, `mesh` without faces).
+///
+/// ```
+/// use stablesurf::normals::{estimate_normals, NormalSource, NormalsParams};
+/// use stablesurf::PointCloud;
+/// // 200 points on the unit sphere (a Fibonacci spiral).
+/// let n = 200;
+/// let points: Vec<[f64; 3]> = (0..n)
+///     .map(|i| {
+///         let z = 1.0 - (2.0 * i as f64 + 1.0) / n as f64;
+///         let r = (1.0 - z * z).sqrt();
+///         let a = i as f64 * 2.399_963_229_728_653;
+///         [r * a.cos(), r * a.sin(), z]
+///     })
+///     .collect();
+/// let cloud = PointCloud { points: points.clone(), ..Default::default() };
+/// let params = NormalsParams { source: NormalSource::Crust, ..Default::default() };
+/// let out = estimate_normals(&cloud, &params).unwrap();
+/// for (p, n) in points.iter().zip(&out.cloud.normals) {
+///     assert!(p[0] * n[0] + p[1] * n[1] + p[2] * n[2] > 0.95); // outward, close to radial
+/// }
+/// ```
+pub fn estimate_normals(cloud: &PointCloud, params: &NormalsParams) -> Result<Normals, NormalsError> {
+    if params.k_neighbours < 3 || params.k_neighbours > 1000 {
+        return Err(NormalsError::InvalidParams(format!(
+            "k_neighbours is {}, choose a value between 3 and 1000",
+            params.k_neighbours
+        )));
+    }
+    if params.max_k_neighbours < params.k_neighbours || params.max_k_neighbours > 4096 {
+        return Err(NormalsError::InvalidParams(format!(
+            "max_k_neighbours is {}, choose a value between k_neighbours ({}) and 4096",
+            params.max_k_neighbours, params.k_neighbours
+        )));
+    }
+    if !(params.max_fan_angle_deg > 0.0 && params.max_fan_angle_deg <= 180.0) {
+        return Err(NormalsError::InvalidParams(format!(
+            "max_fan_angle_deg is {}, choose a value in (0, 180]",
+            params.max_fan_angle_deg
+        )));
+    }
+    if cloud.points.len() >= (u32::MAX / 4) as usize {
+        return Err(NormalsError::TooManyPoints { n_points: cloud.points.len() });
+    }
+    delaunay::check_spans_3d(&cloud.points)?;
+    let source = match params.source {
+        NormalSource::Auto => {
+            if cloud.normals.as_ref().is_some_and(|n| !n.is_empty()) {
+                NormalSource::Input
+            } else if !cloud.triangles.is_empty() {
+                NormalSource::Mesh
+            } else {
+                NormalSource::Crust
+            }
+        }
+        s => s,
+    };
+    let dedup = Dedup::new(&cloud.points);
+    let mut out = Normals { source_used: source, ..Default::default() };
+    let unique_normals = match source {
+        NormalSource::Crust | NormalSource::Auto => match crust::crust_normals(&dedup.unique, params) {
+            Ok(r) => {
+                out.warnings.extend(r.warnings);
+                out.crust_triangles = r.triangles.iter().map(|t| t.map(|v| dedup.first[v as usize])).collect();
+                r.normals
+            }
+            Err(e) if params.source == NormalSource::Auto => {
+                out.warnings.push(format!("the crust failed ({e}); used pca plane fits instead"));
+                out.source_used = NormalSource::Pca;
+                pca::pca_normals(&dedup.unique, params)
+            }
+            Err(e) => return Err(e),
+        },
+        NormalSource::Pca => pca::pca_normals(&dedup.unique, params),
+        NormalSource::Mesh => {
+            let tris = dedup.remap_triangles(&cloud.triangles)?;
+            let (normals, warnings) = faces::mesh_normals(&dedup.unique, &tris, params)?;
+            out.warnings.extend(warnings);
+            normals
+        }
+        NormalSource::Input => {
+            let given = cloud.normals.as_ref().ok_or(NormalsError::NoInputNormals)?;
+            if given.is_empty() {
+                return Err(NormalsError::NoInputNormals);
+            }
+            if given.len() != cloud.points.len() {
+                return Err(NormalsError::NormalCountMismatch {
+                    n_normals: given.len(),
+                    n_points: cloud.points.len(),
+                });
+            }
+            let unique_given: Vec<[f64; 3]> = dedup.first.iter().map(|&i| given[i as usize]).collect();
+            let (normals, warnings) = faces::input_normals(&dedup.unique, &unique_given, params);
+            out.warnings.extend(warnings);
+            normals
+        }
+    };
+    out.cloud = OrientedCloud {
+        points: cloud.points.clone(),
+        normals: dedup.of_point.iter().map(|&u| unique_normals[u as usize]).collect(),
+    };
+    Ok(out)
+}
+
+/// The distinct points of a cloud, in order of first occurrence.
+struct Dedup {
+    /// Distinct points.
+    unique: Vec<[f64; 3]>,
+    /// For each distinct point, the index of its first occurrence in the input.
+    first: Vec<u32>,
+    /// For each input point, its index in `unique`.
+    of_point: Vec<u32>,
+}
+
+impl Dedup {
+    fn new(points: &[[f64; 3]]) -> Dedup {
+        // `+ 0.0` turns -0.0 into 0.0 so that both compare equal, as they do as numbers.
+        let key = |i: u32| points[i as usize].map(|c| (c + 0.0).to_bits());
+        let mut order: Vec<u32> = (0..points.len() as u32).collect();
+        order.sort_unstable_by_key(|&i| (key(i), i));
+        let mut first_of = vec![0u32; points.len()];
+        let mut start = 0;
+        while start < order.len() {
+            let mut end = start + 1;
+            while end < order.len() && key(order[end]) == key(order[start]) {
+                end += 1;
+            }
+            for &i in &order[start..end] {
+                first_of[i as usize] = order[start];
+            }
+            start = end;
+        }
+        let mut unique = Vec::new();
+        let mut first = Vec::new();
+        let mut of_point = vec![0u32; points.len()];
+        for i in 0..points.len() {
+            if first_of[i] as usize == i {
+                of_point[i] = unique.len() as u32;
+                unique.push(points[i]);
+                first.push(i as u32);
+            } else {
+                of_point[i] = of_point[first_of[i] as usize];
+            }
+        }
+        Dedup { unique, first, of_point }
+    }
+
+    fn remap_triangles(&self, triangles: &[[u32; 3]]) -> Result<Vec<[u32; 3]>, NormalsError> {
+        triangles
+            .iter()
+            .enumerate()
+            .map(|(index, t)| {
+                let mut r = [0u32; 3];
+                for k in 0..3 {
+                    r[k] = *self.of_point.get(t[k] as usize).ok_or(NormalsError::BadTriangle { index })?;
+                }
+                Ok(r)
+            })
+            .collect()
+    }
+}
+
+/// Small vector helpers shared by the submodules.
+pub(crate) mod vec3 {
+    #[inline]
+    pub fn sub(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+        [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+    }
+    #[inline]
+    pub fn add(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+        [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+    }
+    #[inline]
+    pub fn scale(a: &[f64; 3], s: f64) -> [f64; 3] {
+        [a[0] * s, a[1] * s, a[2] * s]
+    }
+    #[inline]
+    pub fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+        a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+    }
+    #[inline]
+    pub fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    }
+    #[inline]
+    pub fn norm(a: &[f64; 3]) -> f64 {
+        dot(a, a).sqrt()
+    }
+    /// `a` scaled to unit length, or `None` when it is zero or not finite.
+    #[inline]
+    pub fn normalized(a: &[f64; 3]) -> Option<[f64; 3]> {
+        let l = norm(a);
+        (l > 0.0 && l.is_finite()).then(|| scale(a, 1.0 / l))
+    }
+    /// Normal (not normalised, length twice the area) of triangle `a, b, c` by the right-hand rule.
+    #[inline]
+    pub fn triangle_normal(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3]) -> [f64; 3] {
+        cross(&sub(b, a), &sub(c, a))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn source_names_round_trip() {
+        for s in [NormalSource::Auto, NormalSource::Crust, NormalSource::Pca, NormalSource::Mesh, NormalSource::Input] {
+            assert_eq!(s.as_str().parse::<NormalSource>().unwrap(), s);
+        }
+        assert!("poles".parse::<NormalSource>().is_err());
+    }
+
+    #[test]
+    fn dedup_maps_twins_to_first_occurrence() {
+        let pts = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [-0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]];
+        let d = Dedup::new(&pts);
+        assert_eq!(d.unique.len(), 3);
+        assert_eq!(d.first, vec![0, 1, 4]);
+        assert_eq!(d.of_point, vec![0, 1, 0, 1, 2]);
+    }
 }

@@ -1,0 +1,272 @@
+//! Compact binary encoding of the artifacts stored in the cache.
+//!
+//! Input: an artifact. Output: bytes, and back. Layout of one entry:
+//!
+//! ```text
+//! "SSCA" | u32 cache format version | u32 artifact kind | u32 artifact format version
+//!        | u64 payload length | payload | 32-byte blake3 of everything before it
+//! ```
+//!
+//! Numbers are little-endian; `f64` values are stored bit-exactly, so a decoded artifact equals
+//! the encoded one. Any mismatch (magic, versions, length, checksum, trailing bytes) makes
+//! [`decode`] return `None`, which the cache treats as a miss.
+
+use crate::cloud::{OrientedCloud, PointCloud};
+use crate::mesh::TriangleMesh;
+use crate::poly::ImplicitModel;
+
+use super::CACHE_FORMAT_VERSION;
+
+const MAGIC: &[u8; 4] = b"SSCA";
+
+/// An artifact the cache can store.
+pub trait Artifact: Sized {
+    /// A number unique to the artifact type.
+    const KIND: u32;
+    /// The artifact's own layout version.
+    const VERSION: u32;
+    /// Appends the payload bytes.
+    fn encode_payload(&self, out: &mut Vec<u8>);
+    /// Reads the payload back; `None` when it is malformed.
+    fn decode_payload(r: &mut Reader<'_>) -> Option<Self>;
+}
+
+/// Encodes an artifact as a self-checking cache entry.
+pub fn encode<T: Artifact>(artifact: &T) -> Vec<u8> {
+    let mut payload = Vec::new();
+    artifact.encode_payload(&mut payload);
+    let mut out = Vec::with_capacity(payload.len() + 60);
+    out.extend_from_slice(MAGIC);
+    out.extend_from_slice(&CACHE_FORMAT_VERSION.to_le_bytes());
+    out.extend_from_slice(&T::KIND.to_le_bytes());
+    out.extend_from_slice(&T::VERSION.to_le_bytes());
+    out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+    out.extend_from_slice(&payload);
+    let digest = blake3::hash(&out);
+    out.extend_from_slice(digest.as_bytes());
+    out
+}
+
+/// Decodes a cache entry; `None` when it is corrupt, truncated or of another version or type.
+pub fn decode<T: Artifact>(bytes: &[u8]) -> Option<T> {
+    let body_len = bytes.len().checked_sub(32)?;
+    let (body, digest) = bytes.split_at(body_len);
+    if blake3::hash(body).as_bytes() != digest {
+        return None;
+    }
+    let mut r = Reader { bytes: body };
+    if r.take(4)? != MAGIC
+        || r.u32()? != CACHE_FORMAT_VERSION
+        || r.u32()? != T::KIND
+        || r.u32()? != T::VERSION
+    {
+        return None;
+    }
+    let len = usize::try_from(r.u64()?).ok()?;
+    if r.bytes.len() != len {
+        return None;
+    }
+    let value = T::decode_payload(&mut r)?;
+    r.bytes.is_empty().then_some(value)
+}
+
+/// A cursor over payload bytes.
+pub struct Reader<'a> {
+    bytes: &'a [u8],
+}
+
+impl<'a> Reader<'a> {
+    fn take(&mut self, n: usize) -> Option<&'a [u8]> {
+        if self.bytes.len() < n {
+            return None;
+        }
+        let (head, tail) = self.bytes.split_at(n);
+        self.bytes = tail;
+        Some(head)
+    }
+
+    fn u32(&mut self) -> Option<u32> {
+        Some(u32::from_le_bytes(self.take(4)?.try_into().ok()?))
+    }
+
+    fn u64(&mut self) -> Option<u64> {
+        Some(u64::from_le_bytes(self.take(8)?.try_into().ok()?))
+    }
+
+    /// A length-prefixed vector of fixed-size items, refusing lengths the bytes cannot hold.
+    fn vec<const N: usize, T>(&mut self, item: impl Fn(&[u8; N]) -> T) -> Option<Vec<T>> {
+        let n = usize::try_from(self.u64()?).ok()?;
+        let raw = self.take(n.checked_mul(N)?)?;
+        Some(
+            raw.chunks_exact(N)
+                .map(|c| item(c.try_into().expect("chunk of N bytes")))
+                .collect(),
+        )
+    }
+
+    fn vec3_f64(&mut self) -> Option<Vec<[f64; 3]>> {
+        self.vec::<24, _>(|c| {
+            [0, 1, 2].map(|a| f64::from_le_bytes(c[8 * a..8 * a + 8].try_into().expect("8 bytes")))
+        })
+    }
+
+    fn vec3_u32(&mut self) -> Option<Vec<[u32; 3]>> {
+        self.vec::<12, _>(|c| {
+            [0, 1, 2].map(|a| u32::from_le_bytes(c[4 * a..4 * a + 4].try_into().expect("4 bytes")))
+        })
+    }
+
+    fn bytes(&mut self) -> Option<&'a [u8]> {
+        let n = usize::try_from(self.u64()?).ok()?;
+        self.take(n)
+    }
+}
+
+fn put_vec3_f64(out: &mut Vec<u8>, v: &[[f64; 3]]) {
+    out.extend_from_slice(&(v.len() as u64).to_le_bytes());
+    for p in v {
+        for c in p {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+}
+
+fn put_vec3_u32(out: &mut Vec<u8>, v: &[[u32; 3]]) {
+    out.extend_from_slice(&(v.len() as u64).to_le_bytes());
+    for t in v {
+        for c in t {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+}
+
+impl Artifact for PointCloud {
+    const KIND: u32 = 1;
+    const VERSION: u32 = PointCloud::FORMAT_VERSION;
+
+    fn encode_payload(&self, out: &mut Vec<u8>) {
+        put_vec3_f64(out, &self.points);
+        out.push(u8::from(self.normals.is_some()));
+        if let Some(normals) = &self.normals {
+            put_vec3_f64(out, normals);
+        }
+        put_vec3_u32(out, &self.triangles);
+    }
+
+    fn decode_payload(r: &mut Reader<'_>) -> Option<Self> {
+        let points = r.vec3_f64()?;
+        let normals = match r.take(1)?[0] {
+            0 => None,
+            1 => Some(r.vec3_f64()?),
+            _ => return None,
+        };
+        let triangles = r.vec3_u32()?;
+        Some(PointCloud {
+            points,
+            normals,
+            triangles,
+        })
+    }
+}
+
+impl Artifact for OrientedCloud {
+    const KIND: u32 = 2;
+    const VERSION: u32 = OrientedCloud::FORMAT_VERSION;
+
+    fn encode_payload(&self, out: &mut Vec<u8>) {
+        put_vec3_f64(out, &self.points);
+        put_vec3_f64(out, &self.normals);
+    }
+
+    fn decode_payload(r: &mut Reader<'_>) -> Option<Self> {
+        Some(OrientedCloud {
+            points: r.vec3_f64()?,
+            normals: r.vec3_f64()?,
+        })
+    }
+}
+
+impl Artifact for TriangleMesh {
+    const KIND: u32 = 3;
+    const VERSION: u32 = TriangleMesh::FORMAT_VERSION;
+
+    fn encode_payload(&self, out: &mut Vec<u8>) {
+        put_vec3_f64(out, &self.positions);
+        put_vec3_f64(out, &self.normals);
+        put_vec3_u32(out, &self.triangles);
+    }
+
+    fn decode_payload(r: &mut Reader<'_>) -> Option<Self> {
+        Some(TriangleMesh {
+            positions: r.vec3_f64()?,
+            normals: r.vec3_f64()?,
+            triangles: r.vec3_u32()?,
+        })
+    }
+}
+
+/// The model is small (a few hundred numbers plus diagnostics): JSON inside the checked
+/// envelope; serde_json writes `f64` so that it reads back to the same bits.
+impl Artifact for ImplicitModel {
+    const KIND: u32 = 4;
+    const VERSION: u32 = ImplicitModel::FORMAT_VERSION;
+
+    fn encode_payload(&self, out: &mut Vec<u8>) {
+        let json = serde_json::to_vec(self).expect("a model always serializes");
+        out.extend_from_slice(&(json.len() as u64).to_le_bytes());
+        out.extend_from_slice(&json);
+    }
+
+    fn decode_payload(r: &mut Reader<'_>) -> Option<Self> {
+        serde_json::from_slice(r.bytes()?).ok()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cloud() -> PointCloud {
+        PointCloud {
+            points: vec![[0.0, 1.5, -2.25], [1e-300, f64::MAX, 3.0]],
+            normals: Some(vec![[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),
+            triangles: vec![[0, 1, 1]],
+        }
+    }
+
+    #[test]
+    fn round_trip_is_exact() {
+        let c = cloud();
+        assert_eq!(decode::<PointCloud>(&encode(&c)), Some(c));
+        let m = TriangleMesh {
+            positions: vec![[0.1, 0.2, 0.3]],
+            normals: vec![[0.0, 1.0, 0.0]],
+            triangles: vec![[0, 0, 0]],
+        };
+        assert_eq!(decode::<TriangleMesh>(&encode(&m)), Some(m));
+    }
+
+    #[test]
+    fn any_flipped_byte_or_truncation_is_rejected() {
+        let bytes = encode(&cloud());
+        for i in 0..bytes.len() {
+            let mut bad = bytes.clone();
+            bad[i] ^= 0x40;
+            assert!(
+                decode::<PointCloud>(&bad).is_none(),
+                "flip at byte {i} accepted"
+            );
+        }
+        for n in 0..bytes.len() {
+            assert!(
+                decode::<PointCloud>(&bytes[..n]).is_none(),
+                "truncation to {n} accepted"
+            );
+        }
+    }
+
+    #[test]
+    fn wrong_kind_is_rejected() {
+        assert!(decode::<OrientedCloud>(&encode(&cloud())).is_none());
+    }
+}

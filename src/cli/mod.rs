@@ -1,0 +1,396 @@
+//! Command-line interface: clap definitions and their conversion into the library's typed
+//! configuration. Nothing else in the crate depends on this module.
+//!
+//! Input: `std::env::args`. Output: a [`Command`] holding stage `…Params` and paths, which
+//! `main.rs` hands to the library.
+
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+/// stablesurf: stable algebraic surfaces from 3D scans (Sahin & Unel 2008).
+///
+/// Imports a scan, estimates outward normals, fits an implicit polynomial with 3L and
+/// Euclidean-invariant ridge regression, meshes its zero set with an adaptive octree and writes
+/// glTF, PLY, OpenEXR distance slices and the polynomial itself.
+#[derive(Debug, Parser)]
+#[command(name = "stablesurf", version, about, long_about = None, propagate_version = true)]
+pub struct Cli {
+    /// The subcommand.
+    #[command(subcommand)]
+    pub command: CommandArgs,
+    /// Print nothing but errors on stderr.
+    #[arg(short, long, global = true, conflicts_with = "verbose")]
+    pub quiet: bool,
+    /// Print one line per stage (cache hit or miss, seconds, key figures); repeat for more.
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    pub verbose: u8,
+    /// Worker threads (default: all cores). Results do not depend on it.
+    #[arg(short = 'j', long, global = true, value_name = "N")]
+    pub threads: Option<usize>,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum CommandArgs {
+    /// Scan to outputs in one command: import, normals, fit, mesh, export.
+    Run(RunArgs),
+    /// Estimate oriented normals and write them as a binary PLY.
+    Normals(NormalsArgs),
+    /// Fit an implicit polynomial and write the model file.
+    Fit(FitArgs),
+    /// Mesh a model file's zero set.
+    Mesh(MeshArgs),
+    /// Write signed-distance slices (OpenEXR) and PNG previews of a model.
+    Slices(SlicesArgs),
+    /// Render a shaded picture of a mesh.
+    Render(RenderArgs),
+    /// Show what a scan, model or mesh file holds.
+    Info(InfoArgs),
+    /// Inspect or clear the stage cache.
+    Cache(CacheArgs),
+}
+
+/// Options of the normals stage.
+#[derive(Debug, Args, Clone)]
+pub struct NormalsOpts {
+    /// Where normals come from: auto (file normals, else mesh faces, else crust), crust
+    /// (Voronoi/Delaunay crust, paper section 5), pca (k-nearest-neighbour planes), mesh (the
+    /// file's faces), input (the file's normals).
+    #[arg(long = "normals", value_name = "SOURCE", default_value = "auto")]
+    pub source: String,
+}
+
+/// Options of the fit stage.
+#[derive(Debug, Args, Clone)]
+pub struct FitOpts {
+    /// Polynomial degree (even for automatic κ; 2 to 14).
+    #[arg(long, default_value_t = 6)]
+    pub degree: u32,
+    /// Ridge weight κ: `auto` or a number ≥ 0.
+    #[arg(long, default_value = "auto")]
+    pub kappa: String,
+    /// Rule for automatic κ: `stable` (default, checks the zero set) or `paper` (section 6.3).
+    #[arg(long, value_name = "RULE", default_value = "stable")]
+    pub kappa_rule: String,
+    /// Layer offset ε in normalized units (paper: 0.01 to 0.05).
+    #[arg(long, default_value_t = 0.05)]
+    pub epsilon: f64,
+    /// Fitting method: 3lrr (3L + ridge regression), 3l (κ = 0) or ls (plain least squares).
+    #[arg(long, default_value = "3lrr")]
+    pub method: String,
+}
+
+/// Options of the polygonize stage.
+#[derive(Debug, Args, Clone)]
+pub struct MeshOpts {
+    /// Octree depth near the surface: finest cell = longest side of the box / 2^depth.
+    #[arg(long, default_value_t = 8)]
+    pub depth: u32,
+}
+
+/// Which zero-set components to keep.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum KeepArg {
+    /// Every component.
+    All,
+    /// Components with a data point nearby.
+    Data,
+}
+
+/// glTF up axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum UpArg {
+    /// Coordinates unchanged (glTF is +Y up).
+    Y,
+    /// The scan is Z-up: rotate it so it stands upright in Blender.
+    Z,
+}
+
+/// Cache options.
+#[derive(Debug, Args, Clone)]
+pub struct CacheOpts {
+    /// Cache directory (default: $XDG_CACHE_HOME/stablesurf or ~/.cache/stablesurf).
+    #[arg(long, value_name = "DIR")]
+    pub cache_dir: Option<PathBuf>,
+    /// Do not read or write the cache.
+    #[arg(long)]
+    pub no_cache: bool,
+}
+
+/// `stablesurf run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// Scan file (PLY, OBJ, STL, XYZ). Without it, a small built-in sample scan is used.
+    pub input: Option<PathBuf>,
+    /// Output directory (created if missing).
+    #[arg(short, long, value_name = "OUT_DIR")]
+    pub output: PathBuf,
+    /// global: one polynomial (the paper's compact descriptor); detail: local fits blended.
+    #[arg(long, default_value = "global")]
+    pub mode: String,
+    /// Outputs to write, comma-separated: glb, gltf, ply, exr, png, json.
+    #[arg(long, value_delimiter = ',', default_value = "glb,ply,exr,png,json")]
+    pub formats: Vec<String>,
+    /// glTF up axis.
+    #[arg(long, value_enum, default_value_t = UpArg::Y)]
+    pub up: UpArg,
+    /// Which zero-set components to keep: all, or data (drop pieces with no data point near).
+    #[arg(long, value_enum, default_value_t = KeepArg::All)]
+    pub keep: KeepArg,
+    /// Print the stage summary as JSON on stdout.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub normals: NormalsOpts,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub fit: FitOpts,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub mesh: MeshOpts,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub cache: CacheOpts,
+}
+
+/// `stablesurf normals`.
+#[derive(Debug, Args)]
+pub struct NormalsArgs {
+    /// Scan file.
+    pub input: PathBuf,
+    /// Output PLY (binary, points with normals).
+    #[arg(short, long, value_name = "OUT.ply")]
+    pub output: PathBuf,
+    /// Also write the crust triangulation (points and triangles) to this PLY.
+    #[arg(long, value_name = "CRUST.ply")]
+    pub mesh: Option<PathBuf>,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub normals: NormalsOpts,
+}
+
+/// `stablesurf fit`.
+#[derive(Debug, Args)]
+pub struct FitArgs {
+    /// Scan file.
+    pub input: PathBuf,
+    /// Output model file.
+    #[arg(short, long, value_name = "MODEL.json")]
+    pub output: PathBuf,
+    /// Print the model's diagnostics as JSON on stdout.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub normals: NormalsOpts,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub fit: FitOpts,
+}
+
+/// `stablesurf mesh`.
+#[derive(Debug, Args)]
+pub struct MeshArgs {
+    /// Model file (model.json).
+    pub model: PathBuf,
+    /// Output mesh: .glb, .gltf or .ply (format from the extension).
+    #[arg(short, long, value_name = "OUT")]
+    pub output: PathBuf,
+    /// Meshing region in input coordinates: xmin,ymin,zmin,xmax,ymax,zmax (overrides the model's box).
+    #[arg(long, value_delimiter = ',', num_args = 6, allow_negative_numbers = true)]
+    pub bounds: Option<Vec<f64>>,
+    /// Write a text PLY instead of binary.
+    #[arg(long)]
+    pub ascii: bool,
+    /// glTF up axis.
+    #[arg(long, value_enum, default_value_t = UpArg::Y)]
+    pub up: UpArg,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub mesh: MeshOpts,
+}
+
+/// Slice axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum AxisArg {
+    /// Slices perpendicular to x.
+    X,
+    /// Slices perpendicular to y.
+    Y,
+    /// Slices perpendicular to z.
+    Z,
+}
+
+/// Distance method.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum DistanceArg {
+    /// First-order distance f/|∇f| (fast, accurate near the surface only).
+    Taubin,
+    /// Distance to the zero set by closest-point search and Newton projection.
+    Exact,
+}
+
+/// `stablesurf slices`.
+#[derive(Debug, Args)]
+pub struct SlicesArgs {
+    /// Model file (model.json).
+    pub model: PathBuf,
+    /// Output directory.
+    #[arg(short, long, value_name = "DIR")]
+    pub output: PathBuf,
+    /// Slice axis.
+    #[arg(long, value_enum, default_value_t = AxisArg::Z)]
+    pub axis: AxisArg,
+    /// Number of slices across the model's box.
+    #[arg(long, default_value_t = 16)]
+    pub count: usize,
+    /// Pixels per side of each slice.
+    #[arg(long, default_value_t = 256)]
+    pub resolution: usize,
+    /// Distance method.
+    #[arg(long, value_enum, default_value_t = DistanceArg::Exact)]
+    pub distance: DistanceArg,
+    /// Region in input coordinates: xmin,ymin,zmin,xmax,ymax,zmax (overrides the model's box).
+    #[arg(long, value_delimiter = ',', num_args = 6, allow_negative_numbers = true)]
+    pub bounds: Option<Vec<f64>>,
+}
+
+/// `stablesurf render`.
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// Mesh file (PLY, OBJ, STL).
+    pub mesh: PathBuf,
+    /// Output PNG.
+    #[arg(short, long, value_name = "PREVIEW.png")]
+    pub output: PathBuf,
+    /// Image width and height in pixels.
+    #[arg(long, default_value_t = 800)]
+    pub size: u32,
+    /// Camera direction: iso, front, top or side.
+    #[arg(long, default_value = "iso")]
+    pub view: String,
+}
+
+/// `stablesurf info`.
+#[derive(Debug, Args)]
+pub struct InfoArgs {
+    /// A scan, mesh or model file.
+    pub file: PathBuf,
+    /// Print one JSON object on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `stablesurf cache`.
+#[derive(Debug, Args)]
+pub struct CacheArgs {
+    /// What to do.
+    #[command(subcommand)]
+    pub action: CacheAction,
+    /// Cache directory (default: $XDG_CACHE_HOME/stablesurf or ~/.cache/stablesurf).
+    #[arg(long, value_name = "DIR", global = true)]
+    pub cache_dir: Option<PathBuf>,
+}
+
+/// Cache actions.
+#[derive(Debug, Subcommand)]
+pub enum CacheAction {
+    /// Where the cache is and how much each stage holds.
+    Info,
+    /// Remove every entry.
+    Clear,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(args: &[&str]) -> Cli {
+        Cli::try_parse_from(std::iter::once("stablesurf").chain(args.iter().copied()))
+            .unwrap_or_else(|e| panic!("{args:?}: {e}"))
+    }
+
+    #[test]
+    fn definitions_are_consistent() {
+        use clap::CommandFactory;
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn run_without_input_uses_defaults() {
+        let CommandArgs::Run(r) = parse(&["run", "-o", "out"]).command else { panic!() };
+        assert!(r.input.is_none());
+        assert_eq!(r.fit.degree, 6);
+        assert_eq!(r.fit.kappa, "auto");
+        assert_eq!(r.mesh.depth, 8);
+        assert_eq!(r.formats, ["glb", "ply", "exr", "png", "json"]);
+    }
+
+    #[test]
+    fn run_flags_parse() {
+        let cli = parse(&[
+            "run", "scan.ply", "-o", "out", "--degree", "8", "--kappa", "1e-3", "--epsilon",
+            "0.01", "--method", "3l", "--depth", "7", "--formats", "glb,gltf", "--cache-dir",
+            "c", "--no-cache", "--normals", "pca", "--kappa-rule", "paper", "--keep", "data",
+            "--up", "z", "--json", "-v", "-v", "-j", "1",
+        ]);
+        assert_eq!(cli.verbose, 2);
+        assert_eq!(cli.threads, Some(1));
+        let CommandArgs::Run(r) = cli.command else { panic!() };
+        assert_eq!(r.fit.degree, 8);
+        assert_eq!(r.fit.kappa, "1e-3");
+        assert_eq!(r.fit.epsilon, 0.01);
+        assert_eq!(r.fit.method, "3l");
+        assert_eq!(r.fit.kappa_rule, "paper");
+        assert_eq!(r.mesh.depth, 7);
+        assert_eq!(r.keep, KeepArg::Data);
+        assert_eq!(r.up, UpArg::Z);
+        assert_eq!(r.normals.source, "pca");
+        assert!(r.cache.no_cache && r.json);
+        assert_eq!(r.cache.cache_dir, Some(PathBuf::from("c")));
+        assert_eq!(r.formats, ["glb", "gltf"]);
+    }
+
+    #[test]
+    fn mesh_bounds_take_six_numbers() {
+        let CommandArgs::Mesh(m) =
+            parse(&["mesh", "m.json", "-o", "x.ply", "--bounds", "-1,-1,-1,1,1,1"]).command
+        else {
+            panic!()
+        };
+        assert_eq!(m.bounds, Some(vec![-1.0, -1.0, -1.0, 1.0, 1.0, 1.0]));
+        assert!(Cli::try_parse_from(["stablesurf", "mesh", "m", "-o", "x", "--bounds", "1,2"]).is_err());
+    }
+
+    #[test]
+    fn slices_and_info_and_cache_parse() {
+        let CommandArgs::Slices(s) = parse(&[
+            "slices", "m.json", "-o", "d", "--axis", "x", "--count", "4", "--resolution", "64",
+            "--distance", "taubin",
+        ])
+        .command
+        else {
+            panic!()
+        };
+        assert_eq!((s.axis, s.count, s.resolution, s.distance), (AxisArg::X, 4, 64, DistanceArg::Taubin));
+        let CommandArgs::Info(i) = parse(&["info", "f.ply", "--json"]).command else { panic!() };
+        assert!(i.json);
+        let CommandArgs::Cache(c) = parse(&["cache", "clear", "--cache-dir", "x"]).command else {
+            panic!()
+        };
+        assert!(matches!(c.action, CacheAction::Clear));
+        let CommandArgs::Normals(n) = parse(&["normals", "a.xyz", "-o", "n.ply", "--mesh", "c.ply"]).command
+        else {
+            panic!()
+        };
+        assert_eq!(n.mesh, Some(PathBuf::from("c.ply")));
+    }
+
+    #[test]
+    fn missing_output_is_a_usage_error() {
+        let err = Cli::try_parse_from(["stablesurf", "run"]).unwrap_err();
+        assert_eq!(err.exit_code(), 2);
+    }
+}

@@ -1,0 +1,274 @@
+//! Stage `import`, Wavefront OBJ reader: OBJ text → [`PointCloud`].
+//!
+//! Input: the whole file as bytes. Output: one point per `v` line (in file order, never
+//! merged), triangles from `f` lines (fan-triangulated polygons), and per-vertex normals when the
+//! file's `vn` data maps consistently onto the vertices.
+//!
+//! Face corners may be `v`, `v/vt`, `v//vn` or `v/vt/vn`; indices are 1-based, and negative
+//! indices count back from the last `v` (or `vn`) defined so far (Wavefront, *Object Files
+//! (.obj)*, Advanced Visualizer manual, appendix B1). Everything else (`vt`, `g`, `o`, `s`,
+//! `usemtl`, `mtllib`, `l`, `p`, unknown keywords) is skipped.
+//!
+//! Normals: OBJ attaches a normal to each face corner, not to a vertex. A vertex gets a normal
+//! when every corner that uses it names the same normal vector; the cloud has normals only when
+//! every vertex gets one this way. When no corner names a normal and the file has exactly one
+//! `vn` per `v` (a point-cloud export), the i-th `vn` belongs to the i-th `v`. In any other case
+//! (split normals along hard edges, vertices without a normal) the normals are dropped, since
+//! the `normals` stage can estimate them.
+//!
+//! Hand-written rather than `tobj`: tobj reports errors without a line number and with no face
+//! number, and `benches/import.rs` compares the two speeds.
+
+use crate::cloud::PointCloud;
+use crate::import::{parse_f64, push_fan, ImportError, Lines};
+
+/// Reads an OBJ file.
+pub(crate) fn read(bytes: &[u8], path: &str) -> Result<PointCloud, ImportError> {
+    let mut lines = Lines::new(bytes, 1);
+    let mut points: Vec<[f64; 3]> = Vec::new();
+    let mut vn: Vec<[f64; 3]> = Vec::new();
+    let mut triangles = Vec::new();
+    // Per triangle corner, the 0-based `vn` index (or u32::MAX when the corner has none).
+    let mut corner_normals: Vec<[u32; 3]> = Vec::new();
+    let mut any_corner_normal = false;
+    let mut polygon: Vec<u32> = Vec::new();
+    let mut polygon_normals: Vec<u32> = Vec::new();
+    // Per face, the line of its `f` statement, to name it in range errors at the end.
+    let mut face_lines: Vec<(usize, usize)> = Vec::new();
+    let mut n_faces = 0usize;
+    while let Some(line) = lines.next_line(path) {
+        let (line_number, text) = line?;
+        let malformed = |message: String| ImportError::Malformed {
+            path: path.to_owned(),
+            line: line_number,
+            message,
+        };
+        let text = text.split('#').next().unwrap_or("");
+        let mut tokens = text.split_ascii_whitespace();
+        match tokens.next() {
+            Some("v") | Some("vn") => {
+                let is_normal = text.trim_start().starts_with("vn");
+                let mut xyz = [0.0; 3];
+                for c in &mut xyz {
+                    let token = tokens.next().ok_or_else(|| {
+                        malformed("a `v` or `vn` line needs three numbers x y z".into())
+                    })?;
+                    *c = parse_f64(token)
+                        .ok_or_else(|| malformed(format!("`{token}` is not a number")))?;
+                }
+                if is_normal {
+                    vn.push(xyz);
+                } else {
+                    points.push(xyz);
+                }
+            }
+            Some("f") => {
+                polygon.clear();
+                polygon_normals.clear();
+                for corner in tokens {
+                    let mut parts = corner.split('/');
+                    let v = parts.next().unwrap_or("");
+                    let _vt = parts.next();
+                    let n = parts.next().filter(|s| !s.is_empty());
+                    polygon.push(resolve(
+                        v,
+                        points.len(),
+                        line_number,
+                        "vertex",
+                        n_faces,
+                        path,
+                    )?);
+                    match n {
+                        Some(n) => {
+                            polygon_normals.push(resolve(
+                                n,
+                                vn.len(),
+                                line_number,
+                                "normal",
+                                n_faces,
+                                path,
+                            )?);
+                            any_corner_normal = true;
+                        }
+                        None => polygon_normals.push(u32::MAX),
+                    }
+                }
+                if polygon.len() < 3 {
+                    return Err(malformed(format!(
+                        "a face needs at least three corners, this one has {}",
+                        polygon.len()
+                    )));
+                }
+                let before = triangles.len();
+                push_fan(&mut triangles, &polygon);
+                push_fan(&mut corner_normals, &polygon_normals);
+                face_lines.push((before, line_number));
+                n_faces += 1;
+            }
+            _ => {}
+        }
+    }
+    // Forward references are legal in the syntax but must exist by the end of the file.
+    let n_points = points.len();
+    for (face, &(first_triangle, line)) in face_lines.iter().enumerate() {
+        let end = face_lines.get(face + 1).map_or(triangles.len(), |f| f.0);
+        for triangle in triangles.get(first_triangle..end).unwrap_or(&[]) {
+            if let Some(&index) = triangle.iter().find(|&&i| i as usize >= n_points) {
+                return Err(ImportError::IndexOutOfRange {
+                    path: path.to_owned(),
+                    line: Some(line),
+                    face,
+                    index: i64::from(index),
+                    n_points,
+                });
+            }
+        }
+    }
+    debug_assert_eq!(face_lines.len(), n_faces);
+    let normals = map_normals(
+        n_points,
+        &vn,
+        &triangles,
+        &corner_normals,
+        any_corner_normal,
+    );
+    Ok(PointCloud {
+        points,
+        normals,
+        triangles,
+    })
+}
+
+/// Resolves a 1-based or negative OBJ index against the `count` items defined so far.
+/// A positive index may point forward; that is checked once the file is read.
+fn resolve(
+    token: &str,
+    count: usize,
+    line: usize,
+    what: &str,
+    face: usize,
+    path: &str,
+) -> Result<u32, ImportError> {
+    let malformed = |message: String| ImportError::Malformed {
+        path: path.to_owned(),
+        line,
+        message,
+    };
+    let value: i64 = token
+        .parse()
+        .map_err(|_| malformed(format!("`{token}` is not a {what} index")))?;
+    let resolved = match value {
+        0 => {
+            return Err(malformed(format!(
+                "{what} index 0 is not valid; obj indices start at 1"
+            )))
+        }
+        v if v > 0 => v - 1,
+        v => count as i64 + v,
+    };
+    u32::try_from(resolved).map_err(|_| match what {
+        "vertex" => ImportError::IndexOutOfRange {
+            path: path.to_owned(),
+            line: Some(line),
+            face,
+            index: resolved,
+            n_points: count,
+        },
+        _ => malformed(format!(
+            "{what} index {value} is out of range: {count} {what}s are defined before this line"
+        )),
+    })
+}
+
+/// Maps per-corner normals to per-vertex normals, as the module docs describe.
+fn map_normals(
+    n_points: usize,
+    vn: &[[f64; 3]],
+    triangles: &[[u32; 3]],
+    corner_normals: &[[u32; 3]],
+    any_corner_normal: bool,
+) -> Option<Vec<[f64; 3]>> {
+    if !any_corner_normal {
+        return (!vn.is_empty() && vn.len() == n_points).then(|| vn.to_vec());
+    }
+    let mut normals: Vec<Option<[f64; 3]>> = vec![None; n_points];
+    for (triangle, corners) in triangles.iter().zip(corner_normals) {
+        for (&v, &n) in triangle.iter().zip(corners) {
+            let normal = *vn.get(n as usize)?;
+            let slot = normals.get_mut(v as usize)?;
+            match slot {
+                None => *slot = Some(normal),
+                Some(existing) if *existing == normal => {}
+                Some(_) => return None,
+            }
+        }
+    }
+    normals.into_iter().collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn corner_forms_and_negative_indices() {
+        let text = "# square\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\n\
+                    vn 0 0 1\nf 1/1/1 2//1 -2/1/-1 -1//1\n";
+        let cloud = read(text.as_bytes(), "t.obj").unwrap();
+        assert_eq!(cloud.points.len(), 4);
+        assert_eq!(cloud.triangles, vec![[0, 1, 2], [0, 2, 3]]);
+        assert_eq!(cloud.normals, Some(vec![[0.0, 0.0, 1.0]; 4]));
+    }
+
+    #[test]
+    fn split_normals_are_dropped_and_paired_normals_kept() {
+        let text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvn 0 0 1\nvn 0 0 -1\n\
+                    f 1//1 2//1 3//1\nf 2//2 4//2 3//2\n";
+        assert!(read(text.as_bytes(), "t.obj").unwrap().normals.is_none());
+        let text = "v 0 0 0\nvn 1 0 0\nv 1 0 0\nvn 0 1 0\n";
+        let cloud = read(text.as_bytes(), "t.obj").unwrap();
+        assert_eq!(cloud.normals, Some(vec![[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]));
+    }
+
+    #[test]
+    fn bad_indices_name_the_line() {
+        for (text, line) in [
+            ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 0\n", 4),
+            ("v 0 0 0\nv 1 0\n", 2),
+            ("v 0 0 0\nf 1 1\n", 2),
+        ] {
+            match read(text.as_bytes(), "t.obj") {
+                Err(ImportError::Malformed { line: l, .. }) => assert_eq!(l, line, "{text}"),
+                other => panic!("{text}: {other:?}"),
+            }
+        }
+        let text = "v 0 0 0\nv 1 0 0\nv 0 1 0\n\nf 1 2 -4\n";
+        assert!(matches!(
+            read(text.as_bytes(), "t.obj"),
+            Err(ImportError::IndexOutOfRange {
+                line: Some(5),
+                face: 0,
+                index: -1,
+                ..
+            })
+        ));
+        let text = "v 0 0 0\nv 1 0 0\nf 1 2 3\nv 0 1 0\nf 1 2 4\n";
+        match read(text.as_bytes(), "t.obj") {
+            Err(
+                e @ ImportError::IndexOutOfRange {
+                    line: Some(5),
+                    face: 1,
+                    index: 3,
+                    ..
+                },
+            ) => {
+                assert!(
+                    e.to_string()
+                        .starts_with("t.obj:5: face 1 refers to vertex 3"),
+                    "{e}"
+                )
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+}

@@ -1,0 +1,1040 @@
+//! Stage `import`, PLY reader: ascii, binary little-endian and binary big-endian PLY →
+//! [`PointCloud`].
+//!
+//! Input: the whole file as bytes. Output: the format and a cloud with the `vertex` element's
+//! x/y/z (any numeric type, converted to f64), its nx/ny/nz when all three are present, and the
+//! `face` element's `vertex_indices` (or `vertex_index`) lists of any integer type,
+//! fan-triangulated. Every other element and property is skipped, for example the `range_grid`
+//! element of Stanford's raw range scans or per-vertex `confidence` and `intensity`.
+//!
+//! The format (Turk, *The PLY Polygon File Format*, 1994; the Paul Bourke mirror is the usual
+//! reference) is a text header, `ply` / `format …` / `element NAME COUNT` / `property TYPE NAME`
+//! / `property list COUNT_TYPE ITEM_TYPE NAME` / `end_header`, then the elements in header order:
+//! one entry per line in ascii, packed without padding in binary.
+//!
+//! How it reads: the header is parsed into a list of element layouts. In binary, an element
+//! without list properties has a fixed stride, so its byte size is known before reading (a count
+//! that overruns the file is a [`ImportError::Truncated`] error before anything is allocated)
+//! and the vertex loop reads each wanted property at a fixed offset of each record. Elements with
+//! lists are walked property by property. In ascii each entry is one line of whitespace-separated
+//! tokens; only the wanted tokens are converted.
+//!
+//! Why not ply-rs-bw's reader: it parses binary through `Read` and a name-keyed setter per
+//! property per entry, which `benches/import.rs` measures as several times slower than this
+//! slice reader, and its ascii grammar rejects `nan`, `inf` and `1.`, which real scans contain
+//! (a NaN must reach `stablesurf info`, not stop the parse). ply-rs-bw remains the writer of the
+//! round-trip test files and the baseline of the bench.
+
+use crate::cloud::PointCloud;
+use crate::import::{push_fan, ImportError, Lines, ScanFormat};
+
+/// A PLY scalar type.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Scalar {
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    F32,
+    F64,
+}
+
+impl Scalar {
+    /// Parses a type name as the PLY spec and common writers spell it.
+    fn parse(name: &str) -> Option<Scalar> {
+        Some(match name {
+            "char" | "int8" => Scalar::I8,
+            "uchar" | "uint8" => Scalar::U8,
+            "short" | "int16" => Scalar::I16,
+            "ushort" | "uint16" => Scalar::U16,
+            "int" | "int32" => Scalar::I32,
+            "uint" | "uint32" => Scalar::U32,
+            "float" | "float32" => Scalar::F32,
+            "double" | "float64" => Scalar::F64,
+            _ => return None,
+        })
+    }
+
+    /// Size in bytes in binary encodings.
+    fn size(self) -> usize {
+        match self {
+            Scalar::I8 | Scalar::U8 => 1,
+            Scalar::I16 | Scalar::U16 => 2,
+            Scalar::I32 | Scalar::U32 | Scalar::F32 => 4,
+            Scalar::F64 => 8,
+        }
+    }
+
+    fn is_integer(self) -> bool {
+        !matches!(self, Scalar::F32 | Scalar::F64)
+    }
+}
+
+/// The type of one property.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum PropertyType {
+    Scalar(Scalar),
+    List { count: Scalar, item: Scalar },
+}
+
+#[derive(Clone, Debug)]
+struct Property {
+    name: String,
+    ty: PropertyType,
+}
+
+#[derive(Clone, Debug)]
+struct Element {
+    name: String,
+    count: u64,
+    properties: Vec<Property>,
+}
+
+impl Element {
+    /// Byte size of one entry when the element has no list property.
+    fn fixed_stride(&self) -> Option<usize> {
+        self.properties
+            .iter()
+            .map(|p| match p.ty {
+                PropertyType::Scalar(s) => Some(s.size()),
+                PropertyType::List { .. } => None,
+            })
+            .sum()
+    }
+
+    fn property_index(&self, name: &str) -> Option<usize> {
+        self.properties.iter().position(|p| p.name == name)
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Encoding {
+    Ascii,
+    BinaryLe,
+    BinaryBe,
+}
+
+/// The parsed header.
+#[derive(Debug)]
+struct Header {
+    encoding: Encoding,
+    elements: Vec<Element>,
+    /// Byte offset of the first payload byte.
+    body_start: usize,
+    /// Line number of the first payload line (ascii).
+    body_line: usize,
+}
+
+/// Reads a PLY file.
+pub(crate) fn read(bytes: &[u8], path: &str) -> Result<(ScanFormat, PointCloud), ImportError> {
+    let header = read_header(bytes, path)?;
+    let plan = Plan::new(&header, path)?;
+    let body = bytes.get(header.body_start..).unwrap_or(&[]);
+    let (format, cloud) = match header.encoding {
+        Encoding::Ascii => (
+            ScanFormat::PlyAscii,
+            read_ascii(body, &header, &plan, path)?,
+        ),
+        Encoding::BinaryLe => (
+            ScanFormat::PlyBinaryLe,
+            read_binary::<false>(body, &header, &plan, path)?,
+        ),
+        Encoding::BinaryBe => (
+            ScanFormat::PlyBinaryBe,
+            read_binary::<true>(body, &header, &plan, path)?,
+        ),
+    };
+    Ok((format, cloud))
+}
+
+/// Parses the header lines up to and including `end_header`.
+fn read_header(bytes: &[u8], path: &str) -> Result<Header, ImportError> {
+    let bad = |line: usize, message: String| ImportError::BadHeader {
+        path: path.to_owned(),
+        line,
+        message,
+    };
+    let mut encoding = None;
+    let mut elements: Vec<Element> = Vec::new();
+    let mut offset = 0;
+    let mut line_number = 0;
+    loop {
+        let rest = &bytes[offset..];
+        let Some(len) = rest.iter().position(|&b| b == b'\n') else {
+            return Err(ImportError::Truncated {
+                path: path.to_owned(),
+                detail: "the ply header has no `end_header` line".to_owned(),
+            });
+        };
+        line_number += 1;
+        offset += len + 1;
+        let raw = &rest[..len];
+        let raw = raw.strip_suffix(b"\r").unwrap_or(raw);
+        let Ok(line) = std::str::from_utf8(raw) else {
+            return Err(bad(
+                line_number,
+                "the line is not text; the header must be ascii".into(),
+            ));
+        };
+        let mut words = line.split_ascii_whitespace();
+        let keyword = words.next().unwrap_or("");
+        if line_number == 1 {
+            if line.trim_end() != "ply" {
+                return Err(bad(1, "the first line must be `ply`".into()));
+            }
+            continue;
+        }
+        match keyword {
+            "format" => {
+                let (Some(name), Some(_version)) = (words.next(), words.next()) else {
+                    return Err(bad(line_number, "expected `format ENCODING 1.0`".into()));
+                };
+                encoding = Some(match name {
+                    "ascii" => Encoding::Ascii,
+                    "binary_little_endian" => Encoding::BinaryLe,
+                    "binary_big_endian" => Encoding::BinaryBe,
+                    other => {
+                        return Err(bad(
+                            line_number,
+                            format!(
+                                "unknown encoding `{other}`; expected ascii, \
+                                 binary_little_endian or binary_big_endian"
+                            ),
+                        ))
+                    }
+                });
+            }
+            "comment" | "obj_info" | "" => {}
+            "element" => {
+                let (Some(name), Some(count), None) = (words.next(), words.next(), words.next())
+                else {
+                    return Err(bad(line_number, "expected `element NAME COUNT`".into()));
+                };
+                let Ok(count) = count.parse::<u64>() else {
+                    return Err(bad(
+                        line_number,
+                        format!("the count `{count}` of element `{name}` is not a whole number"),
+                    ));
+                };
+                if elements.iter().any(|e| e.name == name) {
+                    return Err(bad(
+                        line_number,
+                        format!("element `{name}` is declared twice"),
+                    ));
+                }
+                elements.push(Element {
+                    name: name.to_owned(),
+                    count,
+                    properties: Vec::new(),
+                });
+            }
+            "property" => {
+                let Some(element) = elements.last_mut() else {
+                    return Err(bad(
+                        line_number,
+                        "a property comes before any element".into(),
+                    ));
+                };
+                let words: Vec<&str> = words.collect();
+                let (ty, name) = match words.as_slice() {
+                    ["list", count, item, name] => {
+                        let (Some(count), Some(item)) = (Scalar::parse(count), Scalar::parse(item))
+                        else {
+                            return Err(bad(line_number, "unknown type in list property".into()));
+                        };
+                        if !count.is_integer() {
+                            return Err(bad(
+                                line_number,
+                                "a list's count type must be an integer type".into(),
+                            ));
+                        }
+                        (PropertyType::List { count, item }, *name)
+                    }
+                    [ty, name] => {
+                        let Some(ty) = Scalar::parse(ty) else {
+                            return Err(bad(
+                                line_number,
+                                format!(
+                                    "unknown property type `{ty}`; expected char, uchar, short, \
+                                     ushort, int, uint, float, double or their sized names"
+                                ),
+                            ));
+                        };
+                        (PropertyType::Scalar(ty), *name)
+                    }
+                    _ => {
+                        return Err(bad(
+                            line_number,
+                            "expected `property TYPE NAME` or `property list TYPE TYPE NAME`"
+                                .into(),
+                        ))
+                    }
+                };
+                if element.property_index(name).is_some() {
+                    return Err(bad(
+                        line_number,
+                        format!(
+                            "property `{name}` of element `{}` is declared twice",
+                            element.name
+                        ),
+                    ));
+                }
+                element.properties.push(Property {
+                    name: name.to_owned(),
+                    ty,
+                });
+            }
+            "end_header" => break,
+            other => {
+                return Err(bad(
+                    line_number,
+                    format!(
+                        "unknown header keyword `{other}`; expected format, comment, obj_info, \
+                         element, property or end_header"
+                    ),
+                ))
+            }
+        }
+    }
+    let Some(encoding) = encoding else {
+        return Err(bad(line_number, "the header has no `format` line".into()));
+    };
+    Ok(Header {
+        encoding,
+        elements,
+        body_start: offset,
+        body_line: line_number + 1,
+    })
+}
+
+/// Where the wanted values live in the header's elements.
+#[derive(Debug)]
+struct Plan {
+    /// Index of the `vertex` element.
+    vertex: usize,
+    /// Property indices of x, y, z, then nx, ny, nz when all three exist.
+    coords: [usize; 3],
+    normals: Option<[usize; 3]>,
+    /// Index of the `face` element and of its index-list property.
+    face: Option<(usize, usize)>,
+}
+
+impl Plan {
+    fn new(header: &Header, path: &str) -> Result<Plan, ImportError> {
+        let layout = |message: String| ImportError::BadLayout {
+            path: path.to_owned(),
+            message,
+        };
+        let Some(vertex) = header.elements.iter().position(|e| e.name == "vertex") else {
+            return Err(layout(
+                "the ply header has no `vertex` element; a scan needs `element vertex N` with \
+                 x, y and z properties"
+                    .into(),
+            ));
+        };
+        let element = &header.elements[vertex];
+        let scalar = |name: &str| -> Result<Option<usize>, ImportError> {
+            match element.property_index(name) {
+                None => Ok(None),
+                Some(i) => match element.properties[i].ty {
+                    PropertyType::Scalar(_) => Ok(Some(i)),
+                    PropertyType::List { .. } => Err(layout(format!(
+                        "the ply vertex property `{name}` is a list; it must be a single number"
+                    ))),
+                },
+            }
+        };
+        let mut coords = [0; 3];
+        for (slot, name) in coords.iter_mut().zip(["x", "y", "z"]) {
+            *slot = scalar(name)?.ok_or_else(|| {
+                layout(format!(
+                    "the ply vertex element has no `{name}` property; the reader needs x, y and z"
+                ))
+            })?;
+        }
+        let normals = match (scalar("nx")?, scalar("ny")?, scalar("nz")?) {
+            (Some(a), Some(b), Some(c)) => Some([a, b, c]),
+            _ => None,
+        };
+        let face = match header.elements.iter().position(|e| e.name == "face") {
+            None => None,
+            Some(f) => {
+                let element = &header.elements[f];
+                let index = element
+                    .property_index("vertex_indices")
+                    .or_else(|| element.property_index("vertex_index"))
+                    .ok_or_else(|| {
+                        layout(
+                            "the ply face element has no `vertex_indices` or `vertex_index` list"
+                                .into(),
+                        )
+                    })?;
+                match element.properties[index].ty {
+                    PropertyType::List { item, .. } if item.is_integer() => Some((f, index)),
+                    _ => {
+                        return Err(layout(
+                            "the ply face indices must be a list of an integer type".into(),
+                        ))
+                    }
+                }
+            }
+        };
+        Ok(Plan {
+            vertex,
+            coords,
+            normals,
+            face,
+        })
+    }
+}
+
+/// A capacity that a lying header count cannot blow up: at most one entry per remaining byte.
+fn capped_capacity(count: u64, remaining_bytes: usize) -> usize {
+    usize::try_from(count)
+        .unwrap_or(usize::MAX)
+        .min(remaining_bytes)
+}
+
+/// Converts a face index to u32, rejecting indices outside `0..n_points` with the face number.
+/// `n_points` is the header's vertex count, which the vertex element matches once it is read
+/// (the face element may come first).
+fn to_index(value: i64, face: u64, n_points: u64, path: &str) -> Result<u32, ImportError> {
+    match u32::try_from(value) {
+        Ok(index) if u64::from(index) < n_points => Ok(index),
+        _ => Err(index_error(value, face, n_points, path)),
+    }
+}
+
+/// The error for face `face` using the out-of-range index `value`.
+fn index_error(value: i64, face: u64, n_points: u64, path: &str) -> ImportError {
+    ImportError::IndexOutOfRange {
+        path: path.to_owned(),
+        line: None,
+        face: usize::try_from(face).unwrap_or(usize::MAX),
+        index: value,
+        n_points: usize::try_from(n_points).unwrap_or(usize::MAX),
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Binary
+
+/// Reads one scalar at the start of `bytes`, or `None` when too few bytes remain.
+#[inline(always)]
+fn scalar_f64<const BIG: bool>(bytes: &[u8], ty: Scalar) -> Option<f64> {
+    macro_rules! get {
+        ($t:ty, $n:literal) => {{
+            let raw: [u8; $n] = bytes.get(..$n)?.try_into().ok()?;
+            if BIG {
+                <$t>::from_be_bytes(raw)
+            } else {
+                <$t>::from_le_bytes(raw)
+            }
+        }};
+    }
+    Some(match ty {
+        Scalar::I8 => f64::from(get!(i8, 1)),
+        Scalar::U8 => f64::from(get!(u8, 1)),
+        Scalar::I16 => f64::from(get!(i16, 2)),
+        Scalar::U16 => f64::from(get!(u16, 2)),
+        Scalar::I32 => f64::from(get!(i32, 4)),
+        Scalar::U32 => f64::from(get!(u32, 4)),
+        Scalar::F32 => f64::from(get!(f32, 4)),
+        Scalar::F64 => get!(f64, 8),
+    })
+}
+
+/// Reads one integer scalar at the start of `bytes` (list counts and indices).
+#[inline(always)]
+fn scalar_i64<const BIG: bool>(bytes: &[u8], ty: Scalar) -> Option<i64> {
+    macro_rules! get {
+        ($t:ty, $n:literal) => {{
+            let raw: [u8; $n] = bytes.get(..$n)?.try_into().ok()?;
+            i64::from(if BIG {
+                <$t>::from_be_bytes(raw)
+            } else {
+                <$t>::from_le_bytes(raw)
+            })
+        }};
+    }
+    Some(match ty {
+        Scalar::I8 => get!(i8, 1),
+        Scalar::U8 => get!(u8, 1),
+        Scalar::I16 => get!(i16, 2),
+        Scalar::U16 => get!(u16, 2),
+        Scalar::I32 => get!(i32, 4),
+        Scalar::U32 => get!(u32, 4),
+        // Float indices are refused by `Plan::new` and float counts by the header parser.
+        Scalar::F32 | Scalar::F64 => return None,
+    })
+}
+
+/// The values a binary walk collects from one entry.
+struct Wanted<'a> {
+    /// Property indices whose scalar values go to `values[slot]`.
+    scalars: &'a [(usize, usize)],
+    /// Property index of the list to collect.
+    list: Option<usize>,
+}
+
+fn read_binary<const BIG: bool>(
+    body: &[u8],
+    header: &Header,
+    plan: &Plan,
+    path: &str,
+) -> Result<PointCloud, ImportError> {
+    let n_vertices = header.elements[plan.vertex].count;
+    let mut pos = 0;
+    let mut points = Vec::new();
+    let mut normals = plan.normals.map(|_| Vec::new());
+    let mut triangles = Vec::new();
+    for (e, element) in header.elements.iter().enumerate() {
+        let remaining = body.len() - pos;
+        let truncated = |entry: u64| ImportError::Truncated {
+            path: path.to_owned(),
+            detail: format!(
+                "the body ends in `{}` entry {entry} of the {} the header declares",
+                element.name, element.count
+            ),
+        };
+        let stride = element.fixed_stride();
+        if let Some(stride) = stride {
+            let size = usize::try_from(element.count)
+                .ok()
+                .and_then(|n| n.checked_mul(stride))
+                .filter(|&size| size <= remaining)
+                .ok_or_else(|| {
+                    truncated(if stride == 0 {
+                        0
+                    } else {
+                        (remaining / stride) as u64
+                    })
+                })?;
+            let records = &body[pos..pos + size];
+            pos += size;
+            if e == plan.vertex && stride > 0 {
+                read_vertex_records::<BIG>(
+                    records,
+                    stride,
+                    element,
+                    plan,
+                    &mut points,
+                    &mut normals,
+                );
+            }
+            continue;
+        }
+        // The common face element, a single index list: read it without the general walk.
+        if let ([only], Some((f, _))) = (element.properties.as_slice(), plan.face) {
+            if let (true, PropertyType::List { count, item }) = (f == e, only.ty) {
+                pos = read_face_lists::<BIG>(
+                    body,
+                    pos,
+                    element.count,
+                    (count, item),
+                    n_vertices,
+                    &mut triangles,
+                )
+                .map_err(|entry| match entry {
+                    FaceError::Truncated(entry) => truncated(entry),
+                    FaceError::Index { face, index } => index_error(index, face, n_vertices, path),
+                })?;
+                continue;
+            }
+        }
+        // Elements with lists: walk each entry.
+        let mut slots = Vec::new();
+        let mut list = None;
+        if e == plan.vertex {
+            let wanted = plan.coords.iter().chain(plan.normals.iter().flatten());
+            slots = wanted.enumerate().map(|(slot, &p)| (p, slot)).collect();
+        } else if plan.face.is_some_and(|(f, _)| f == e) {
+            list = plan.face.map(|(_, p)| p);
+        }
+        let wanted = Wanted {
+            scalars: &slots,
+            list,
+        };
+        let mut values = [0.0; 6];
+        let mut polygon: Vec<i64> = Vec::new();
+        let mut polygon_u32: Vec<u32> = Vec::new();
+        if e == plan.vertex {
+            points.reserve(capped_capacity(element.count, remaining));
+        }
+        for entry in 0..element.count {
+            pos = walk_entry::<BIG>(body, pos, element, &wanted, &mut values, &mut polygon)
+                .ok_or_else(|| truncated(entry))?;
+            if e == plan.vertex {
+                points.push([values[0], values[1], values[2]]);
+                if let Some(n) = normals.as_mut() {
+                    n.push([values[3], values[4], values[5]]);
+                }
+            } else if list.is_some() {
+                polygon_u32.clear();
+                for &v in &polygon {
+                    polygon_u32.push(to_index(v, entry, n_vertices, path)?);
+                }
+                push_fan(&mut triangles, &polygon_u32);
+            }
+        }
+    }
+    if pos < body.len() {
+        // More bytes than the header accounts for: a count is too small. Say how many bytes
+        // remain, in the units of the last element when it has a fixed size.
+        let last = header.elements.last();
+        let extra = body.len() - pos;
+        return Err(match last.and_then(|l| l.fixed_stride().map(|s| (l, s))) {
+            Some((last, stride)) if stride > 0 && extra % stride == 0 => {
+                ImportError::HeaderCountMismatch {
+                    path: path.to_owned(),
+                    what: format!("`{}` entries", last.name),
+                    declared: last.count,
+                    found: last.count + (extra / stride) as u64,
+                }
+            }
+            _ => ImportError::HeaderCountMismatch {
+                path: path.to_owned(),
+                what: "bytes of element data".to_owned(),
+                declared: pos as u64,
+                found: body.len() as u64,
+            },
+        });
+    }
+    Ok(PointCloud {
+        points,
+        normals,
+        triangles,
+    })
+}
+
+/// Why [`read_face_lists`] stopped.
+enum FaceError {
+    /// The body ended in this face entry (or its list length was negative).
+    Truncated(u64),
+    /// This face has an index outside `0..n_vertices`.
+    Index { face: u64, index: i64 },
+}
+
+/// The fast path for a face element whose only property is its index list. Returns the position
+/// after the element.
+fn read_face_lists<const BIG: bool>(
+    body: &[u8],
+    mut pos: usize,
+    n_faces: u64,
+    (count_ty, item_ty): (Scalar, Scalar),
+    n_vertices: u64,
+    triangles: &mut Vec<[u32; 3]>,
+) -> Result<usize, FaceError> {
+    let (count_size, item_size) = (count_ty.size(), item_ty.size());
+    let smallest_triangle = count_size + 3 * item_size;
+    triangles.reserve(capped_capacity(
+        n_faces,
+        (body.len() - pos) / smallest_triangle,
+    ));
+    let mut polygon: Vec<u32> = Vec::new();
+    for face in 0..n_faces {
+        let n = body
+            .get(pos..)
+            .and_then(|b| scalar_i64::<BIG>(b, count_ty))
+            .and_then(|n| usize::try_from(n).ok())
+            .ok_or(FaceError::Truncated(face))?;
+        pos += count_size;
+        let items = n
+            .checked_mul(item_size)
+            .and_then(|size| body.get(pos..pos.checked_add(size)?))
+            .ok_or(FaceError::Truncated(face))?;
+        pos += items.len();
+        polygon.clear();
+        for chunk in items.chunks_exact(item_size) {
+            let index = scalar_i64::<BIG>(chunk, item_ty).ok_or(FaceError::Truncated(face))?;
+            match u32::try_from(index) {
+                Ok(i) if u64::from(i) < n_vertices => polygon.push(i),
+                _ => return Err(FaceError::Index { face, index }),
+            }
+        }
+        push_fan(triangles, &polygon);
+    }
+    Ok(pos)
+}
+
+/// The fast path: a vertex element without lists, read at fixed offsets of each record.
+fn read_vertex_records<const BIG: bool>(
+    records: &[u8],
+    stride: usize,
+    element: &Element,
+    plan: &Plan,
+    points: &mut Vec<[f64; 3]>,
+    normals: &mut Option<Vec<[f64; 3]>>,
+) {
+    let mut offsets = Vec::with_capacity(element.properties.len());
+    let mut offset = 0;
+    for p in &element.properties {
+        offsets.push(offset);
+        if let PropertyType::Scalar(s) = p.ty {
+            offset += s.size();
+        }
+    }
+    let field = |p: usize| -> (usize, Scalar) {
+        match element.properties[p].ty {
+            PropertyType::Scalar(s) => (offsets[p], s),
+            // `Plan::new` only accepts scalar coordinates and this path only lists-free elements.
+            PropertyType::List { .. } => (0, Scalar::U8),
+        }
+    };
+    let xyz = plan.coords.map(field);
+    let n_records = records.len() / stride;
+    points.reserve(n_records);
+    // Every offset plus its size is within the stride, so the reads below cannot fail; the
+    // `unwrap_or(NaN)` is never taken and keeps this path free of panics.
+    let read = |r: &[u8], (o, s): (usize, Scalar)| -> f64 {
+        r.get(o..)
+            .and_then(|b| scalar_f64::<BIG>(b, s))
+            .unwrap_or(f64::NAN)
+    };
+    for record in records.chunks_exact(stride) {
+        points.push(xyz.map(|f| read(record, f)));
+    }
+    if let (Some(out), Some(n)) = (normals.as_mut(), plan.normals) {
+        let nxyz = n.map(field);
+        out.reserve(n_records);
+        for record in records.chunks_exact(stride) {
+            out.push(nxyz.map(|f| read(record, f)));
+        }
+    }
+}
+
+/// Walks one binary entry from `pos`, storing wanted scalars and the wanted list.
+/// Returns the position after the entry, or `None` when the body ends first.
+fn walk_entry<const BIG: bool>(
+    body: &[u8],
+    mut pos: usize,
+    element: &Element,
+    wanted: &Wanted<'_>,
+    values: &mut [f64; 6],
+    list_out: &mut Vec<i64>,
+) -> Option<usize> {
+    for (p, property) in element.properties.iter().enumerate() {
+        let rest = body.get(pos..)?;
+        match property.ty {
+            PropertyType::Scalar(s) => {
+                if let Some(&(_, slot)) = wanted.scalars.iter().find(|(q, _)| *q == p) {
+                    values[slot] = scalar_f64::<BIG>(rest, s)?;
+                } else if rest.len() < s.size() {
+                    return None;
+                }
+                pos += s.size();
+            }
+            PropertyType::List { count, item } => {
+                let n = scalar_i64::<BIG>(rest, count)?;
+                let n = usize::try_from(n).ok()?;
+                pos += count.size();
+                let size = n.checked_mul(item.size())?;
+                let items = body.get(pos..pos.checked_add(size)?)?;
+                if wanted.list == Some(p) {
+                    list_out.clear();
+                    for chunk in items.chunks_exact(item.size()) {
+                        list_out.push(scalar_i64::<BIG>(chunk, item)?);
+                    }
+                }
+                pos += size;
+            }
+        }
+    }
+    Some(pos)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Ascii
+
+fn read_ascii(
+    body: &[u8],
+    header: &Header,
+    plan: &Plan,
+    path: &str,
+) -> Result<PointCloud, ImportError> {
+    match read_ascii_entries(body, header, plan, path) {
+        Ok(cloud) => Ok(cloud),
+        // A count that disagrees with the number of lines explains most parse errors (the next
+        // element's lines are read as this one's), so report that instead when it is the case.
+        Err(error) => Err(count_mismatch(body, header, path).unwrap_or(error)),
+    }
+}
+
+/// When the body's non-empty lines differ from the total the header declares, the error that
+/// says so.
+fn count_mismatch(body: &[u8], header: &Header, path: &str) -> Option<ImportError> {
+    let declared: u64 = header.elements.iter().map(|e| e.count).sum();
+    let found = body
+        .split(|&b| b == b'\n')
+        .filter(|l| l.iter().any(|b| !b.is_ascii_whitespace()))
+        .count() as u64;
+    (declared != found).then(|| {
+        let list: Vec<String> = header
+            .elements
+            .iter()
+            .map(|e| format!("{} {}", e.name, e.count))
+            .collect();
+        ImportError::HeaderCountMismatch {
+            path: path.to_owned(),
+            what: format!("entries in all ({}), one per line,", list.join(", ")),
+            declared,
+            found,
+        }
+    })
+}
+
+fn read_ascii_entries(
+    body: &[u8],
+    header: &Header,
+    plan: &Plan,
+    path: &str,
+) -> Result<PointCloud, ImportError> {
+    let n_vertices = header.elements[plan.vertex].count;
+    let mut lines = Lines::new(body, header.body_line);
+    let mut points = Vec::new();
+    let mut normals = plan.normals.map(|_| Vec::new());
+    let mut triangles = Vec::new();
+    let mut polygon: Vec<u32> = Vec::new();
+    let mut slot_of = Vec::new();
+    let mut last_line = header.body_line;
+    for (e, element) in header.elements.iter().enumerate() {
+        let is_vertex = e == plan.vertex;
+        let face_list = plan.face.filter(|(f, _)| *f == e).map(|(_, p)| p);
+        // For each property, where its value goes: 0..3 coordinates, 3..6 normals.
+        slot_of.clear();
+        slot_of.resize(element.properties.len(), None);
+        if is_vertex {
+            let wanted = plan.coords.iter().chain(plan.normals.iter().flatten());
+            for (slot, &p) in wanted.enumerate() {
+                slot_of[p] = Some(slot);
+            }
+            // At least two bytes ("0\n") per entry.
+            points.reserve(capped_capacity(element.count, body.len() / 2));
+        }
+        let mut values = [0.0; 6];
+        for entry in 0..element.count {
+            let (line_number, line) = loop {
+                match lines.next_line(path) {
+                    None => {
+                        return Err(ImportError::HeaderCountMismatch {
+                            path: path.to_owned(),
+                            what: format!("`{}` entries", element.name),
+                            declared: element.count,
+                            found: entry,
+                        })
+                    }
+                    Some(Err(e)) => return Err(e),
+                    Some(Ok((n, l))) if !l.trim().is_empty() => break (n, l),
+                    Some(Ok(_)) => {}
+                }
+            };
+            last_line = line_number;
+            let malformed = |message: String| ImportError::Malformed {
+                path: path.to_owned(),
+                line: line_number,
+                message,
+            };
+            let mut tokens = line.split_ascii_whitespace();
+            for (p, property) in element.properties.iter().enumerate() {
+                let mut next = |what: &str| {
+                    tokens.next().ok_or_else(|| {
+                        malformed(format!(
+                            "the `{}` entry ends before its {what} `{}`; each entry needs one \
+                             value per property, in header order",
+                            element.name, property.name
+                        ))
+                    })
+                };
+                match property.ty {
+                    PropertyType::Scalar(_) => {
+                        let token = next("property")?;
+                        if let Some(slot) = slot_of[p] {
+                            values[slot] = crate::import::parse_f64(token).ok_or_else(|| {
+                                malformed(format!(
+                                    "`{token}` is not a number (property `{}`)",
+                                    property.name
+                                ))
+                            })?;
+                        }
+                    }
+                    PropertyType::List { .. } => {
+                        let token = next("list length")?;
+                        let n: usize = token.parse().map_err(|_| {
+                            malformed(format!(
+                                "`{token}` is not a list length (property `{}`)",
+                                property.name
+                            ))
+                        })?;
+                        if face_list == Some(p) {
+                            polygon.clear();
+                            for _ in 0..n {
+                                let token = next("list item")?;
+                                let value: i64 = token.parse().map_err(|_| {
+                                    malformed(format!("`{token}` is not a vertex index"))
+                                })?;
+                                polygon.push(to_index(value, entry, n_vertices, path)?);
+                            }
+                        } else {
+                            for _ in 0..n {
+                                next("list item")?;
+                            }
+                        }
+                    }
+                }
+            }
+            if let Some(extra) = tokens.next() {
+                return Err(malformed(format!(
+                    "extra value `{extra}` after the last property of a `{}` entry; each entry \
+                     holds one value per property, in header order",
+                    element.name
+                )));
+            }
+            if is_vertex {
+                points.push([values[0], values[1], values[2]]);
+                if let Some(n) = normals.as_mut() {
+                    n.push([values[3], values[4], values[5]]);
+                }
+            } else if face_list.is_some() {
+                push_fan(&mut triangles, &polygon);
+            }
+        }
+    }
+    while let Some(line) = lines.next_line(path) {
+        let (n, text) = line?;
+        if !text.trim().is_empty() {
+            return Err(
+                count_mismatch(body, header, path).unwrap_or(ImportError::Malformed {
+                    path: path.to_owned(),
+                    line: n,
+                    message: format!(
+                    "data after the last element (which ended on line {last_line}); remove it or \
+                     fix the counts in the header"
+                ),
+                }),
+            );
+        }
+    }
+    Ok(PointCloud {
+        points,
+        normals,
+        triangles,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn read_str(s: &str) -> Result<(ScanFormat, PointCloud), ImportError> {
+        read(s.as_bytes(), "t.ply")
+    }
+
+    const SQUARE: &str = "ply\nformat ascii 1.0\ncomment c\nelement vertex 4\n\
+        property float x\nproperty float y\nproperty float z\nproperty uchar red\n\
+        element face 1\nproperty list uchar int vertex_indices\nend_header\n\
+        0 0 0 255\n1 0 0 255\n1 1 0 255\n0 1 0 255\n4 0 1 2 3\n";
+
+    #[test]
+    fn ascii_quad_is_fan_triangulated() {
+        let (format, cloud) = read_str(SQUARE).unwrap();
+        assert_eq!(format, ScanFormat::PlyAscii);
+        assert_eq!(cloud.points.len(), 4);
+        assert_eq!(cloud.triangles, vec![[0, 1, 2], [0, 2, 3]]);
+        assert!(cloud.normals.is_none());
+    }
+
+    #[test]
+    fn ascii_accepts_nan_and_crlf() {
+        let s = "ply\r\nformat ascii 1.0\r\nelement vertex 2\r\nproperty double x\r\n\
+                 property double y\r\nproperty double z\r\nend_header\r\n1. .5 -2e3\r\nnan inf 0\r\n";
+        let (_, cloud) = read_str(s).unwrap();
+        assert_eq!(cloud.points[0], [1.0, 0.5, -2000.0]);
+        assert!(cloud.points[1][0].is_nan() && cloud.points[1][1].is_infinite());
+    }
+
+    #[test]
+    fn header_errors_name_the_line() {
+        let s = SQUARE.replace("property uchar red", "property uint128 red");
+        match read_str(&s) {
+            Err(ImportError::BadHeader {
+                line: 8, message, ..
+            }) => {
+                assert!(message.contains("uint128"), "{message}")
+            }
+            other => panic!("{other:?}"),
+        }
+        let s = SQUARE.replace("property float z\n", "");
+        assert!(matches!(read_str(&s), Err(ImportError::BadLayout { .. })));
+        // Without `end_header` the first data line is read as a header line.
+        let s = SQUARE.replace("end_header\n", "");
+        assert!(matches!(
+            read_str(&s),
+            Err(ImportError::BadHeader { line: 11, .. })
+        ));
+        let s = &SQUARE[..SQUARE.find("end_header").unwrap()];
+        assert!(matches!(read_str(s), Err(ImportError::Truncated { .. })));
+    }
+
+    #[test]
+    fn ascii_count_mismatch_is_reported_as_such() {
+        let s = SQUARE.replace("element vertex 4", "element vertex 3");
+        match read_str(&s) {
+            Err(ImportError::HeaderCountMismatch {
+                declared: 4,
+                found: 5,
+                ..
+            }) => {}
+            other => panic!("{other:?}"),
+        }
+        let s = SQUARE.replace("element vertex 4", "element vertex 5");
+        assert!(matches!(
+            read_str(&s),
+            Err(ImportError::HeaderCountMismatch { .. })
+        ));
+    }
+
+    #[test]
+    fn binary_layout_with_lists_in_vertices() {
+        // A vertex element with a list forces the walking path; big-endian, odd types.
+        let mut bytes = b"ply\nformat binary_big_endian 1.0\nelement vertex 2\n\
+            property list uchar short tags\nproperty short x\nproperty uint y\nproperty double z\n\
+            element face 1\nproperty list ushort uint vertex_index\nend_header\n"
+            .to_vec();
+        for (tags, x, y, z) in [(vec![1i16, 2], -3i16, 7u32, 0.25f64), (vec![], 4, 9, -1.5)] {
+            bytes.push(tags.len() as u8);
+            for t in tags {
+                bytes.extend_from_slice(&t.to_be_bytes());
+            }
+            bytes.extend_from_slice(&x.to_be_bytes());
+            bytes.extend_from_slice(&y.to_be_bytes());
+            bytes.extend_from_slice(&z.to_be_bytes());
+        }
+        bytes.extend_from_slice(&3u16.to_be_bytes());
+        for i in [1u32, 0, 1] {
+            bytes.extend_from_slice(&i.to_be_bytes());
+        }
+        let (format, cloud) = read(&bytes, "t.ply").unwrap();
+        assert_eq!(format, ScanFormat::PlyBinaryBe);
+        assert_eq!(cloud.points, vec![[-3.0, 7.0, 0.25], [4.0, 9.0, -1.5]]);
+        assert_eq!(cloud.triangles, vec![[1, 0, 1]]);
+        // Cut anywhere: an error, never a panic.
+        for cut in 0..bytes.len() {
+            assert!(read(&bytes[..cut], "t.ply").is_err(), "cut {cut}");
+        }
+    }
+
+    #[test]
+    fn negative_index_is_out_of_range() {
+        let s = SQUARE.replace("4 0 1 2 3", "3 0 -1 2");
+        assert!(matches!(
+            read_str(&s),
+            Err(ImportError::IndexOutOfRange {
+                face: 0,
+                index: -1,
+                ..
+            })
+        ));
+    }
+}

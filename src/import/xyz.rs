@@ -1,0 +1,154 @@
+//! Stage `import`, XYZ reader: a text point list (.xyz, .pts, .txt, .csv) → [`PointCloud`].
+//!
+//! Input: the whole file as bytes. Output: one point per data line, with normals when every
+//! line has six columns, and no triangles.
+//!
+//! Each data line is `x y z` or `x y z nx ny nz`, the numbers separated by spaces, tabs or commas.
+//! Empty lines and `#` comments (whole lines or line ends) are skipped. Two common preambles are
+//! accepted: a first line holding a single whole number (the point count of Leica .pts files,
+//! which must then match), and a first line of column names such as `x,y,z` (csv). Lines with
+//! other column counts (4, 5, 7 or more: intensity, colour) keep x, y, z and ignore the rest,
+//! but every line must have the same number of columns, because a change in mid-file means a
+//! corrupt or concatenated file.
+
+use crate::cloud::PointCloud;
+use crate::import::{parse_f64, ImportError, Lines};
+
+/// Reads an XYZ point list.
+pub(crate) fn read(bytes: &[u8], path: &str) -> Result<PointCloud, ImportError> {
+    let mut lines = Lines::new(bytes, 1);
+    let mut points = Vec::new();
+    let mut normals = Vec::new();
+    let mut columns: Option<(usize, usize)> = None; // (count, line where it was set)
+    let mut stated_count: Option<(u64, usize)> = None;
+    let mut first_data_line = true;
+    let mut values: Vec<f64> = Vec::with_capacity(8);
+    while let Some(line) = lines.next_line(path) {
+        let (line_number, text) = line?;
+        let text = text.split('#').next().unwrap_or("");
+        let tokens = text
+            .split(|c: char| c.is_ascii_whitespace() || c == ',')
+            .filter(|t| !t.is_empty());
+        values.clear();
+        let mut bad_token = None;
+        for token in tokens {
+            match parse_f64(token) {
+                Some(v) => values.push(v),
+                None => {
+                    bad_token = Some(token);
+                    break;
+                }
+            }
+        }
+        let is_first = std::mem::replace(&mut first_data_line, false);
+        if values.is_empty() && bad_token.is_none() {
+            first_data_line = is_first;
+            continue;
+        }
+        if is_first {
+            if bad_token.is_some() && values.is_empty() {
+                // Column names (csv header).
+                continue;
+            }
+            if let ([count], None) = (values.as_slice(), bad_token) {
+                if count.fract() == 0.0 && *count >= 0.0 {
+                    stated_count = Some((*count as u64, line_number));
+                    continue;
+                }
+            }
+        }
+        let malformed = |message: String| ImportError::Malformed {
+            path: path.to_owned(),
+            line: line_number,
+            message,
+        };
+        if let Some(token) = bad_token {
+            return Err(malformed(format!(
+                "`{token}` is not a number; each line needs x y z [nx ny nz]"
+            )));
+        }
+        if values.len() < 3 {
+            return Err(malformed(format!(
+                "{} value(s) on a line; each line needs x y z [nx ny nz]",
+                values.len()
+            )));
+        }
+        match columns {
+            None => columns = Some((values.len(), line_number)),
+            Some((n, first)) if n != values.len() => {
+                return Err(malformed(format!(
+                    "{} columns here but {n} on line {first}; every line needs the same columns",
+                    values.len()
+                )))
+            }
+            Some(_) => {}
+        }
+        points.push([values[0], values[1], values[2]]);
+        if values.len() == 6 {
+            normals.push([values[3], values[4], values[5]]);
+        }
+    }
+    if let Some((declared, line)) = stated_count {
+        if declared != points.len() as u64 {
+            return Err(ImportError::HeaderCountMismatch {
+                path: path.to_owned(),
+                what: format!("points (line {line})"),
+                declared,
+                found: points.len() as u64,
+            });
+        }
+    }
+    let normals = (!normals.is_empty()).then_some(normals);
+    Ok(PointCloud {
+        points,
+        normals,
+        triangles: Vec::new(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn separators_comments_and_normals() {
+        let text = "# scan\n1 2 3 0 0 1\n4,5,6,0,1,0 # end\n\t7\t8\t9\t1\t0\t0\n\n";
+        let cloud = read(text.as_bytes(), "t.xyz").unwrap();
+        assert_eq!(
+            cloud.points,
+            vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]]
+        );
+        assert_eq!(cloud.normals.unwrap()[1], [0.0, 1.0, 0.0]);
+    }
+
+    #[test]
+    fn preambles() {
+        let cloud = read(b"x,y,z\n1,2,3\n", "t.csv").unwrap();
+        assert_eq!(cloud.points.len(), 1);
+        let cloud = read(b"2\n1 2 3 10 255 0 0\n4 5 6 11 0 255 0\n", "t.pts").unwrap();
+        assert_eq!(cloud.points.len(), 2);
+        assert!(cloud.normals.is_none());
+        assert!(matches!(
+            read(b"3\n1 2 3\n", "t.pts"),
+            Err(ImportError::HeaderCountMismatch {
+                declared: 3,
+                found: 1,
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn errors_name_the_line() {
+        for (text, line) in [
+            ("1 2 3\n1 2\n", 2),
+            ("1 2 3\n1 2 x\n", 2),
+            ("1 2 3\n\n1 2 3 4\n", 3),
+        ] {
+            match read(text.as_bytes(), "t.xyz") {
+                Err(ImportError::Malformed { line: l, .. }) => assert_eq!(l, line, "{text}"),
+                other => panic!("{text}: {other:?}"),
+            }
+        }
+    }
+}

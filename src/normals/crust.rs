@@ -1,0 +1,390 @@
+//! The crust triangulation and crust normals of the `normals` stage (paper sections 5.1, 5.2).
+//!
+//! Input: distinct points sampled from a surface. Output: [`Crust`] (the crust triangles, with
+//! arbitrary winding, as indices into the points) and, from [`crust_normals`], one unit outward
+//! normal per point.
+//!
+//! # Algorithm (Amenta, Bern & Kamvysselis, "A new Voronoi-based surface reconstruction
+//! algorithm", SIGGRAPH 1998)
+//!
+//! ```text
+//! Delaunay(P)            its tetrahedra's circumcentres are the Voronoi vertices
+//! pole p⁺ of sample s    the farthest Voronoi vertex of s's cell; on the convex hull the cell is
+//!                        unbounded and the pole vector is the outward hull normal instead
+//! pole p⁻ of sample s    the farthest Voronoi vertex v of s's cell with (v − s)·(p⁺ − s) < 0
+//! Delaunay(P ∪ poles)    the poles approximate the medial axis, so the Delaunay faces
+//!                        among samples only are those near the surface
+//! crust                  the faces of Delaunay(P ∪ poles) whose three vertices are samples
+//! ```
+//!
+//! Poles farther than twice the bounding-box diagonal from the box centre are left out of the
+//! second tetrahedralization: they lie outside the convex hull of the samples, where they only
+//! remove hull faces that the crust may keep anyway, and they would spoil the spatial sort.
+//!
+//! Normals: around each sample the incident crust triangles must form a planar fan (their link
+//! is one cycle, or one path at a boundary); the fan is walked in order so that every triangle
+//! is wound the same way (the right-hand rule of the paper's figure 3a), and the triangle normals
+//! are summed (area-weighted) and normalised. Ill-structured fans (no triangle, a link that is
+//! not one cycle or path, or a triangle more than `max_fan_angle_deg` away from the mean) get the
+//! plane-fit normal of [`crate::normals::pca`]. Signs are then fixed by
+//! [`crate::normals::orient`].
+
+use rayon::prelude::*;
+
+use crate::cloud::Aabb;
+use crate::normals::delaunay::{face_vertices, tetrahedralize, NO_NEIGHBOUR};
+use crate::normals::vec3::{add, cross, dot, norm, normalized, scale, sub, triangle_normal};
+use crate::normals::{orient, pca, NormalsError, NormalsParams};
+
+/// The crust of a point set.
+#[derive(Clone, Debug, Default)]
+pub struct Crust {
+    /// Crust triangles as indices into the points (winding arbitrary).
+    pub triangles: Vec<[u32; 3]>,
+    /// For each point: the unit pole vector (towards the first pole, or the outward hull normal
+    /// on the convex hull), or `None` when the point has no Voronoi cell (skipped as a duplicate).
+    pub pole_vectors: Vec<Option<[f64; 3]>>,
+    /// For each point: whether it is a vertex of the convex hull.
+    pub on_hull: Vec<bool>,
+    /// Number of poles inserted in the second tetrahedralization.
+    pub n_poles: usize,
+}
+
+/// Circumcentre of a tetrahedron (not finite for a flat one).
+fn circumcentre(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], d: &[f64; 3]) -> [f64; 3] {
+    let ba = sub(b, a);
+    let ca = sub(c, a);
+    let da = sub(d, a);
+    let lb = dot(&ba, &ba);
+    let lc = dot(&ca, &ca);
+    let ld = dot(&da, &da);
+    let cd = cross(&ca, &da);
+    let db = cross(&da, &ba);
+    let bc = cross(&ba, &ca);
+    let det = dot(&ba, &cd);
+    let s = 0.5 / det;
+    let off = scale(&add(&add(&scale(&cd, lb), &scale(&db, lc)), &scale(&bc, ld)), s);
+    add(a, &off)
+}
+
+/// Computes the crust of distinct `points`.
+///
+/// # Errors
+/// Fewer than 5 distinct points, a non-finite coordinate, or all points on a line or a plane.
+///
+/// ```
+/// use stablesurf::normals::crust::crust;
+/// // The 6 vertices of an octahedron: its crust is its 8 faces.
+/// let pts = [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]];
+/// let c = crust(&pts).unwrap();
+/// assert_eq!(c.triangles.len(), 8);
+/// ```
+pub fn crust(points: &[[f64; 3]]) -> Result<Crust, NormalsError> {
+    let n = points.len();
+    let dt = tetrahedralize(points)?;
+    let centres: Vec<[f64; 3]> = dt
+        .tets
+        .par_iter()
+        .map(|t| circumcentre(&points[t[0] as usize], &points[t[1] as usize], &points[t[2] as usize], &points[t[3] as usize]))
+        .collect();
+
+    // Convex hull: outward normals of hull faces, summed per vertex (area-weighted).
+    let mut hull_normal = vec![[0.0; 3]; n];
+    let mut on_hull = vec![false; n];
+    for (t, i) in dt.hull_faces() {
+        let f = face_vertices(dt.tets[t], i);
+        let nrm = triangle_normal(&points[f[0] as usize], &points[f[1] as usize], &points[f[2] as usize]);
+        for v in f {
+            on_hull[v as usize] = true;
+            hull_normal[v as usize] = add(&hull_normal[v as usize], &nrm);
+        }
+    }
+
+    // First pole: the farthest Voronoi vertex (circumcentre of an incident tet).
+    let mut first: Vec<(f64, u32)> = vec![(-1.0, NO_NEIGHBOUR); n];
+    for (t, tet) in dt.tets.iter().enumerate() {
+        let c = centres[t];
+        if !c.iter().all(|x| x.is_finite()) {
+            continue;
+        }
+        for &v in tet {
+            let d = norm(&sub(&c, &points[v as usize]));
+            if d > first[v as usize].0 {
+                first[v as usize] = (d, t as u32);
+            }
+        }
+    }
+    let pole_vectors: Vec<Option<[f64; 3]>> = (0..n)
+        .map(|v| {
+            if on_hull[v] {
+                normalized(&hull_normal[v])
+            } else if first[v].1 != NO_NEIGHBOUR {
+                normalized(&sub(&centres[first[v].1 as usize], &points[v]))
+            } else {
+                None
+            }
+        })
+        .collect();
+    // Second pole: the farthest Voronoi vertex on the other side.
+    let mut second: Vec<(f64, u32)> = vec![(-1.0, NO_NEIGHBOUR); n];
+    for (t, tet) in dt.tets.iter().enumerate() {
+        let c = centres[t];
+        if !c.iter().all(|x| x.is_finite()) {
+            continue;
+        }
+        for &v in tet {
+            let Some(pv) = pole_vectors[v as usize] else { continue };
+            let r = sub(&c, &points[v as usize]);
+            if dot(&r, &pv) < 0.0 {
+                let d = norm(&r);
+                if d > second[v as usize].0 {
+                    second[v as usize] = (d, t as u32);
+                }
+            }
+        }
+    }
+
+    // The poles (each Voronoi vertex once), without the far ones.
+    let bbox = Aabb::from_points(points).ok_or(NormalsError::TooFewPoints { n_points: 0, min: 5 })?;
+    let centre = bbox.center();
+    let limit = 2.0 * bbox.diagonal();
+    let mut is_pole = vec![false; dt.tets.len()];
+    for v in 0..n {
+        if !on_hull[v] && first[v].1 != NO_NEIGHBOUR {
+            is_pole[first[v].1 as usize] = true;
+        }
+        if second[v].1 != NO_NEIGHBOUR {
+            is_pole[second[v].1 as usize] = true;
+        }
+    }
+    let mut all = points.to_vec();
+    for (t, &p) in is_pole.iter().enumerate() {
+        if p && norm(&sub(&centres[t], &centre)) <= limit {
+            all.push(centres[t]);
+        }
+    }
+    let n_poles = all.len() - n;
+    let dt2 = tetrahedralize(&all)?;
+    let mut triangles = Vec::new();
+    for (t, tet) in dt2.tets.iter().enumerate() {
+        for i in 0..4 {
+            let u = dt2.neighbours[t][i];
+            if u != NO_NEIGHBOUR && (u as usize) < t {
+                continue;
+            }
+            let f = face_vertices(*tet, i);
+            if f.iter().all(|&v| (v as usize) < n) {
+                triangles.push(f);
+            }
+        }
+    }
+    Ok(Crust { triangles, pole_vectors, on_hull, n_poles })
+}
+
+/// Normal of the fan of crust triangles `tris` around sample `p`, or `None` when the fan is
+/// ill-structured.
+///
+/// A planar fan (link = one cycle, or one path at a boundary) is walked in order, which winds
+/// every triangle the same way (the right-hand rule). The raw crust also holds all four faces of
+/// the flat "sliver" tetrahedra that four nearly co-circular samples make; such a fan is not
+/// planar but its triangles are all nearly tangent, so they are aligned with the pole vector
+/// instead. Each triangle (p, a, b) contributes (a − p) × (b − p) / (|a − p|² |b − p|²), the
+/// weights of Max (1999, "Weights for computing vertex normals from facet normals"), exact for
+/// samples of a sphere. The fan is rejected when a triangle's aligned normal is more than the
+/// angle whose cosine is `cos_max` away from the result.
+fn fan_normal(points: &[[f64; 3]], p: u32, tris: &[[u32; 3]], pole: Option<[f64; 3]>, cos_max: f64) -> Option<[f64; 3]> {
+    if tris.is_empty() {
+        return None;
+    }
+    let o = &points[p as usize];
+    let weighted = |a: u32, b: u32| {
+        let ea = sub(&points[a as usize], o);
+        let eb = sub(&points[b as usize], o);
+        let w = dot(&ea, &ea) * dot(&eb, &eb);
+        if w > 0.0 {
+            scale(&cross(&ea, &eb), 1.0 / w)
+        } else {
+            [0.0; 3]
+        }
+    };
+    // Link edges a → b from each triangle (p, a, b) in its own winding.
+    let link: Vec<(u32, u32)> = tris
+        .iter()
+        .map(|t| {
+            let k = t.iter().position(|&v| v == p).unwrap_or(0);
+            (t[(k + 1) % 3], t[(k + 2) % 3])
+        })
+        .collect();
+    let normals: Vec<[f64; 3]> = match ordered_ring(&link) {
+        Some(ring) => ring.windows(2).map(|w| weighted(w[0], w[1])).collect(),
+        None => {
+            let reference = match pole {
+                Some(v) => v,
+                None => link.iter().map(|&(a, b)| weighted(a, b)).max_by(|x, y| norm(x).total_cmp(&norm(y)))?,
+            };
+            link.iter()
+                .map(|&(a, b)| {
+                    let nrm = weighted(a, b);
+                    if dot(&nrm, &reference) < 0.0 {
+                        scale(&nrm, -1.0)
+                    } else {
+                        nrm
+                    }
+                })
+                .collect()
+        }
+    };
+    let sum = normals.iter().fold([0.0; 3], |acc, x| add(&acc, x));
+    let unit = normalized(&sum)?;
+    for nrm in &normals {
+        let l = norm(nrm);
+        if l > 0.0 && dot(nrm, &unit) < cos_max * l {
+            return None;
+        }
+    }
+    if let Some(v) = pole {
+        if dot(&v, &unit).abs() < cos_max {
+            return None;
+        }
+    }
+    Some(unit)
+}
+
+/// The link vertices in order when the link edges form one cycle (first vertex repeated at the
+/// end) or one path; `None` otherwise.
+fn ordered_ring(link: &[(u32, u32)]) -> Option<Vec<u32>> {
+    let mut verts: Vec<(u32, u32)> = Vec::with_capacity(2 * link.len());
+    for &(a, b) in link {
+        for v in [a, b] {
+            match verts.iter_mut().find(|x| x.0 == v) {
+                Some(x) => x.1 += 1,
+                None => verts.push((v, 1)),
+            }
+        }
+    }
+    if verts.iter().any(|x| x.1 > 2) {
+        return None;
+    }
+    let ends: Vec<u32> = verts.iter().filter(|x| x.1 == 1).map(|x| x.0).collect();
+    let is_cycle = ends.is_empty();
+    if !(is_cycle && link.len() >= 3 || ends.len() == 2 && link.len() >= 2) {
+        return None;
+    }
+    let mut used = vec![false; link.len()];
+    let mut ring = vec![if is_cycle { link[0].0 } else { ends[0] }];
+    let mut cur = ring[0];
+    for _ in 0..link.len() {
+        let next = (0..link.len()).find(|&e| !used[e] && (link[e].0 == cur || link[e].1 == cur))?;
+        used[next] = true;
+        cur = if link[next].0 == cur { link[next].1 } else { link[next].0 };
+        ring.push(cur);
+    }
+    if is_cycle && cur != ring[0] {
+        return None;
+    }
+    Some(ring)
+}
+
+/// Crust normals and what the stage reports about them.
+#[derive(Clone, Debug, Default)]
+pub struct CrustNormals {
+    /// One unit outward normal per point.
+    pub normals: Vec<[f64; 3]>,
+    /// The crust triangles (indices into the points).
+    pub triangles: Vec<[u32; 3]>,
+    /// Number of points whose fan was ill-structured (plane fit used).
+    pub n_plane_fits: usize,
+    /// Messages for the user.
+    pub warnings: Vec<String>,
+}
+
+/// Unit outward normals of distinct `points` from their crust (paper section 5.2).
+///
+/// # Errors
+/// Fewer than 5 distinct points, a non-finite coordinate, or all points on a line or a plane.
+pub fn crust_normals(points: &[[f64; 3]], params: &NormalsParams) -> Result<CrustNormals, NormalsError> {
+    let n = points.len();
+    let c = crust(points)?;
+    // Incident triangles per point, in compressed rows.
+    let mut start = vec![0usize; n + 1];
+    for t in &c.triangles {
+        for &v in t {
+            start[v as usize + 1] += 1;
+        }
+    }
+    for i in 0..n {
+        start[i + 1] += start[i];
+    }
+    let mut fill = start.clone();
+    let mut incident = vec![[0u32; 3]; start[n]];
+    for t in &c.triangles {
+        for &v in t {
+            incident[fill[v as usize]] = *t;
+            fill[v as usize] += 1;
+        }
+    }
+    let cos_max = params.max_fan_angle_deg.to_radians().cos();
+    let fans: Vec<Option<[f64; 3]>> = (0..n)
+        .into_par_iter()
+        .map(|v| fan_normal(points, v as u32, &incident[start[v]..start[v + 1]], c.pole_vectors[v], cos_max))
+        .collect();
+    let knn = pca::knn(points, params.k_neighbours);
+    let (fits, noisy) = pca::adaptive_normals(points, &knn, params.max_k_neighbours);
+    let mut n_plane_fits = 0;
+    let mut n_noisy = 0;
+    let mut normals: Vec<[f64; 3]> = Vec::with_capacity(n);
+    for v in 0..n {
+        match fans[v] {
+            Some(f) if !noisy[v] => normals.push(f),
+            _ => {
+                n_plane_fits += 1;
+                n_noisy += usize::from(noisy[v]);
+                normals.push(fits[v]);
+            }
+        }
+    }
+    orient::orient_outward(points, &mut normals, &c.triangles, &knn);
+    let mut warnings = Vec::new();
+    if n_plane_fits > 0 {
+        warnings.push(format!(
+            "crust fan ill-structured at {n_plane_fits} of {n} points ({n_noisy} of them noisy); used pca plane fits there"
+        ));
+    }
+    Ok(CrustNormals { normals, triangles: c.triangles, n_plane_fits, warnings })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn circumcentre_is_equidistant() {
+        let q = [[0.1, 0.2, 0.3], [1.3, 0.1, -0.2], [0.4, 1.7, 0.2], [0.3, 0.5, 1.9]];
+        let c = circumcentre(&q[0], &q[1], &q[2], &q[3]);
+        let r0 = norm(&sub(&c, &q[0]));
+        for p in &q[1..] {
+            assert!((norm(&sub(&c, p)) - r0).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn sphere_crust_is_a_closed_triangulation() {
+        // Points of a Fibonacci sphere are all on the convex hull: the crust is the hull, 2n − 4
+        // triangles, every vertex in a planar fan.
+        let n = 500;
+        let points: Vec<[f64; 3]> = (0..n)
+            .map(|i| {
+                let z = 1.0 - (2.0 * i as f64 + 1.0) / n as f64;
+                let r = (1.0 - z * z).sqrt();
+                let a = i as f64 * 2.399_963_229_728_653;
+                [r * a.cos(), r * a.sin(), z]
+            })
+            .collect();
+        let c = crust(&points).unwrap();
+        assert_eq!(c.triangles.len(), 2 * n - 4);
+        assert!(c.on_hull.iter().all(|&h| h));
+        for (p, v) in points.iter().zip(&c.pole_vectors) {
+            assert!(dot(p, &v.unwrap()) > 0.99, "the pole vector of a hull point is the outward normal");
+        }
+    }
+}

@@ -1,0 +1,222 @@
+//! The `mesh` and `input` normal sources of the `normals` stage.
+//!
+//! Input: distinct points and either the file's triangles (remapped to the distinct points) or
+//! the file's per-point normals. Output: one unit outward normal per point and warnings.
+//!
+//! `mesh`: the triangles' windings are made consistent by a breadth-first walk over edges shared
+//! by exactly two triangles (a neighbour that runs along the shared edge in the same direction
+//! is flipped), each connected patch is turned so that its signed volume, measured from its
+//! centroid, is positive (outward for a closed surface), and each vertex gets the sum of its
+//! triangles' unnormalised right-hand normals (area weighting). Vertices with no usable triangle
+//! get a plane fit, signed like the average of their neighbours' normals.
+//!
+//! `input`: the file's normals are normalised (zero or non-finite ones are replaced by plane
+//! fits); if more than 1% of nearest-neighbour pairs disagree in sign they are re-oriented by
+//! [`crate::normals::orient`]; each connected piece is then turned outward if its normals point in.
+
+use std::collections::VecDeque;
+
+use crate::normals::vec3::{add, dot, normalized, scale, sub, triangle_normal};
+use crate::normals::{orient, pca, NormalsError, NormalsParams};
+
+/// Unit outward normals from the mesh's faces. Returns the normals and warnings.
+///
+/// # Errors
+/// [`NormalsError::NoMeshFaces`] when there is no triangle.
+pub fn mesh_normals(
+    points: &[[f64; 3]],
+    triangles: &[[u32; 3]],
+    params: &NormalsParams,
+) -> Result<(Vec<[f64; 3]>, Vec<String>), NormalsError> {
+    let n = points.len();
+    let mut tris: Vec<[u32; 3]> = triangles
+        .iter()
+        .filter(|t| t[0] != t[1] && t[1] != t[2] && t[0] != t[2] && t.iter().all(|&v| (v as usize) < n))
+        .copied()
+        .collect();
+    if tris.is_empty() {
+        return Err(NormalsError::NoMeshFaces);
+    }
+    let mut warnings = Vec::new();
+    // Directed edges (a < b key, triangle, whether the triangle runs a → b).
+    let mut edges: Vec<(u32, u32, u32, bool)> = Vec::with_capacity(3 * tris.len());
+    for (t, tri) in tris.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (tri[k], tri[(k + 1) % 3]);
+            edges.push((a.min(b), a.max(b), t as u32, a < b));
+        }
+    }
+    edges.sort_unstable();
+    // Manifold adjacency: (neighbour triangle, same direction along the shared edge).
+    let mut adjacency: Vec<Vec<(u32, bool)>> = vec![Vec::new(); tris.len()];
+    let mut s = 0;
+    while s < edges.len() {
+        let mut e = s + 1;
+        while e < edges.len() && edges[e].0 == edges[s].0 && edges[e].1 == edges[s].1 {
+            e += 1;
+        }
+        if e - s == 2 {
+            let (x, y) = (edges[s], edges[s + 1]);
+            let same = x.3 == y.3;
+            adjacency[x.2 as usize].push((y.2, same));
+            adjacency[y.2 as usize].push((x.2, same));
+        }
+        s = e;
+    }
+    let mut flip = vec![false; tris.len()];
+    let mut patch = vec![u32::MAX; tris.len()];
+    let mut n_patches = 0u32;
+    let mut n_conflicts = 0usize;
+    let mut queue = VecDeque::new();
+    for seed in 0..tris.len() {
+        if patch[seed] != u32::MAX {
+            continue;
+        }
+        patch[seed] = n_patches;
+        queue.push_back(seed as u32);
+        while let Some(t) = queue.pop_front() {
+            for &(u, same) in &adjacency[t as usize] {
+                // Consistent neighbours traverse the shared edge in opposite directions.
+                let want = flip[t as usize] ^ same;
+                if patch[u as usize] == u32::MAX {
+                    patch[u as usize] = n_patches;
+                    flip[u as usize] = want;
+                    queue.push_back(u);
+                } else if flip[u as usize] != want {
+                    n_conflicts += 1;
+                }
+            }
+        }
+        n_patches += 1;
+    }
+    for (t, tri) in tris.iter_mut().enumerate() {
+        if flip[t] {
+            tri.swap(1, 2);
+        }
+    }
+    // Outward per patch: positive signed volume measured from the patch's centroid.
+    let mut centroid = vec![[0.0; 3]; n_patches as usize];
+    let mut count = vec![0.0; n_patches as usize];
+    for (t, tri) in tris.iter().enumerate() {
+        let p = patch[t] as usize;
+        for &v in tri {
+            centroid[p] = add(&centroid[p], &points[v as usize]);
+            count[p] += 1.0;
+        }
+    }
+    for p in 0..centroid.len() {
+        centroid[p] = scale(&centroid[p], 1.0 / count[p]);
+    }
+    let mut volume = vec![0.0; n_patches as usize];
+    for (t, tri) in tris.iter().enumerate() {
+        let p = patch[t] as usize;
+        let c = centroid[p];
+        let [a, b, d] = tri.map(|v| sub(&points[v as usize], &c));
+        volume[p] += dot(&a, &crate::normals::vec3::cross(&b, &d));
+    }
+    for (t, tri) in tris.iter_mut().enumerate() {
+        if volume[patch[t] as usize] < 0.0 {
+            tri.swap(1, 2);
+        }
+    }
+    if n_conflicts > 0 {
+        warnings.push(format!(
+            "the mesh is not orientable or has inconsistent faces ({} edge conflicts); some normals may point inward",
+            n_conflicts / 2
+        ));
+    }
+    let mut sums = vec![[0.0; 3]; n];
+    for tri in &tris {
+        let nrm = triangle_normal(&points[tri[0] as usize], &points[tri[1] as usize], &points[tri[2] as usize]);
+        for &v in tri {
+            sums[v as usize] = add(&sums[v as usize], &nrm);
+        }
+    }
+    let mut normals: Vec<Option<[f64; 3]>> = sums.iter().map(normalized).collect();
+    let missing = normals.iter().filter(|x| x.is_none()).count();
+    if missing > 0 {
+        warnings.push(format!("{missing} points belong to no usable face; used pca plane fits there"));
+        fill_missing(points, &mut normals, params);
+    }
+    Ok((normals.into_iter().map(|x| x.unwrap_or([0.0, 0.0, 1.0])).collect(), warnings))
+}
+
+/// Replaces `None` normals by plane fits signed like the sum of their neighbours' known normals
+/// (or outward by the farthest-points vote when no neighbour has one).
+fn fill_missing(points: &[[f64; 3]], normals: &mut [Option<[f64; 3]>], params: &NormalsParams) {
+    let knn = pca::knn(points, params.k_neighbours);
+    let mut orphans = Vec::new();
+    for i in 0..points.len() {
+        if normals[i].is_some() {
+            continue;
+        }
+        let mut nrm = pca::plane_normal(points, i, &knn[i]);
+        let reference = knn[i].iter().filter_map(|&j| normals[j as usize]).fold([0.0; 3], |a, x| add(&a, &x));
+        let r = dot(&nrm, &reference);
+        if r < 0.0 {
+            nrm = scale(&nrm, -1.0);
+        }
+        if r == 0.0 {
+            orphans.push(i);
+        }
+        normals[i] = Some(nrm);
+    }
+    if !orphans.is_empty() {
+        let mut all: Vec<[f64; 3]> = normals.iter().map(|x| x.unwrap_or([0.0, 0.0, 1.0])).collect();
+        let known: Vec<bool> = (0..points.len()).map(|i| !orphans.contains(&i)).collect();
+        if known.iter().all(|k| !k) {
+            orient::orient_outward(points, &mut all, &[], &knn);
+            for (i, a) in all.into_iter().enumerate() {
+                normals[i] = Some(a);
+            }
+        }
+    }
+}
+
+/// Unit outward normals from the file's normals. Returns the normals and warnings.
+pub fn input_normals(points: &[[f64; 3]], given: &[[f64; 3]], params: &NormalsParams) -> (Vec<[f64; 3]>, Vec<String>) {
+    let mut warnings = Vec::new();
+    let knn = pca::knn(points, params.k_neighbours);
+    let mut n_bad = 0;
+    let mut normals: Vec<[f64; 3]> = (0..points.len())
+        .map(|i| {
+            let ok = given[i].iter().all(|c| c.is_finite());
+            match normalized(&given[i]).filter(|_| ok) {
+                Some(x) => x,
+                None => {
+                    n_bad += 1;
+                    pca::plane_normal(points, i, &knn[i])
+                }
+            }
+        })
+        .collect();
+    if n_bad > 0 {
+        warnings.push(format!("{n_bad} input normals are zero or not finite; used pca plane fits there"));
+    }
+    let mut pairs = 0usize;
+    let mut disagree = 0usize;
+    for (i, list) in knn.iter().enumerate() {
+        for &j in list {
+            pairs += 1;
+            if dot(&normals[i], &normals[j as usize]) < 0.0 {
+                disagree += 1;
+            }
+        }
+    }
+    let mut propagated = normals.clone();
+    let label = orient::orient_consistently(points, &mut propagated, &[], &knn);
+    if n_bad > 0 || disagree * 100 > pairs {
+        if n_bad == 0 {
+            warnings.push(format!(
+                "{:.1}% of neighbouring input normals disagree in sign; re-oriented them",
+                100.0 * disagree as f64 / pairs.max(1) as f64
+            ));
+        }
+        normals = propagated;
+    }
+    let flipped = orient::orient_outward_pieces(points, &mut normals, &label);
+    if flipped > 0 {
+        warnings.push(format!("input normals pointed inward on {flipped} piece(s); flipped them"));
+    }
+    (normals, warnings)
+}

@@ -1,0 +1,161 @@
+//! Global orientation of the `normals` stage: consistent signs, then outward, per connected piece.
+//!
+//! Input: distinct points, unit normals with arbitrary signs, the crust triangles (may be empty)
+//! and the k-nearest-neighbour lists. Output: the same normals, some negated, so that neighbours
+//! agree and every piece points out of the object.
+//!
+//! # Algorithm
+//!
+//! The paper (section 5.2) aligns normals by propagation: take a reference normal, flip each
+//! neighbour whose dot product with it is negative (with an angle margin), and repeat from each
+//! aligned point. The order matters: propagating across a sharp fold or between two close sheets
+//! flips whole regions. Following Hoppe et al. (1992, "Surface reconstruction from unorganized
+//! points"), propagation runs along a minimum spanning tree of the neighbour graph weighted by
+//! 1 − |nᵢ·nⱼ|, so that it always crosses the most parallel pairs first and the unreliable
+//! (nearly perpendicular) pairs last, if at all. Crust edges are preferred over k-nearest-neighbour
+//! edges (the latter get a penalty of 1), because k-nearest neighbours may lie on the other side
+//! of a thin part while crust edges follow the surface.
+//!
+//! Outward: for any centre c, the point of a closed surface farthest from c has its outward normal
+//! along p − c. Each connected piece's farthest points from its centroid (the farthest 2%, at
+//! least 8) vote with n·(p − c)/|p − c|; a negative sum flips the piece.
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+
+use crate::normals::vec3::{dot, norm, scale, sub};
+
+/// Symmetric neighbour graph in compressed rows: `(neighbour, penalty)` per entry.
+struct Graph {
+    start: Vec<usize>,
+    entries: Vec<(u32, f64)>,
+}
+
+fn build_graph(n: usize, triangles: &[[u32; 3]], knn: &[Vec<u32>]) -> Graph {
+    let mut edges: Vec<(u32, u32, u8)> = Vec::new();
+    for t in triangles {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            if a != b && (a as usize) < n && (b as usize) < n {
+                edges.push((a.min(b), a.max(b), 0));
+            }
+        }
+    }
+    let penalty = if triangles.is_empty() { 0 } else { 1 };
+    for (i, list) in knn.iter().enumerate() {
+        for &j in list {
+            if j as usize != i && (j as usize) < n {
+                edges.push(((i as u32).min(j), (i as u32).max(j), penalty));
+            }
+        }
+    }
+    edges.sort_unstable();
+    // Keep the smallest penalty of each pair.
+    edges.dedup_by(|a, b| a.0 == b.0 && a.1 == b.1);
+    let mut count = vec![0usize; n + 1];
+    for e in &edges {
+        count[e.0 as usize + 1] += 1;
+        count[e.1 as usize + 1] += 1;
+    }
+    for i in 0..n {
+        count[i + 1] += count[i];
+    }
+    let mut fill = count.clone();
+    let mut entries = vec![(0u32, 0.0); count[n]];
+    for e in &edges {
+        entries[fill[e.0 as usize]] = (e.1, f64::from(e.2));
+        fill[e.0 as usize] += 1;
+        entries[fill[e.1 as usize]] = (e.0, f64::from(e.2));
+        fill[e.1 as usize] += 1;
+    }
+    Graph { start: count, entries }
+}
+
+impl Graph {
+    fn neighbours(&self, i: usize) -> &[(u32, f64)] {
+        &self.entries[self.start[i]..self.start[i + 1]]
+    }
+}
+
+/// Makes the signs of `normals` consistent along a minimum spanning tree of the neighbour graph.
+/// Returns the connected pieces as a label per point.
+pub fn orient_consistently(
+    points: &[[f64; 3]],
+    normals: &mut [[f64; 3]],
+    triangles: &[[u32; 3]],
+    knn: &[Vec<u32>],
+) -> Vec<u32> {
+    let n = points.len();
+    let graph = build_graph(n, triangles, knn);
+    let mut label = vec![u32::MAX; n];
+    let mut heap: BinaryHeap<Reverse<(u64, u32, u32)>> = BinaryHeap::new();
+    let mut n_pieces = 0u32;
+    for root in 0..n {
+        if label[root] != u32::MAX {
+            continue;
+        }
+        heap.clear();
+        heap.push(Reverse((0, root as u32, root as u32)));
+        while let Some(Reverse((_, to, from))) = heap.pop() {
+            let to = to as usize;
+            if label[to] != u32::MAX {
+                continue;
+            }
+            label[to] = n_pieces;
+            if dot(&normals[to], &normals[from as usize]) < 0.0 {
+                normals[to] = scale(&normals[to], -1.0);
+            }
+            for &(j, penalty) in graph.neighbours(to) {
+                if label[j as usize] == u32::MAX {
+                    let w = penalty + 1.0 - dot(&normals[to], &normals[j as usize]).abs().min(1.0);
+                    // Non-negative f64 order equals the order of their bit patterns.
+                    heap.push(Reverse((w.max(0.0).to_bits(), j, to as u32)));
+                }
+            }
+        }
+        n_pieces += 1;
+    }
+    label
+}
+
+/// Turns each connected piece (`label` from [`orient_consistently`]) outward by the
+/// farthest-points vote. Returns the number of pieces flipped.
+pub fn orient_outward_pieces(points: &[[f64; 3]], normals: &mut [[f64; 3]], label: &[u32]) -> usize {
+    let n_pieces = label.iter().copied().max().map_or(0, |m| m as usize + 1);
+    let mut members: Vec<Vec<u32>> = vec![Vec::new(); n_pieces];
+    for (i, &l) in label.iter().enumerate() {
+        members[l as usize].push(i as u32);
+    }
+    let mut flipped = 0;
+    for piece in &members {
+        let count = piece.len() as f64;
+        let mut centre = [0.0; 3];
+        for &i in piece {
+            for a in 0..3 {
+                centre[a] += points[i as usize][a] / count;
+            }
+        }
+        let mut by_distance: Vec<(f64, u32)> =
+            piece.iter().map(|&i| (norm(&sub(&points[i as usize], &centre)), i)).collect();
+        by_distance.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        let voters = (piece.len() / 50).max(8).min(piece.len());
+        let vote: f64 = by_distance[..voters]
+            .iter()
+            .filter(|(d, _)| *d > 0.0)
+            .map(|&(d, i)| dot(&normals[i as usize], &sub(&points[i as usize], &centre)) / d)
+            .sum();
+        if vote < 0.0 {
+            for &i in piece {
+                normals[i as usize] = scale(&normals[i as usize], -1.0);
+            }
+            flipped += 1;
+        }
+    }
+    flipped
+}
+
+/// Consistent signs, then outward, in one call.
+pub fn orient_outward(points: &[[f64; 3]], normals: &mut [[f64; 3]], triangles: &[[u32; 3]], knn: &[Vec<u32>]) {
+    let label = orient_consistently(points, normals, triangles, knn);
+    orient_outward_pieces(points, normals, &label);
+}

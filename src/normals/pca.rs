@@ -1,0 +1,228 @@
+//! Plane-fit ("PCA") normals of the `normals` stage, and the k-nearest-neighbour graph they share
+//! with the orientation step.
+//!
+//! Input: distinct points. Output: per point, an unoriented unit normal: the direction of least
+//! variance of the point and its k nearest neighbours (the normal of their least-squares plane,
+//! Hoppe et al. 1992). The sign is arbitrary here; [`crate::normals::orient`] makes it consistent
+//! and outward.
+//!
+//! Invariants: every returned normal is unit length and finite (a degenerate neighbourhood gets
+//! the best direction the eigen-solver finds, never NaN); results do not depend on the thread
+//! count (each point is computed independently and collected in order).
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
+
+use crate::normals::vec3::{dot, normalized, sub};
+use crate::normals::NormalsParams;
+
+/// A k-d tree over the points (`None` only when kiddo refuses the input).
+pub fn build_tree(points: &[[f64; 3]]) -> Option<ImmutableKdTree<f64, 3>> {
+    ImmutableKdTree::<f64, 3>::new_from_slice(points).ok()
+}
+
+/// The `k` nearest neighbours of point `i` (itself excluded), nearest first, ties by index.
+pub fn nearest(tree: &ImmutableKdTree<f64, 3>, points: &[[f64; 3]], i: usize, k: usize) -> Vec<u32> {
+    let Some(qty) = std::num::NonZeroUsize::new((k + 1).min(points.len())) else {
+        return Vec::new();
+    };
+    let mut found = tree.query(&points[i]).nearest_n::<SquaredEuclidean<f64>>(qty).execute();
+    // Sort by (distance, index) so that ties are broken the same way on every run.
+    found.sort_by(|a, b| a.distance.total_cmp(&b.distance).then(a.item.cmp(&b.item)));
+    found.into_iter().map(|r| r.item).filter(|&j| j as usize != i).take(k).collect()
+}
+
+/// The k nearest neighbours of every point (the point itself excluded), nearest first.
+pub fn knn(points: &[[f64; 3]], k: usize) -> Vec<Vec<u32>> {
+    match build_tree(points) {
+        Some(tree) => (0..points.len()).into_par_iter().map(|i| nearest(&tree, points, i, k)).collect(),
+        None => vec![Vec::new(); points.len()],
+    }
+}
+
+/// Normal of the least-squares plane through `centre` and `neighbours`.
+pub fn plane_normal(points: &[[f64; 3]], centre: usize, neighbours: &[u32]) -> [f64; 3] {
+    plane_fit(points, centre, neighbours).0
+}
+
+/// Normal of the least-squares plane through `centre` and `neighbours`, and the neighbourhood's
+/// thickness: √(λ₀/λ₁), the spread across the plane over the spread along it.
+pub fn plane_fit(points: &[[f64; 3]], centre: usize, neighbours: &[u32]) -> ([f64; 3], f64) {
+    let idx = std::iter::once(centre as u32).chain(neighbours.iter().copied());
+    let count = (neighbours.len() + 1) as f64;
+    let mut mean = [0.0; 3];
+    for i in idx.clone() {
+        let p = points[i as usize];
+        for a in 0..3 {
+            mean[a] += p[a] / count;
+        }
+    }
+    let mut cov = [[0.0; 3]; 3];
+    for i in idx {
+        let d = sub(&points[i as usize], &mean);
+        for r in 0..3 {
+            for c in 0..3 {
+                cov[r][c] += d[r] * d[c];
+            }
+        }
+    }
+    let (normal, l0, l1) = smallest_eigen(cov);
+    let thickness = if l1 > 0.0 { (l0.max(0.0) / l1).sqrt() } else { 1.0 };
+    (normal, thickness)
+}
+
+/// Below this thickness a neighbourhood counts as clean and is never grown.
+const CLEAN_THICKNESS: f64 = 0.05;
+
+/// A plane fit whose neighbourhood grows where noise dominates (an adaptive choice of scale).
+///
+/// A neighbourhood of k₀ = `neighbours.len()` points thicker than 0.05 (thickness √(λ₀/λ₁),
+/// the spread across the plane over the spread along it) is tried at 2k₀, 4k₀, … up to `max_k`
+/// points, and the flattest one wins. Noise makes the thickness fall like 1/radius as the
+/// neighbourhood grows, curvature or a nearby sheet make it rise, so the flattest scale is where
+/// the two balance (Mitra & Nguyen 2003 choose the scale from the same trade-off). The small
+/// neighbourhood is kept unless the flattest is at least 20% flatter. Returns the normal and the
+/// number of neighbours used.
+pub fn adaptive_plane_fit(
+    tree: &ImmutableKdTree<f64, 3>,
+    points: &[[f64; 3]],
+    i: usize,
+    neighbours: &[u32],
+    max_k: usize,
+) -> ([f64; 3], usize) {
+    let (first_normal, first_thickness) = plane_fit(points, i, neighbours);
+    let (mut normal, mut thickness) = (first_normal, first_thickness);
+    let k0 = neighbours.len();
+    if thickness <= CLEAN_THICKNESS || 2 * k0 > max_k || k0 == 0 {
+        return (normal, k0);
+    }
+    let wide = nearest(tree, points, i, max_k);
+    let mut best_k = k0;
+    let mut k = 2 * k0;
+    while k <= wide.len() {
+        let (n2, t2) = plane_fit(points, i, &wide[..k]);
+        if t2 < thickness {
+            normal = n2;
+            thickness = t2;
+            best_k = k;
+        }
+        k *= 2;
+    }
+    // Curvature alone changes the thickness little from one scale to the next; only a clear
+    // drop says that noise dominated the small neighbourhood.
+    if thickness > 0.8 * first_thickness {
+        return (first_normal, k0);
+    }
+    (normal, best_k)
+}
+
+/// Plane-fit normals with the adaptive neighbourhood, in parallel; also returns, per point,
+/// whether its neighbourhood had to grow (the data is noisy at the k₀ scale there).
+pub fn adaptive_normals(points: &[[f64; 3]], neighbours: &[Vec<u32>], max_k: usize) -> (Vec<[f64; 3]>, Vec<bool>) {
+    let Some(tree) = build_tree(points) else {
+        return ((0..points.len()).map(|i| plane_normal(points, i, &neighbours[i])).collect(), vec![false; points.len()]);
+    };
+    let fits: Vec<([f64; 3], bool)> = (0..points.len())
+        .into_par_iter()
+        .map(|i| {
+            let (n, k) = adaptive_plane_fit(&tree, points, i, &neighbours[i], max_k);
+            (n, k > neighbours[i].len())
+        })
+        .collect();
+    fits.into_iter().unzip()
+}
+
+/// Unit eigenvector of the smallest eigenvalue of a symmetric 3×3 matrix (cyclic Jacobi).
+pub fn smallest_eigenvector(a: [[f64; 3]; 3]) -> [f64; 3] {
+    smallest_eigen(a).0
+}
+
+/// Unit eigenvector of the smallest eigenvalue, that eigenvalue and the middle one.
+fn smallest_eigen(mut a: [[f64; 3]; 3]) -> ([f64; 3], f64, f64) {
+    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    for _sweep in 0..32 {
+        let off = a[0][1].abs() + a[0][2].abs() + a[1][2].abs();
+        let diag = a[0][0].abs() + a[1][1].abs() + a[2][2].abs();
+        if off <= 1e-15 * diag || off == 0.0 || !off.is_finite() {
+            break;
+        }
+        for (p, q) in [(0usize, 1usize), (0, 2), (1, 2)] {
+            if a[p][q] == 0.0 {
+                continue;
+            }
+            let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
+            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+            let t = if theta == 0.0 { 1.0 } else { t };
+            let c = 1.0 / (t * t + 1.0).sqrt();
+            let s = t * c;
+            // a ← Jᵀ a J with the rotation J in the (p, q) plane.
+            for k in 0..3 {
+                let akp = a[k][p];
+                let akq = a[k][q];
+                a[k][p] = c * akp - s * akq;
+                a[k][q] = s * akp + c * akq;
+            }
+            for k in 0..3 {
+                let apk = a[p][k];
+                let aqk = a[q][k];
+                a[p][k] = c * apk - s * aqk;
+                a[q][k] = s * apk + c * aqk;
+            }
+            for row in &mut v {
+                let vp = row[p];
+                let vq = row[q];
+                row[p] = c * vp - s * vq;
+                row[q] = s * vp + c * vq;
+            }
+        }
+    }
+    let mut best = 0;
+    for i in 1..3 {
+        if a[i][i] < a[best][best] {
+            best = i;
+        }
+    }
+    let e = [v[0][best], v[1][best], v[2][best]];
+    let mut rest = [0usize, 1, 2].into_iter().filter(|&i| i != best).map(|i| a[i][i]);
+    let middle = match (rest.next(), rest.next()) {
+        (Some(x), Some(y)) => x.min(y),
+        _ => 0.0,
+    };
+    (normalized(&e).unwrap_or([0.0, 0.0, 1.0]), a[best][best], middle)
+}
+
+/// The `pca` source: adaptive plane fits, oriented consistently and outward.
+pub fn pca_normals(points: &[[f64; 3]], params: &NormalsParams) -> Vec<[f64; 3]> {
+    let neighbours = knn(points, params.k_neighbours);
+    let (mut normals, _) = adaptive_normals(points, &neighbours, params.max_k_neighbours);
+    crate::normals::orient::orient_outward(points, &mut normals, &[], &neighbours);
+    normals
+}
+
+/// Cosine of the angle between two unit vectors, clamped (helper for tests and callers).
+pub fn abs_cos(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    dot(a, b).abs().min(1.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn jacobi_finds_smallest_axis() {
+        let e = smallest_eigenvector([[3.0, 0.0, 0.0], [0.0, 0.5, 0.0], [0.0, 0.0, 2.0]]);
+        assert!((e[1].abs() - 1.0).abs() < 1e-12);
+        // A rotated diagonal matrix: eigenvalues 1, 2, 4 with the smallest along (1, 1, 0)/√2.
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        let u = [[s, s, 0.0], [-s, s, 0.0], [0.0, 0.0, 1.0]];
+        let d = [1.0, 2.0, 4.0];
+        let mut m = [[0.0; 3]; 3];
+        for r in 0..3 {
+            for c in 0..3 {
+                m[r][c] = (0..3).map(|k| u[k][r] * d[k] * u[k][c]).sum();
+            }
+        }
+        let e = smallest_eigenvector(m);
+        assert!((abs_cos(&e, &[s, s, 0.0]) - 1.0).abs() < 1e-12);
+    }
+}

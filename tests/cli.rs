@@ -1,0 +1,213 @@
+//! CLI tests: exit codes, stderr messages, stdout JSON, cache hits and misses, atomic outputs.
+//!
+//! Each test runs the real binary in a temporary directory with its own cache directory.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use assert_cmd::Command;
+
+fn bin() -> Command {
+    let mut cmd = Command::cargo_bin("stablesurf").expect("binary built");
+    cmd.env_remove("XDG_CACHE_HOME");
+    cmd
+}
+
+/// Writes `n` points of a sphere (centre (1, 2, 3), radius 2) with exact outward normals.
+fn sphere_xyz(dir: &Path, n: usize) -> PathBuf {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let mut text = String::from("# sphere, radius 2, centre (1, 2, 3)\n");
+    for i in 0..n {
+        let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+        let r = (1.0 - z * z).sqrt();
+        let t = golden * i as f64;
+        let nrm = [r * t.cos(), r * t.sin(), z];
+        text += &format!(
+            "{} {} {} {} {} {}\n",
+            1.0 + 2.0 * nrm[0],
+            2.0 + 2.0 * nrm[1],
+            3.0 + 2.0 * nrm[2],
+            nrm[0],
+            nrm[1],
+            nrm[2]
+        );
+    }
+    let path = dir.join("sphere.xyz");
+    fs::write(&path, text).unwrap();
+    path
+}
+
+fn stderr_of(out: &std::process::Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// The `-v` line of a stage: "stablesurf: <stage> <hit|miss|corrupt> ...".
+fn cache_state(stderr: &str, stage: &str) -> String {
+    stderr
+        .lines()
+        .find_map(|l| {
+            let mut w = l.split_whitespace();
+            (w.next() == Some("stablesurf:") && w.next() == Some(stage))
+                .then(|| w.next().unwrap_or("").to_string())
+        })
+        .unwrap_or_else(|| panic!("no -v line for stage {stage} in:\n{stderr}"))
+}
+
+#[test]
+fn info_json_has_the_documented_keys() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 100);
+    let out = bin().args(["info", "--json"]).arg(&input).output().unwrap();
+    assert!(out.status.success(), "{}", stderr_of(&out));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["format"], "xyz");
+    assert_eq!(v["points"], 100);
+    assert_eq!(v["triangles"], 0);
+    assert_eq!(v["has_normals"], true);
+    assert_eq!(v["nan_points"], 0);
+    assert_eq!(v["duplicate_points"], 0);
+    assert!((v["bbox_min"][2].as_f64().unwrap() - 1.0).abs() < 0.01);
+}
+
+#[test]
+fn bad_input_is_exit_1_and_names_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("broken.ply");
+    fs::write(&bad, "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nend_header\n1\n").unwrap();
+    let out = bin().args(["fit"]).arg(&bad).args(["-o"]).arg(dir.path().join("m.json")).output().unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let err = stderr_of(&out);
+    assert!(err.contains("stablesurf: error:") && err.contains("broken.ply"), "{err}");
+    assert!(!dir.path().join("m.json").exists());
+    let missing = bin().args(["info", "does-not-exist.ply"]).output().unwrap();
+    assert_eq!(missing.status.code(), Some(1));
+    assert!(stderr_of(&missing).contains("does-not-exist.ply"));
+}
+
+#[test]
+fn usage_errors_are_exit_2() {
+    for args in [
+        vec!["run", "-o", "x", "--degree", "5"],
+        vec!["run", "-o", "x", "--formats", "glb,obj"],
+        vec!["run", "-o", "x", "--kappa", "lots"],
+        vec!["run"],
+        vec!["frobnicate"],
+    ] {
+        let out = bin().args(&args).output().unwrap();
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {}", stderr_of(&out));
+    }
+    let odd = bin().args(["run", "-o", "x", "--degree", "5"]).output().unwrap();
+    assert!(stderr_of(&odd).contains("even degree"), "{}", stderr_of(&odd));
+}
+
+#[test]
+fn rerun_hits_cache_and_depth_change_reuses_the_fit() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 400);
+    let cache = dir.path().join("cache");
+    let run = |depth: &str, out: &str| {
+        let o = bin()
+            .arg("run")
+            .arg(&input)
+            .args(["-o", &dir.path().join(out).display().to_string()])
+            .args(["--degree", "4", "--depth", depth, "--formats", "ply,json", "-v"])
+            .arg("--cache-dir")
+            .arg(&cache)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", stderr_of(&o));
+        stderr_of(&o)
+    };
+    let first = run("5", "a");
+    for stage in ["import", "normals", "fit", "polygonize"] {
+        assert_eq!(cache_state(&first, stage), "miss", "first run, {stage}");
+    }
+    let second = run("5", "b");
+    for stage in ["import", "normals", "fit", "polygonize"] {
+        assert_eq!(cache_state(&second, stage), "hit", "second run, {stage}");
+    }
+    // Byte-identical outputs from a cold and a warm run.
+    for f in ["mesh.ply", "model.json"] {
+        assert_eq!(fs::read(dir.path().join("a").join(f)).unwrap(), fs::read(dir.path().join("b").join(f)).unwrap(), "{f}");
+    }
+    let deeper = run("6", "c");
+    for stage in ["import", "normals", "fit"] {
+        assert_eq!(cache_state(&deeper, stage), "hit", "depth change, {stage}");
+    }
+    assert_eq!(cache_state(&deeper, "polygonize"), "miss");
+
+    // Corrupt the fit entry: it is detected, recomputed and rewritten.
+    let fit_dir = cache.join("fit");
+    let entry = fs::read_dir(&fit_dir)
+        .unwrap()
+        .flat_map(|shard| fs::read_dir(shard.unwrap().path()).unwrap())
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|e| e == "bin"))
+        .unwrap();
+    let mut bytes = fs::read(&entry).unwrap();
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 0xff;
+    fs::write(&entry, bytes).unwrap();
+    let repaired = run("5", "d");
+    assert_eq!(cache_state(&repaired, "fit"), "corrupt");
+    assert_eq!(cache_state(&run("5", "e"), "fit"), "hit");
+}
+
+#[test]
+fn no_cache_writes_no_cache() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 300);
+    let out = bin()
+        .arg("run")
+        .arg(&input)
+        .args(["-o"])
+        .arg(dir.path().join("out"))
+        .args(["--degree", "2", "--depth", "4", "--formats", "json", "--no-cache", "-q"])
+        .env("XDG_CACHE_HOME", dir.path().join("xdg"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr_of(&out));
+    assert!(out.stderr.is_empty(), "-q must print nothing: {}", stderr_of(&out));
+    assert!(!dir.path().join("xdg").exists());
+    let report: serde_json::Value =
+        serde_json::from_slice(&fs::read(dir.path().join("out/report.json")).unwrap()).unwrap();
+    assert_eq!(report["mesh"]["watertight"], true);
+}
+
+#[test]
+fn unwritable_output_is_exit_1_and_leaves_no_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 300);
+    // A regular file where the output directory should be.
+    let blocker = dir.path().join("blocker");
+    fs::write(&blocker, "x").unwrap();
+    let out = bin()
+        .arg("fit")
+        .arg(&input)
+        .arg("-o")
+        .arg(blocker.join("model.json"))
+        .args(["--degree", "2"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    assert!(stderr_of(&out).contains("model.json"), "{}", stderr_of(&out));
+    let leftovers: Vec<_> = fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(leftovers.len(), 2, "{leftovers:?}");
+}
+
+#[test]
+fn json_goes_to_stdout_only() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 300);
+    let out = bin()
+        .arg("run")
+        .arg(&input)
+        .arg("-o")
+        .arg(dir.path().join("out"))
+        .args(["--degree", "2", "--depth", "4", "--formats", "json", "--no-cache", "--json"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr_of(&out));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("stdout is one JSON document");
+    assert_eq!(v["stages"][0]["stage"], "import");
+}
