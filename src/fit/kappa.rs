@@ -6,25 +6,27 @@
 //! - `paper` (section 6.3): the smallest grid κ whose leading form H_n is positive on the unit
 //!   sphere.
 //! - `stable`: the smallest grid κ such that
-//!   (a) H_n is positive at that κ and at every larger grid value (positivity is not monotone
-//!       in κ, so a lone positive value between negative ones is rejected);
-//!   (b) a containment radius R exists: on |p̂| = r, f ≥ H_min·rⁿ − Σ_{k<n} ‖H_k‖·r^k, so the zero
-//!       set lies in |p̂| < R (reported);
-//!   (c) the zero set, meshed coarsely in the normalized box [−1.6, 1.6]³, has one component per
-//!       connected piece of the data, each within 0.2 of the data (its closest point: a closed
-//!       zero set must bridge holes in the data, such as a part cut away, so not all of it can
-//!       be near the data);
-//!   (d) in [−B, B]³, B = max(4, R), it has no other component and does not touch the box.
-//!   (c) and (d) mesh with the polygonize stage (depth 6); while that stage cannot run, a
-//!   uniform grid of 64³ cells stands in (the 26-connected components of the cells whose corners
-//!   change sign), and the diagnostics say so.
+//!   - (a) H_n is positive at that κ and at every larger grid value (positivity is not
+//!     monotone in κ, so a lone positive value between negative ones is rejected);
+//!   - (b) a containment radius R exists: on |p̂| = r, f ≥ H_min·rⁿ − Σ_{k<n} ‖H_k‖·r^k, so the
+//!     zero set lies in |p̂| < R (reported);
+//!   - (c) the zero set, meshed coarsely in the normalized box [−1.6, 1.6]³, has one component
+//!     per connected piece of the data, each within 0.2 of the data (its closest point: a
+//!     closed zero set must bridge holes in the data, such as a part cut away, so not all of it
+//!     can be near the data);
+//!   - (d) in [−4, 4]³, and in [−R, R]³ when R is larger, it has no other component and does
+//!     not touch the box.
+//!
+//!   (c) and (d) mesh with the polygonize stage (depth 6); if that stage cannot run, a uniform
+//!   grid of 64³ cells stands in (the 26-connected components of the cells whose corners change
+//!   sign), and the diagnostics say so.
 //!
 //! If no grid value qualifies, κ = 1e-2 is used and flagged.
 //!
 //! "Connected pieces of the data": the components of the graph joining data points closer than
 //! 0.2 (normalized units, the same tolerance as (c)) among their 12 nearest neighbours, on at
-//! most 20,000 points taken at a fixed stride. A zero set that stays within 0.2 of the data
-//! cannot jump a gap wider than 0.4, so pieces closer than 0.2 are fairly counted as one.
+//! most 20,000 points taken at a fixed stride. Data closer than 0.2 can be bridged by a zero set
+//! that stays within 0.2 of the data, so it fairly counts as one piece.
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 
@@ -123,10 +125,14 @@ pub(crate) fn select(
             let mut data: Option<Option<DataPieces>> = None;
             let mut chosen = None;
             for &i in &candidates {
-                let Some(coefficients) = grid[i].coefficients.as_ref() else { continue };
+                let Some(coefficients) = grid[i].coefficients.as_ref() else {
+                    continue;
+                };
                 let poly = unit_poly(degree, coefficients);
                 // (b): certified containment radius.
-                let Some(radius) = poly.containment_radius_with(grid[i].leading_min) else { continue };
+                let Some(radius) = poly.containment_radius_with(grid[i].leading_min) else {
+                    continue;
+                };
                 if data.is_none() {
                     data = Some(DataPieces::new(cloud, norm));
                 }
@@ -304,8 +310,14 @@ enum Mesher {
 /// polygonize stage when it runs, else with the uniform sign grid.
 fn coarse_zero_set(poly: &ImplicitPolynomial, half: f64) -> (CoarseZeroSet, Mesher) {
     use crate::polygonize::{polygonize, PolygonizeParams};
-    let region = Aabb { min: [-half; 3], max: [half; 3] };
-    let params = PolygonizeParams { depth: CHECK_DEPTH, ..Default::default() };
+    let region = Aabb {
+        min: [-half; 3],
+        max: [half; 3],
+    };
+    let params = PolygonizeParams {
+        depth: CHECK_DEPTH,
+        ..Default::default()
+    };
     let cell = 2.0 * half / f64::from(1u32 << CHECK_DEPTH);
     if let Ok(out) = polygonize(poly, &region, &params) {
         let mesh = out.mesh;
@@ -315,10 +327,23 @@ fn coarse_zero_set(poly: &ImplicitPolynomial, half: f64) -> (CoarseZeroSet, Mesh
             components[l as usize].push(*p);
         }
         components.retain(|c| !c.is_empty());
-        let touches_box = mesh.positions.iter().any(|p| p.iter().any(|c| c.abs() > half - 0.5 * cell));
-        return (CoarseZeroSet { components, slack: 0.0, touches_box }, Mesher::Polygonize);
+        let touches_box = mesh
+            .positions
+            .iter()
+            .any(|p| p.iter().any(|c| c.abs() > half - 0.5 * cell));
+        return (
+            CoarseZeroSet {
+                components,
+                slack: 0.0,
+                touches_box,
+            },
+            Mesher::Polygonize,
+        );
     }
-    (sign_grid_zero_set(poly, half, 1usize << CHECK_DEPTH), Mesher::SignGrid)
+    (
+        sign_grid_zero_set(poly, half, 1usize << CHECK_DEPTH),
+        Mesher::SignGrid,
+    )
 }
 
 /// The zero set as 26-connected components of the cells (of a `cells`³ grid over
@@ -337,7 +362,8 @@ fn sign_grid_zero_set(poly: &ImplicitPolynomial, half: f64, cells: usize) -> Coa
                 let mut pos = false;
                 let mut neg = false;
                 for corner in 0..8 {
-                    let v = values[vid(i + (corner & 1), j + ((corner >> 1) & 1), k + (corner >> 2))];
+                    let v =
+                        values[vid(i + (corner & 1), j + ((corner >> 1) & 1), k + (corner >> 2))];
                     pos |= v > 0.0;
                     neg |= v <= 0.0;
                 }
@@ -385,7 +411,11 @@ fn sign_grid_zero_set(poly: &ImplicitPolynomial, half: f64, cells: usize) -> Coa
         }
         components.push(points);
     }
-    CoarseZeroSet { components, slack: 0.5 * step * 3f64.sqrt(), touches_box }
+    CoarseZeroSet {
+        components,
+        slack: 0.5 * step * 3f64.sqrt(),
+        touches_box,
+    }
 }
 
 /// Rules (c) and (d) on coarse meshes of the zero set of `poly` (normalized coordinates).
@@ -399,12 +429,17 @@ fn zero_set_check(poly: &ImplicitPolynomial, radius: f64, data: &DataPieces) -> 
     }
     let mut piece_seen = vec![false; data.n_pieces];
     for component in &inner.components {
-        let closest = component.iter().map(|p| data.nearest(*p)).min_by(|a, b| a.0.total_cmp(&b.0));
+        let closest = component
+            .iter()
+            .map(|p| data.nearest(*p))
+            .min_by(|a, b| a.0.total_cmp(&b.0));
         match closest {
-            Some((dist, piece)) if dist <= NEAR_DATA + inner.slack => match piece_seen.get_mut(piece as usize) {
-                Some(seen) if !*seen => *seen = true,
-                _ => return (false, mesher),
-            },
+            Some((dist, piece)) if dist <= NEAR_DATA + inner.slack => {
+                match piece_seen.get_mut(piece as usize) {
+                    Some(seen) if !*seen => *seen = true,
+                    _ => return (false, mesher),
+                }
+            }
             _ => return (false, mesher),
         }
     }
@@ -450,11 +485,17 @@ mod tests {
         let mut coefficients = vec![0.0; crate::poly::n_coefficients(4)];
         for (l, el) in e2.iter().enumerate() {
             for (m, em) in e2.iter().enumerate() {
-                let idx = crate::poly::monomial_index([el[0] + em[0], el[1] + em[1], el[2] + em[2]]);
+                let idx =
+                    crate::poly::monomial_index([el[0] + em[0], el[1] + em[1], el[2] + em[2]]);
                 coefficients[idx] += a[l] * b[m];
             }
         }
-        let poly = ImplicitPolynomial { degree: 4, coefficients, center: [0.0; 3], scale: 1.0 };
+        let poly = ImplicitPolynomial {
+            degree: 4,
+            coefficients,
+            center: [0.0; 3],
+            scale: 1.0,
+        };
         let zero_set = sign_grid_zero_set(&poly, 4.0, 64);
         assert_eq!(zero_set.components.len(), 2);
         assert!(!zero_set.touches_box);

@@ -422,10 +422,20 @@ unsafe fn dot4_fma(x: &[f64; BLOCK], ys: [&[f64; BLOCK]; 4]) -> [f64; 4] {
     let mut acc = [[_mm256_setzero_pd(); 2]; 4];
     for i in 0..BLOCK / 8 {
         // SAFETY: i * 8 + 4 + 4 ≤ BLOCK, so every load is in bounds.
-        let (x0, x1) = unsafe { (_mm256_loadu_pd(x.as_ptr().add(i * 8)), _mm256_loadu_pd(x.as_ptr().add(i * 8 + 4))) };
+        let (x0, x1) = unsafe {
+            (
+                _mm256_loadu_pd(x.as_ptr().add(i * 8)),
+                _mm256_loadu_pd(x.as_ptr().add(i * 8 + 4)),
+            )
+        };
         for k in 0..4 {
             // SAFETY: as above.
-            let (y0, y1) = unsafe { (_mm256_loadu_pd(ys[k].as_ptr().add(i * 8)), _mm256_loadu_pd(ys[k].as_ptr().add(i * 8 + 4))) };
+            let (y0, y1) = unsafe {
+                (
+                    _mm256_loadu_pd(ys[k].as_ptr().add(i * 8)),
+                    _mm256_loadu_pd(ys[k].as_ptr().add(i * 8 + 4)),
+                )
+            };
             acc[k][0] = _mm256_fmadd_pd(x0, y0, acc[k][0]);
             acc[k][1] = _mm256_fmadd_pd(x1, y1, acc[k][1]);
         }
@@ -438,7 +448,8 @@ unsafe fn dot4_fma(x: &[f64; BLOCK], ys: [&[f64; BLOCK]; 4]) -> [f64; 4] {
             _mm256_storeu_pd(lanes.as_mut_ptr(), acc[k][0]);
             _mm256_storeu_pd(lanes.as_mut_ptr().add(4), acc[k][1]);
         }
-        out[k] = ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3])) + ((lanes[4] + lanes[5]) + (lanes[6] + lanes[7]));
+        out[k] = ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3]))
+            + ((lanes[4] + lanes[5]) + (lanes[6] + lanes[7]));
     }
     out
 }
