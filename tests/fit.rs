@@ -321,7 +321,7 @@ fn reduced_kappa_study_default_rule_gives_good_fits() {
         (Shape::Cube, Variant::Clean, 8, 0.05),
     ];
     for (shape, variant, degree, epsilon) in cases {
-        let cloud = sample(shape, variant, 1000, 7);
+        let cloud = sample(shape, variant, 1500, 7);
         let params = FitParams {
             degree,
             epsilon,
