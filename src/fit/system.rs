@@ -13,9 +13,10 @@
 //! ```
 //!
 //! Inside a chunk the rows are processed in blocks of 64 in structure-of-arrays form: for each
-//! (a, b) the product x^a y^b is formed once for the block and dotted with every z^c; the dot
-//! products run over eight independent lanes so they vectorize (AVX2 when the CPU has it, the
-//! same lane arithmetic otherwise, so the sums are bit-identical either way).
+//! (a, b) the product x^a y^b is formed once for the block and dotted with four powers z^c at a
+//! time. With AVX2 + FMA (detected at run time) the dot products use fused multiply-adds;
+//! otherwise the same eight-lane order with separate multiplies and adds. Either way the result
+//! is the same for any thread count on a given CPU; the two kernels differ in the last bits.
 
 use rayon::prelude::*;
 
@@ -539,6 +540,55 @@ fn dot4(x: &[f64; BLOCK], ys: [&[f64; BLOCK]; 4]) -> [f64; 4] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn portable_and_fma_kernels_agree() {
+        let n = 4;
+        let gram_layout = TensorLayout::new(2 * n);
+        let rhs_layout = TensorLayout::new(n);
+        let mut s = BlockScratch {
+            px: vec![[0.0; BLOCK]; 2 * n + 1],
+            py: vec![[0.0; BLOCK]; 2 * n + 1],
+            pz: vec![[0.0; BLOCK]; 2 * n + 4],
+            w: [0.0; BLOCK],
+            xs: [0.0; BLOCK],
+            ys: [0.0; BLOCK],
+            zs: [0.0; BLOCK],
+            len: 50,
+        };
+        for t in 0..50 {
+            let u = t as f64 * 0.37;
+            s.xs[t] = u.sin();
+            s.ys[t] = (1.7 * u).cos();
+            s.zs[t] = (0.3 * u).sin() * 1.4;
+            s.w[t] = if t % 3 == 1 { 0.05 } else { -0.05 };
+        }
+        fill_powers(&mut s, 2 * n);
+        let new_partial = || Partial {
+            moments: vec![0.0; gram_layout.len],
+            rhs: vec![0.0; rhs_layout.len],
+            beta: vec![],
+        };
+        let mut portable = new_partial();
+        accumulate_block::<PortableDots>(&s, n, &gram_layout, &rhs_layout, &mut portable);
+        if !fma_available() {
+            return;
+        }
+        let mut fused = new_partial();
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: the CPU reports AVX2 and FMA.
+        unsafe {
+            accumulate_block_fma(&s, n, &gram_layout, &rhs_layout, &mut fused)
+        };
+        for (a, b) in portable
+            .moments
+            .iter()
+            .zip(&fused.moments)
+            .chain(portable.rhs.iter().zip(&fused.rhs))
+        {
+            assert!((a - b).abs() <= 1e-13 * (1.0 + a.abs()), "{a} vs {b}");
+        }
+    }
 
     #[test]
     fn trinomials() {
