@@ -62,7 +62,11 @@ criterion_group!(benches, bench_fit);
 /// `FIT_PHASES=1 cargo bench --bench fit`: wall time of the phases of the 1M-point fit.
 fn phases() {
     let million = cloud_of(1_000_000);
-    let params = FitParams { degree: 8, kappa: Kappa::Fixed(1e-3), ..FitParams::default() };
+    let params = FitParams {
+        degree: 8,
+        kappa: Kappa::Fixed(1e-3),
+        ..FitParams::default()
+    };
     for _ in 0..3 {
         let t = std::time::Instant::now();
         let cpu0 = cpu_seconds();
@@ -77,7 +81,9 @@ fn phases() {
         let t = std::time::Instant::now();
         let mut values = vec![0.0; million.points.len()];
         let mut gradients = vec![[0.0; 3]; million.points.len()];
-        model.polynomial.eval_gradient_many(&million.points, &mut values, &mut gradients);
+        model
+            .polynomial
+            .eval_gradient_many(&million.points, &mut values, &mut gradients);
         let t_eval = t.elapsed();
         eprintln!(
             "1M points, degree 8: normalization + moments {t_system:.3?} ({cpu_system:.2} CPU-s), whole fit {t_fit:.3?} ({cpu_fit:.2} CPU-s), value+gradient at all points (1 thread) {t_eval:.3?} (beta0 {})",
@@ -89,8 +95,18 @@ fn phases() {
 /// User + system CPU time of this process so far (from /proc/self/stat, 100 Hz ticks).
 fn cpu_seconds() -> f64 {
     let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let fields: Vec<&str> = stat.rsplit(')').next().unwrap_or("").split_whitespace().collect();
-    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    let fields: Vec<&str> = stat
+        .rsplit(')')
+        .next()
+        .unwrap_or("")
+        .split_whitespace()
+        .collect();
+    let ticks = |i: usize| {
+        fields
+            .get(i)
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(0.0)
+    };
     // After the command name: state is field 0, utime field 11, stime field 12.
     (ticks(11) + ticks(12)) / 100.0
 }

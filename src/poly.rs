@@ -489,8 +489,8 @@ impl ImplicitPolynomial {
         let lo = n_coefficients(k) - n_monomials_of_degree(k);
         let hi = n_coefficients(k);
         let mut coefficients = vec![0.0; hi];
-        for l in lo..hi {
-            coefficients[l] = self.coefficients.get(l).copied().unwrap_or(0.0);
+        for (l, c) in coefficients.iter_mut().enumerate().skip(lo) {
+            *c = self.coefficients.get(l).copied().unwrap_or(0.0);
         }
         ImplicitPolynomial {
             degree: k,

@@ -80,11 +80,8 @@ fn torus_reference_coefficients_d_beta_and_leading_form() {
         let eps = case["eps"].as_f64().unwrap();
         let summary = system_summary(&reference.cloud, n, eps).unwrap();
         assert!((summary.scale - s).abs() <= 1e-12 * s, "{name}: scale");
-        for a in 0..3 {
-            assert!(
-                (summary.center[a] - mu[a]).abs() <= 1e-12 * s,
-                "{name}: centre"
-            );
+        for (c, m) in summary.center.iter().zip(&mu) {
+            assert!((c - m).abs() <= 1e-12 * s, "{name}: centre");
         }
         let beta_err = max_rel_diff(&summary.beta, &floats(&case["beta"]));
         let d_err = max_rel_diff(&summary.ridge_diagonal, &floats(&case["D_diag"]));
@@ -347,6 +344,13 @@ fn reduced_kappa_study_default_rule_gives_good_fits() {
         );
         let diag = model.diagnostics.unwrap();
         assert!(diag.bounded && diag.containment_radius.is_some());
+        // The rule ran its zero-set checks (c)/(d) on polygonize meshes, not the fallback grid.
+        assert!(diag.zero_set_checked && !diag.kappa_fallback);
+        assert!(
+            !diag.warnings.iter().any(|w| w.contains("sign-change grid")),
+            "{:?}",
+            diag.warnings
+        );
         assert!(
             diag.mean_distance_relative < 0.05,
             "mean distance {}",

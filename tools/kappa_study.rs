@@ -4,16 +4,16 @@
 //! zero-set component near the data, nothing else in [−4, 4]³). Prints one line per case and a
 //! summary table (Markdown) for the README.
 //!
-//! Run: `cargo run --release --example kappa_study [-- POINTS]` (default 3000 points per case).
+//! Run: `cargo run --release --example kappa_study [-- POINTS [SEED]]` (default 3000 points per
+//! case, seed 2008).
 
 use stablesurf::fit::study::{assess, sample, Shape, Variant};
 use stablesurf::fit::{fit, FitParams, KappaRule};
 
 fn main() {
-    let n_points: usize = std::env::args()
-        .nth(1)
-        .and_then(|a| a.parse().ok())
-        .unwrap_or(3000);
+    let args: Vec<String> = std::env::args().collect();
+    let n_points: usize = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(3000);
+    let seed: u64 = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(2008);
     let rules = [KappaRule::Stable, KappaRule::Paper];
     // good[rule][degree index], total[degree index]
     let mut good = [[0usize; 3]; 2];
@@ -24,7 +24,7 @@ fn main() {
     println!("|---|---|---|---|---|---|---|---|");
     for shape in Shape::ALL {
         for variant in Variant::ALL {
-            let cloud = sample(shape, variant, n_points, 2008);
+            let cloud = sample(shape, variant, n_points, seed);
             for (di, degree) in [4u32, 6, 8].into_iter().enumerate() {
                 for epsilon in [0.05, 0.01] {
                     total[di] += 1;

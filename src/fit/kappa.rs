@@ -6,22 +6,27 @@
 //! - `paper` (section 6.3): the smallest grid κ whose leading form H_n is positive on the unit
 //!   sphere.
 //! - `stable`: the smallest grid κ such that
-//!   (a) H_n is positive at that κ and at every larger grid value (positivity is not monotone
-//!       in κ, so a lone positive value between negative ones is rejected);
-//!   (b) a containment radius R exists: on |p̂| = r, f ≥ H_min·rⁿ − Σ_{k<n} ‖H_k‖·r^k, so the zero
-//!       set lies in |p̂| < R (reported);
-//!   (c) the zero set, meshed coarsely in the normalized box [−1.6, 1.6]³, has one component per
-//!       connected piece of the data, each within 0.2 of the data;
-//!   (d) in [−B, B]³, B = max(4, R), it has no other component and does not touch the box.
-//!   (c) and (d) need the polygonize stage; while it reports that it is unavailable they are
-//!   skipped and the diagnostics say so.
+//!   - (a) H_n is positive at that κ and at every larger grid value (positivity is not
+//!     monotone in κ, so a lone positive value between negative ones is rejected);
+//!   - (b) a containment radius R exists: on |p̂| = r, f ≥ H_min·rⁿ − Σ_{k<n} ‖H_k‖·r^k, so the
+//!     zero set lies in |p̂| < R (reported);
+//!   - (c) the zero set, meshed coarsely in the normalized box [−1.6, 1.6]³, has one component
+//!     per connected piece of the data, each within 0.2 of the data (its closest point: a
+//!     closed zero set must bridge holes in the data, such as a part cut away, so not all of it
+//!     can be near the data);
+//!   - (d) in [−4, 4]³, and in [−R, R]³ when R is larger, it has no other component and does
+//!     not touch the box.
+//!
+//!   (c) and (d) mesh with the polygonize stage (depth 6); if that stage cannot run, a uniform
+//!   grid of 64³ cells stands in (the 26-connected components of the cells whose corners change
+//!   sign), and the diagnostics say so.
 //!
 //! If no grid value qualifies, κ = 1e-2 is used and flagged.
 //!
 //! "Connected pieces of the data": the components of the graph joining data points closer than
 //! 0.2 (normalized units, the same tolerance as (c)) among their 12 nearest neighbours, on at
-//! most 20,000 points taken at a fixed stride. A zero set that stays within 0.2 of the data
-//! cannot jump a gap wider than 0.4, so pieces closer than 0.2 are fairly counted as one.
+//! most 20,000 points taken at a fixed stride. Data closer than 0.2 can be bridged by a zero set
+//! that stays within 0.2 of the data, so it fairly counts as one piece.
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 
@@ -104,6 +109,7 @@ pub(crate) fn select(
     let positive = |g: &GridFit| g.coefficients.is_some() && g.leading_min > 0.0;
     let mut warnings = Vec::new();
     let mut zero_set_checked = false;
+    let mut mesher = None;
     let chosen = match rule {
         super::KappaRule::Paper => grid.iter().position(positive),
         super::KappaRule::Stable => {
@@ -118,7 +124,6 @@ pub(crate) fn select(
             candidates.reverse();
             let mut data: Option<Option<DataPieces>> = None;
             let mut chosen = None;
-            let mut unavailable = None;
             for &i in &candidates {
                 let Some(coefficients) = grid[i].coefficients.as_ref() else {
                     continue;
@@ -131,27 +136,23 @@ pub(crate) fn select(
                 if data.is_none() {
                     data = Some(DataPieces::new(cloud, norm));
                 }
-                let check = match data.as_ref() {
-                    Some(Some(pieces)) => zero_set_check(&poly, radius, pieces),
-                    _ => ZeroSetCheck::Unavailable("the data could not be indexed".to_string()),
+                let Some(Some(pieces)) = data.as_ref() else {
+                    warnings.push("kappa rule stable: the data could not be indexed, so the zero-set checks (c)/(d) were skipped".to_string());
+                    chosen = Some(i);
+                    break;
                 };
-                match check {
-                    ZeroSetCheck::Pass => {
-                        zero_set_checked = true;
-                        chosen = Some(i);
-                        break;
-                    }
-                    ZeroSetCheck::Fail => zero_set_checked = true,
-                    ZeroSetCheck::Unavailable(reason) => {
-                        unavailable = Some(reason);
-                        chosen = Some(i);
-                        break;
-                    }
+                let (pass, used) = zero_set_check(&poly, radius, pieces);
+                zero_set_checked = true;
+                mesher = Some(used);
+                if pass {
+                    chosen = Some(i);
+                    break;
                 }
             }
-            if let Some(reason) = unavailable {
+            if mesher == Some(Mesher::SignGrid) {
                 warnings.push(format!(
-                    "kappa rule stable checked only (a) positivity at this and every larger kappa and (b) the containment radius; the zero-set checks (c)/(d) were skipped: {reason}"
+                    "kappa rule stable: the polygonize stage could not run, so the zero-set checks (c)/(d) used a uniform sign-change grid of {} cells per side instead of the adaptive mesh",
+                    1u32 << CHECK_DEPTH
                 ));
             }
             chosen
@@ -203,14 +204,6 @@ fn unit_poly(degree: u32, coefficients: &[f64]) -> ImplicitPolynomial {
         center: [0.0; 3],
         scale: 1.0,
     }
-}
-
-/// Outcome of the zero-set checks (c)/(d).
-enum ZeroSetCheck {
-    Pass,
-    Fail,
-    /// The polygonize stage could not run (not built, or refused the region).
-    Unavailable(String),
 }
 
 /// The data in normalized coordinates (a fixed-stride subset), its k-d tree and its pieces.
@@ -294,89 +287,179 @@ fn compact_labels(parent: &mut [u32]) -> (Vec<u32>, usize) {
     (labels, map.len())
 }
 
-/// Components of a triangle mesh by shared vertices, after welding vertices that coincide to
-/// 1e-9 of the box (meshers may duplicate vertices on cell faces). Returns per-vertex labels.
-fn mesh_components(positions: &[[f64; 3]], triangles: &[[u32; 3]], weld: f64) -> (Vec<u32>, usize) {
-    let mut key_to_id = std::collections::HashMap::new();
-    let mut welded = Vec::with_capacity(positions.len());
-    for p in positions {
-        let key = p.map(|c| (c / weld).round() as i64);
-        let next = key_to_id.len() as u32;
-        welded.push(*key_to_id.entry(key).or_insert(next));
-    }
-    let mut parent: Vec<u32> = (0..key_to_id.len() as u32).collect();
-    for t in triangles {
-        let ids = t.map(|v| welded.get(v as usize).copied().unwrap_or(0));
-        union(&mut parent, ids[0], ids[1]);
-        union(&mut parent, ids[0], ids[2]);
-    }
-    let (labels, count) = compact_labels(&mut parent);
-    (welded.iter().map(|&w| labels[w as usize]).collect(), count)
+/// The coarse zero set inside a box: its connected pieces, each given by representative points
+/// (mesh vertices, or centres of cells whose corners change sign), how far such a point may be
+/// from the true zero set, and whether the zero set reaches the box's boundary.
+struct CoarseZeroSet {
+    components: Vec<Vec<[f64; 3]>>,
+    slack: f64,
+    touches_box: bool,
 }
 
-/// Rules (c) and (d) on coarse meshes of the zero set of `poly` (normalized coordinates).
-fn zero_set_check(poly: &ImplicitPolynomial, radius: f64, data: &DataPieces) -> ZeroSetCheck {
+/// Which mesher produced a [`CoarseZeroSet`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Mesher {
+    /// The polygonize stage (adaptive octree), as the rule specifies.
+    Polygonize,
+    /// A uniform grid of 2^depth cells per side, 26-connected sign-change cells: the stand-in
+    /// used while polygonize reports that it cannot run.
+    SignGrid,
+}
+
+/// Meshes the zero set of `poly` (normalized coordinates) coarsely in [−half, half]³: with the
+/// polygonize stage when it runs, else with the uniform sign grid.
+fn coarse_zero_set(poly: &ImplicitPolynomial, half: f64) -> (CoarseZeroSet, Mesher) {
     use crate::polygonize::{polygonize, PolygonizeParams};
-    let params = PolygonizeParams { depth: CHECK_DEPTH, ..Default::default() };
-    // (c): the inner box.
-    let inner = Aabb {
-        min: [-INNER_BOX; 3],
-        max: [INNER_BOX; 3],
-    };
-    let mesh = match polygonize(poly, &inner, &params) {
-        Ok(out) => out.mesh,
-        Err(e) => return ZeroSetCheck::Unavailable(format!("polygonize failed: {e}")),
-    };
-    if mesh.triangles.is_empty() {
-        return ZeroSetCheck::Fail;
-    }
-    let (labels, n_components) =
-        mesh_components(&mesh.positions, &mesh.triangles, 1e-9 * INNER_BOX);
-    if n_components != data.n_pieces {
-        return ZeroSetCheck::Fail;
-    }
-    // Every vertex within NEAR_DATA of the data, and component ↔ piece one to one.
-    let mut piece_of_component = vec![u32::MAX; n_components];
-    for (v, p) in mesh.positions.iter().enumerate() {
-        let (dist, piece) = data.nearest(*p);
-        if dist > NEAR_DATA {
-            return ZeroSetCheck::Fail;
-        }
-        let comp = labels[v] as usize;
-        if piece_of_component[comp] == u32::MAX {
-            piece_of_component[comp] = piece;
-        }
-    }
-    let mut seen = vec![false; data.n_pieces];
-    for &piece in &piece_of_component {
-        match seen.get_mut(piece as usize) {
-            Some(s) if !*s => *s = true,
-            _ => return ZeroSetCheck::Fail,
-        }
-    }
-    // (d): the outer box; nothing beyond the components near the data, and no contact with the box.
-    let half = OUTER_BOX.max(radius);
-    let outer = Aabb {
+    let region = Aabb {
         min: [-half; 3],
         max: [half; 3],
     };
-    let mesh = match polygonize(poly, &outer, &params) {
-        Ok(out) => out.mesh,
-        Err(e) => return ZeroSetCheck::Unavailable(format!("polygonize failed: {e}")),
+    let params = PolygonizeParams {
+        depth: CHECK_DEPTH,
+        ..Default::default()
     };
     let cell = 2.0 * half / f64::from(1u32 << CHECK_DEPTH);
-    if mesh
-        .positions
-        .iter()
-        .any(|p| p.iter().any(|c| c.abs() > half - 0.5 * cell))
-    {
-        return ZeroSetCheck::Fail;
+    if let Ok(out) = polygonize(poly, &region, &params) {
+        let mesh = out.mesh;
+        let (count, labels) = crate::mesh::component_labels(&mesh);
+        let mut components = vec![Vec::new(); count];
+        for (p, &l) in mesh.positions.iter().zip(&labels) {
+            components[l as usize].push(*p);
+        }
+        components.retain(|c| !c.is_empty());
+        let touches_box = mesh
+            .positions
+            .iter()
+            .any(|p| p.iter().any(|c| c.abs() > half - 0.5 * cell));
+        return (
+            CoarseZeroSet {
+                components,
+                slack: 0.0,
+                touches_box,
+            },
+            Mesher::Polygonize,
+        );
     }
-    let (_, n_outer) = mesh_components(&mesh.positions, &mesh.triangles, 1e-9 * half);
-    if n_outer != data.n_pieces {
-        return ZeroSetCheck::Fail;
+    (
+        sign_grid_zero_set(poly, half, 1usize << CHECK_DEPTH),
+        Mesher::SignGrid,
+    )
+}
+
+/// The zero set as 26-connected components of the cells (of a `cells`³ grid over
+/// [−half, half]³) whose eight corner values change sign.
+fn sign_grid_zero_set(poly: &ImplicitPolynomial, half: f64, cells: usize) -> CoarseZeroSet {
+    let step = 2.0 * half / cells as f64;
+    let nv = cells + 1;
+    let values = poly.eval_grid([-half; 3], [step; 3], [nv, nv, nv]);
+    let vid = |i: usize, j: usize, k: usize| i + nv * (j + nv * k);
+    let cid = |i: usize, j: usize, k: usize| i + cells * (j + cells * k);
+    let mut crossing = vec![false; cells * cells * cells];
+    let mut touches_box = false;
+    for k in 0..cells {
+        for j in 0..cells {
+            for i in 0..cells {
+                let mut pos = false;
+                let mut neg = false;
+                for corner in 0..8 {
+                    let v =
+                        values[vid(i + (corner & 1), j + ((corner >> 1) & 1), k + (corner >> 2))];
+                    pos |= v > 0.0;
+                    neg |= v <= 0.0;
+                }
+                if pos && neg {
+                    crossing[cid(i, j, k)] = true;
+                    let edge = |t: usize| t == 0 || t + 1 == cells;
+                    touches_box |= edge(i) || edge(j) || edge(k);
+                }
+            }
+        }
     }
-    ZeroSetCheck::Pass
+    let mut seen = vec![false; crossing.len()];
+    let mut components = Vec::new();
+    let mut stack = Vec::new();
+    let centre = |c: usize| {
+        let (i, j, k) = (c % cells, (c / cells) % cells, c / (cells * cells));
+        [i, j, k].map(|t| -half + (t as f64 + 0.5) * step)
+    };
+    for start in 0..crossing.len() {
+        if !crossing[start] || seen[start] {
+            continue;
+        }
+        seen[start] = true;
+        stack.push(start);
+        let mut points = Vec::new();
+        while let Some(c) = stack.pop() {
+            points.push(centre(c));
+            let (i, j, k) = (c % cells, (c / cells) % cells, c / (cells * cells));
+            for dk in -1i64..=1 {
+                for dj in -1i64..=1 {
+                    for di in -1i64..=1 {
+                        let (ii, jj, kk) = (i as i64 + di, j as i64 + dj, k as i64 + dk);
+                        let limit = cells as i64;
+                        if ii < 0 || jj < 0 || kk < 0 || ii >= limit || jj >= limit || kk >= limit {
+                            continue;
+                        }
+                        let d = cid(ii as usize, jj as usize, kk as usize);
+                        if crossing[d] && !seen[d] {
+                            seen[d] = true;
+                            stack.push(d);
+                        }
+                    }
+                }
+            }
+        }
+        components.push(points);
+    }
+    CoarseZeroSet {
+        components,
+        slack: 0.5 * step * 3f64.sqrt(),
+        touches_box,
+    }
+}
+
+/// Rules (c) and (d) on coarse meshes of the zero set of `poly` (normalized coordinates).
+fn zero_set_check(poly: &ImplicitPolynomial, radius: f64, data: &DataPieces) -> (bool, Mesher) {
+    // (c): in the inner box, one component per data piece, each within NEAR_DATA of the data
+    // (its closest point; a closed zero set must bridge holes in the data, so not every point
+    // can be near it).
+    let (inner, mesher) = coarse_zero_set(poly, INNER_BOX);
+    if inner.components.len() != data.n_pieces {
+        return (false, mesher);
+    }
+    let mut piece_seen = vec![false; data.n_pieces];
+    for component in &inner.components {
+        let closest = component
+            .iter()
+            .map(|p| data.nearest(*p))
+            .min_by(|a, b| a.0.total_cmp(&b.0));
+        match closest {
+            Some((dist, piece)) if dist <= NEAR_DATA + inner.slack => {
+                match piece_seen.get_mut(piece as usize) {
+                    Some(seen) if !*seen => *seen = true,
+                    _ => return (false, mesher),
+                }
+            }
+            _ => return (false, mesher),
+        }
+    }
+    // (d): in [−4, 4]³, and in [−R, R]³ when R is larger, nothing else and no contact with the
+    // box. The fixed box is checked on its own because a coarse mesh of a large [−R, R]³ can
+    // miss a small stray piece.
+    let mut pass = true;
+    let mut mesher = mesher;
+    for half in [OUTER_BOX, radius] {
+        if half < OUTER_BOX || (half == radius && radius <= OUTER_BOX) {
+            continue;
+        }
+        let (outer, used) = coarse_zero_set(poly, half);
+        mesher = used;
+        if outer.touches_box || outer.components.len() != data.n_pieces {
+            pass = false;
+            break;
+        }
+    }
+    (pass, mesher)
 }
 
 #[cfg(test)]
@@ -384,23 +467,39 @@ mod tests {
     use super::*;
 
     #[test]
-    fn mesh_components_counts_welded_pieces() {
-        // Two triangles sharing an edge through duplicated vertices, and one apart.
-        let positions = [
-            [0.0, 0.0, 0.0],
-            [1.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0],
-            [1.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0],
-            [1.0, 1.0, 0.0],
-            [5.0, 5.0, 5.0],
-            [6.0, 5.0, 5.0],
-            [5.0, 6.0, 5.0],
-        ];
-        let triangles = [[0, 1, 2], [3, 5, 4], [6, 7, 8]];
-        let (labels, count) = mesh_components(&positions, &triangles, 1e-9);
-        assert_eq!(count, 2);
-        assert_eq!(labels[0], labels[5]);
-        assert_ne!(labels[0], labels[6]);
+    fn sign_grid_counts_two_spheres() {
+        // f = ((x − 1.5)² + y² + z² − 0.25)((x + 1.5)² + y² + z² − 0.25) > 0 far away: two
+        // components, not touching the box [−4, 4]³.
+        let sphere = |cx: f64| {
+            let mut c = vec![0.0; 10];
+            c[0] = cx * cx - 0.25;
+            c[1] = -2.0 * cx;
+            c[4] = 1.0;
+            c[7] = 1.0;
+            c[9] = 1.0;
+            c
+        };
+        let (a, b) = (sphere(1.5), sphere(-1.5));
+        // Product of two quadrics in the paper's order, by exponents.
+        let e2 = crate::poly::exponents(2);
+        let mut coefficients = vec![0.0; crate::poly::n_coefficients(4)];
+        for (l, el) in e2.iter().enumerate() {
+            for (m, em) in e2.iter().enumerate() {
+                let idx =
+                    crate::poly::monomial_index([el[0] + em[0], el[1] + em[1], el[2] + em[2]]);
+                coefficients[idx] += a[l] * b[m];
+            }
+        }
+        let poly = ImplicitPolynomial {
+            degree: 4,
+            coefficients,
+            center: [0.0; 3],
+            scale: 1.0,
+        };
+        let zero_set = sign_grid_zero_set(&poly, 4.0, 64);
+        assert_eq!(zero_set.components.len(), 2);
+        assert!(!zero_set.touches_box);
+        let (meshed, _) = coarse_zero_set(&poly, 4.0);
+        assert_eq!(meshed.components.len(), 2);
     }
 }

@@ -21,9 +21,12 @@
 //! one parallel, deterministic pass (`system`), so memory is independent of N; the system is
 //! then solved by Cholesky in a symmetrically scaled basis (`solve`). The alternative route,
 //! a streaming Householder QR of [M; √(κD)] that never squares the condition number, is kept as
-//! [`FitSolver::Qr`]; on the torus reference case both agree with the independent reference to
-//! the figures quoted in the tests (tests/fit.rs) and the moment route is two orders of
-//! magnitude faster, so it is the default.
+//! [`FitSolver::Qr`]. On the torus reference case (10,000 points, ε = 0.05) both agree with
+//! the independent reference: moments + scaled Cholesky to 2e-13 … 4e-11 relative over degrees
+//! 4, 6, 8 and κ = 1e-5 … 1e-3, QR to 4e-12 (degree 6) and 4e-11 (degree 8), the two routes to
+//! 5e-13 and 2e-11 of each other (tests/fit.rs). The moment route costs about C(2n+3, 3)
+//! multiply-adds per row against c² for QR, and its memory does not grow with N, so it is the
+//! default.
 //!
 //! Plain least squares (section 4, [`FitMethod::Ls`]) is the unit eigenvector of MᵀM (data rows
 //! only) with the smallest eigenvalue, signed so that f increases along the normals.
@@ -249,7 +252,7 @@ pub enum FitSolver {
     #[default]
     Moments,
     /// Streaming Householder QR of [M | b; √(κD) | 0] (memory O(c²), never squares the
-    /// condition number; about 100× slower). κ selection still uses the moment system.
+    /// condition number; O(N·c²) work). κ selection still uses the moment system.
     Qr,
 }
 

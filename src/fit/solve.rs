@@ -90,8 +90,8 @@ fn cholesky(mut a: Vec<f64>, c: usize) -> Result<Vec<f64>, SolveFailure> {
             row_j[k] = sum / row_k[k];
         }
         let mut d = row_j[j];
-        for m in 0..j {
-            d -= row_j[m] * row_j[m];
+        for v in &row_j[..j] {
+            d -= v * v;
         }
         if d.is_nan() || d <= floor {
             return Err(SolveFailure::NotPositiveDefinite { column: j });
@@ -280,8 +280,8 @@ impl StreamingQr {
         let mut a = vec![0.0; c];
         for i in (0..c).rev() {
             let mut sum = self.r[(i, c)];
-            for j in i + 1..c {
-                sum -= self.r[(i, j)] * a[j];
+            for (j, aj) in a.iter().enumerate().skip(i + 1) {
+                sum -= self.r[(i, j)] * aj;
             }
             let d = self.r[(i, i)];
             if d == 0.0 || !d.is_finite() {
