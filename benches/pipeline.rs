@@ -24,11 +24,23 @@ fn bench(c: &mut Criterion) {
     let out = tempfile::tempdir().unwrap();
     for (label, formats) in [
         ("no files", vec![]),
-        ("glb+ply+json", vec![OutputFormat::Glb, OutputFormat::Ply, OutputFormat::Json]),
+        (
+            "glb+ply+json",
+            vec![OutputFormat::Glb, OutputFormat::Ply, OutputFormat::Json],
+        ),
     ] {
-        let config = PipelineConfig { formats: formats.clone(), ..Default::default() };
-        let report =
-            pipeline::run(&source, out.path(), &config, &Cache::disabled(), &mut Silent).unwrap();
+        let config = PipelineConfig {
+            formats: formats.clone(),
+            ..Default::default()
+        };
+        let report = pipeline::run(
+            &source,
+            out.path(),
+            &config,
+            &Cache::disabled(),
+            &mut Silent,
+        )
+        .unwrap();
         eprintln!("{name}, {label}: {:.3} s in all", report.seconds);
         for s in &report.stages {
             eprintln!("  {:<10} {:>8.3} s  {}", s.stage, s.seconds, s.figures);
@@ -37,7 +49,14 @@ fn bench(c: &mut Criterion) {
         group.sample_size(10);
         group.bench_function(format!("{name}/cold/{label}"), |b| {
             b.iter(|| {
-                pipeline::run(&source, out.path(), &config, &Cache::disabled(), &mut Silent).unwrap()
+                pipeline::run(
+                    &source,
+                    out.path(),
+                    &config,
+                    &Cache::disabled(),
+                    &mut Silent,
+                )
+                .unwrap()
             })
         });
         group.finish();

@@ -65,7 +65,7 @@ pub struct NormalsOpts {
 #[derive(Debug, Args, Clone)]
 pub struct FitOpts {
     /// Polynomial degree (even for automatic κ; 2 to 14).
-    #[arg(long, default_value_t = 6)]
+    #[arg(long, default_value_t = 8)]
     pub degree: u32,
     /// Ridge weight κ: `auto` or a number ≥ 0.
     #[arg(long, default_value = "auto")]
@@ -346,7 +346,7 @@ mod tests {
             panic!()
         };
         assert!(r.input.is_none());
-        assert_eq!(r.fit.degree, 6);
+        assert_eq!(r.fit.degree, 8);
         assert_eq!(r.fit.kappa, "auto");
         assert_eq!(r.mesh.depth, 8);
         assert_eq!(r.formats, ["glb", "ply", "exr", "png", "json"]);

@@ -300,7 +300,7 @@ pub struct FitParams {
 impl Default for FitParams {
     fn default() -> Self {
         FitParams {
-            degree: 6,
+            degree: 8,
             method: FitMethod::ThreeLrr,
             kappa: Kappa::Auto,
             kappa_rule: KappaRule::Stable,
