@@ -212,10 +212,7 @@ fn gltf_options(up: cli::UpArg) -> export::gltf::GltfOptions {
         cli::UpArg::Y => export::gltf::UpAxis::Y,
         cli::UpArg::Z => export::gltf::UpAxis::Z,
     };
-    export::gltf::GltfOptions {
-        up,
-        ..Default::default()
-    }
+    export::gltf::GltfOptions { up }
 }
 
 fn region_from(bounds: Option<[f64; 6]>) -> Option<Aabb> {

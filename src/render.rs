@@ -183,6 +183,34 @@ pub fn render(mesh: &TriangleMesh, params: &RenderParams) -> RgbImage {
     img
 }
 
+/// A mesh from positions and triangles with area-weighted vertex normals (for rendering files
+/// that store no normals). Triangles with an index out of range are skipped.
+pub fn with_face_normals(positions: Vec<[f64; 3]>, triangles: Vec<[u32; 3]>) -> TriangleMesh {
+    let mut normals = vec![[0.0; 3]; positions.len()];
+    let triangles: Vec<[u32; 3]> = triangles
+        .into_iter()
+        .filter(|t| t.iter().all(|&i| (i as usize) < positions.len()))
+        .collect();
+    for t in &triangles {
+        let [a, b, c] = t.map(|i| positions[i as usize]);
+        let n = cross(
+            [b[0] - a[0], b[1] - a[1], b[2] - a[2]],
+            [c[0] - a[0], c[1] - a[1], c[2] - a[2]],
+        );
+        for &i in t {
+            for k in 0..3 {
+                normals[i as usize][k] += n[k];
+            }
+        }
+    }
+    let normals = normals.into_iter().map(normalize).collect();
+    TriangleMesh {
+        positions,
+        normals,
+        triangles,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -262,33 +290,5 @@ mod tests {
             (covered as f64 - expected).abs() < 0.05 * expected,
             "{covered} vs {expected}"
         );
-    }
-}
-
-/// A mesh from positions and triangles with area-weighted vertex normals (for rendering files
-/// that store no normals). Triangles with an index out of range are skipped.
-pub fn with_face_normals(positions: Vec<[f64; 3]>, triangles: Vec<[u32; 3]>) -> TriangleMesh {
-    let mut normals = vec![[0.0; 3]; positions.len()];
-    let triangles: Vec<[u32; 3]> = triangles
-        .into_iter()
-        .filter(|t| t.iter().all(|&i| (i as usize) < positions.len()))
-        .collect();
-    for t in &triangles {
-        let [a, b, c] = t.map(|i| positions[i as usize]);
-        let n = cross(
-            [b[0] - a[0], b[1] - a[1], b[2] - a[2]],
-            [c[0] - a[0], c[1] - a[1], c[2] - a[2]],
-        );
-        for &i in t {
-            for k in 0..3 {
-                normals[i as usize][k] += n[k];
-            }
-        }
-    }
-    let normals = normals.into_iter().map(normalize).collect();
-    TriangleMesh {
-        positions,
-        normals,
-        triangles,
     }
 }

@@ -117,6 +117,24 @@ pub fn write_preview(slice: &Slice, out: &mut impl Write) -> Result<(), ExportEr
     out.write_all(&bytes).map_err(ExportError::Write)
 }
 
+/// Encodes an RGB image (for example a render of the mesh) as PNG.
+///
+/// # Errors
+/// [`ExportError::Format`] when encoding fails; [`ExportError::Write`] when `out` fails.
+pub fn write_rgb(image: &image::RgbImage, out: &mut impl Write) -> Result<(), ExportError> {
+    use image::ImageEncoder;
+    let mut bytes = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut bytes)
+        .write_image(
+            image.as_raw(),
+            image.width(),
+            image.height(),
+            image::ExtendedColorType::Rgb8,
+        )
+        .map_err(|e| ExportError::Format(format!("png encoding failed: {e}")))?;
+    out.write_all(&bytes).map_err(ExportError::Write)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -154,22 +172,4 @@ mod tests {
             assert!(img.get_pixel(3, row).0[0] > img.get_pixel(3, row).0[2]); // red outside
         }
     }
-}
-
-/// Encodes an RGB image (for example a render of the mesh) as PNG.
-///
-/// # Errors
-/// [`ExportError::Format`] when encoding fails; [`ExportError::Write`] when `out` fails.
-pub fn write_rgb(image: &image::RgbImage, out: &mut impl Write) -> Result<(), ExportError> {
-    use image::ImageEncoder;
-    let mut bytes = Vec::new();
-    image::codecs::png::PngEncoder::new(&mut bytes)
-        .write_image(
-            image.as_raw(),
-            image.width(),
-            image.height(),
-            image::ExtendedColorType::Rgb8,
-        )
-        .map_err(|e| ExportError::Format(format!("png encoding failed: {e}")))?;
-    out.write_all(&bytes).map_err(ExportError::Write)
 }

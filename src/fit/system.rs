@@ -655,9 +655,9 @@ mod tests {
                 "gram entry {i}"
             );
         }
-        for l in 0..c {
+        for (l, (&got, &want)) in sys.rhs.iter().zip(&r_ref).enumerate() {
             assert!(
-                (sys.rhs[l] - r_ref[l]).abs() <= 1e-12 * r_ref[l].abs().max(1.0),
+                (got - want).abs() <= 1e-12 * want.abs().max(1.0),
                 "rhs entry {l}"
             );
         }
