@@ -10,12 +10,12 @@
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::mesh::TriangleMesh;
 
 /// Summary of distances from a point set to a surface.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct DistanceSummary {
     /// Mean distance, input units.
     pub mean: f64,

@@ -15,7 +15,7 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use crate::cache::{self, Artifact, Cache, Key, Lookup};
+use crate::cache::{self, Artifact, Cache, Key, Lookup, OutputFiles};
 use crate::cloud::{Aabb, OrientedCloud, PointCloud};
 use crate::export::{self, ExportError};
 use crate::fit::{self, FitParams};
@@ -240,6 +240,7 @@ const IMPORT_VERSION: u32 = 1;
 const NORMALS_VERSION: u32 = 1;
 const FIT_VERSION: u32 = 1;
 const POLYGONIZE_VERSION: u32 = 1;
+const EXPORT_VERSION: u32 = 1;
 
 struct Ctx<'a> {
     cache: &'a Cache,
@@ -442,7 +443,7 @@ pub fn run(
     let (cloud, _oriented, model, model_key) = fit_stages(&mut ctx, source, config)?;
 
     let region = meshing_region(&model);
-    let (mut mesh, _) = ctx.stage(
+    let (mut mesh, mesh_key) = ctx.stage(
         "polygonize",
         POLYGONIZE_VERSION,
         &cache::params_bytes(&config.polygonize),
@@ -458,40 +459,51 @@ pub fn run(
         },
     )?;
 
-    let data_diagonal = Aabb::from_points(&cloud.points).map_or(0.0, |b| b.diagonal());
-    if config.keep == Keep::Data {
-        let t = Instant::now();
-        let (kept, dropped) =
-            mesh::drop_components_far_from(&mesh, &cloud.points, 0.02 * data_diagonal);
-        mesh = kept;
-        ctx.finish(
-            "keep",
-            "none",
-            t,
-            None,
-            serde_json::json!({ "dropped_components": dropped }),
-        );
-    }
-
-    let t = Instant::now();
-    let report_mesh = mesh::check(&mesh);
-    let accuracy = DistanceSummary::from_distances(
-        &measure::point_to_mesh_distances(&cloud.points, &mesh),
-        data_diagonal,
-    );
-    ctx.finish(
-        "check",
-        "none",
-        t,
-        None,
-        serde_json::json!({ "watertight": report_mesh.watertight, "components": report_mesh.components,
-                            "mean_distance_relative": accuracy.mean_relative }),
-    );
-
-    let t = Instant::now();
-    let outputs = write_outputs(out_dir, config, &model, &mesh, &cloud, &region)?;
-    ctx.finish(
+    // Everything after meshing (component filter, checks, accuracy, the bytes of every output
+    // file) is one more cached stage: a rerun with the same inputs only copies files out.
+    let (files, _) = ctx.stage(
         "export",
+        EXPORT_VERSION,
+        &export_params_bytes(config),
+        &mesh_key,
+        || {
+            let data_diagonal = Aabb::from_points(&cloud.points).map_or(0.0, |b| b.diagonal());
+            let mut dropped = 0;
+            if config.keep == Keep::Data {
+                let (kept, n) =
+                    mesh::drop_components_far_from(&mesh, &cloud.points, 0.02 * data_diagonal);
+                (mesh, dropped) = (kept, n);
+            }
+            let report_mesh = mesh::check(&mesh);
+            let accuracy = DistanceSummary::from_distances(
+                &measure::point_to_mesh_distances(&cloud.points, &mesh),
+                data_diagonal,
+            );
+            let files = render_outputs(config, &model, &mesh, &cloud, &region)?;
+            let figures = serde_json::json!({
+                "files": files.0.len(),
+                "bytes": files.0.iter().map(|f| f.1.len()).sum::<usize>(),
+                "dropped_components": dropped,
+                "mesh": report_mesh,
+                "accuracy": accuracy,
+            });
+            Ok((files, figures))
+        },
+    )?;
+    let figures = &ctx
+        .stages
+        .last()
+        .map(|s| s.figures.clone())
+        .unwrap_or_default();
+    let report_mesh: MeshReport =
+        serde_json::from_value(figures["mesh"].clone()).unwrap_or_default();
+    let accuracy: DistanceSummary =
+        serde_json::from_value(figures["accuracy"].clone()).unwrap_or_default();
+
+    let t = Instant::now();
+    let outputs = write_files(out_dir, &files)?;
+    ctx.finish(
+        "write",
         "none",
         t,
         None,
@@ -519,35 +531,60 @@ pub fn run(
     Ok(report)
 }
 
-/// The writer `write_atomic` hands to an exporter.
-type FileWriter<'a> = std::io::BufWriter<&'a mut std::fs::File>;
+/// Canonical bytes of everything that decides the output files besides the mesh and model.
+fn export_params_bytes(config: &PipelineConfig) -> Vec<u8> {
+    let formats: Vec<String> = config.formats.iter().map(|f| format!("{f:?}")).collect();
+    cache::params_bytes(&serde_json::json!({
+        "formats": formats,
+        "keep": format!("{:?}", config.keep),
+        "up": format!("{:?}", config.gltf.up),
+        "slices": {
+            "axis": config.slices.axis.name(),
+            "count": config.slices.count,
+            "resolution": config.slices.resolution,
+            "method": config.slices.method.name(),
+        },
+    }))
+}
 
-/// Computes every output in memory, then writes each file atomically.
-fn write_outputs(
-    out_dir: &Path,
+/// Writes each file atomically into `out_dir` (creating folders as needed).
+fn write_files(out_dir: &Path, files: &OutputFiles) -> Result<Vec<String>, PipelineError> {
+    let mut written = Vec::new();
+    for (name, bytes) in &files.0 {
+        let path = out_dir.join(name);
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir).map_err(|source| PipelineError::OutputDir {
+                path: dir.display().to_string(),
+                source,
+            })?;
+        }
+        export::write_atomic(&path, |w| w.write_all(bytes).map_err(ExportError::Write))?;
+        written.push(name.clone());
+    }
+    Ok(written)
+}
+
+/// Computes every output file's bytes in memory (nothing is written here).
+fn render_outputs(
     config: &PipelineConfig,
     model: &ImplicitModel,
     mesh: &TriangleMesh,
     cloud: &PointCloud,
     region: &Aabb,
-) -> Result<Vec<String>, PipelineError> {
+) -> Result<OutputFiles, PipelineError> {
     let want = |f| config.formats.contains(&f);
     let slices = if want(OutputFormat::Exr) || want(OutputFormat::Png) {
         crate::distance::slices(&model.polynomial, region, &config.slices)?
     } else {
         Vec::new()
     };
-    let dir_err = |p: &Path| {
-        let path = p.display().to_string();
-        move |source| PipelineError::OutputDir { path, source }
-    };
-    std::fs::create_dir_all(out_dir).map_err(dir_err(out_dir))?;
-    let mut written = Vec::new();
+    let mut files = Vec::new();
     let mut put = |name: &str,
-                   f: &dyn Fn(&mut FileWriter<'_>) -> Result<(), ExportError>|
+                   f: &dyn Fn(&mut Vec<u8>) -> Result<(), ExportError>|
      -> Result<(), PipelineError> {
-        export::write_atomic(&out_dir.join(name), f)?;
-        written.push(name.to_string());
+        let mut bytes = Vec::new();
+        f(&mut bytes)?;
+        files.push((name.to_string(), bytes));
         Ok(())
     };
     if want(OutputFormat::Json) {
@@ -563,10 +600,12 @@ fn write_outputs(
         let mut json = Vec::new();
         export::gltf::write_gltf(mesh, &mut json, &mut bin, "mesh.bin", &config.gltf)?;
         put("mesh.bin", &|w| {
-            w.write_all(&bin).map_err(ExportError::Write)
+            w.extend_from_slice(&bin);
+            Ok(())
         })?;
         put("mesh.gltf", &|w| {
-            w.write_all(&json).map_err(ExportError::Write)
+            w.extend_from_slice(&json);
+            Ok(())
         })?;
     }
     if want(OutputFormat::Ply) {
@@ -582,8 +621,6 @@ fn write_outputs(
         put("preview.png", &|w| export::png::write_rgb(&image, w))?;
     }
     if !slices.is_empty() {
-        let slice_dir = out_dir.join("slices");
-        std::fs::create_dir_all(&slice_dir).map_err(dir_err(&slice_dir))?;
         for slice in &slices {
             if want(OutputFormat::Exr) {
                 let name = format!("slices/slice_{:03}.exr", slice.index);
@@ -597,5 +634,5 @@ fn write_outputs(
             }
         }
     }
-    Ok(written)
+    Ok(OutputFiles(files))
 }

@@ -149,11 +149,11 @@ fn rerun_hits_cache_and_depth_change_reuses_the_fit() {
         stderr_of(&o)
     };
     let first = run("5", "a");
-    for stage in ["import", "normals", "fit", "polygonize"] {
+    for stage in ["import", "normals", "fit", "polygonize", "export"] {
         assert_eq!(cache_state(&first, stage), "miss", "first run, {stage}");
     }
     let second = run("5", "b");
-    for stage in ["import", "normals", "fit", "polygonize"] {
+    for stage in ["import", "normals", "fit", "polygonize", "export"] {
         assert_eq!(cache_state(&second, stage), "hit", "second run, {stage}");
     }
     // Byte-identical outputs from a cold and a warm run.
@@ -169,6 +169,7 @@ fn rerun_hits_cache_and_depth_change_reuses_the_fit() {
         assert_eq!(cache_state(&deeper, stage), "hit", "depth change, {stage}");
     }
     assert_eq!(cache_state(&deeper, "polygonize"), "miss");
+    assert_eq!(cache_state(&deeper, "export"), "miss");
 
     // Corrupt the fit entry: it is detected, recomputed and rewritten.
     let fit_dir = cache.join("fit");

@@ -222,6 +222,36 @@ impl Artifact for ImplicitModel {
     }
 }
 
+/// The bytes of a run's output files, by path relative to the output directory (the cached
+/// result of the pipeline's `export` stage).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct OutputFiles(pub Vec<(String, Vec<u8>)>);
+
+impl Artifact for OutputFiles {
+    const KIND: u32 = 5;
+    const VERSION: u32 = 1;
+
+    fn encode_payload(&self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&(self.0.len() as u64).to_le_bytes());
+        for (name, bytes) in &self.0 {
+            for field in [name.as_bytes(), bytes.as_slice()] {
+                out.extend_from_slice(&(field.len() as u64).to_le_bytes());
+                out.extend_from_slice(field);
+            }
+        }
+    }
+
+    fn decode_payload(r: &mut Reader<'_>) -> Option<Self> {
+        let n = usize::try_from(r.u64()?).ok()?;
+        let mut files = Vec::new();
+        for _ in 0..n {
+            let name = std::str::from_utf8(r.bytes()?).ok()?.to_string();
+            files.push((name, r.bytes()?.to_vec()));
+        }
+        Some(OutputFiles(files))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -263,6 +293,15 @@ mod tests {
                 "truncation to {n} accepted"
             );
         }
+    }
+
+    #[test]
+    fn output_files_round_trip() {
+        let files = OutputFiles(vec![
+            ("a.ply".into(), vec![1, 2, 3]),
+            ("slices/b.exr".into(), vec![]),
+        ]);
+        assert_eq!(decode::<OutputFiles>(&encode(&files)), Some(files));
     }
 
     #[test]

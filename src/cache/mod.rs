@@ -26,7 +26,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
-pub use codec::Artifact;
+pub use codec::{Artifact, OutputFiles};
 
 /// Version of the cache as a whole (entry envelope and key recipe). If you change either,
 /// bump it: every key changes and old entries are simply never read again.
