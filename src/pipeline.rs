@@ -263,9 +263,15 @@ impl Ctx<'_> {
         let start = Instant::now();
         let key = cache::stage_key(stage, version, params, input_key);
         let (found, lookup) = self.cache.get::<T>(stage, &key);
-        let (value, figures) = match (found, self.cache.meta(stage, &key)) {
-            (Some(v), Some(meta)) => (v, meta.get("figures").cloned().unwrap_or_default()),
-            (_, _) => {
+        // A hit needs its explanation too (the report's figures come from it).
+        let meta = found.as_ref().and_then(|_| self.cache.meta(stage, &key));
+        let (value, figures, lookup) = match (found, meta) {
+            (Some(v), Some(meta)) => (
+                v,
+                meta.get("figures").cloned().unwrap_or_default(),
+                Lookup::Hit,
+            ),
+            (found, _) => {
                 let (v, figures) = compute()?;
                 let meta = serde_json::json!({
                     "stage": stage,
@@ -277,13 +283,13 @@ impl Ctx<'_> {
                     "figures": figures,
                 });
                 self.cache.put(stage, &key, &v, &meta)?;
-                (v, figures)
+                let lookup = if found.is_some() {
+                    Lookup::Corrupt
+                } else {
+                    lookup
+                };
+                (v, figures, lookup)
             }
-        };
-        let lookup = if lookup == Lookup::Hit && self.cache.meta(stage, &key).is_none() {
-            Lookup::Corrupt
-        } else {
-            lookup
         };
         self.finish(stage, lookup.as_str(), start, Some(key), figures);
         Ok((value, key))
