@@ -412,7 +412,7 @@ pub fn fit(cloud: &OrientedCloud, params: &FitParams) -> Result<ImplicitModel, F
     }
     .map_err(|_| FitError::NoConvergence)?;
     let extrema = polynomial.leading_form_extrema();
-    let bounded = degree % 2 == 0 && extrema.min > 0.0;
+    let bounded = degree.is_multiple_of(2) && extrema.min > 0.0;
     let containment_radius = if bounded {
         polynomial.containment_radius_with(extrema.min)
     } else {

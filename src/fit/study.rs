@@ -162,7 +162,7 @@ pub fn sample(shape: Shape, variant: Variant, n_points: usize, seed: u64) -> Ori
     if shape == Shape::Cube {
         while cloud.points.len() < target {
             let face = (rng.uniform() * 6.0) as usize % 6;
-            let (axis, sign) = (face / 2, if face % 2 == 0 { 1.0 } else { -1.0 });
+            let (axis, sign) = (face / 2, if face.is_multiple_of(2) { 1.0 } else { -1.0 });
             let mut p = [
                 2.0 * rng.uniform() - 1.0,
                 2.0 * rng.uniform() - 1.0,
@@ -269,7 +269,7 @@ pub struct Assessment {
 
 /// Judges the zero set of `poly` against the data (see the module docs).
 pub fn assess(poly: &ImplicitPolynomial, cloud: &OrientedCloud) -> Assessment {
-    let positive = poly.degree % 2 == 0 && poly.leading_form_extrema().min > 0.0;
+    let positive = poly.degree.is_multiple_of(2) && poly.leading_form_extrema().min > 0.0;
     let half: f64 = 4.0;
     let step: f64 = 0.1;
     let nv = (2.0 * half / step).round() as usize + 1;

@@ -581,7 +581,7 @@ fn read_binary<const BIG: bool>(
         let last = header.elements.last();
         let extra = body.len() - pos;
         return Err(match last.and_then(|l| l.fixed_stride().map(|s| (l, s))) {
-            Some((last, stride)) if stride > 0 && extra % stride == 0 => {
+            Some((last, stride)) if stride > 0 && extra.is_multiple_of(stride) => {
                 ImportError::HeaderCountMismatch {
                     path: path.to_owned(),
                     what: format!("`{}` entries", last.name),
