@@ -344,3 +344,39 @@ fn killed_runs_leave_no_partial_output_and_no_corrupt_cache() {
         );
     }
 }
+
+/// Two runs at once on the same cache both succeed, and the entries they leave are valid hits.
+#[test]
+fn concurrent_runs_share_a_cache_safely() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 400);
+    let cache = dir.path().join("cache");
+    let exe = assert_cmd::cargo::cargo_bin("stablesurf");
+    let spawn = |out: &str, verbose: bool| {
+        let mut cmd = std::process::Command::new(&exe);
+        cmd.arg("run")
+            .arg(&input)
+            .arg("-o")
+            .arg(dir.path().join(out))
+            .args(["--degree", "4", "--depth", "6", "--formats", "ply,json"])
+            .arg(if verbose { "-v" } else { "-q" })
+            .arg("--cache-dir")
+            .arg(&cache)
+            .stderr(std::process::Stdio::piped());
+        cmd.spawn().unwrap()
+    };
+    let (a, b) = (spawn("a", false), spawn("b", false));
+    for child in [a, b] {
+        let out = child.wait_with_output().unwrap();
+        assert!(out.status.success(), "{}", stderr_of(&out));
+    }
+    assert_eq!(
+        fs::read(dir.path().join("a/mesh.ply")).unwrap(),
+        fs::read(dir.path().join("b/mesh.ply")).unwrap()
+    );
+    let third = spawn("c", true).wait_with_output().unwrap();
+    let err = stderr_of(&third);
+    for stage in ["import", "normals", "fit", "polygonize", "export"] {
+        assert_eq!(cache_state(&err, stage), "hit", "{stage}");
+    }
+}
