@@ -36,12 +36,15 @@
 //!   distance; it equals the true distance to rounding (≈ 1e-12 relative) whenever one of the
 //!   nearest samples lies in the Newton basin of the true closest point, which holds unless a
 //!   piece of the zero set is smaller than a seed cell (1/64 of the grown region) or the true
-//!   closest point lies outside the grown region. The sign is the sign of f(p). Cost: about
-//!   five Hessian evaluations and one 8-nearest-neighbour query per pixel, some 30× Taubin
+//!   closest point lies outside the grown region. The sign is the sign of f(p). Along a row of
+//!   a slice, Newton's method is first run from the previous pixel's closest point (an
+//!   excellent start one pixel away); that point then bounds and covers seeds like a refined
+//!   seed, so most pixels need only this warm solve. Cost: a few Hessian evaluations and one
+//!   8-nearest-neighbour query per pixel, some 7× Taubin for a degree-8 model
 //!   (`cargo bench --bench export -- slices`).
 //!
 //! Invariants: values are finite; the output depends only on the inputs (rayon over fixed rows,
-//! each pixel computed independently), whatever the thread count.
+//! each row computed sequentially from its first pixel), whatever the thread count.
 
 use std::num::NonZero;
 
