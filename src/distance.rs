@@ -36,12 +36,15 @@
 //!   distance; it equals the true distance to rounding (≈ 1e-12 relative) whenever one of the
 //!   nearest samples lies in the Newton basin of the true closest point, which holds unless a
 //!   piece of the zero set is smaller than a seed cell (1/64 of the grown region) or the true
-//!   closest point lies outside the grown region. The sign is the sign of f(p). Cost: about
-//!   five Hessian evaluations and one 8-nearest-neighbour query per pixel, some 30× Taubin
+//!   closest point lies outside the grown region. The sign is the sign of f(p). Along a row of
+//!   a slice, Newton's method is first run from the previous pixel's closest point (an
+//!   excellent start one pixel away); that point then bounds and covers seeds like a refined
+//!   seed, so most pixels need only this warm solve. Cost: a few Hessian evaluations and one
+//!   8-nearest-neighbour query per pixel, some 7× Taubin for a degree-8 model
 //!   (`cargo bench --bench export -- slices`).
 //!
 //! Invariants: values are finite; the output depends only on the inputs (rayon over fixed rows,
-//! each pixel computed independently), whatever the thread count.
+//! each row computed sequentially from its first pixel), whatever the thread count.
 
 use std::num::NonZero;
 
@@ -265,7 +268,7 @@ pub fn slices(
     let center = region.center();
     let half = r as f64 / 2.0;
 
-    // One rayon task per (slice, row): fixed work units, each pixel computed independently.
+    // One rayon task per (slice, row): fixed work units.
     let rows: Vec<Vec<f32>> = (0..k_count * r)
         .into_par_iter()
         .map(|task| {
@@ -273,11 +276,18 @@ pub fn slices(
             let mut p = [0.0; 3];
             p[w] = region.min[w] + (k as f64 + 0.5) * spacing;
             p[v] = center[v] + (half - row as f64 - 0.5) * h;
+            // Along a row, each pixel's closest-point search is warm-started from the previous
+            // pixel's foot point (the row is one task, so the result does not depend on threads).
+            let mut foot = None;
             (0..r)
                 .map(|col| {
                     p[u] = center[u] + (col as f64 + 0.5 - half) * h;
                     let d = match &exact {
-                        Some(e) => e.distance(p),
+                        Some(e) => {
+                            let (d, x) = e.distance_from(p, foot);
+                            foot = x;
+                            d
+                        }
                         None => eval.taubin(p, clamp),
                     };
                     d as f32
@@ -441,10 +451,31 @@ impl ExactDistance {
     /// Signed distance from `p` (input coordinates) to the zero set, input units, negative where
     /// f < 0.
     pub fn distance(&self, p: [f64; 3]) -> f64 {
+        self.distance_from(p, None).0
+    }
+
+    /// [`Self::distance`] with an optional warm start: `warm` is a point of the zero set
+    /// (normalized coordinates) near the expected closest point, typically the foot point of the
+    /// neighbouring pixel. Newton's method is run from it first; its result bounds the seeds
+    /// worth refining and, like a refined seed, covers the seeds within two cells of it. Returns
+    /// the signed distance and the closest point found (normalized), to warm-start the next query.
+    fn distance_from(&self, p: [f64; 3], warm: Option<[f64; 3]>) -> (f64, Option<[f64; 3]>) {
         let q = self.eval.normalize(p);
         let f = self.eval.value(q);
         if f == 0.0 {
-            return 0.0;
+            return (0.0, Some(q));
+        }
+        let mut best = f64::INFINITY;
+        let mut foot = None;
+        // Points whose Newton basin has been explored: the warm-start foot point and the seeds
+        // refined so far.
+        let mut refined = [[f64::NAN; 3]; N_REFINE + 1];
+        let mut n_refined = 0;
+        if let Some(x) = warm.and_then(|w| self.eval.closest_point(q, w)) {
+            best = dist(q, x);
+            foot = Some(x);
+            refined[0] = x;
+            n_refined = 1;
         }
         let k = NonZero::new(N_NEAREST.min(self.seeds.len())).unwrap_or(NonZero::<usize>::MIN);
         let nearest = self
@@ -452,15 +483,19 @@ impl ExactDistance {
             .query(&q)
             .nearest_n::<SquaredEuclidean<f64>>(k)
             .execute();
-        let mut best = nearest.first().map_or(f64::INFINITY, |n| n.distance.sqrt());
+        if let Some(n) = nearest.first() {
+            if n.distance.sqrt() < best {
+                best = n.distance.sqrt();
+                foot = Some(self.seeds[n.item as usize]);
+            }
+        }
         // Refine from the nearest seed, then from up to N_REFINE − 1 more that lie more than two
-        // cells from every seed refined so far (seeds that close share a Newton basin) and whose
-        // own distance is below the best found plus a cell (the zero set within a cell of a seed
-        // is at least its distance minus a cell away, so a farther seed cannot lead closer).
-        let mut refined = [[f64::NAN; 3]; N_REFINE];
-        let mut n_refined = 0;
+        // cells from every point explored so far (seeds that close share a Newton basin) and
+        // whose own distance is below the best found plus a cell (the zero set within a cell of a
+        // seed is at least its distance minus a cell away, so a farther seed cannot lead closer).
+        let first_seed = n_refined;
         for n in &nearest {
-            if n_refined == N_REFINE || n.distance.sqrt() > best + self.cell {
+            if n_refined - first_seed == N_REFINE || n.distance.sqrt() > best + self.cell {
                 break;
             }
             let seed = self.seeds[n.item as usize];
@@ -473,10 +508,14 @@ impl ExactDistance {
             refined[n_refined] = seed;
             n_refined += 1;
             if let Some(x) = self.eval.closest_point(q, seed) {
-                best = best.min(dist(q, x));
+                let d = dist(q, x);
+                if d < best {
+                    best = d;
+                    foot = Some(x);
+                }
             }
         }
-        best.copysign(f) * self.eval.scale
+        (best.copysign(f) * self.eval.scale, foot)
     }
 }
 
@@ -494,16 +533,12 @@ struct Evaluator {
     scale: f64,
 }
 
-/// One term a·x^i y^j z^k with its derivative factors precomputed.
+/// One term a·x^i y^j z^k.
 #[derive(Clone, Debug)]
 struct Term {
     a: f64,
     /// (i, j, k).
     e: [usize; 3],
-    /// (i, j, k) as floats: d/dt t^e = e·t^(e−1).
-    f1: [f64; 3],
-    /// e(e − 1): d²/dt² t^e = e(e − 1)·t^(e−2).
-    f2: [f64; 3],
 }
 
 /// Length of a power table: t^e is stored at e + 2, with two zeros in front so the derivative
@@ -541,12 +576,7 @@ impl Evaluator {
             .filter(|(_, &a)| a != 0.0)
             .map(|(e, &a)| {
                 let e = e.map(|x| x as usize);
-                Term {
-                    a,
-                    e,
-                    f1: e.map(|x| x as f64),
-                    f2: e.map(|x| (x * x.max(1) - x) as f64),
-                }
+                Term { a, e }
             })
             .collect();
         Ok(Evaluator {
@@ -583,50 +613,60 @@ impl Evaluator {
             .sum()
     }
 
+    /// Power tables of the three coordinates with their first and second derivatives:
+    /// `[t^e, e·t^(e−1), e(e−1)·t^(e−2)]` at index e for each axis.
+    fn derivative_powers(&self, q: [f64; 3]) -> [[[f64; TABLE]; 3]; 3] {
+        let t = self.powers(q);
+        let mut d = [[[0.0; TABLE]; 3]; 3];
+        for a in 0..3 {
+            for e in 0..=self.degree {
+                let ef = e as f64;
+                d[a][0][e] = t[a][e + 2];
+                d[a][1][e] = ef * t[a][e + 1];
+                d[a][2][e] = ef * (ef - 1.0) * t[a][e];
+            }
+        }
+        d
+    }
+
     /// f and ∇f at the normalized point `q`.
     fn gradient(&self, q: [f64; 3]) -> (f64, [f64; 3]) {
-        let t = self.powers(q);
+        let [x, y, z] = self.derivative_powers(q);
         let (mut f, mut g) = (0.0, [0.0; 3]);
         for m in &self.terms {
             let [i, j, k] = m.e;
-            let (x0, y0, z0) = (t[0][i + 2], t[1][j + 2], t[2][k + 2]);
-            let (x1, y1, z1) = (
-                m.f1[0] * t[0][i + 1],
-                m.f1[1] * t[1][j + 1],
-                m.f1[2] * t[2][k + 1],
-            );
-            f += m.a * x0 * y0 * z0;
-            g[0] += m.a * x1 * y0 * z0;
-            g[1] += m.a * x0 * y1 * z0;
-            g[2] += m.a * x0 * y0 * z1;
+            let (ax0, ax1) = (m.a * x[0][i], m.a * x[1][i]);
+            let (y0, y1, z0, z1) = (y[0][j], y[1][j], z[0][k], z[1][k]);
+            let y0z0 = y0 * z0;
+            f += ax0 * y0z0;
+            g[0] += ax1 * y0z0;
+            g[1] += ax0 * y1 * z0;
+            g[2] += ax0 * y0 * z1;
         }
         (f, g)
     }
 
     /// f, ∇f and the Hessian at the normalized point `q`.
     fn hessian(&self, q: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
-        let t = self.powers(q);
+        let [x, y, z] = self.derivative_powers(q);
         let (mut f, mut g, mut h) = (0.0, [0.0; 3], [[0.0; 3]; 3]);
         for m in &self.terms {
             let [i, j, k] = m.e;
-            let (x0, y0, z0) = (t[0][i + 2], t[1][j + 2], t[2][k + 2]);
-            let (x1, y1, z1) = (
-                m.f1[0] * t[0][i + 1],
-                m.f1[1] * t[1][j + 1],
-                m.f1[2] * t[2][k + 1],
-            );
-            let (x2, y2, z2) = (m.f2[0] * t[0][i], m.f2[1] * t[1][j], m.f2[2] * t[2][k]);
             let a = m.a;
-            f += a * x0 * y0 * z0;
-            g[0] += a * x1 * y0 * z0;
-            g[1] += a * x0 * y1 * z0;
-            g[2] += a * x0 * y0 * z1;
-            h[0][0] += a * x2 * y0 * z0;
-            h[1][1] += a * x0 * y2 * z0;
-            h[2][2] += a * x0 * y0 * z2;
-            h[0][1] += a * x1 * y1 * z0;
-            h[0][2] += a * x1 * y0 * z1;
-            h[1][2] += a * x0 * y1 * z1;
+            let (ax0, ax1, ax2) = (a * x[0][i], a * x[1][i], a * x[2][i]);
+            let (y0, y1, y2) = (y[0][j], y[1][j], y[2][j]);
+            let (z0, z1, z2) = (z[0][k], z[1][k], z[2][k]);
+            let (y0z0, y1z0, y0z1) = (y0 * z0, y1 * z0, y0 * z1);
+            f += ax0 * y0z0;
+            g[0] += ax1 * y0z0;
+            g[1] += ax0 * y1z0;
+            g[2] += ax0 * y0z1;
+            h[0][0] += ax2 * y0z0;
+            h[1][1] += ax0 * y2 * z0;
+            h[2][2] += ax0 * y0 * z2;
+            h[0][1] += ax1 * y1z0;
+            h[0][2] += ax1 * y0z1;
+            h[1][2] += ax0 * y1 * z1;
         }
         (h[1][0], h[2][0], h[2][1]) = (h[0][1], h[0][2], h[1][2]);
         (f, g, h)
@@ -680,14 +720,19 @@ impl Evaluator {
         };
         let norm2 = |r: &[f64; 4]| r.iter().map(|c| c * c).sum::<f64>();
         let mut x = start;
-        let (_, g0) = self.gradient(x);
-        let g2 = g0[0] * g0[0] + g0[1] * g0[1] + g0[2] * g0[2];
+        let (f0, mut g, mut h) = self.hessian(x);
+        let g2 = g[0] * g[0] + g[1] * g[1] + g[2] * g[2];
         if !(g2.is_finite() && g2 > 0.0) {
             return None;
         }
-        let mut lambda =
-            ((q[0] - x[0]) * g0[0] + (q[1] - x[1]) * g0[1] + (q[2] - x[2]) * g0[2]) / g2;
-        let (mut r, _, mut g, mut h) = residual(x, lambda);
+        let mut lambda = ((q[0] - x[0]) * g[0] + (q[1] - x[1]) * g[1] + (q[2] - x[2]) * g[2]) / g2;
+        let mut r = [0, 1, 2, 3].map(|a| {
+            if a < 3 {
+                x[a] - q[a] + lambda * g[a]
+            } else {
+                f0
+            }
+        });
         for _ in 0..40 {
             // Converged to rounding: stop before a step that cannot reduce the residual.
             let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
