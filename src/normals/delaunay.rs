@@ -588,7 +588,7 @@ impl Builder<'_> {
             self.neighbours[ta as usize][ja as usize] = tb;
             self.neighbours[tb as usize][jb as usize] = ta;
         }
-        debug_assert!(self.pending.len() % 2 == 0);
+        debug_assert!(self.pending.len().is_multiple_of(2));
         self.created.last().copied()
     }
 }
