@@ -12,7 +12,7 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::mesh::TriangleMesh;
+use crate::mesh::{TriangleMesh, VertexTriangles};
 
 /// Summary of distances from a point set to a surface.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -94,25 +94,7 @@ pub fn point_to_mesh_distances(points: &[[f64; 3]], mesh: &TriangleMesh) -> Vec<
     if mesh.triangles.is_empty() {
         return Vec::new();
     }
-    // Triangles around each vertex, as a compressed adjacency list.
-    let n = mesh.positions.len();
-    let mut start = vec![0usize; n + 1];
-    for t in &mesh.triangles {
-        for &v in t {
-            start[v as usize + 1] += 1;
-        }
-    }
-    for i in 0..n {
-        start[i + 1] += start[i];
-    }
-    let mut fill = start.clone();
-    let mut around = vec![0u32; start[n]];
-    for (ti, t) in mesh.triangles.iter().enumerate() {
-        for &v in t {
-            around[fill[v as usize]] = ti as u32;
-            fill[v as usize] += 1;
-        }
-    }
+    let around = VertexTriangles::new(mesh.positions.len(), &mesh.triangles);
     let Ok(tree) = ImmutableKdTree::<f64, 3>::new_from_slice(&mesh.positions) else {
         return Vec::new();
     };
@@ -125,7 +107,7 @@ pub fn point_to_mesh_distances(points: &[[f64; 3]], mesh: &TriangleMesh) -> Vec<
                 .execute();
             let v = nearest.item as usize;
             let mut best = nearest.distance.sqrt();
-            for &ti in &around[start[v]..start[v + 1]] {
+            for &ti in around.of(v) {
                 let [a, b, c] = mesh.triangles[ti as usize].map(|i| mesh.positions[i as usize]);
                 let q = closest_point_on_triangle(p, a, b, c);
                 let d =

@@ -76,6 +76,54 @@ fn valid_triangles(mesh: &TriangleMesh) -> impl Iterator<Item = [u32; 3]> + '_ {
     })
 }
 
+/// The triangles around each vertex, in compressed rows: the triangles of vertex `v` are
+/// `triangles[start[v]..start[v + 1]]` (indices into the input triangle list, in its order).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct VertexTriangles {
+    /// Row starts, `n_vertices + 1` entries.
+    pub start: Vec<usize>,
+    /// Triangle indices, row by row.
+    pub triangles: Vec<u32>,
+}
+
+impl VertexTriangles {
+    /// Builds the rows for `n_vertices` vertices; every index in `triangles` must be below it.
+    ///
+    /// ```
+    /// let around = stablesurf::mesh::VertexTriangles::new(4, &[[0, 1, 2], [0, 2, 3]]);
+    /// assert_eq!(around.of(0), &[0, 1]);
+    /// assert_eq!(around.of(3), &[1]);
+    /// ```
+    pub fn new(n_vertices: usize, triangles: &[[u32; 3]]) -> VertexTriangles {
+        let mut start = vec![0usize; n_vertices + 1];
+        for t in triangles {
+            for &v in t {
+                start[v as usize + 1] += 1;
+            }
+        }
+        for i in 0..n_vertices {
+            start[i + 1] += start[i];
+        }
+        let mut fill = start.clone();
+        let mut rows = vec![0u32; start[n_vertices]];
+        for (ti, t) in triangles.iter().enumerate() {
+            for &v in t {
+                rows[fill[v as usize]] = ti as u32;
+                fill[v as usize] += 1;
+            }
+        }
+        VertexTriangles {
+            start,
+            triangles: rows,
+        }
+    }
+
+    /// The indices of the triangles around vertex `v`.
+    pub fn of(&self, v: usize) -> &[u32] {
+        &self.triangles[self.start[v]..self.start[v + 1]]
+    }
+}
+
 /// Connected components of the mesh: their number and one label per vertex, numbered in order
 /// of each component's smallest vertex index. Vertices are joined by the edges of valid
 /// triangles; an unreferenced vertex forms a component of its own.

@@ -39,6 +39,7 @@
 use rayon::prelude::*;
 
 use crate::cloud::Aabb;
+use crate::mesh::VertexTriangles;
 use crate::normals::delaunay::{face_vertices, tetrahedralize, NO_NEIGHBOUR};
 use crate::normals::vec3::{add, cross, dot, norm, normalized, scale, sub, triangle_normal};
 use crate::normals::{orient, pca, NormalsError, NormalsParams};
@@ -353,23 +354,12 @@ pub fn crust_normals(
     let n = points.len();
     let c = crust(points)?;
     // Incident triangles per point, in compressed rows.
-    let mut start = vec![0usize; n + 1];
-    for t in &c.triangles {
-        for &v in t {
-            start[v as usize + 1] += 1;
-        }
-    }
-    for i in 0..n {
-        start[i + 1] += start[i];
-    }
-    let mut fill = start.clone();
-    let mut incident = vec![[0u32; 3]; start[n]];
-    for t in &c.triangles {
-        for &v in t {
-            incident[fill[v as usize]] = *t;
-            fill[v as usize] += 1;
-        }
-    }
+    let around = VertexTriangles::new(n, &c.triangles);
+    let incident: Vec<[u32; 3]> = around
+        .triangles
+        .iter()
+        .map(|&t| c.triangles[t as usize])
+        .collect();
     let cos_max = params.max_fan_angle_deg.to_radians().cos();
     let fans: Vec<Option<[f64; 3]>> = (0..n)
         .into_par_iter()
@@ -377,7 +367,7 @@ pub fn crust_normals(
             fan_normal(
                 points,
                 v as u32,
-                &incident[start[v]..start[v + 1]],
+                &incident[around.start[v]..around.start[v + 1]],
                 c.pole_vectors[v],
                 cos_max,
             )
