@@ -52,7 +52,10 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 
 use crate::cloud::Aabb;
+use crate::measure::GridMeshDistance;
+use crate::mesh::TriangleMesh;
 use crate::poly::{n_coefficients, ImplicitPolynomial};
+use crate::polygonize::ImplicitFunction;
 
 /// Highest polynomial degree the distance evaluator accepts.
 pub const MAX_DEGREE: u32 = 32;
@@ -108,6 +111,11 @@ pub enum DistanceMethod {
     /// Distance to the zero set by closest-point search and Newton projection. The default.
     #[default]
     Exact,
+    /// Distance to the polygonized zero set (the output mesh), signed by f: within the mesh's
+    /// chord error of the exact distance (see [`crate::measure::GridMeshDistance`] for when the
+    /// search can miss); works for any model, not only a polynomial. Needs the mesh
+    /// ([`slices_from_mesh`]).
+    Mesh,
 }
 
 impl DistanceMethod {
@@ -116,6 +124,7 @@ impl DistanceMethod {
         match self {
             DistanceMethod::Taubin => "taubin",
             DistanceMethod::Exact => "exact",
+            DistanceMethod::Mesh => "mesh",
         }
     }
 }
@@ -240,6 +249,91 @@ pub fn slices(
     region: &Aabb,
     params: &SliceParams,
 ) -> Result<Vec<Slice>, DistanceError> {
+    check_params(params)?;
+    check_region(region)?;
+    let eval = Evaluator::new(poly)?;
+    let clamp = region.diagonal();
+    match params.method {
+        DistanceMethod::Exact => {
+            let exact = ExactDistance::with_evaluator(eval, region)?;
+            // Along a row, each pixel's closest-point search is warm-started from the previous
+            // pixel's foot point (the row is one task, so the result does not depend on threads).
+            Ok(fill_grid(region, params, |row| {
+                let mut foot = None;
+                row.iter()
+                    .map(|&p| {
+                        let (d, x) = exact.distance_from(p, foot);
+                        foot = x;
+                        d as f32
+                    })
+                    .collect()
+            }))
+        }
+        DistanceMethod::Taubin => Ok(fill_grid(region, params, |row| {
+            row.iter().map(|&p| eval.taubin(p, clamp) as f32).collect()
+        })),
+        DistanceMethod::Mesh => Err(DistanceError::InvalidParams(
+            "the mesh distance needs the model's mesh (slices_from_mesh)".into(),
+        )),
+    }
+}
+
+/// Computes the K slices of the signed distance to `mesh` across `region`
+/// ([`DistanceMethod::Mesh`]): the unsigned distance to the triangles around the nearest mesh
+/// vertex ([`crate::measure::GridMeshDistance`]), signed by `f` (negative where f < 0). `mesh` is
+/// the polygonized zero set of `f`; any [`ImplicitFunction`] works, so this also serves models
+/// that are not one polynomial. `params.method` is ignored (the slices record `Mesh`).
+///
+/// ```
+/// use stablesurf::cloud::Aabb;
+/// use stablesurf::distance::{slices_from_mesh, SliceParams};
+/// use stablesurf::polygonize::{polygonize, PolygonizeParams};
+/// use stablesurf::ImplicitPolynomial;
+/// let mut c = vec![0.0; 10];
+/// (c[0], c[4], c[7], c[9]) = (-1.0, 1.0, 1.0, 1.0);
+/// let sphere = ImplicitPolynomial { degree: 2, coefficients: c, center: [0.0; 3], scale: 1.0 };
+/// let region = Aabb { min: [-1.5; 3], max: [1.5; 3] };
+/// let mesh = polygonize(&sphere, &region, &PolygonizeParams { depth: 6, ..Default::default() })?.mesh;
+/// let params = SliceParams { count: 3, resolution: 16, ..Default::default() };
+/// let s = slices_from_mesh(&sphere, &mesh, &region, &params).unwrap();
+/// let p = s[1].pixel_center(5, 9);
+/// let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+/// // Within the mesh's chord error of the true distance (cells of 3/64).
+/// assert!((s[1].data[9 * 16 + 5] as f64 - (r - 1.0)).abs() < 2e-3);
+/// # Ok::<(), stablesurf::polygonize::PolygonizeError>(())
+/// ```
+///
+/// # Errors
+/// [`DistanceError::InvalidParams`] for a bad count or resolution, [`DistanceError::InvalidRegion`],
+/// and [`DistanceError::NoSurface`] when the mesh has no triangles.
+pub fn slices_from_mesh<F: ImplicitFunction + ?Sized>(
+    f: &F,
+    mesh: &TriangleMesh,
+    region: &Aabb,
+    params: &SliceParams,
+) -> Result<Vec<Slice>, DistanceError> {
+    check_params(params)?;
+    check_region(region)?;
+    let index = GridMeshDistance::new(mesh).ok_or(DistanceError::NoSurface)?;
+    let params = SliceParams {
+        method: DistanceMethod::Mesh,
+        ..*params
+    };
+    // Warm-started along each row from the previous pixel's closest vertex (one task per row,
+    // so the result does not depend on the thread count).
+    Ok(fill_grid(region, &params, |row| {
+        let mut warm = None;
+        row.iter()
+            .map(|&p| {
+                let (d, v) = index.distance_from(p, warm);
+                warm = Some(v);
+                (if f.value(p) < 0.0 { -d } else { d }) as f32
+            })
+            .collect()
+    }))
+}
+
+fn check_params(params: &SliceParams) -> Result<(), DistanceError> {
     if params.count == 0 {
         return Err(DistanceError::InvalidParams(
             "the slice count must be at least 1".into(),
@@ -251,14 +345,17 @@ pub fn slices(
             params.resolution
         )));
     }
-    check_region(region)?;
-    let eval = Evaluator::new(poly)?;
-    let exact = match params.method {
-        DistanceMethod::Exact => Some(ExactDistance::with_evaluator(eval.clone(), region)?),
-        DistanceMethod::Taubin => None,
-    };
-    let clamp = region.diagonal();
+    Ok(())
+}
 
+/// Lays the K×R×R pixel grid over `region` (see the module docs) and fills it row by row:
+/// `row` gets the centres of one row's pixels in column order and returns their distances. One
+/// rayon task per (slice, row), so the result does not depend on the thread count.
+fn fill_grid(
+    region: &Aabb,
+    params: &SliceParams,
+    row: impl Fn(&[[f64; 3]]) -> Vec<f32> + Sync,
+) -> Vec<Slice> {
     let [u, v, w] = params.axis.frame();
     let r = params.resolution;
     let k_count = params.count;
@@ -268,31 +365,20 @@ pub fn slices(
     let center = region.center();
     let half = r as f64 / 2.0;
 
-    // One rayon task per (slice, row): fixed work units.
     let rows: Vec<Vec<f32>> = (0..k_count * r)
         .into_par_iter()
         .map(|task| {
-            let (k, row) = (task / r, task % r);
+            let (k, i) = (task / r, task % r);
             let mut p = [0.0; 3];
             p[w] = region.min[w] + (k as f64 + 0.5) * spacing;
-            p[v] = center[v] + (half - row as f64 - 0.5) * h;
-            // Along a row, each pixel's closest-point search is warm-started from the previous
-            // pixel's foot point (the row is one task, so the result does not depend on threads).
-            let mut foot = None;
-            (0..r)
+            p[v] = center[v] + (half - i as f64 - 0.5) * h;
+            let centres: Vec<[f64; 3]> = (0..r)
                 .map(|col| {
                     p[u] = center[u] + (col as f64 + 0.5 - half) * h;
-                    let d = match &exact {
-                        Some(e) => {
-                            let (d, x) = e.distance_from(p, foot);
-                            foot = x;
-                            d
-                        }
-                        None => eval.taubin(p, clamp),
-                    };
-                    d as f32
+                    p
                 })
-                .collect()
+                .collect();
+            row(&centres)
         })
         .collect();
 
@@ -322,7 +408,7 @@ pub fn slices(
             voxel_size: [h, h, spacing],
         });
     }
-    Ok(out)
+    out
 }
 
 /// Taubin's first-order signed distance f/|∇f| at `p`, input units. Where ∇f = 0 the result is
@@ -899,6 +985,54 @@ mod tests {
             let d = exact.distance(p);
             assert!((d - truth).abs() < 1e-9, "p = {p:?}: {d} vs {truth}");
         }
+    }
+
+    #[test]
+    fn mesh_distance_slices_match_analytic_torus() {
+        // Every pixel of a slice stack through the torus (medial circle included) against the
+        // analytic distance: within the mesh's chord error. Edges are at most a cell diagonal
+        // e = √3·0.05 long; their sagitta on the tube of radius 0.4 is e²/(8·0.4) ≈ 2.3e-3.
+        let (big, small) = (1.0, 0.4);
+        let poly = torus(big, small);
+        let region = Aabb {
+            min: [-1.6, -1.6, -0.6],
+            max: [1.6, 1.6, 0.6],
+        };
+        let mesh = crate::polygonize::polygonize(
+            &poly,
+            &region,
+            &crate::polygonize::PolygonizeParams {
+                depth: 6,
+                ..Default::default()
+            },
+        )
+        .unwrap()
+        .mesh;
+        let params = SliceParams {
+            axis: Axis::Z,
+            count: 5,
+            resolution: 48,
+            method: DistanceMethod::Mesh,
+        };
+        let stack = slices_from_mesh(&poly, &mesh, &region, &params).unwrap();
+        let mut worst: f64 = 0.0;
+        for s in &stack {
+            assert_eq!(s.method, DistanceMethod::Mesh);
+            for row in 0..48 {
+                for col in 0..48 {
+                    let p = s.pixel_center(col, row);
+                    let rho = (p[0] * p[0] + p[1] * p[1]).sqrt();
+                    let truth = ((rho - big).powi(2) + p[2] * p[2]).sqrt() - small;
+                    worst = worst.max((s.data[row * 48 + col] as f64 - truth).abs());
+                }
+            }
+        }
+        assert!(worst < 2.5e-3, "worst error {worst}");
+        // Without a mesh the method is refused.
+        assert!(matches!(
+            slices(&poly, &region, &params),
+            Err(DistanceError::InvalidParams(_))
+        ));
     }
 
     #[test]

@@ -247,8 +247,16 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
             cli::KeepArg::Data => Keep::Data,
         },
         gltf: gltf_options(args.up),
+        slices: slice_params(
+            cli::AxisArg::Z,
+            args.slices.slice_count,
+            args.slices.slice_resolution,
+            args.slices.slice_distance.unwrap_or(match mode {
+                pipeline::Mode::Global => cli::DistanceArg::Exact,
+                pipeline::Mode::Detail => cli::DistanceArg::Mesh,
+            }),
+        )?,
         formats,
-        ..Default::default()
     };
     let cache = open_cache(&args.cache)?;
     let source = match &args.input {
@@ -456,32 +464,50 @@ fn write_mesh(mesh: &TriangleMesh, path: &Path, ascii: bool, up: cli::UpArg) -> 
     Ok(())
 }
 
-fn cmd_slices(args: cli::SlicesArgs, verbosity: Verbosity) -> Result<()> {
-    if args.count == 0 || args.resolution < 2 {
-        return Err(usage(
-            "--count must be at least 1 and --resolution at least 2",
-        ));
+fn slice_params(
+    axis: cli::AxisArg,
+    count: usize,
+    resolution: usize,
+    distance: cli::DistanceArg,
+) -> Result<stablesurf::distance::SliceParams> {
+    if count == 0 || !(2..=16384).contains(&resolution) {
+        return Err(usage(format!(
+            "the slice count must be at least 1 (got {count}) and the resolution between 2 and 16384 (got {resolution})"
+        )));
     }
+    Ok(stablesurf::distance::SliceParams {
+        axis: match axis {
+            cli::AxisArg::X => stablesurf::distance::Axis::X,
+            cli::AxisArg::Y => stablesurf::distance::Axis::Y,
+            cli::AxisArg::Z => stablesurf::distance::Axis::Z,
+        },
+        count,
+        resolution,
+        method: match distance {
+            cli::DistanceArg::Taubin => stablesurf::distance::DistanceMethod::Taubin,
+            cli::DistanceArg::Exact => stablesurf::distance::DistanceMethod::Exact,
+            cli::DistanceArg::Mesh => stablesurf::distance::DistanceMethod::Mesh,
+        },
+    })
+}
+
+fn cmd_slices(args: cli::SlicesArgs, verbosity: Verbosity) -> Result<()> {
+    let params = slice_params(args.axis, args.count, args.resolution, args.distance)?;
+    let mesh_params = polygonize_params(&args.mesh)?;
     let model = read_model(&args.model)?;
     let region = match region_from(args.bounds) {
         Some(b) => b,
         None => pipeline::meshing_region(&model),
     };
-    let params = stablesurf::distance::SliceParams {
-        axis: match args.axis {
-            cli::AxisArg::X => stablesurf::distance::Axis::X,
-            cli::AxisArg::Y => stablesurf::distance::Axis::Y,
-            cli::AxisArg::Z => stablesurf::distance::Axis::Z,
-        },
-        count: args.count,
-        resolution: args.resolution,
-        method: match args.distance {
-            cli::DistanceArg::Taubin => stablesurf::distance::DistanceMethod::Taubin,
-            cli::DistanceArg::Exact => stablesurf::distance::DistanceMethod::Exact,
-        },
-    };
-    let slices = stablesurf::distance::slices(&model.polynomial, &region, &params)
-        .with_context(|| format!("computing distance slices of {}", args.model.display()))?;
+    let slices = if params.method == stablesurf::distance::DistanceMethod::Mesh {
+        let mesh = polygonize::polygonize(&model.polynomial, &region, &mesh_params)
+            .with_context(|| format!("meshing {}", args.model.display()))?
+            .mesh;
+        stablesurf::distance::slices_from_mesh(&model.polynomial, &mesh, &region, &params)
+    } else {
+        stablesurf::distance::slices(&model.polynomial, &region, &params)
+    }
+    .with_context(|| format!("computing distance slices of {}", args.model.display()))?;
     std::fs::create_dir_all(&args.output)
         .with_context(|| format!("creating {}", args.output.display()))?;
     for slice in &slices {

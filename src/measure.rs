@@ -88,35 +88,219 @@ pub fn closest_point_on_triangle(p: [f64; 3], a: [f64; 3], b: [f64; 3], c: [f64;
     [0, 1, 2].map(|k| a[k] + ab[k] * v + ac[k] * w)
 }
 
-/// Distance from each point to the mesh (see the module docs for the candidate set).
-/// Returns an empty vector when the mesh has no triangles.
-pub fn point_to_mesh_distances(points: &[[f64; 3]], mesh: &TriangleMesh) -> Vec<f64> {
-    if mesh.triangles.is_empty() {
-        return Vec::new();
+/// A triangle mesh indexed for distance queries: a k-d tree over its vertices and the triangles
+/// around each vertex (see the module docs for the candidate set and its error).
+pub struct MeshDistance<'a> {
+    mesh: &'a TriangleMesh,
+    around: VertexTriangles,
+    tree: ImmutableKdTree<f64, 3>,
+}
+
+impl<'a> MeshDistance<'a> {
+    /// Indexes `mesh`; `None` when it has no triangles, an index out of range or a vertex that
+    /// is not finite.
+    pub fn new(mesh: &'a TriangleMesh) -> Option<Self> {
+        let n = mesh.positions.len();
+        if mesh.triangles.is_empty()
+            || !mesh.positions.iter().flatten().all(|c| c.is_finite())
+            || mesh.triangles.iter().flatten().any(|&i| i as usize >= n)
+        {
+            return None;
+        }
+        let around = VertexTriangles::new(n, &mesh.triangles);
+        let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&mesh.positions).ok()?;
+        Some(MeshDistance { mesh, around, tree })
     }
-    let around = VertexTriangles::new(mesh.positions.len(), &mesh.triangles);
-    let Ok(tree) = ImmutableKdTree::<f64, 3>::new_from_slice(&mesh.positions) else {
+
+    /// Unsigned distance from `p` to the triangles around the mesh vertex nearest to `p`: the
+    /// distance to the mesh whenever the closest triangle touches that vertex, and never more
+    /// than it plus the longest edge at the nearest vertex otherwise.
+    pub fn distance(&self, p: [f64; 3]) -> f64 {
+        let nearest = self
+            .tree
+            .query(&p)
+            .nearest_one::<SquaredEuclidean<f64>>()
+            .execute();
+        self.fan_distance(p, nearest.item as usize)
+            .min(nearest.distance.sqrt())
+    }
+
+    /// Distance from `p` to the triangles around vertex `v`.
+    fn fan_distance(&self, p: [f64; 3], v: usize) -> f64 {
+        let mut best = f64::INFINITY;
+        for &ti in self.around.of(v) {
+            best = best.min(self.triangle_distance(p, ti));
+        }
+        best
+    }
+
+    /// Distance from `p` to the triangles that touch vertex `v` or one of its neighbours (the
+    /// closest triangle of a sliver-rich mesh need not touch the closest vertex, but it is one
+    /// of these unless its edges are longer than the ring).
+    fn ring_distance(&self, p: [f64; 3], v: usize) -> f64 {
+        let mut best = f64::INFINITY;
+        for &ti in self.around.of(v) {
+            for w in self.mesh.triangles[ti as usize] {
+                for &tj in self.around.of(w as usize) {
+                    best = best.min(self.triangle_distance(p, tj));
+                }
+            }
+        }
+        best
+    }
+
+    fn triangle_distance(&self, p: [f64; 3], ti: u32) -> f64 {
+        let [a, b, c] = self.mesh.triangles[ti as usize].map(|i| self.mesh.positions[i as usize]);
+        dist(p, closest_point_on_triangle(p, a, b, c))
+    }
+
+    /// Walks from vertex `v` to ever closer neighbouring vertices of `p` until none is closer:
+    /// a vertex where the distance to `p` is locally smallest on the mesh.
+    fn descend(&self, p: [f64; 3], mut v: usize) -> usize {
+        let mut dv = dist2(p, self.mesh.positions[v]);
+        loop {
+            let mut next = v;
+            for &ti in self.around.of(v) {
+                for w in self.mesh.triangles[ti as usize] {
+                    let d = dist2(p, self.mesh.positions[w as usize]);
+                    if d < dv {
+                        (dv, next) = (d, w as usize);
+                    }
+                }
+            }
+            if next == v {
+                return v;
+            }
+            v = next;
+        }
+    }
+}
+
+/// Distance from the points of a grid to a mesh, for many queries far from the surface (the
+/// distance slices). A k-d tree over all vertices degrades there: near the medial axis many
+/// vertices are almost equally far, and the search visits them all. This index keeps one seed
+/// vertex per cell of a coarse grid; a query starts from the previous query's closest vertex
+/// (warm start along a row of pixels) and from its nearest seeds, walks each to a vertex where
+/// the distance is locally smallest and measures the triangles touching that vertex or its
+/// neighbours (the closest triangle of a mesh with slivers need not touch the closest vertex). A seed farther than the best distance found plus two coarse cells cannot lead
+/// closer (every vertex lies within a cell diagonal of a seed), so it is skipped. The result is
+/// the distance to the mesh whenever one of the walks ends at the vertex nearest the closest
+/// point, which fails only where a piece of surface smaller than a coarse cell is closest.
+pub struct GridMeshDistance<'a> {
+    mesh: MeshDistance<'a>,
+    seeds: Vec<u32>,
+    seed_tree: ImmutableKdTree<f64, 3>,
+    cell: f64,
+}
+
+/// Seed cells along the longest side of the mesh's bounding box.
+const SEED_CELLS: f64 = 64.0;
+/// Nearest seeds looked up per query.
+const N_SEEDS: usize = 4;
+/// At most this many seed walks per query.
+const N_WALKS: usize = 3;
+
+impl<'a> GridMeshDistance<'a> {
+    /// Indexes `mesh`; `None` as for [`MeshDistance::new`].
+    pub fn new(mesh: &'a TriangleMesh) -> Option<Self> {
+        let index = MeshDistance::new(mesh)?;
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for p in &mesh.positions {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        let longest = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+        let cell = if longest > 0.0 {
+            longest / SEED_CELLS
+        } else {
+            1.0
+        };
+        // The first vertex (in index order) of every occupied coarse cell.
+        let mut taken = std::collections::HashSet::new();
+        let mut seeds = Vec::new();
+        for (i, p) in mesh.positions.iter().enumerate() {
+            let key = [0, 1, 2].map(|a| ((p[a] - lo[a]) / cell) as i64);
+            if index.around.of(i).is_empty() {
+                continue;
+            }
+            if taken.insert(key) {
+                seeds.push(i as u32);
+            }
+        }
+        let points: Vec<[f64; 3]> = seeds.iter().map(|&i| mesh.positions[i as usize]).collect();
+        let seed_tree = ImmutableKdTree::<f64, 3>::new_from_slice(&points).ok()?;
+        Some(GridMeshDistance {
+            mesh: index,
+            seeds,
+            seed_tree,
+            cell,
+        })
+    }
+
+    /// Unsigned distance from `p` to the mesh (see the type's docs) and the vertex the best walk
+    /// ended at, to warm-start the next query with `warm`.
+    pub fn distance_from(&self, p: [f64; 3], warm: Option<usize>) -> (f64, usize) {
+        // Each walk ends at a vertex; the fan (1-ring) distance ranks the ends, and the best
+        // end's 2-ring gives the result.
+        let mut best = f64::INFINITY;
+        let mut best_vertex = 0;
+        let mut ends: [usize; N_WALKS + 1] = [usize::MAX; N_WALKS + 1];
+        let mut n_ends = 0;
+        let mut walk = |start: usize, best: &mut f64, best_vertex: &mut usize| {
+            let v = self.mesh.descend(p, start);
+            if ends[..n_ends].contains(&v) {
+                return;
+            }
+            ends[n_ends] = v;
+            n_ends += 1;
+            let d = self.mesh.fan_distance(p, v);
+            if d < *best {
+                (*best, *best_vertex) = (d, v);
+            }
+        };
+        if let Some(w) = warm {
+            walk(w, &mut best, &mut best_vertex);
+        }
+        let k = std::num::NonZero::new(N_SEEDS.min(self.seeds.len()))
+            .unwrap_or(std::num::NonZero::<usize>::MIN);
+        let nearest = self
+            .seed_tree
+            .query(&p)
+            .nearest_n::<SquaredEuclidean<f64>>(k)
+            .execute();
+        let mut walks = 0;
+        for n in nearest {
+            if walks == N_WALKS || n.distance.sqrt() > best + 2.0 * self.cell {
+                break;
+            }
+            walks += 1;
+            walk(self.seeds[n.item as usize] as usize, &mut best, &mut best_vertex);
+        }
+        (
+            best.min(self.mesh.ring_distance(p, best_vertex)),
+            best_vertex,
+        )
+    }
+}
+
+fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
+}
+
+fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+    dist2(a, b).sqrt()
+}
+
+/// Distance from each point to the mesh (see the module docs for the candidate set).
+/// Returns an empty vector when the mesh has no triangles or a non-finite vertex.
+pub fn point_to_mesh_distances(points: &[[f64; 3]], mesh: &TriangleMesh) -> Vec<f64> {
+    let Some(index) = MeshDistance::new(mesh) else {
         return Vec::new();
     };
-    points
-        .par_iter()
-        .map(|&p| {
-            let nearest = tree
-                .query(&p)
-                .nearest_one::<SquaredEuclidean<f64>>()
-                .execute();
-            let v = nearest.item as usize;
-            let mut best = nearest.distance.sqrt();
-            for &ti in around.of(v) {
-                let [a, b, c] = mesh.triangles[ti as usize].map(|i| mesh.positions[i as usize]);
-                let q = closest_point_on_triangle(p, a, b, c);
-                let d =
-                    ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt();
-                best = best.min(d);
-            }
-            best
-        })
-        .collect()
+    points.par_iter().map(|&p| index.distance(p)).collect()
 }
 
 #[cfg(test)]

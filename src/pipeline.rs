@@ -240,7 +240,7 @@ const IMPORT_VERSION: u32 = 1;
 const NORMALS_VERSION: u32 = 1;
 const FIT_VERSION: u32 = 1;
 const POLYGONIZE_VERSION: u32 = 1;
-const EXPORT_VERSION: u32 = 1;
+const EXPORT_VERSION: u32 = 2;
 
 struct Ctx<'a> {
     cache: &'a Cache,
@@ -579,10 +579,12 @@ fn render_outputs(
     region: &Aabb,
 ) -> Result<OutputFiles, PipelineError> {
     let want = |f| config.formats.contains(&f);
-    let slices = if want(OutputFormat::Exr) || want(OutputFormat::Png) {
-        crate::distance::slices(&model.polynomial, region, &config.slices)?
-    } else {
+    let slices = if !(want(OutputFormat::Exr) || want(OutputFormat::Png)) {
         Vec::new()
+    } else if config.slices.method == crate::distance::DistanceMethod::Mesh {
+        crate::distance::slices_from_mesh(&model.polynomial, mesh, region, &config.slices)?
+    } else {
+        crate::distance::slices(&model.polynomial, region, &config.slices)?
     };
     let mut files = Vec::new();
     let mut put = |name: &str,

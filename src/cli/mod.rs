@@ -152,6 +152,9 @@ pub struct RunArgs {
     pub mesh: MeshOpts,
     #[command(flatten)]
     #[allow(missing_docs)]
+    pub slices: SliceOpts,
+    #[command(flatten)]
+    #[allow(missing_docs)]
     pub cache: CacheOpts,
 }
 
@@ -230,6 +233,22 @@ pub enum DistanceArg {
     Taubin,
     /// Distance to the zero set by closest-point search and Newton projection.
     Exact,
+    /// Distance to the meshed zero set (meshed at --depth), signed by the model.
+    Mesh,
+}
+
+/// Options of the distance slices `run` writes.
+#[derive(Debug, Args, Clone)]
+pub struct SliceOpts {
+    /// Number of distance slices across the box (along z).
+    #[arg(long, default_value_t = 16)]
+    pub slice_count: usize,
+    /// Pixels per side of each distance slice.
+    #[arg(long, default_value_t = 256)]
+    pub slice_resolution: usize,
+    /// Distance method of the slices [default: exact for --mode global, mesh for --mode detail].
+    #[arg(long, value_enum)]
+    pub slice_distance: Option<DistanceArg>,
 }
 
 /// `stablesurf slices`.
@@ -255,6 +274,9 @@ pub struct SlicesArgs {
     /// Region in input coordinates: xmin,ymin,zmin,xmax,ymax,zmax (overrides the model's box).
     #[arg(long, value_name = "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX", allow_hyphen_values = true, value_parser = parse_bounds)]
     pub bounds: Option<[f64; 6]>,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub mesh: MeshOpts,
 }
 
 /// `stablesurf render`.
