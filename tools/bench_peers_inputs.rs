@@ -51,7 +51,10 @@ fn main() {
         std::process::exit(2);
     };
     if let Err(e) = std::fs::create_dir_all(&out_dir) {
-        eprintln!("bench_peers_inputs: cannot create {}: {e}", out_dir.display());
+        eprintln!(
+            "bench_peers_inputs: cannot create {}: {e}",
+            out_dir.display()
+        );
         std::process::exit(1);
     }
     let shapes: Vec<Shape> = if quick {

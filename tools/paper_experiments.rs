@@ -38,12 +38,19 @@ use stablesurf::render::{render, RenderParams, View};
 use stablesurf::{Aabb, ImplicitPolynomial, OrientedCloud};
 
 /// Real models tried (skipped when absent), with the paper's closest object in brackets.
-const REAL_MODELS: [&str; 4] = ["duck.ply", "patella_vhf_left.ply", "bunny_zipper.ply", "max_planck.obj"];
+const REAL_MODELS: [&str; 4] = [
+    "duck.ply",
+    "patella_vhf_left.ply",
+    "bunny_zipper.ply",
+    "max_planck.obj",
+];
 
 const DEGREES: [u32; 3] = [4, 6, 8];
 const EPSILONS: [f64; 2] = [0.05, 0.01];
 const SEED: u64 = 2008;
+/// Tile size of the methods grid; the robustness grid uses `TILE_SMALL`.
 const TILE: u32 = 128;
+const TILE_SMALL: u32 = 96;
 
 /// One way of fitting.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
@@ -120,6 +127,8 @@ struct Outcome {
     mean_rel: f64,
     max_rel: f64,
     condition: f64,
+    /// Automatic κ found no qualifying grid value and fell back to κ = 1e-2.
+    fallback: bool,
     polynomial: ImplicitPolynomial,
 }
 
@@ -147,7 +156,11 @@ fn parse_args() -> Result<Args, String> {
             "-h" | "--help" => {
                 return Err("usage: paper_experiments [--quick] [--out DIR] [--points N]".into())
             }
-            other => return Err(format!("unknown argument {other}: use --quick, --out DIR, --points N")),
+            other => {
+                return Err(format!(
+                    "unknown argument {other}: use --quick, --out DIR, --points N"
+                ))
+            }
         }
     }
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
@@ -176,7 +189,9 @@ fn degrade(cloud: &OrientedCloud, variant: Variant, seed: u64) -> OrientedCloud 
             let scale = cloud
                 .points
                 .iter()
-                .map(|p| ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt())
+                .map(|p| {
+                    ((p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2) + (p[2] - c[2]).powi(2)).sqrt()
+                })
                 .sum::<f64>()
                 / n;
             let sigma = 0.05 * scale;
@@ -214,7 +229,8 @@ fn degrade(cloud: &OrientedCloud, variant: Variant, seed: u64) -> OrientedCloud 
 /// Loads a real model with the pipeline's automatic normals, reduced to about `n` points.
 fn load_real(path: &Path, n: usize) -> Result<OrientedCloud, String> {
     let scan = stablesurf::import::read_scan(path).map_err(|e| e.to_string())?;
-    let normals = estimate_normals(&scan.cloud, &NormalsParams::default()).map_err(|e| e.to_string())?;
+    let normals =
+        estimate_normals(&scan.cloud, &NormalsParams::default()).map_err(|e| e.to_string())?;
     let cloud = normals.cloud;
     let stride = (cloud.points.len() / n.max(1)).max(1);
     let (points, normals) = cloud
@@ -227,7 +243,12 @@ fn load_real(path: &Path, n: usize) -> Result<OrientedCloud, String> {
     Ok(OrientedCloud { points, normals })
 }
 
-fn run_fit(cloud: &OrientedCloud, method: Method, degree: u32, epsilon: f64) -> Result<Outcome, String> {
+fn run_fit(
+    cloud: &OrientedCloud,
+    method: Method,
+    degree: u32,
+    epsilon: f64,
+) -> Result<Outcome, String> {
     let model = fit(cloud, &method.params(degree, epsilon)).map_err(|e| e.to_string())?;
     let verdict = assess(&model.polynomial, cloud);
     let diag = model.diagnostics.clone().unwrap_or_default();
@@ -237,13 +258,14 @@ fn run_fit(cloud: &OrientedCloud, method: Method, degree: u32, epsilon: f64) -> 
         mean_rel: diag.mean_distance_relative,
         max_rel: diag.max_distance_relative,
         condition: diag.condition_number,
+        fallback: diag.kappa_fallback,
         polynomial: model.polynomial,
     })
 }
 
 /// Renders the zero set of `poly` inside the normalized box [−2.2, 2.2]³ (input coordinates),
 /// with a frame: green when the judge calls the fit good, red otherwise, grey for an error.
-fn tile(outcome: &Result<Outcome, String>) -> RgbImage {
+fn tile(outcome: &Result<Outcome, String>, size: u32) -> RgbImage {
     let frame = match outcome {
         Ok(o) if o.verdict.good => Rgb([40u8, 160, 60]),
         Ok(_) => Rgb([200u8, 40, 40]),
@@ -265,22 +287,22 @@ fn tile(outcome: &Result<Outcome, String>) -> RgbImage {
                 Ok(out) => render(
                     &out.mesh,
                     &RenderParams {
-                        size: TILE,
+                        size,
                         view: View::Iso,
                         ..RenderParams::default()
                     },
                 ),
-                Err(_) => RgbImage::from_pixel(TILE, TILE, Rgb([236, 238, 242])),
+                Err(_) => RgbImage::from_pixel(size, size, Rgb([236, 238, 242])),
             }
         }
-        Err(_) => RgbImage::from_pixel(TILE, TILE, Rgb([236, 238, 242])),
+        Err(_) => RgbImage::from_pixel(size, size, Rgb([236, 238, 242])),
     };
-    for i in 0..TILE {
+    for i in 0..size {
         for t in 0..3 {
             img.put_pixel(i, t, frame);
-            img.put_pixel(i, TILE - 1 - t, frame);
+            img.put_pixel(i, size - 1 - t, frame);
             img.put_pixel(t, i, frame);
-            img.put_pixel(TILE - 1 - t, i, frame);
+            img.put_pixel(size - 1 - t, i, frame);
         }
     }
     img
@@ -289,13 +311,19 @@ fn tile(outcome: &Result<Outcome, String>) -> RgbImage {
 /// Composes tiles (row-major, `cols` per row) into one image with a 4-pixel white gutter.
 fn grid(tiles: &[RgbImage], cols: usize) -> RgbImage {
     let gap = 4u32;
+    let size = tiles.first().map_or(TILE, |t| t.width());
     let rows = tiles.len().div_ceil(cols.max(1)) as u32;
-    let w = cols as u32 * (TILE + gap) + gap;
-    let h = rows * (TILE + gap) + gap;
+    let w = cols as u32 * (size + gap) + gap;
+    let h = rows * (size + gap) + gap;
     let mut img = RgbImage::from_pixel(w, h, Rgb([255, 255, 255]));
     for (i, t) in tiles.iter().enumerate() {
         let (c, r) = ((i % cols) as u32, (i / cols) as u32);
-        image::imageops::replace(&mut img, t, (gap + c * (TILE + gap)) as i64, (gap + r * (TILE + gap)) as i64);
+        image::imageops::replace(
+            &mut img,
+            t,
+            (gap + c * (size + gap)) as i64,
+            (gap + r * (size + gap)) as i64,
+        );
     }
     img
 }
@@ -325,8 +353,16 @@ fn main() {
         }
     };
     let start = Instant::now();
-    let shapes: Vec<Shape> = if args.quick { vec![Shape::Torus] } else { Shape::ALL.to_vec() };
-    let degrees: Vec<u32> = if args.quick { vec![6] } else { DEGREES.to_vec() };
+    let shapes: Vec<Shape> = if args.quick {
+        vec![Shape::Torus]
+    } else {
+        Shape::ALL.to_vec()
+    };
+    let degrees: Vec<u32> = if args.quick {
+        vec![6]
+    } else {
+        DEGREES.to_vec()
+    };
 
     // Inputs.
     let mut inputs: Vec<Input> = shapes
@@ -334,7 +370,10 @@ fn main() {
         .map(|&s| Input {
             name: s.name().to_string(),
             synthetic: true,
-            clouds: Variant::ALL.iter().map(|&v| (v, sample(s, v, args.points, SEED))).collect(),
+            clouds: Variant::ALL
+                .iter()
+                .map(|&v| (v, sample(s, v, args.points, SEED)))
+                .collect(),
         })
         .collect();
     if !args.quick {
@@ -358,7 +397,10 @@ fn main() {
             }
         }
     }
-    eprintln!("paper_experiments: inputs ready after {:.1} s", start.elapsed().as_secs_f64());
+    eprintln!(
+        "paper_experiments: inputs ready after {:.1} s",
+        start.elapsed().as_secs_f64()
+    );
 
     // All fits (in parallel over cases; each case is deterministic).
     let mut jobs = Vec::new();
@@ -396,17 +438,27 @@ fn main() {
         })
         .collect();
     let fit_secs = start.elapsed().as_secs_f64();
-    eprintln!("paper_experiments: {} fits done after {fit_secs:.1} s", rows.len());
+    eprintln!(
+        "paper_experiments: {} fits done after {fit_secs:.1} s",
+        rows.len()
+    );
 
     // Picture grids.
     let img_dir = args.out.join("img");
     if let Err(e) = std::fs::create_dir_all(&img_dir) {
-        eprintln!("paper_experiments: cannot create {}: {e}", img_dir.display());
+        eprintln!(
+            "paper_experiments: cannot create {}: {e}",
+            img_dir.display()
+        );
         std::process::exit(1);
     }
     let find = |input: &str, variant: Variant, degree: u32, method: Method, eps: Option<f64>| {
         rows.iter().find(|r| {
-            r.input == input && r.variant == variant && r.degree == degree && r.method == method && r.epsilon == eps
+            r.input == input
+                && r.variant == variant
+                && r.degree == degree
+                && r.method == method
+                && r.epsilon == eps
         })
     };
     let names: Vec<String> = inputs.iter().map(|i| i.name.clone()).collect();
@@ -415,8 +467,14 @@ fn main() {
     let mut cells_a = Vec::new();
     for name in &names {
         for method in Method::ALL {
-            let eps = if method == Method::Ls { None } else { Some(0.05) };
-            cells_a.push(find(name, Variant::Clean, top_degree, method, eps).map(|r| r.outcome.clone()));
+            let eps = if method == Method::Ls {
+                None
+            } else {
+                Some(0.05)
+            };
+            cells_a.push(
+                find(name, Variant::Clean, top_degree, method, eps).map(|r| r.outcome.clone()),
+            );
         }
     }
     // Figure B (paper figures 9–10): 3LRR stable κ, every variant × degree, ε = 0.05.
@@ -424,19 +482,22 @@ fn main() {
     for name in &names {
         for variant in Variant::ALL {
             for &degree in &degrees {
-                cells_b.push(find(name, variant, degree, Method::Stable, Some(0.05)).map(|r| r.outcome.clone()));
+                cells_b.push(
+                    find(name, variant, degree, Method::Stable, Some(0.05))
+                        .map(|r| r.outcome.clone()),
+                );
             }
         }
     }
-    let render_all = |cells: &[Option<Result<Outcome, String>>]| -> Vec<RgbImage> {
+    let render_all = |cells: &[Option<Result<Outcome, String>>], size: u32| -> Vec<RgbImage> {
         cells
             .par_iter()
             .with_max_len(1)
-            .map(|c| tile(&c.clone().unwrap_or_else(|| Err("missing".into()))))
+            .map(|c| tile(&c.clone().unwrap_or_else(|| Err("missing".into())), size))
             .collect()
     };
-    let tiles_a = render_all(&cells_a);
-    let tiles_b = render_all(&cells_b);
+    let tiles_a = render_all(&cells_a, TILE);
+    let tiles_b = render_all(&cells_b, TILE_SMALL);
     let fig_a = img_dir.join("paper-methods.png");
     let fig_b = img_dir.join("paper-robustness.png");
     for (img, path) in [
@@ -454,12 +515,18 @@ fn main() {
     let doc = document(&args, &rows, &names, &degrees, fit_secs, total_secs);
     let doc_path = args.out.join("paper-experiments.md");
     if let Err(e) = std::fs::write(&doc_path, doc) {
-        eprintln!("paper_experiments: cannot write {}: {e}", doc_path.display());
+        eprintln!(
+            "paper_experiments: cannot write {}: {e}",
+            doc_path.display()
+        );
         std::process::exit(1);
     }
     let csv_path = args.out.join("paper-experiments.csv");
     if let Err(e) = std::fs::write(&csv_path, csv(&rows)) {
-        eprintln!("paper_experiments: cannot write {}: {e}", csv_path.display());
+        eprintln!(
+            "paper_experiments: cannot write {}: {e}",
+            csv_path.display()
+        );
         std::process::exit(1);
     }
     println!("{}", doc_path.display());
@@ -467,7 +534,7 @@ fn main() {
 
 fn csv(rows: &[Row]) -> String {
     let mut s = String::from(
-        "input,variant,degree,epsilon,method,kappa,leading_form_positive,components,touches_box,good,mean_dist_rel,max_dist_rel,condition_number,error\n",
+        "input,variant,degree,epsilon,method,kappa,leading_form_positive,components,touches_box,good,mean_dist_rel,max_dist_rel,condition_number,kappa_fallback,error\n",
     );
     for r in rows {
         let eps = r.epsilon.map_or("-".to_string(), |e| e.to_string());
@@ -475,7 +542,7 @@ fn csv(rows: &[Row]) -> String {
             Ok(o) => {
                 let _ = writeln!(
                     s,
-                    "{},{},{},{eps},{},{:e},{},{},{},{},{:.3e},{:.3e},{:.3e},",
+                    "{},{},{},{eps},{},{:e},{},{},{},{},{:.3e},{:.3e},{:.3e},{},",
                     r.input,
                     r.variant.name(),
                     r.degree,
@@ -487,13 +554,14 @@ fn csv(rows: &[Row]) -> String {
                     o.verdict.good,
                     o.mean_rel,
                     o.max_rel,
-                    o.condition
+                    o.condition,
+                    o.fallback
                 );
             }
             Err(e) => {
                 let _ = writeln!(
                     s,
-                    "{},{},{},{eps},{},,,,,,,,,\"{}\"",
+                    "{},{},{},{eps},{},,,,,,,,,,\"{}\"",
                     r.input,
                     r.variant.name(),
                     r.degree,
@@ -512,6 +580,7 @@ struct Tally {
     good: usize,
     total: usize,
     positive: usize,
+    fallback: usize,
     kappas: Vec<f64>,
     means: Vec<f64>,
     conds: Vec<f64>,
@@ -523,6 +592,7 @@ impl Tally {
         if let Ok(o) = &r.outcome {
             self.good += o.verdict.good as usize;
             self.positive += o.verdict.positive as usize;
+            self.fallback += o.fallback as usize;
             self.kappas.push(o.kappa);
             if o.mean_rel.is_finite() {
                 self.means.push(o.mean_rel);
@@ -552,7 +622,14 @@ fn tally<'a>(rows: impl Iterator<Item = &'a Row>) -> Tally {
     t
 }
 
-fn document(args: &Args, rows: &[Row], names: &[String], degrees: &[u32], fit_secs: f64, total_secs: f64) -> String {
+fn document(
+    args: &Args,
+    rows: &[Row],
+    names: &[String],
+    degrees: &[u32],
+    fit_secs: f64,
+    total_secs: f64,
+) -> String {
     let mut d = String::new();
     let _ = writeln!(d, "# The paper's experiments, reproduced\n");
     let _ = writeln!(
@@ -608,15 +685,20 @@ fn document(args: &Args, rows: &[Row], names: &[String], degrees: &[u32], fit_se
     );
 
     // Summary by method × degree.
-    let _ = writeln!(d, "## Summary: good fits (one closed piece near the data, nothing else in the box)\n");
+    let _ = writeln!(
+        d,
+        "## Summary: good fits (one closed piece near the data, nothing else in the box)\n"
+    );
     let mut header = String::from("| method | inputs |");
     let mut rule = String::from("|---|---|");
     for deg in degrees {
         let _ = write!(header, " degree {deg} |");
         rule.push_str("---|");
     }
-    header.push_str(" all | leading form positive | median κ | median mean dist. | median cond. |");
-    rule.push_str("---|---|---|---|---|");
+    header.push_str(
+        " all | leading form positive | κ fallback | median κ | median mean dist. | median cond. |",
+    );
+    rule.push_str("---|---|---|---|---|---|");
     let _ = writeln!(d, "{header}\n{rule}");
     for method in Method::ALL {
         for (label, synth) in [("synthetic", true), ("real", false)] {
@@ -632,11 +714,12 @@ fn document(args: &Args, rows: &[Row], names: &[String], degrees: &[u32], fit_se
             }
             let _ = write!(
                 line,
-                " {} ({:.0}%) | {}/{} | {} | {:.2e} | {:.1e} |",
+                " {} ({:.0}%) | {}/{} | {} | {} | {:.2e} | {:.1e} |",
                 all.cell(),
                 all.pct(),
                 all.positive,
                 all.total,
+                all.fallback,
                 fmt_e(median(all.kappas.clone())),
                 median(all.means.clone()),
                 median(all.conds.clone())
@@ -647,7 +730,10 @@ fn document(args: &Args, rows: &[Row], names: &[String], degrees: &[u32], fit_se
     let _ = writeln!(d);
 
     // Per input × method (clean / noisy / cut).
-    let _ = writeln!(d, "## Good fits per input and variant (all degrees and ε)\n");
+    let _ = writeln!(
+        d,
+        "## Good fits per input and variant (all degrees and ε)\n"
+    );
     let _ = writeln!(
         d,
         "| input | {} |",
@@ -664,7 +750,11 @@ fn document(args: &Args, rows: &[Row], names: &[String], degrees: &[u32], fit_se
             let cells: Vec<String> = Variant::ALL
                 .iter()
                 .map(|&v| {
-                    tally(rows.iter().filter(|r| &r.input == name && r.method == method && r.variant == v)).cell()
+                    tally(
+                        rows.iter()
+                            .filter(|r| &r.input == name && r.method == method && r.variant == v),
+                    )
+                    .cell()
                 })
                 .collect();
             let _ = write!(line, " {} |", cells.join(" / "));
@@ -689,7 +779,10 @@ fn document(args: &Args, rows: &[Row], names: &[String], degrees: &[u32], fit_se
     );
 
     // Claims.
-    let _ = writeln!(d, "## Where the paper's claims hold, and where they do not\n");
+    let _ = writeln!(
+        d,
+        "## Where the paper's claims hold, and where they do not\n"
+    );
     let _ = writeln!(d, "{}", claims(rows, degrees));
 
     // Full table.
@@ -698,7 +791,10 @@ fn document(args: &Args, rows: &[Row], names: &[String], degrees: &[u32], fit_se
         "## Every fit\n\nAlso in `paper-experiments.csv` beside this page.\n\n<details><summary>{} rows</summary>\n",
         rows.len()
     );
-    let _ = writeln!(d, "| input | variant | n | ε | method | κ | pos | comp | good | mean | max | cond |");
+    let _ = writeln!(
+        d,
+        "| input | variant | n | ε | method | κ | pos | comp | good | mean | max | cond |"
+    );
     let _ = writeln!(d, "|---|---|---|---|---|---|---|---|---|---|---|---|");
     for r in rows {
         let eps = r.epsilon.map_or("-".to_string(), |e| e.to_string());
@@ -711,7 +807,13 @@ fn document(args: &Args, rows: &[Row], names: &[String], degrees: &[u32], fit_se
                     r.variant.name(),
                     r.degree,
                     r.method.name(),
-                    if r.method == Method::Ls || r.method == Method::ThreeL { "-".into() } else { fmt_e(o.kappa) },
+                    if r.method == Method::Ls || r.method == Method::ThreeL {
+                        "-".into()
+                    } else if o.fallback {
+                        format!("{} (fallback)", fmt_e(o.kappa))
+                    } else {
+                        fmt_e(o.kappa)
+                    },
                     if o.verdict.positive { "yes" } else { "no" },
                     o.verdict.components,
                     if o.verdict.touches_box { " edge" } else { "" },
@@ -745,8 +847,10 @@ fn claims(rows: &[Row], degrees: &[u32]) -> String {
     let good_of = |it: &mut dyn Iterator<Item = &Row>| tally(it);
 
     // 1. LS only works on the torus (low degree).
-    let ls_torus = good_of(&mut by(Method::Ls).filter(|r| r.input == "torus" && r.variant == Variant::Clean));
-    let ls_other = good_of(&mut by(Method::Ls).filter(|r| r.input != "torus" && r.variant == Variant::Clean));
+    let ls_torus =
+        good_of(&mut by(Method::Ls).filter(|r| r.input == "torus" && r.variant == Variant::Clean));
+    let ls_other =
+        good_of(&mut by(Method::Ls).filter(|r| r.input != "torus" && r.variant == Variant::Clean));
     let _ = writeln!(
         s,
         "1. **Least squares is unstable except on very simple shapes (figure 4).** Holds. Clean data: LS is good on \
@@ -758,9 +862,15 @@ fn claims(rows: &[Row], degrees: &[u32]) -> String {
     // 2. 3L ok for simple shapes, fails for complex ones.
     let mut per_input = BTreeMap::new();
     for r in by(Method::ThreeL).filter(|r| r.variant == Variant::Clean) {
-        per_input.entry(r.input.clone()).or_insert_with(Tally::default).add(r);
+        per_input
+            .entry(r.input.clone())
+            .or_insert_with(Tally::default)
+            .add(r);
     }
-    let list: Vec<String> = per_input.iter().map(|(k, t)| format!("{k} {}", t.cell())).collect();
+    let list: Vec<String> = per_input
+        .iter()
+        .map(|(k, t)| format!("{k} {}", t.cell()))
+        .collect();
     let l3 = good_of(&mut by(Method::ThreeL));
     let _ = writeln!(
         s,
@@ -774,7 +884,11 @@ fn claims(rows: &[Row], degrees: &[u32]) -> String {
     let paper = good_of(&mut by(Method::Paper));
     let stable = good_of(&mut by(Method::Stable));
     let paper_pos = paper.positive;
-    let verdict = if paper.good == paper.total { "Holds" } else { "Does not hold in full" };
+    let verdict = if paper.good == paper.total {
+        "Holds"
+    } else {
+        "Does not hold in full"
+    };
     let _ = writeln!(
         s,
         "3. **3LRR stabilizes every fit once the leading form is positive (sections 6.2–6.3, figures 7–8).** \
@@ -790,8 +904,37 @@ fn claims(rows: &[Row], degrees: &[u32]) -> String {
     for &deg in degrees {
         let p = good_of(&mut by(Method::Paper).filter(|r| r.degree == deg));
         let st = good_of(&mut by(Method::Stable).filter(|r| r.degree == deg));
-        let _ = writeln!(s, "   - degree {deg}: paper rule {}, stable rule {}.", p.cell(), st.cell());
+        let _ = writeln!(
+            s,
+            "   - degree {deg}: paper rule {}, stable rule {}.",
+            p.cell(),
+            st.cell()
+        );
     }
+    let fb_inputs: BTreeMap<String, usize> = by(Method::Stable)
+        .filter(|r| matches!(&r.outcome, Ok(o) if o.fallback))
+        .fold(BTreeMap::new(), |mut m, r| {
+            *m.entry(r.input.clone()).or_insert(0) += 1;
+            m
+        });
+    let _ = writeln!(
+        s,
+        "   - Caveat on the stable rule's score: its own acceptance test (one zero-set piece near the data, nothing else) is close to this page's judge, so \"good\" is partly by construction; what it costs shows in κ (claim 4) and accuracy (claim 7). In {} of {} stable-rule fits no grid κ qualified and it fell back to κ = 1e-2, a strongly smoothed blob{}.",
+        stable.fallback,
+        stable.total,
+        if fb_inputs.is_empty() {
+            String::new()
+        } else {
+            format!(
+                " ({})",
+                fb_inputs
+                    .iter()
+                    .map(|(k, v)| format!("{k} {v}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        }
+    );
     // 4. κ range.
     let kp = median(paper.kappas.clone());
     let ks = median(stable.kappas.clone());
@@ -807,7 +950,10 @@ fn claims(rows: &[Row], degrees: &[u32]) -> String {
         fmt_e(ks)
     );
     // 5. Robustness to 15% missing data and noise.
-    for (variant, what) in [(Variant::Cut, "15% missing data (figure 9)"), (Variant::Noisy, "noise of variance 0.0025 (figure 10)")] {
+    for (variant, what) in [
+        (Variant::Cut, "15% missing data (figure 9)"),
+        (Variant::Noisy, "noise of variance 0.0025 (figure 10)"),
+    ] {
         let st = good_of(&mut by(Method::Stable).filter(|r| r.variant == variant));
         let p = good_of(&mut by(Method::Paper).filter(|r| r.variant == variant));
         let clean = good_of(&mut by(Method::Stable).filter(|r| r.variant == Variant::Clean));
@@ -834,8 +980,14 @@ fn claims(rows: &[Row], degrees: &[u32]) -> String {
         c3l, cst
     );
     // 7. Accuracy.
-    let m3l = median(good_of(&mut by(Method::ThreeL).filter(|r| matches!(&r.outcome, Ok(o) if o.verdict.good))).means);
-    let mst = median(good_of(&mut by(Method::Stable).filter(|r| matches!(&r.outcome, Ok(o) if o.verdict.good))).means);
+    let m3l = median(
+        good_of(&mut by(Method::ThreeL).filter(|r| matches!(&r.outcome, Ok(o) if o.verdict.good)))
+            .means,
+    );
+    let mst = median(
+        good_of(&mut by(Method::Stable).filter(|r| matches!(&r.outcome, Ok(o) if o.verdict.good)))
+            .means,
+    );
     let _ = writeln!(
         s,
         "7. **RR keeps the accuracy of 3L (\"virtually unaffects the shape\").** On the cases each method fits \
@@ -843,5 +995,69 @@ fn claims(rows: &[Row], degrees: &[u32]) -> String {
          diagonal; regularization smooths fine detail (see the real models' max distances in the table below).",
         m3l, mst
     );
+    // Paired: where 3L is good, what does the stable 3LRR fit of the same case give?
+    let mut ratios = Vec::new();
+    for r in by(Method::ThreeL) {
+        let Ok(o) = &r.outcome else { continue };
+        if !o.verdict.good || o.mean_rel <= 0.0 {
+            continue;
+        }
+        let twin = rows.iter().find(|t| {
+            t.method == Method::Stable
+                && t.input == r.input
+                && t.variant == r.variant
+                && t.degree == r.degree
+                && t.epsilon == r.epsilon
+        });
+        if let Some(Ok(t)) = twin.map(|t| &t.outcome) {
+            ratios.push(t.mean_rel / o.mean_rel);
+        }
+    }
+    if !ratios.is_empty() {
+        let _ = writeln!(
+            s,
+            "   - Paired over the {} cases where 3L alone is good: the stable 3LRR fit's mean distance is {:.2}× that of 3L (median; {:.0}% of pairs within 1.5×).",
+            ratios.len(),
+            median(ratios.clone()),
+            100.0 * ratios.iter().filter(|&&q| q <= 1.5).count() as f64 / ratios.len() as f64
+        );
+    }
+    let top = degrees.last().copied().unwrap_or(8);
+    let real: Vec<String> = by(Method::Stable)
+        .filter(|r| {
+            !r.synthetic
+                && r.variant == Variant::Clean
+                && r.degree == top
+                && r.epsilon == Some(0.05)
+        })
+        .filter_map(|r| {
+            r.outcome
+                .as_ref()
+                .ok()
+                .map(|o| format!("{} {:.1e} / {:.1e}", r.input, o.mean_rel, o.max_rel))
+        })
+        .collect();
+    let worst_max = by(Method::Stable)
+        .filter(|r| {
+            !r.synthetic
+                && r.variant == Variant::Clean
+                && r.degree == top
+                && r.epsilon == Some(0.05)
+        })
+        .filter_map(|r| r.outcome.as_ref().ok().map(|o| o.max_rel))
+        .fold(0.0, f64::max);
+    if !real.is_empty() {
+        let _ = writeln!(
+            s,
+            "8. **Fine detail (section 7: \"globally stable and accurate fits of higher degrees … for range data \
+             with fine details\").** {}: one polynomial of degree {top} keeps the coarse shape only (worst max \
+             distance {:.1}% of the diagonal). Mean / max distance of the data to the stable-κ zero set, relative \
+             to the diagonal (clean, ε = 0.05): {}. A max of several percent of the diagonal is a visible loss of \
+             ears, beaks and faces (see the pictures); `stablesurf run --mode detail` is meant for that.",
+            if worst_max > 0.02 { "Does not hold for detailed real models" } else { "Holds on these models" },
+            100.0 * worst_max,
+            real.join(", ")
+        );
+    }
     s
 }
