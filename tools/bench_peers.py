@@ -380,7 +380,7 @@ def write_doc(a, rows, baseline, total):
         for method in METHODS:
             r = results[method]
             if not r["ok"]:
-                d.append(f"| {name} | {n} | {method} | failed | | | | | | | | {r['error'][:80].replace('|', '/')} |")
+                d.append(f"| {name} | {n} | {method} | failed | | | | | | | | {short(r['error'])} |")
                 continue
             ratio = f"{r['cpu'] / ours_cpu:.2f}" if ours_cpu else "-"
             rms = f"{r['rms_exact_rel']:.2e}" if "rms_exact_rel" in r else "-"
@@ -394,6 +394,11 @@ def write_doc(a, rows, baseline, total):
     d.extend(summary(rows))
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text("\n".join(d) + "\n")
+
+
+def short(err):
+    """The last clause of an error chain, for a table cell."""
+    return err.split(": ")[-1][:90].replace("|", "/")
 
 
 def summary(rows):
@@ -420,7 +425,7 @@ def summary(rows):
         )
     det = [r for _, _, _, res in rows for r in [res["stablesurf detail"]]]
     if det and not any(r["ok"] for r in det):
-        out.append(f"- *stablesurf detail* failed on every input (`{det[0]['error'][:100]}`): the mode is not in this build yet.")
+        out.append(f"- *stablesurf detail* failed on every input (`{short(det[0]['error'])}`): the mode is not in this build yet.")
     return out
 
 
