@@ -390,10 +390,42 @@ def write_doc(a, rows, baseline, total):
                 f"{'yes' if r['watertight'] else 'no'} | {'yes' if r['manifold'] else 'no'} | {r.get('components', '-')} | {rms} | {ch} |"
             )
     d.append("")
+    d.extend(pictures(a, rows))
     d.append("## Reading the table\n")
     d.extend(summary(rows))
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text("\n".join(d) + "\n")
+
+
+PICTURED = ["bunny", "duck", "cube", "heart", "torus"]
+MESH_DIRS = {"stablesurf global": "stablesurf-global", "stablesurf detail": "stablesurf-detail",
+             "Open3D Poisson d8": "open3d", "pymeshlab screened Poisson d8": "pymeshlab"}
+
+
+def pictures(a, rows):
+    """Renders the output meshes of a few inputs with `stablesurf render` (240 px, iso view) into
+    img/ beside the Markdown file and returns the Markdown of a picture table."""
+    img = Path(a.out).parent / "img"
+    img.mkdir(parents=True, exist_ok=True)
+    lines = ["## Pictures\n", "Output meshes rendered by `stablesurf render --size 240` (same iso view for all).\n",
+             "| input | " + " | ".join(METHODS) + " |", "|---|" + "---|" * len(METHODS)]
+    any_row = False
+    for name, _, _, results in rows:
+        if name not in PICTURED:
+            continue
+        cells = []
+        for method in METHODS:
+            mesh = Path(a.work) / name / MESH_DIRS[method] / "mesh.ply"
+            png = img / f"bench-{name}-{MESH_DIRS[method]}.png"
+            if results[method]["ok"] and mesh.exists():
+                ok, _, _, _ = run_child([a.bin, "render", str(mesh), "-o", str(png), "--size", "240", "-q"], os.environ.copy())
+                cells.append(f"![{name} {method}](img/{png.name})" if ok else "render failed")
+            else:
+                cells.append("failed")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+        any_row = True
+    lines.append("")
+    return lines if any_row else []
 
 
 def short(err):
