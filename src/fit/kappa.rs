@@ -124,10 +124,10 @@ pub(crate) fn select(
     let chosen = match rule {
         super::KappaRule::Paper => {
             let mut chosen = None;
-            for i in 0..kappas.len() {
+            for (i, slot) in grid.iter_mut().enumerate() {
                 let g = solve_at(i);
                 let ok = positive(&g);
-                grid[i] = Some(g);
+                *slot = Some(g);
                 if ok {
                     chosen = Some(i);
                     break;
@@ -630,5 +630,9 @@ mod tests {
         assert!(!zero_set.touches_box);
         let (meshed, _) = coarse_zero_set(&poly, 4.0);
         assert_eq!(meshed.components.len(), 2);
+        // The spheres reach |x| = 2: f < 0 in the shell outside (−1.6, 1.6)³, and f > 0 is
+        // certified outside (−2.5, 2.5)³.
+        assert_eq!(shell_sign(&poly, 4.0, 1.6), Shell::Negative);
+        assert_eq!(shell_sign(&poly, 4.0, 2.5), Shell::Positive);
     }
 }
