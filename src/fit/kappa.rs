@@ -23,6 +23,14 @@
 //!
 //! If no grid value qualifies, κ = 1e-2 is used and flagged.
 //!
+//! Cost. Grid values are solved (and their leading-form minima found) only where a rule looks:
+//! `stable` walks down from κ = 1 and stops at the first non-positive leading form, `paper`
+//! walks up from 0 and stops at the first positive one. The candidates of (b)–(d) are then tried
+//! from the smallest up, and each stops at its first failing check. For (d) the box [−4, 4]³
+//! is not meshed when the enclosures of the polygonize stage prove f > 0 on it outside the inner
+//! box and the inner mesh stays off the inner box's faces (then both boxes hold the same zero
+//! set, which (c) accepted).
+//!
 //! "Connected pieces of the data": the components of the graph joining data points closer than
 //! 0.2 (normalized units, the same tolerance as (c)) among their 12 nearest neighbours, on at
 //! most 20,000 points taken at a fixed stride. Data closer than 0.2 can be bridged by a zero set
@@ -90,33 +98,51 @@ pub(crate) fn select(
     rule: super::KappaRule,
 ) -> Result<Selection, FitError> {
     let degree = sys.degree;
-    let grid: Vec<GridFit> = kappa_grid()
-        .into_iter()
-        .map(|kappa| {
-            let coefficients = solve::solve_ridge(gram, &sys.rhs, ridge, kappa)
-                .ok()
-                .map(|s| s.coefficients);
-            let leading_min = coefficients.as_ref().map_or(f64::NAN, |a| {
-                unit_poly(degree, a).leading_form_extrema().min
-            });
-            GridFit {
-                kappa,
-                coefficients,
-                leading_min,
-            }
-        })
-        .collect();
+    // Solves and leading-form minima are computed lazily, only where the rule looks: the stable
+    // rule walks down from κ = 1 and stops at the first non-positive value (rule (a)), the paper
+    // rule walks up from 0 and stops at the first positive one.
+    let kappas = kappa_grid();
+    let solve_at = |i: usize| {
+        let kappa = kappas[i];
+        let coefficients = solve::solve_ridge(gram, &sys.rhs, ridge, kappa)
+            .ok()
+            .map(|s| s.coefficients);
+        let leading_min = coefficients.as_ref().map_or(f64::NAN, |a| {
+            unit_poly(degree, a).leading_form_extrema().min
+        });
+        GridFit {
+            kappa,
+            coefficients,
+            leading_min,
+        }
+    };
     let positive = |g: &GridFit| g.coefficients.is_some() && g.leading_min > 0.0;
+    let mut grid: Vec<Option<GridFit>> = (0..kappas.len()).map(|_| None).collect();
     let mut warnings = Vec::new();
     let mut zero_set_checked = false;
     let mut mesher = None;
     let chosen = match rule {
-        super::KappaRule::Paper => grid.iter().position(positive),
+        super::KappaRule::Paper => {
+            let mut chosen = None;
+            for (i, slot) in grid.iter_mut().enumerate() {
+                let g = solve_at(i);
+                let ok = positive(&g);
+                *slot = Some(g);
+                if ok {
+                    chosen = Some(i);
+                    break;
+                }
+            }
+            chosen
+        }
         super::KappaRule::Stable => {
             // (a): positive here and at every larger grid value.
             let mut candidates = Vec::new();
-            for i in (0..grid.len()).rev() {
-                if !positive(&grid[i]) {
+            for i in (0..kappas.len()).rev() {
+                let g = solve_at(i);
+                let ok = positive(&g);
+                grid[i] = Some(g);
+                if !ok {
                     break;
                 }
                 candidates.push(i);
@@ -125,12 +151,15 @@ pub(crate) fn select(
             let mut data: Option<Option<DataPieces>> = None;
             let mut chosen = None;
             for &i in &candidates {
-                let Some(coefficients) = grid[i].coefficients.as_ref() else {
+                let Some(fit_i) = grid[i].as_ref() else {
+                    continue;
+                };
+                let Some(coefficients) = fit_i.coefficients.as_ref() else {
                     continue;
                 };
                 let poly = unit_poly(degree, coefficients);
                 // (b): certified containment radius.
-                let Some(radius) = poly.containment_radius_with(grid[i].leading_min) else {
+                let Some(radius) = poly.containment_radius_with(fit_i.leading_min) else {
                     continue;
                 };
                 if data.is_none() {
@@ -158,11 +187,11 @@ pub(crate) fn select(
             chosen
         }
     };
-    match chosen {
-        Some(i) => {
-            let coefficients = grid[i].coefficients.clone().unwrap_or_default();
+    match chosen.and_then(|i| grid[i].as_ref()) {
+        Some(g) => {
+            let coefficients = g.coefficients.clone().unwrap_or_default();
             Ok(Selection {
-                kappa: grid[i].kappa,
+                kappa: g.kappa,
                 coefficients,
                 warnings,
                 fallback: false,
@@ -446,20 +475,120 @@ fn zero_set_check(poly: &ImplicitPolynomial, radius: f64, data: &DataPieces) -> 
     // (d): in [−4, 4]³, and in [−R, R]³ when R is larger, nothing else and no contact with the
     // box. The fixed box is checked on its own because a coarse mesh of a large [−R, R]³ can
     // miss a small stray piece.
-    let mut pass = true;
+    //
+    // Shortcut, certified by the Taylor-form enclosures of the polygonize stage ([`shell_sign`]):
+    // if f > 0 on [−4, 4]³ outside the inner box and the inner mesh stays off the inner box's
+    // faces, the [−4, 4]³ zero set is the inner one, which (c) accepted, so that box need not be
+    // meshed. (The same certificate for [−R, R]³ outside [−4, 4]³ was tried: on the bunny the
+    // far field of f is so flat that it neither proves f > 0 nor finds f < 0 by level 8, and
+    // costs more than the mesh.)
     let mut mesher = mesher;
-    for half in [OUTER_BOX, radius] {
-        if half < OUTER_BOX || (half == radius && radius <= OUTER_BOX) {
-            continue;
-        }
-        let (outer, used) = coarse_zero_set(poly, half);
+    let outer_shell = if inner.touches_box {
+        Shell::Unknown
+    } else {
+        shell_sign(poly, OUTER_BOX, INNER_BOX)
+    };
+    if outer_shell != Shell::Positive {
+        let (outer, used) = coarse_zero_set(poly, OUTER_BOX);
         mesher = used;
         if outer.touches_box || outer.components.len() != data.n_pieces {
-            pass = false;
-            break;
+            return (false, mesher);
         }
     }
-    (pass, mesher)
+    if radius > OUTER_BOX {
+        let (outer, used) = coarse_zero_set(poly, radius);
+        mesher = used;
+        if outer.touches_box || outer.components.len() != data.n_pieces {
+            return (false, mesher);
+        }
+    }
+    (true, mesher)
+}
+
+/// What [`shell_sign`] established about f on a shell.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Shell {
+    /// f > 0 on the whole shell (certified by enclosures).
+    Positive,
+    /// f < 0 at some point of the shell (a point value).
+    Negative,
+    /// Neither within the refinement limits.
+    Unknown,
+}
+
+/// Deepest level of [`shell_sign`]'s octree.
+const SHELL_MAX_LEVEL: u32 = 8;
+/// Most cells [`shell_sign`] examines on one level before it gives up.
+const SHELL_MAX_CELLS: usize = 40_000;
+
+/// The sign of f (normalized coordinates) on the shell [−outer, outer]³ minus the open box
+/// (−hole, hole)³: an octree over the outer box, level by level, drops the cells inside the
+/// hole and those whose guaranteed enclosure (the polygonize stage's Taylor form,
+/// [`ImplicitFunction::bounds_on_box`]) is positive, and stops at the first cell centre in the
+/// shell where f < 0. The verdict does not depend on the thread count (each level is decided
+/// as a whole).
+fn shell_sign(poly: &ImplicitPolynomial, outer: f64, hole: f64) -> Shell {
+    use crate::polygonize::ImplicitFunction;
+    use rayon::prelude::*;
+    enum Cell {
+        Drop,
+        Negative,
+        Split,
+    }
+    let mut cells: Vec<[f64; 3]> = vec![[0.0; 3]];
+    let mut half = outer;
+    for level in 0..=SHELL_MAX_LEVEL {
+        if cells.is_empty() {
+            return Shell::Positive;
+        }
+        if cells.len() > SHELL_MAX_CELLS {
+            return Shell::Unknown;
+        }
+        let h = half;
+        let verdicts: Vec<Cell> = cells
+            .par_iter()
+            .map(|c| {
+                let far = c.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                if far + h <= hole {
+                    return Cell::Drop;
+                }
+                let b = Aabb {
+                    min: c.map(|v| v - h),
+                    max: c.map(|v| v + h),
+                };
+                let (lo, _) = poly.bounds_on_box(&b);
+                if lo > 0.0 {
+                    return Cell::Drop;
+                }
+                if far > hole && poly.value(*c) < 0.0 {
+                    return Cell::Negative;
+                }
+                Cell::Split
+            })
+            .collect();
+        if verdicts.iter().any(|v| matches!(v, Cell::Negative)) {
+            return Shell::Negative;
+        }
+        if level == SHELL_MAX_LEVEL {
+            return if verdicts.iter().all(|v| matches!(v, Cell::Drop)) {
+                Shell::Positive
+            } else {
+                Shell::Unknown
+            };
+        }
+        let q = 0.5 * h;
+        cells = cells
+            .iter()
+            .zip(&verdicts)
+            .filter(|(_, v)| matches!(v, Cell::Split))
+            .flat_map(|(c, _)| {
+                (0..8)
+                    .map(move |k| [0, 1, 2].map(|a| c[a] + if (k >> a) & 1 == 1 { q } else { -q }))
+            })
+            .collect();
+        half = q;
+    }
+    Shell::Unknown
 }
 
 #[cfg(test)]
@@ -501,5 +630,9 @@ mod tests {
         assert!(!zero_set.touches_box);
         let (meshed, _) = coarse_zero_set(&poly, 4.0);
         assert_eq!(meshed.components.len(), 2);
+        // The spheres reach |x| = 2: f < 0 in the shell outside (−1.6, 1.6)³, and f > 0 is
+        // certified outside (−2.5, 2.5)³.
+        assert_eq!(shell_sign(&poly, 4.0, 1.6), Shell::Negative);
+        assert_eq!(shell_sign(&poly, 4.0, 2.5), Shell::Positive);
     }
 }
