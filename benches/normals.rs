@@ -3,10 +3,13 @@
 //! Delaunay tetrahedralization and the `pca` source alone.
 //!
 //! Run: `cargo bench --bench normals`. The bunny case is skipped when ../shared/data is absent.
+//! `NORMALS_PHASES=1 cargo bench --bench normals` prints instead the wall time of each phase of
+//! the crust normals (both tetrahedralizations, poles, faces, fans, plane fits, orientation) for
+//! the bunny and the torus samples, best of three runs each.
 
 use std::hint::black_box;
 
-use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use criterion::{criterion_group, BenchmarkId, Criterion};
 use stablesurf::normals::delaunay::tetrahedralize;
 use stablesurf::normals::{estimate_normals, NormalSource, NormalsParams};
 use stablesurf::PointCloud;
@@ -108,5 +111,46 @@ fn bench(c: &mut Criterion) {
     group.finish();
 }
 
+/// Per-phase wall times of the crust normals, best of three runs (by total time).
+fn phases() {
+    let mut cases: Vec<(String, Vec<[f64; 3]>)> = Vec::new();
+    if let Some(points) = bunny() {
+        cases.push(("bunny".into(), points));
+    }
+    let sizes: Vec<usize> = std::env::var("NORMALS_PHASES_SIZES")
+        .ok()
+        .map(|s| s.split(',').filter_map(|x| x.trim().parse().ok()).collect())
+        .unwrap_or_else(|| vec![10_000, 50_000, 200_000]);
+    for n in sizes {
+        cases.push((format!("torus {n}"), torus(n)));
+    }
+    for (name, points) in cases {
+        let mut best: Option<Vec<(&'static str, std::time::Duration)>> = None;
+        for _ in 0..3 {
+            let mut times = Vec::new();
+            let start = std::time::Instant::now();
+            stablesurf::normals::crust::crust_normals_timed(&points, &crust_params(), &mut times)
+                .unwrap();
+            times.push(("TOTAL", start.elapsed()));
+            let total = |t: &Vec<(&'static str, std::time::Duration)>| t.last().map(|x| x.1);
+            if best.as_ref().is_none_or(|b| total(&times) < total(b)) {
+                best = Some(times);
+            }
+        }
+        println!("{name} ({} points):", points.len());
+        for (phase, d) in best.unwrap_or_default() {
+            println!("  {phase:<28} {:>9.1} ms", d.as_secs_f64() * 1e3);
+        }
+    }
+}
+
 criterion_group!(benches, bench);
-criterion_main!(benches);
+
+fn main() {
+    if std::env::var_os("NORMALS_PHASES").is_some() {
+        phases();
+        return;
+    }
+    benches();
+    Criterion::default().configure_from_args().final_summary();
+}
