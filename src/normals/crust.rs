@@ -402,7 +402,19 @@ pub fn crust_normals_timed(
     times: &mut Vec<(&'static str, std::time::Duration)>,
 ) -> Result<CrustNormals, NormalsError> {
     let n = points.len();
-    let c = crust_timed(points, times)?;
+    // The plane fits do not depend on the crust: they run on the other core while the
+    // (sequential) tetrahedralizations run. Each side is deterministic on its own.
+    let (c, (knn, fits, noisy, fit_time)) = rayon::join(
+        || crust_timed(points, times),
+        || {
+            let clock = std::time::Instant::now();
+            let knn = pca::knn(points, params.k_neighbours);
+            let (fits, noisy) = pca::adaptive_normals(points, &knn, params.max_k_neighbours);
+            (knn, fits, noisy, clock.elapsed())
+        },
+    );
+    let c = c?;
+    times.push(("(knn + plane fits, concurrent)", fit_time));
     let mut laps = Laps(std::time::Instant::now());
     // Incident triangles per point, in compressed rows.
     let around = VertexTriangles::new(n, &c.triangles);
@@ -425,10 +437,6 @@ pub fn crust_normals_timed(
         })
         .collect();
     laps.lap("fans", times);
-    let knn = pca::knn(points, params.k_neighbours);
-    laps.lap("knn", times);
-    let (fits, noisy) = pca::adaptive_normals(points, &knn, params.max_k_neighbours);
-    laps.lap("plane fits", times);
     let mut n_plane_fits = 0;
     let mut n_noisy = 0;
     let mut normals: Vec<[f64; 3]> = Vec::with_capacity(n);
