@@ -17,6 +17,10 @@
 //! crust                  the faces of Delaunay(P ∪ poles) whose three vertices are samples
 //! ```
 //!
+//! Delaunay(P ∪ poles) is obtained by inserting the poles into Delaunay(P) (the triangulation is
+//! unique, so the insertion order does not matter), and the k-nearest-neighbour plane fits run on
+//! the other core meanwhile.
+//!
 //! Poles farther than twice the bounding-box diagonal from the box centre are left out of the
 //! second tetrahedralization: they lie outside the convex hull of the samples, where they only
 //! remove hull faces that the crust may keep anyway, and they would spoil the spatial sort.

@@ -22,6 +22,16 @@
 //!     replace the cavity by the cone from p to its boundary faces
 //! ```
 //!
+//! Data layout (the usual techniques of fast incremental Delaunay, e.g. Geogram's and CGAL's):
+//! each tetrahedron is one 32-byte record (4 vertex ids, 4 neighbour ids with the index of the
+//! shared face packed in the low 2 bits, so crossing a face never searches the neighbour);
+//! points are stored in insertion order, so that nearby tetrahedra refer to nearby memory;
+//! the cavity uses a reused stack and per-tetrahedron generation stamps (nothing is cleared or
+//! allocated per insertion); the cone is glued through a small stamped open-addressing table
+//! keyed by boundary edge; freed slots are reused by the cone. The walk never re-tests the face
+//! it came through. A second batch of points can be inserted into an existing triangulation
+//! (the crust's poles).
+//!
 //! Predicates are Shewchuk's adaptive exact `orient3d` and `insphere` (the `robust` crate), so
 //! no decision is ever wrong because of rounding. Co-spherical subsets (insphere exactly zero,
 //! common in scans and lattices) are decided by symbolic perturbation: each point is lifted onto
