@@ -3,10 +3,14 @@
 //! Delaunay tetrahedralization and the `pca` source alone.
 //!
 //! Run: `cargo bench --bench normals`. The bunny case is skipped when ../shared/data is absent.
+//! `NORMALS_PHASES=1 cargo bench --bench normals` prints instead the wall time of each phase of
+//! the crust normals (both tetrahedralizations, poles, faces, fans, plane fits, orientation) for
+//! the bunny and the torus samples, best of three runs each (`NORMALS_PHASES_SIZES=10000,50000`
+//! and `NORMALS_PHASES_RUNS=1` change the torus sizes and the number of runs).
 
 use std::hint::black_box;
 
-use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use criterion::{criterion_group, BenchmarkId, Criterion};
 use stablesurf::normals::delaunay::tetrahedralize;
 use stablesurf::normals::{estimate_normals, NormalSource, NormalsParams};
 use stablesurf::PointCloud;
@@ -108,5 +112,72 @@ fn bench(c: &mut Criterion) {
     group.finish();
 }
 
+/// CPU time of this process (user + system, all threads) from /proc/self/stat, in clock ticks of
+/// 10 ms; zero where /proc is absent. Under load it shows the work done, where wall time also
+/// counts the waiting.
+fn cpu_time() -> std::time::Duration {
+    let ticks = std::fs::read_to_string("/proc/self/stat")
+        .ok()
+        .and_then(|s| {
+            let rest = s.rsplit_once(')')?.1.to_string();
+            let f: Vec<u64> = rest
+                .split_whitespace()
+                .skip(11)
+                .take(2)
+                .filter_map(|x| x.parse().ok())
+                .collect();
+            (f.len() == 2).then(|| f[0] + f[1])
+        })
+        .unwrap_or(0);
+    std::time::Duration::from_millis(10 * ticks)
+}
+
+/// Per-phase wall times of the crust normals, best of three runs (by total time).
+fn phases() {
+    let mut cases: Vec<(String, Vec<[f64; 3]>)> = Vec::new();
+    if let Some(points) = bunny() {
+        cases.push(("bunny".into(), points));
+    }
+    let sizes: Vec<usize> = std::env::var("NORMALS_PHASES_SIZES")
+        .ok()
+        .map(|s| s.split(',').filter_map(|x| x.trim().parse().ok()).collect())
+        .unwrap_or_else(|| vec![10_000, 50_000, 200_000]);
+    for n in sizes {
+        cases.push((format!("torus {n}"), torus(n)));
+    }
+    for (name, points) in cases {
+        let mut best: Option<Vec<(&'static str, std::time::Duration)>> = None;
+        let runs: usize = std::env::var("NORMALS_PHASES_RUNS")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(3);
+        for _ in 0..runs {
+            let mut times = Vec::new();
+            let start = std::time::Instant::now();
+            let cpu = cpu_time();
+            stablesurf::normals::crust::crust_normals_timed(&points, &crust_params(), &mut times)
+                .unwrap();
+            times.push(("CPU time (all threads)", cpu_time() - cpu));
+            times.push(("TOTAL", start.elapsed()));
+            let total = |t: &Vec<(&'static str, std::time::Duration)>| t.last().map(|x| x.1);
+            if best.as_ref().is_none_or(|b| total(&times) < total(b)) {
+                best = Some(times);
+            }
+        }
+        println!("{name} ({} points):", points.len());
+        for (phase, d) in best.unwrap_or_default() {
+            println!("  {phase:<28} {:>9.1} ms", d.as_secs_f64() * 1e3);
+        }
+    }
+}
+
 criterion_group!(benches, bench);
-criterion_main!(benches);
+
+fn main() {
+    if std::env::var_os("NORMALS_PHASES").is_some() {
+        phases();
+        return;
+    }
+    benches();
+    Criterion::default().configure_from_args().final_summary();
+}

@@ -17,6 +17,10 @@
 //! crust                  the faces of Delaunay(P ∪ poles) whose three vertices are samples
 //! ```
 //!
+//! Delaunay(P ∪ poles) is obtained by inserting the poles into Delaunay(P) (the triangulation is
+//! unique, so the insertion order does not matter), and the k-nearest-neighbour plane fits run on
+//! the other core meanwhile.
+//!
 //! Poles farther than twice the bounding-box diagonal from the box centre are left out of the
 //! second tetrahedralization: they lie outside the convex hull of the samples, where they only
 //! remove hull faces that the crust may keep anyway, and they would spoil the spatial sort.
@@ -40,7 +44,7 @@ use rayon::prelude::*;
 
 use crate::cloud::Aabb;
 use crate::mesh::VertexTriangles;
-use crate::normals::delaunay::{face_vertices, tetrahedralize, NO_NEIGHBOUR};
+use crate::normals::delaunay::{check_spans_3d, face_vertices, Delaunay, NO_NEIGHBOUR};
 use crate::normals::vec3::{add, cross, dot, norm, normalized, scale, sub, triangle_normal};
 use crate::normals::{orient, pca, NormalsError, NormalsParams};
 
@@ -91,8 +95,47 @@ fn circumcentre(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], d: &[f64; 3]) -> [f64;
 /// assert_eq!(c.triangles.len(), 8);
 /// ```
 pub fn crust(points: &[[f64; 3]]) -> Result<Crust, NormalsError> {
+    crust_timed(points, &mut Vec::new())
+}
+
+/// Wall-clock laps of the phases, for [`crust_timed`] and [`crust_normals_timed`].
+struct Laps(std::time::Instant);
+
+impl Laps {
+    fn lap(&mut self, name: &'static str, times: &mut Vec<(&'static str, std::time::Duration)>) {
+        let now = std::time::Instant::now();
+        times.push((name, now - self.0));
+        self.0 = now;
+    }
+}
+
+/// [`crust`], appending the wall time of its phases to `times`: a profiling aid for the benches.
+///
+/// # Errors
+/// As [`crust`].
+pub fn crust_timed(
+    points: &[[f64; 3]],
+    times: &mut Vec<(&'static str, std::time::Duration)>,
+) -> Result<Crust, NormalsError> {
     let n = points.len();
-    let dt = tetrahedralize(points)?;
+    check_spans_3d(points)?;
+    let mut laps = Laps(std::time::Instant::now());
+    // Both tetrahedralizations share one incremental triangulation: the poles are inserted into
+    // the Delaunay tetrahedralization of the samples, which gives Delaunay(P ∪ poles) without
+    // inserting the samples twice. The enclosing tetrahedron (1000 times the samples' size)
+    // contains the poles kept (within two box diagonals).
+    let mut delaunay = Delaunay::enclosing(points)?;
+    let mut representative: Vec<u32> = (0..n as u32).collect();
+    delaunay.insert(
+        points,
+        (0..n as u32).collect(),
+        0,
+        &mut representative,
+        times,
+    );
+    laps.lap("delaunay: insertion total", times);
+    let dt = delaunay.extract(representative);
+    laps.lap("delaunay: compaction", times);
     let centres: Vec<[f64; 3]> = dt
         .tets
         .par_iter()
@@ -184,27 +227,25 @@ pub fn crust(points: &[[f64; 3]]) -> Result<Crust, NormalsError> {
             is_pole[second[v].1 as usize] = true;
         }
     }
-    let mut all = points.to_vec();
-    for (t, &p) in is_pole.iter().enumerate() {
-        if p && norm(&sub(&centres[t], &centre)) <= limit {
-            all.push(centres[t]);
-        }
-    }
-    let n_poles = all.len() - n;
-    let dt2 = tetrahedralize(&all)?;
-    let mut triangles = Vec::new();
-    for (t, tet) in dt2.tets.iter().enumerate() {
-        for i in 0..4 {
-            let u = dt2.neighbours[t][i];
-            if u != NO_NEIGHBOUR && (u as usize) < t {
-                continue;
-            }
-            let f = face_vertices(*tet, i);
-            if f.iter().all(|&v| (v as usize) < n) {
-                triangles.push(f);
-            }
-        }
-    }
+    let poles: Vec<[f64; 3]> = is_pole
+        .iter()
+        .zip(&centres)
+        .filter(|&(&p, c)| p && norm(&sub(c, &centre)) <= limit)
+        .map(|(_, c)| *c)
+        .collect();
+    let n_poles = poles.len();
+    laps.lap("poles", times);
+    let mut representative: Vec<u32> = (0..(n + n_poles) as u32).collect();
+    delaunay.insert(
+        &poles,
+        (0..n_poles as u32).collect(),
+        n as u32,
+        &mut representative,
+        times,
+    );
+    laps.lap("(second delaunay)", times);
+    let triangles = delaunay.faces_among(n as u32);
+    laps.lap("face extraction", times);
     Ok(Crust {
         triangles,
         pole_vectors,
@@ -351,8 +392,34 @@ pub fn crust_normals(
     points: &[[f64; 3]],
     params: &NormalsParams,
 ) -> Result<CrustNormals, NormalsError> {
+    crust_normals_timed(points, params, &mut Vec::new())
+}
+
+/// [`crust_normals`], appending the wall time of its phases to `times`: a profiling aid for the
+/// benches.
+///
+/// # Errors
+/// As [`crust_normals`].
+pub fn crust_normals_timed(
+    points: &[[f64; 3]],
+    params: &NormalsParams,
+    times: &mut Vec<(&'static str, std::time::Duration)>,
+) -> Result<CrustNormals, NormalsError> {
     let n = points.len();
-    let c = crust(points)?;
+    // The plane fits do not depend on the crust: they run on the other core while the
+    // (sequential) tetrahedralizations run. Each side is deterministic on its own.
+    let (c, (knn, fits, noisy, fit_time)) = rayon::join(
+        || crust_timed(points, times),
+        || {
+            let clock = std::time::Instant::now();
+            let knn = pca::knn(points, params.k_neighbours);
+            let (fits, noisy) = pca::adaptive_normals(points, &knn, params.max_k_neighbours);
+            (knn, fits, noisy, clock.elapsed())
+        },
+    );
+    let c = c?;
+    times.push(("(knn + plane fits, concurrent)", fit_time));
+    let mut laps = Laps(std::time::Instant::now());
     // Incident triangles per point, in compressed rows.
     let around = VertexTriangles::new(n, &c.triangles);
     let incident: Vec<[u32; 3]> = around
@@ -373,8 +440,7 @@ pub fn crust_normals(
             )
         })
         .collect();
-    let knn = pca::knn(points, params.k_neighbours);
-    let (fits, noisy) = pca::adaptive_normals(points, &knn, params.max_k_neighbours);
+    laps.lap("fans", times);
     let mut n_plane_fits = 0;
     let mut n_noisy = 0;
     let mut normals: Vec<[f64; 3]> = Vec::with_capacity(n);
@@ -389,6 +455,7 @@ pub fn crust_normals(
         }
     }
     orient::orient_outward(points, &mut normals, &c.triangles, &knn);
+    laps.lap("orientation", times);
     let mut warnings = Vec::new();
     if n_plane_fits > 0 {
         warnings.push(format!(

@@ -22,6 +22,16 @@
 //!     replace the cavity by the cone from p to its boundary faces
 //! ```
 //!
+//! Data layout (the usual techniques of fast incremental Delaunay, e.g. Geogram's and CGAL's):
+//! each tetrahedron is one 32-byte record (4 vertex ids, 4 neighbour ids with the index of the
+//! shared face packed in the low 2 bits, so crossing a face never searches the neighbour);
+//! points are stored in insertion order, so that nearby tetrahedra refer to nearby memory;
+//! the cavity uses a reused stack and per-tetrahedron generation stamps (nothing is cleared or
+//! allocated per insertion); the cone is glued through a small stamped open-addressing table
+//! keyed by boundary edge; freed slots are reused by the cone. The walk never re-tests the face
+//! it came through. A second batch of points can be inserted into an existing triangulation
+//! (the crust's poles).
+//!
 //! Predicates are Shewchuk's adaptive exact `orient3d` and `insphere` (the `robust` crate), so
 //! no decision is ever wrong because of rounding. Co-spherical subsets (insphere exactly zero,
 //! common in scans and lattices) are decided by symbolic perturbation: each point is lifted onto
@@ -257,53 +267,27 @@ fn brio_order(points: &[[f64; 3]], ids: &mut [u32]) {
 /// assert_eq!(dt.tets.len(), 12); // the centre coned to the 12 triangles of the cube's faces
 /// ```
 pub fn tetrahedralize(points: &[[f64; 3]]) -> Result<Tetrahedralization, NormalsError> {
+    tetrahedralize_timed(points, &mut Vec::new())
+}
+
+/// [`tetrahedralize`], appending the wall time of its phases (checks, sort, insertion,
+/// compaction) to `times`: a profiling aid for the benches.
+///
+/// # Errors
+/// As [`tetrahedralize`].
+pub fn tetrahedralize_timed(
+    points: &[[f64; 3]],
+    times: &mut Vec<(&'static str, std::time::Duration)>,
+) -> Result<Tetrahedralization, NormalsError> {
+    let mut clock = std::time::Instant::now();
+    let mut lap = |name: &'static str, times: &mut Vec<(&'static str, std::time::Duration)>| {
+        let now = std::time::Instant::now();
+        times.push((name, now - clock));
+        clock = now;
+    };
     check_spans_3d(points)?;
     let n = points.len();
-    if n >= (u32::MAX - 8) as usize {
-        return Err(NormalsError::TooManyPoints { n_points: n });
-    }
-    let bbox = crate::cloud::Aabb::from_points(points).ok_or(NormalsError::TooFewPoints {
-        n_points: 0,
-        min: 5,
-    })?;
-    let centre = bbox.center();
-    let radius = (0.5 * bbox.diagonal()).max(f64::MIN_POSITIVE);
-    // The inscribed sphere of this tetrahedron has radius k / sqrt(3) > 1000 * radius.
-    let k = 2000.0 * radius;
-    let mut all: Vec<[f64; 3]> = Vec::with_capacity(n + 4);
-    all.extend_from_slice(points);
-    for s in [
-        [1.0, 1.0, 1.0],
-        [1.0, -1.0, -1.0],
-        [-1.0, 1.0, -1.0],
-        [-1.0, -1.0, 1.0],
-    ] {
-        all.push([
-            centre[0] + k * s[0],
-            centre[1] + k * s[1],
-            centre[2] + k * s[2],
-        ]);
-    }
-    let s0 = n as u32;
-    let mut first = [s0, s0 + 1, s0 + 2, s0 + 3];
-    if orient3d(&all[n], &all[n + 1], &all[n + 2], &all[n + 3]) < 0.0 {
-        first.swap(0, 1);
-    }
-    let mut b = Builder {
-        points: &all,
-        tets: vec![first],
-        neighbours: vec![[NO_NEIGHBOUR; 4]],
-        mark: vec![0],
-        free: Vec::new(),
-        stamp: 0,
-        rng: Rng(0x2545_f491_4f6c_dd1d),
-        cavity: Vec::new(),
-        boundary: Vec::new(),
-        pending: Vec::new(),
-        created: Vec::new(),
-        stack: Vec::new(),
-    };
-
+    let mut delaunay = Delaunay::enclosing(points)?;
     // Exact duplicates are merged with their first occurrence before insertion.
     let mut representative: Vec<u32> = (0..n as u32).collect();
     let key = |i: u32| points[i as usize].map(|c| (c + 0.0).to_bits());
@@ -314,117 +298,266 @@ pub fn tetrahedralize(points: &[[f64; 3]]) -> Result<Tetrahedralization, Normals
             representative[sorted[w] as usize] = representative[sorted[w - 1] as usize];
         }
     }
-    let mut order: Vec<u32> = (0..n as u32)
+    let ids: Vec<u32> = (0..n as u32)
         .filter(|&i| representative[i as usize] == i)
         .collect();
-    brio_order(points, &mut order);
-    let mut n_rejected = 0;
-    let mut last = 0u32;
-    for &v in &order {
-        let t = b.locate(last, v);
-        if let Some(dup) = b.tets[t as usize]
-            .iter()
-            .find(|&&w| all[w as usize] == all[v as usize])
-        {
-            representative[v as usize] = *dup;
-            continue;
-        }
-        match b.insert(t, v) {
-            Some(new_last) => last = new_last,
-            None => n_rejected += 1,
-        }
-    }
-    // Duplicates may have been mapped to a later duplicate of the same point; resolve chains
-    // so that every representative is an inserted point.
-    for i in 0..n {
-        let mut r = representative[i];
-        while representative[r as usize] != r {
-            r = representative[r as usize];
-        }
-        representative[i] = r;
-    }
-
-    // Drop the tets that touch the enclosing vertices and the freed slots; renumber.
-    let mut new_index = vec![NO_NEIGHBOUR; b.tets.len()];
-    let mut tets = Vec::new();
-    for (t, tet) in b.tets.iter().enumerate() {
-        if tet[0] != NO_NEIGHBOUR && tet.iter().all(|&v| v < s0) {
-            new_index[t] = tets.len() as u32;
-            tets.push(*tet);
-        }
-    }
-    let mut neighbours = Vec::with_capacity(tets.len());
-    for (t, tet) in b.tets.iter().enumerate() {
-        if new_index[t] != NO_NEIGHBOUR {
-            debug_assert!(tet[0] != NO_NEIGHBOUR);
-            neighbours.push(b.neighbours[t].map(|u| {
-                if u == NO_NEIGHBOUR {
-                    NO_NEIGHBOUR
-                } else {
-                    new_index[u as usize]
-                }
-            }));
-        }
-    }
-    Ok(Tetrahedralization {
-        tets,
-        neighbours,
-        representative,
-        n_rejected,
-    })
+    lap("delaunay: checks + dedup", times);
+    delaunay.insert(points, ids, 0, &mut representative, times);
+    let dt = delaunay.extract(representative);
+    lap("delaunay: compaction", times);
+    Ok(dt)
 }
 
-struct Builder<'a> {
-    points: &'a [[f64; 3]],
-    tets: Vec<[u32; 4]>,
-    neighbours: Vec<[u32; 4]>,
+/// A tetrahedron record: vertices (internal ids) and neighbours. `n[i]` is the tetrahedron
+/// across the face opposite `v[i]` shifted left by two, with the index of the shared face in
+/// that neighbour in the low two bits, or [`NO_NEIGHBOUR`]. A free slot has
+/// `v[0] == NO_NEIGHBOUR`. Vertices and neighbours share one 32-byte record, so visiting a
+/// tetrahedron touches one cache line.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(32))]
+struct Tet {
+    v: [u32; 4],
+    n: [u32; 4],
+}
+
+/// A face of the cavity's boundary: the cone tetrahedron's vertices (the cavity tetrahedron's
+/// with the new point at `i`), and the packed outside neighbour.
+#[derive(Clone, Copy)]
+struct BoundaryFace {
+    verts: [u32; 4],
+    i: u32,
+    outside: u32,
+}
+
+/// An entry of the cone-gluing hash table: an edge key, the insertion stamp that wrote it,
+/// and the packed (tet, face) waiting for its twin ([`NO_NEIGHBOUR`] once glued).
+#[derive(Clone, Copy, Default)]
+struct EdgeSlot {
+    key: u64,
+    stamp: u32,
+    face: u32,
+}
+
+/// Incremental Bowyer–Watson state, kept between insertions so that a second batch of points
+/// (the crust's poles) can be added to the triangulation of the first.
+///
+/// Internally, points are stored in insertion order (internal id 0–3: the enclosing
+/// tetrahedron), so that the vertices of nearby tetrahedra are close in memory; `orig` maps an
+/// internal id back to the caller's index, which is also the symbolic perturbation's priority.
+pub(crate) struct Delaunay {
+    pts: Vec<[f64; 3]>,
+    orig: Vec<u32>,
+    tets: Vec<Tet>,
     /// `mark[t] == stamp`: tet `t` is in the current cavity; `mark[t] == stamp + 1`: tet `t` was
-    /// tested and is not in the current cavity. One array rather than two so that a cavity test
-    /// touches one cache line of marks, not two (the tets are visited in no memory order).
+    /// tested and is not. Stamps grow by two per insertion, so nothing is ever cleared.
     mark: Vec<u32>,
     free: Vec<u32>,
     stamp: u32,
     rng: Rng,
+    last: u32,
     cavity: Vec<u32>,
-    /// Boundary faces of the cavity: (cone tet vertices: the cavity tet's with the new point at
-    /// `i`, position `i`, outside neighbour, index of the face of that neighbour facing the cavity).
-    boundary: Vec<([u32; 4], usize, u32, usize)>,
-    /// Internal faces of the cone: (edge key, tet, face index); each key occurs exactly twice.
-    pending: Vec<((u32, u32), u32, u32)>,
-    created: Vec<u32>,
+    boundary: Vec<BoundaryFace>,
     stack: Vec<u32>,
+    table: Vec<EdgeSlot>,
+    n_rejected: usize,
 }
 
-impl Builder<'_> {
-    #[inline]
-    fn p(&self, v: u32) -> &[f64; 3] {
-        &self.points[v as usize]
+/// Priority of enclosing vertex `i` in the symbolic perturbation (above every real point).
+const ENCLOSING_KEY: u32 = u32::MAX - 4;
+
+impl Delaunay {
+    /// An empty triangulation inside a tetrahedron 1000 times the size of `points` (their
+    /// bounding box), which also contains anything within a few box diagonals of them.
+    pub(crate) fn enclosing(points: &[[f64; 3]]) -> Result<Delaunay, NormalsError> {
+        // Packed neighbours leave 30 bits for tet ids; a triangulation has about 6.5 n tets.
+        if points.len() >= 1 << 26 {
+            return Err(NormalsError::TooManyPoints {
+                n_points: points.len(),
+            });
+        }
+        let bbox = crate::cloud::Aabb::from_points(points).ok_or(NormalsError::TooFewPoints {
+            n_points: 0,
+            min: 5,
+        })?;
+        let centre = bbox.center();
+        let radius = (0.5 * bbox.diagonal()).max(f64::MIN_POSITIVE);
+        // The inscribed sphere of this tetrahedron has radius k / sqrt(3) > 1000 * radius.
+        let k = 2000.0 * radius;
+        let pts: Vec<[f64; 3]> = [
+            [1.0, 1.0, 1.0],
+            [1.0, -1.0, -1.0],
+            [-1.0, 1.0, -1.0],
+            [-1.0, -1.0, 1.0],
+        ]
+        .iter()
+        .map(|s| [0, 1, 2].map(|a| centre[a] + k * s[a]))
+        .collect();
+        let mut v = [0, 1, 2, 3];
+        if orient3d(&pts[0], &pts[1], &pts[2], &pts[3]) < 0.0 {
+            v.swap(0, 1);
+        }
+        Ok(Delaunay {
+            pts,
+            orig: (0..4).map(|i| ENCLOSING_KEY + i).collect(),
+            tets: vec![Tet {
+                v,
+                n: [NO_NEIGHBOUR; 4],
+            }],
+            mark: vec![0],
+            free: Vec::new(),
+            stamp: 0,
+            rng: Rng(0x2545_f491_4f6c_dd1d),
+            last: 0,
+            cavity: Vec::new(),
+            boundary: Vec::new(),
+            stack: Vec::new(),
+            table: Vec::new(),
+            n_rejected: 0,
+        })
     }
 
-    /// Visibility walk from tet `start` to a tet whose closure contains point `v`.
-    fn locate(&mut self, start: u32, v: u32) -> u32 {
-        let p = *self.p(v);
+    /// Inserts `points[i]` for each `i` in `ids` (in BRIO order), as caller index
+    /// `first + i`. A point equal to a vertex already there is not inserted:
+    /// `representative[first + i]` is set to that vertex's caller index.
+    pub(crate) fn insert(
+        &mut self,
+        points: &[[f64; 3]],
+        mut ids: Vec<u32>,
+        first: u32,
+        representative: &mut [u32],
+        times: &mut Vec<(&'static str, std::time::Duration)>,
+    ) {
+        let clock = std::time::Instant::now();
+        brio_order(points, &mut ids);
+        let now = std::time::Instant::now();
+        times.push(("delaunay: brio sort", now - clock));
+        self.pts.reserve(ids.len());
+        self.orig.reserve(ids.len());
+        let expected = self.tets.len() + 7 * ids.len();
+        self.tets.reserve(expected.saturating_sub(self.tets.len()));
+        self.mark.reserve(expected.saturating_sub(self.mark.len()));
+        for &i in &ids {
+            let p = points[i as usize];
+            let v = self.pts.len() as u32;
+            self.pts.push(p);
+            self.orig.push(first + i);
+            let t = self.locate(self.last, &p);
+            let tv = self.tets[t as usize].v;
+            if let Some(&dup) = tv.iter().find(|&&w| self.pts[w as usize] == p) {
+                representative[(first + i) as usize] = self.orig[dup as usize];
+                continue;
+            }
+            if !self.insert_one(t, v) {
+                self.n_rejected += 1;
+            }
+        }
+        times.push(("delaunay: insertion", now.elapsed()));
+    }
+
+    /// The tetrahedra not touching the enclosing vertices, renumbered, with caller indices.
+    /// `representative` chains (a duplicate of a duplicate) are resolved.
+    pub(crate) fn extract(&self, mut representative: Vec<u32>) -> Tetrahedralization {
+        for i in 0..representative.len() {
+            let mut r = representative[i];
+            while representative[r as usize] != r {
+                r = representative[r as usize];
+            }
+            representative[i] = r;
+        }
+        let mut new_index = vec![NO_NEIGHBOUR; self.tets.len()];
+        let mut tets = Vec::with_capacity(self.tets.len());
+        for (t, tet) in self.tets.iter().enumerate() {
+            if tet.v[0] != NO_NEIGHBOUR && tet.v.iter().all(|&v| v >= 4) {
+                new_index[t] = tets.len() as u32;
+                tets.push(tet.v.map(|v| self.orig[v as usize]));
+            }
+        }
+        let mut neighbours = Vec::with_capacity(tets.len());
+        for (t, tet) in self.tets.iter().enumerate() {
+            if new_index[t] != NO_NEIGHBOUR {
+                neighbours.push(tet.n.map(|u| {
+                    if u == NO_NEIGHBOUR {
+                        NO_NEIGHBOUR
+                    } else {
+                        new_index[(u >> 2) as usize]
+                    }
+                }));
+            }
+        }
+        Tetrahedralization {
+            tets,
+            neighbours,
+            representative,
+            n_rejected: self.n_rejected,
+        }
+    }
+
+    /// The faces whose three vertices have caller indices below `limit`, each once, wound as
+    /// [`face_vertices`] winds them for the tetrahedron that reports the face (the first kept
+    /// one in slot order).
+    pub(crate) fn faces_among(&self, limit: u32) -> Vec<[u32; 3]> {
+        let kept = |t: &Tet| t.v[0] != NO_NEIGHBOUR && t.v.iter().all(|&v| v >= 4);
+        let mut faces = Vec::new();
+        for (t, tet) in self.tets.iter().enumerate() {
+            if !kept(tet) {
+                continue;
+            }
+            let ids = tet.v.map(|v| self.orig[v as usize]);
+            if ids.iter().filter(|&&v| v < limit).count() < 3 {
+                continue;
+            }
+            for i in 0..4 {
+                let u = tet.n[i];
+                if u != NO_NEIGHBOUR
+                    && ((u >> 2) as usize) < t
+                    && kept(&self.tets[(u >> 2) as usize])
+                {
+                    continue;
+                }
+                let f = face_vertices(ids, i);
+                if f.iter().all(|&v| v < limit) {
+                    faces.push(f);
+                }
+            }
+        }
+        faces
+    }
+
+    #[inline]
+    fn p(&self, v: u32) -> [f64; 3] {
+        self.pts[v as usize]
+    }
+
+    /// Visibility walk from tet `start` to a tet whose closure contains `p`. The face the walk
+    /// came through is not tested again (`p` is known to be on its inner side).
+    fn locate(&mut self, start: u32, p: &[f64; 3]) -> u32 {
         let mut t = start;
+        let mut came = 4usize;
         let mut steps = 0usize;
         'walk: loop {
             steps += 1;
             if steps > 4 * self.tets.len() + 64 {
                 // Cannot happen with exact predicates on a valid triangulation; scan as a fallback.
-                return self.locate_by_scan(v).unwrap_or(start);
+                return self.locate_by_scan(p).unwrap_or(start);
             }
             let tet = self.tets[t as usize];
+            let q = tet.v.map(|w| self.p(w));
             let r = (self.rng.next() & 3) as usize;
             for k in 0..4 {
                 let i = (r + k) & 3;
-                let mut q = tet.map(|w| self.p(w));
-                q[i] = &p;
-                if orient3d(q[0], q[1], q[2], q[3]) < 0.0 {
-                    let u = self.neighbours[t as usize][i];
+                if i == came {
+                    continue;
+                }
+                let mut f = q;
+                f[i] = *p;
+                if orient3d(&f[0], &f[1], &f[2], &f[3]) < 0.0 {
+                    let u = tet.n[i];
                     if u == NO_NEIGHBOUR {
                         // Outside the enclosing tetrahedron: cannot happen, all points are inside.
                         return t;
                     }
-                    t = u;
+                    t = u >> 2;
+                    came = (u & 3) as usize;
                     continue 'walk;
                 }
             }
@@ -432,46 +565,49 @@ impl Builder<'_> {
         }
     }
 
-    fn locate_by_scan(&self, v: u32) -> Option<u32> {
-        let p = self.p(v);
+    fn locate_by_scan(&self, p: &[f64; 3]) -> Option<u32> {
         (0..self.tets.len() as u32).find(|&t| {
             let tet = self.tets[t as usize];
-            tet[0] != NO_NEIGHBOUR
+            tet.v[0] != NO_NEIGHBOUR
                 && (0..4).all(|i| {
-                    let mut q = tet.map(|w| self.p(w));
-                    q[i] = p;
-                    orient3d(q[0], q[1], q[2], q[3]) >= 0.0
+                    let mut q = tet.v.map(|w| self.p(w));
+                    q[i] = *p;
+                    orient3d(&q[0], &q[1], &q[2], &q[3]) >= 0.0
                 })
         })
     }
 
     /// Whether point `v` is in conflict with tet `t` (strictly inside its perturbed circumsphere).
+    #[inline]
     fn conflict(&self, t: u32, v: u32) -> bool {
-        let tet = self.tets[t as usize];
+        let tet = self.tets[t as usize].v;
         let q = tet.map(|w| self.p(w));
         let p = self.p(v);
-        let s = insphere(q[0], q[1], q[2], q[3], p);
+        let s = insphere(&q[0], &q[1], &q[2], &q[3], &p);
         if s != 0.0 {
             return s > 0.0;
         }
-        // Symbolic perturbation: the point with the largest index is lifted most. Lifting the
-        // new point puts it outside; lifting tet vertex j moves the sphere towards the side of
-        // the opposite face where vertex j is, so p is inside when it is on that side.
-        let mut order = [
-            (tet[0], 0usize),
-            (tet[1], 1),
-            (tet[2], 2),
-            (tet[3], 3),
-            (v, 4),
-        ];
+        self.conflict_perturbed(tet, &q, v, &p)
+    }
+
+    /// The symbolic perturbation for an exactly co-spherical configuration: the point with the
+    /// largest caller index is lifted most. Lifting the new point puts it outside; lifting tet
+    /// vertex j moves the sphere towards the side of the opposite face where vertex j is, so p
+    /// is inside when it is on that side.
+    #[cold]
+    fn conflict_perturbed(&self, tet: [u32; 4], q: &[[f64; 3]; 4], v: u32, p: &[f64; 3]) -> bool {
+        let mut order = [0usize, 1, 2, 3, 4].map(|j| {
+            let w = if j == 4 { v } else { tet[j] };
+            (self.orig[w as usize], j)
+        });
         order.sort_unstable_by_key(|x| std::cmp::Reverse(x.0));
         for (_, j) in order {
             if j == 4 {
                 return false;
             }
-            let mut r = q;
-            r[j] = p;
-            let o = orient3d(r[0], r[1], r[2], r[3]);
+            let mut r = *q;
+            r[j] = *p;
+            let o = orient3d(&r[0], &r[1], &r[2], &r[3]);
             if o != 0.0 {
                 return o > 0.0;
             }
@@ -479,13 +615,28 @@ impl Builder<'_> {
         false
     }
 
+    fn alloc(&mut self) -> u32 {
+        match self.free.pop() {
+            Some(s) => s,
+            None => {
+                self.tets.push(Tet {
+                    v: [NO_NEIGHBOUR; 4],
+                    n: [NO_NEIGHBOUR; 4],
+                });
+                self.mark.push(0);
+                (self.tets.len() - 1) as u32
+            }
+        }
+    }
+
     /// Inserts point `v` into the triangulation, starting from tet `t` that contains it.
-    /// Returns a new tet, or `None` when the point was rejected.
-    fn insert(&mut self, t: u32, v: u32) -> Option<u32> {
+    /// Returns false when the point was rejected by the safety net.
+    fn insert_one(&mut self, t: u32, v: u32) -> bool {
         // Stamps go up by two: `stamp` marks the cavity, `stamp + 1` the tested non-cavity tets.
         self.stamp = self.stamp.wrapping_add(2);
         if self.stamp >= u32::MAX - 1 {
             self.mark.iter_mut().for_each(|m| *m = 0);
+            self.table.iter_mut().for_each(|e| e.stamp = 0);
             self.stamp = 2;
         }
         let stamp = self.stamp;
@@ -496,100 +647,111 @@ impl Builder<'_> {
         self.stack.push(t);
         while let Some(c) = self.stack.pop() {
             self.cavity.push(c);
+            let tet = self.tets[c as usize];
             for i in 0..4 {
-                let u = self.neighbours[c as usize][i];
-                let is_boundary = if u == NO_NEIGHBOUR {
+                let u = tet.n[i];
+                let outside = if u == NO_NEIGHBOUR {
                     true
-                } else if self.mark[u as usize] == stamp {
-                    false
-                } else if self.mark[u as usize] == stamp + 1 {
-                    true
-                } else if self.conflict(u, v) {
-                    self.mark[u as usize] = stamp;
-                    self.stack.push(u);
-                    false
                 } else {
-                    self.mark[u as usize] = stamp + 1;
-                    true
-                };
-                if is_boundary {
-                    let mut verts = self.tets[c as usize];
-                    verts[i] = v;
-                    // The face of u that points back to c, found before anything changes.
-                    let back = if u == NO_NEIGHBOUR {
-                        4
+                    let ut = u >> 2;
+                    let m = self.mark[ut as usize];
+                    if m == stamp {
+                        false
+                    } else if m == stamp + 1 {
+                        true
+                    } else if self.conflict(ut, v) {
+                        self.mark[ut as usize] = stamp;
+                        self.stack.push(ut);
+                        false
                     } else {
-                        self.neighbours[u as usize]
-                            .iter()
-                            .position(|&x| x == c)
-                            .unwrap_or(4)
-                    };
-                    self.boundary.push((verts, i, u, back));
+                        self.mark[ut as usize] = stamp + 1;
+                        true
+                    }
+                };
+                if outside {
+                    let mut verts = tet.v;
+                    verts[i] = v;
+                    self.boundary.push(BoundaryFace {
+                        verts,
+                        i: i as u32,
+                        outside: u,
+                    });
                 }
             }
         }
         // Safety net: every cone tet must be positively oriented (a star-shaped cavity).
-        for (verts, _, _, _) in &self.boundary {
-            let q = verts.map(|w| self.p(w));
-            if orient3d(q[0], q[1], q[2], q[3]) <= 0.0 {
-                return None;
+        for f in &self.boundary {
+            let q = f.verts.map(|w| self.p(w));
+            if orient3d(&q[0], &q[1], &q[2], &q[3]) <= 0.0 {
+                return false;
             }
         }
-        // Free the cavity, create the cone.
-        for &c in &self.cavity {
-            self.tets[c as usize] = [NO_NEIGHBOUR; 4];
+        // Free the cavity, then build the cone in the freed slots (reused last in, first out).
+        for k in 0..self.cavity.len() {
+            let c = self.cavity[k];
+            self.tets[c as usize].v[0] = NO_NEIGHBOUR;
             self.free.push(c);
         }
-        self.created.clear();
-        self.pending.clear();
+        // Each internal face of the cone (an edge of the cavity boundary coned to v) is shared
+        // by exactly two cone tets: they find each other through a small open-addressing table
+        // keyed by the edge, sized for a load factor of at most 1/2 and never cleared (entries
+        // carry the insertion's stamp).
+        let size = (4 * self.boundary.len()).next_power_of_two().max(16);
+        if self.table.len() < size {
+            self.table.resize(size, EdgeSlot::default());
+        }
+        let mask = size - 1;
+        let mut nt = self.last;
         for k in 0..self.boundary.len() {
-            let (verts, i, u, back) = self.boundary[k];
-            let nt = match self.free.pop() {
-                Some(s) => s,
-                None => {
-                    self.tets.push([NO_NEIGHBOUR; 4]);
-                    self.neighbours.push([NO_NEIGHBOUR; 4]);
-                    self.mark.push(0);
-                    (self.tets.len() - 1) as u32
-                }
-            };
-            self.tets[nt as usize] = verts;
-            self.neighbours[nt as usize] = [NO_NEIGHBOUR; 4];
-            self.neighbours[nt as usize][i] = u;
-            self.mark[nt as usize] = 0;
-            if u != NO_NEIGHBOUR && back < 4 {
-                self.neighbours[u as usize][back] = nt;
+            let f = self.boundary[k];
+            nt = self.alloc();
+            let i = f.i as usize;
+            let mut n = [NO_NEIGHBOUR; 4];
+            n[i] = f.outside;
+            if f.outside != NO_NEIGHBOUR {
+                self.tets[(f.outside >> 2) as usize].n[(f.outside & 3) as usize] = (nt << 2) | f.i;
             }
+            self.tets[nt as usize] = Tet { v: f.verts, n };
+            self.mark[nt as usize] = 0;
             for j in 0..4 {
                 if j == i {
                     continue;
                 }
                 // The face opposite vertex j holds v and the two face vertices other than j.
-                let mut e = [0u32; 2];
-                let mut m = 0;
-                for (l, &w) in verts.iter().enumerate() {
-                    if l != i && l != j {
-                        e[m] = w;
-                        m += 1;
+                let (a, b) = match (i, j) {
+                    (0, 1) | (1, 0) => (f.verts[2], f.verts[3]),
+                    (0, 2) | (2, 0) => (f.verts[1], f.verts[3]),
+                    (0, 3) | (3, 0) => (f.verts[1], f.verts[2]),
+                    (1, 2) | (2, 1) => (f.verts[0], f.verts[3]),
+                    (1, 3) | (3, 1) => (f.verts[0], f.verts[2]),
+                    _ => (f.verts[0], f.verts[1]),
+                };
+                let key = (u64::from(a.min(b)) << 32) | u64::from(a.max(b));
+                let me = (nt << 2) | j as u32;
+                let mut h = (key.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 40) as usize & mask;
+                loop {
+                    let slot = self.table[h];
+                    if slot.stamp != stamp {
+                        self.table[h] = EdgeSlot {
+                            key,
+                            stamp,
+                            face: me,
+                        };
+                        break;
                     }
+                    if slot.key == key && slot.face != NO_NEIGHBOUR {
+                        let other = slot.face;
+                        self.tets[(other >> 2) as usize].n[(other & 3) as usize] = me;
+                        self.tets[nt as usize].n[j] = other;
+                        self.table[h].face = NO_NEIGHBOUR;
+                        break;
+                    }
+                    h = (h + 1) & mask;
                 }
-                let key = (e[0].min(e[1]), e[0].max(e[1]));
-                self.pending.push((key, nt, j as u32));
             }
-            self.created.push(nt);
         }
-        // Glue the cone: each internal face (an edge of the cavity boundary coned to v) is
-        // shared by exactly two cone tets. Sorting pairs them in O(m log m); a linear search per
-        // face was O(m^2) in the cone size m and dominated large cavities.
-        self.pending.sort_unstable();
-        for pair in self.pending.chunks_exact(2) {
-            let ((ka, ta, ja), (kb, tb, jb)) = (pair[0], pair[1]);
-            debug_assert_eq!(ka, kb);
-            self.neighbours[ta as usize][ja as usize] = tb;
-            self.neighbours[tb as usize][jb as usize] = ta;
-        }
-        debug_assert!(self.pending.len().is_multiple_of(2));
-        self.created.last().copied()
+        self.last = nt;
+        true
     }
 }
 
