@@ -13,6 +13,26 @@ use stablesurf::detail::{chamfer_distance, fit_detail, DetailParams};
 use stablesurf::normals::{estimate_normals, NormalsParams};
 use stablesurf::polygonize::{polygonize, PolygonizeParams};
 
+/// CPU seconds used by this process so far (all threads), from /proc/self/stat; 0 elsewhere.
+fn cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return 0.0;
+    };
+    let fields: Vec<&str> = stat
+        .rsplit(')')
+        .next()
+        .unwrap_or("")
+        .split_whitespace()
+        .collect();
+    let ticks = |i: usize| {
+        fields
+            .get(i)
+            .and_then(|v| v.parse::<f64>().ok())
+            .unwrap_or(0.0)
+    };
+    (ticks(11) + ticks(12)) / 100.0
+}
+
 fn main() -> anyhow::Result<()> {
     let mut args: Vec<String> = std::env::args().skip(1).collect();
     let mut params = DetailParams::default();
@@ -51,18 +71,28 @@ fn main() -> anyhow::Result<()> {
         eprintln!("normals {t_normals:.3} s");
         let oriented = normals.cloud;
         let t = Instant::now();
+        let c0 = cpu_seconds();
         let model = fit_detail(&oriented, &params)?;
         let t_fit = t.elapsed().as_secs_f64();
-        eprintln!("fit {t_fit:.3} s, {} cells, {:?}", model.cells.len(), model.diagnostics);
+        eprintln!(
+            "fit {t_fit:.3} s, {} cells, {:?}",
+            model.cells.len(),
+            model.diagnostics
+        );
+        let c1 = cpu_seconds();
         let t = Instant::now();
         let out = polygonize(&model, &model.region, &mesh_params)?;
         let t_mesh = t.elapsed().as_secs_f64();
+        let c2 = cpu_seconds();
+        eprintln!("cpu: fit {:.2} s, mesh {:.2} s", c1 - c0, c2 - c1);
         let report = stablesurf::mesh::check(&out.mesh);
         let c = chamfer_distance(&oriented.points, &out.mesh).unwrap_or_default();
         let d = model.diagonal;
         println!(
             "{}\t{}\t{:.2}\t{}\t{}\t{}\t{:.3}\t{:.3}\t{}\t{}\t{}\t{:.3e}\t{:.3e}\t{:.3e}\t{:.2e}",
-            path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default(),
+            path.file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default(),
             oriented.points.len(),
             t_normals,
             model.cells.len(),

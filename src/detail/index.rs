@@ -32,8 +32,8 @@
 //! evaluates bit-identically to the fitted one.
 
 use crate::cloud::Aabb;
-use crate::polygonize::ImplicitFunction;
 use crate::poly::ImplicitPolynomial;
+use crate::polygonize::ImplicitFunction;
 
 use super::MpuCell;
 
@@ -209,12 +209,7 @@ fn distance_range(c: [f64; 3], b: &Aabb) -> (f64, f64) {
 
 /// f(p) for the blend of `cells`, with the constant `outside` where no ball reaches.
 #[inline]
-pub(crate) fn blend_value(
-    cells: &[MpuCell],
-    index: &BallIndex,
-    outside: f64,
-    p: [f64; 3],
-) -> f64 {
+pub(crate) fn blend_value(cells: &[MpuCell], index: &BallIndex, outside: f64, p: [f64; 3]) -> f64 {
     let (mut num, mut den) = (0.0, 0.0);
     index.for_each_near_point(p, |i| {
         let c = &cells[i];
@@ -440,7 +435,10 @@ impl ImplicitFunction for super::MpuModel {
         for (i, c) in self.cells.iter().enumerate() {
             if !(c.radius > 0.0 && c.radius.is_finite()) || c.center.iter().any(|v| !v.is_finite())
             {
-                return Err(format!("cell {i} has a bad ball (centre {:?}, radius {})", c.center, c.radius));
+                return Err(format!(
+                    "cell {i} has a bad ball (centre {:?}, radius {})",
+                    c.center, c.radius
+                ));
             }
             c.poly.validate().map_err(|e| format!("cell {i}: {e}"))?;
         }

@@ -178,7 +178,11 @@ pub(crate) fn fit_local(
     for &i in measure {
         let (f, g) = poly.value_gradient(points[i as usize]);
         let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
-        let e = if gn > 0.0 { f.abs() / gn } else { f64::INFINITY };
+        let e = if gn > 0.0 {
+            f.abs() / gn
+        } else {
+            f64::INFINITY
+        };
         max_error = max_error.max(e);
     }
     Some(LocalFit { poly, max_error })

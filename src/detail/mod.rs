@@ -422,7 +422,9 @@ fn validate_params(params: &DetailParams) -> Result<(), DetailError> {
         ("finest_tolerance", params.finest_tolerance),
     ] {
         if !(v > 0.0 && v < 1.0) {
-            return bad(format!("{name} is {v}, choose a value in (0, 1), e.g. 2e-3"));
+            return bad(format!(
+                "{name} is {v}, choose a value in (0, 1), e.g. 2e-3"
+            ));
         }
     }
     if !(1..=20).contains(&params.max_depth) {
@@ -438,7 +440,10 @@ fn validate_params(params: &DetailParams) -> Result<(), DetailError> {
         ));
     }
     if !(params.kappa >= 0.0 && params.kappa.is_finite()) {
-        return bad(format!("kappa is {}, choose a value ≥ 0, e.g. 1e-2", params.kappa));
+        return bad(format!(
+            "kappa is {}, choose a value ≥ 0, e.g. 1e-2",
+            params.kappa
+        ));
     }
     if !(params.support >= 0.6 && params.support <= 2.0) {
         return bad(format!(
@@ -506,7 +511,11 @@ fn visit(ctx: &Ctx, center: [f64; 3], side: f64, level: u32, parent_ball: &[u32]
             .nearest_n::<SquaredEuclidean<f64>>(k_nz)
             .execute();
         ball = nearest.iter().map(|nn| nn.item as u32).collect();
-        let far = nearest.iter().map(|nn| nn.distance).fold(0.0, f64::max).sqrt();
+        let far = nearest
+            .iter()
+            .map(|nn| nn.distance)
+            .fold(0.0, f64::max)
+            .sqrt();
         fit_radius = radius.max(far * (1.0 + 1e-9));
     }
     // MPU's auxiliary rows: the cell's centre and corners.
@@ -515,9 +524,8 @@ fn visit(ctx: &Ctx, center: [f64; 3], side: f64, level: u32, parent_ball: &[u32]
         let h = 0.5 * side;
         let mut candidates = vec![center];
         for corner in 0..8 {
-            candidates.push([0, 1, 2].map(|a| {
-                center[a] + if (corner >> a) & 1 == 1 { h } else { -h }
-            }));
+            candidates
+                .push([0, 1, 2].map(|a| center[a] + if (corner >> a) & 1 == 1 { h } else { -h }));
         }
         let k = NonZero::new(AUX_NEIGHBOURS).unwrap_or(NonZero::<usize>::MIN);
         for q in candidates {

@@ -169,11 +169,7 @@ impl Reader<'_> {
 /// assert!(err.to_string().contains("version 9"));
 /// ```
 pub fn read_mpu(bytes: &[u8], path: &Path) -> Result<MpuModel, ExportError> {
-    let mut r = Reader {
-        bytes,
-        at: 0,
-        path,
-    };
+    let mut r = Reader { bytes, at: 0, path };
     if !is_mpu(bytes) {
         return Err(r.bad("it does not start with the stablesurf.mpu magic"));
     }
@@ -235,11 +231,12 @@ pub fn read_mpu(bytes: &[u8], path: &Path) -> Result<MpuModel, ExportError> {
     }
     let len = r.u64()?;
     let json = r.take(usize::try_from(len).unwrap_or(usize::MAX))?;
-    let diagnostics: DetailDiagnostics =
-        serde_json::from_slice(json).map_err(|e| ExportError::Format(format!(
+    let diagnostics: DetailDiagnostics = serde_json::from_slice(json).map_err(|e| {
+        ExportError::Format(format!(
             "{} is not a valid stablesurf.mpu file: unreadable diagnostics ({e})",
             path.display()
-        )))?;
+        ))
+    })?;
     if r.at != bytes.len() {
         return Err(r.bad("unexpected bytes after the end"));
     }
