@@ -112,8 +112,13 @@ fn rigid_motion_moves_the_surface_with_the_input() {
     // mesh's vertices to the second mesh (both directions through the helper).
     let moved_vertices: Vec<[f64; 3]> = mesh_a.positions.iter().map(|&p| moved(p)).collect();
     let c = chamfer_distance(&moved_vertices, &mesh_b).unwrap();
-    let relative = c.symmetric / a.diagonal;
-    println!("rigid motion: symmetric Chamfer between the moved surface and the surface of the moved input = {relative:.3e} of the diagonal");
+    // The exact direction (moved vertices → the other mesh's triangles) measures the surfaces'
+    // difference; the symmetric figure also holds the vertex spacing of the second mesh.
+    let relative = c.points_to_mesh / a.diagonal;
+    println!(
+        "rigid motion: moved surface → surface of the moved input, mean {relative:.3e} of the diagonal (symmetric Chamfer {:.3e})",
+        c.symmetric / a.diagonal
+    );
     assert!(relative < 2e-3, "{relative}");
 }
 

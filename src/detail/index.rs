@@ -198,10 +198,10 @@ fn bspline_slope_max(t0: f64, t1: f64) -> f64 {
 /// Distance range from `c` to the points of box `b`.
 fn distance_range(c: [f64; 3], b: &Aabb) -> (f64, f64) {
     let (mut near, mut far) = (0.0, 0.0);
-    for a in 0..3 {
-        let d = (b.min[a] - c[a]).max(c[a] - b.max[a]).max(0.0);
+    for ((&ca, &lo), &hi) in c.iter().zip(&b.min).zip(&b.max) {
+        let d = (lo - ca).max(ca - hi).max(0.0);
         near += d * d;
-        let f = (c[a] - b.min[a]).abs().max((b.max[a] - c[a]).abs());
+        let f = (ca - lo).abs().max((hi - ca).abs());
         far += f * f;
     }
     (near.sqrt(), far.sqrt())

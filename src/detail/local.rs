@@ -140,12 +140,12 @@ pub(crate) fn fit_local(
     }
     // 3. Ridge term κD, D_ll = β_{|α|}/T_α (paper 6.18).
     let mut l = 0;
-    for r in 0..=n {
+    for (r, &beta_r) in beta.iter().enumerate().take(n + 1) {
         for s_ in 0..=r {
             for k in 0..=s_ {
                 let (i, j) = (r - s_, s_ - k);
                 let t = factorial(r) / (factorial(i) * factorial(j) * factorial(k));
-                ata[l * c + l] += kappa * beta[r] / t;
+                ata[l * c + l] += kappa * beta_r / t;
                 l += 1;
             }
         }

@@ -510,7 +510,7 @@ fn visit(ctx: &Ctx, center: [f64; 3], side: f64, level: u32, parent_ball: &[u32]
             .query(&center)
             .nearest_n::<SquaredEuclidean<f64>>(k_nz)
             .execute();
-        ball = nearest.iter().map(|nn| nn.item as u32).collect();
+        ball = nearest.iter().map(|nn| nn.item).collect();
         let far = nearest
             .iter()
             .map(|nn| nn.distance)
