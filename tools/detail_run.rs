@@ -86,6 +86,22 @@ fn main() -> anyhow::Result<()> {
         let c2 = cpu_seconds();
         eprintln!("cpu: fit {:.2} s, mesh {:.2} s", c1 - c0, c2 - c1);
         let report = stablesurf::mesh::check(&out.mesh);
+        let (n_components, labels) = stablesurf::mesh::component_labels(&out.mesh);
+        let mut sizes = vec![0usize; n_components];
+        for &l in &labels {
+            if let Some(s) = sizes.get_mut(l as usize) {
+                *s += 1;
+            }
+        }
+        sizes.sort_unstable_by(|a, b| b.cmp(a));
+        eprintln!(
+            "boundary edges {}, non-manifold edges {}, non-manifold vertices {}, euler {}, component vertex counts {:?}",
+            report.boundary_edges,
+            report.non_manifold_edges,
+            report.non_manifold_vertices,
+            report.euler_characteristic,
+            &sizes[..sizes.len().min(8)]
+        );
         let c = chamfer_distance(&oriented.points, &out.mesh).unwrap_or_default();
         let d = model.diagonal;
         println!(

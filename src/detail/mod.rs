@@ -86,10 +86,10 @@ pub struct DetailParams {
     /// A cell is split while the largest |Q|/|∇Q| over its ball's points exceeds this fraction
     /// of the data diagonal. Default 2e-3.
     pub tolerance: f64,
-    /// The tolerance used instead of `tolerance` for the cells of the two deepest levels
-    /// (`max_depth − 1` and `max_depth`), where a finer fit is cheap because few points remain
-    /// to fit: a cell at level `max_depth − 2` is split when its error exceeds this. Default
-    /// 1e-3; set it equal to `tolerance` for one tolerance throughout.
+    /// The tolerance used instead of `tolerance` for the cells of levels ≥ `max_depth − 2`
+    /// (the deepest three), where few points remain per cell and a tighter fit is cheap.
+    /// Default 1e-3; set it equal to `tolerance` for one tolerance throughout. (With the default
+    /// `max_depth` 10 the bunny stops at level 7, so there it does not come into play.)
     pub finest_tolerance: f64,
     /// Deepest octree level (the root cube is level 0). Default 10.
     pub max_depth: u32,
