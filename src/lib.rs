@@ -14,6 +14,7 @@
 
 pub mod cache;
 pub mod cloud;
+pub mod detail;
 pub mod distance;
 pub mod export;
 pub mod fit;

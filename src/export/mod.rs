@@ -19,6 +19,7 @@
 pub mod exr;
 pub mod gltf;
 pub mod model;
+pub mod mpu;
 pub mod ply;
 pub mod png;
 

@@ -1,0 +1,269 @@
+//! The local fit of the `detail` stage: one low-degree 3LRR polynomial on the points of one ball.
+//!
+//! Input: the points and unit outward normals that fall in a ball, optional auxiliary
+//! off-surface points with target values, a degree (≤ 4), ε and κ. Output: an
+//! [`ImplicitPolynomial`] in input coordinates that is close to a signed distance near the data
+//! (negative inside), and the largest data residual |Q|/|∇Q| in the ball.
+//!
+//! Method (Sahin & Unel 2008, sections 2.2, 5.5 and 6.6, applied locally as Ohtake et al.,
+//! *Multi-level partition of unity implicits*, SIGGRAPH 2003, apply their local quadrics):
+//!
+//! 1. Local radial normalization: μ the centroid of the ball's points, s their mean distance
+//!    to μ; every point is mapped to p̂ = (p − μ)/s.
+//! 2. 3L rows: p̂ (target 0), p̂ + εn (target +ε), p̂ − εn (target −ε); each auxiliary point q
+//!    adds the row q̂ with target t/s, t its estimated signed distance in input units.
+//! 3. Ridge regression with the Euclidean-invariant diagonal D of the paper (6.18), β computed
+//!    over the ball's data points: a = (MᵀM + κD)⁻¹Mᵀb, solved by Cholesky (c ≤ 35 unknowns,
+//!    and κD > 0 keeps the system positive definite).
+//! 4. Carried to input units: Q(p) = s·Q̂((p − μ)/s), then divided by the mean |∇Q| over the
+//!    ball's points so that |∇Q| ≈ 1 on the data and Q is close to a signed distance there; this
+//!    rescaling does not move the zero set, it only balances the blend.
+//!
+//! Invariants: the returned polynomial has finite coefficients and scale > 0; a system that
+//! cannot be solved returns `None` (never a panic).
+
+use crate::poly::{n_coefficients, ImplicitPolynomial};
+use crate::polygonize::ImplicitFunction;
+
+/// One auxiliary off-surface point: its position (input coordinates) and target value (an
+/// estimate of its signed distance, input units).
+pub(crate) type AuxPoint = ([f64; 3], f64);
+
+/// A fitted local polynomial and how well it matches its ball's data.
+pub(crate) struct LocalFit {
+    /// The local function, ≈ signed distance in input units.
+    pub poly: ImplicitPolynomial,
+    /// Largest |Q(p)|/|∇Q(p)| over the data points the caller asked to measure, input units.
+    pub max_error: f64,
+}
+
+/// The monomials of degree ≤ `n` at `q` in the paper's order (see [`crate::poly`]).
+pub(crate) fn monomials(n: usize, q: [f64; 3], out: &mut [f64]) {
+    let mut px = [1.0; 5];
+    let mut py = [1.0; 5];
+    let mut pz = [1.0; 5];
+    for e in 1..=n {
+        px[e] = px[e - 1] * q[0];
+        py[e] = py[e - 1] * q[1];
+        pz[e] = pz[e - 1] * q[2];
+    }
+    let mut l = 0;
+    for r in 0..=n {
+        for s in 0..=r {
+            for k in 0..=s {
+                out[l] = px[r - s] * py[s - k] * pz[k];
+                l += 1;
+            }
+        }
+    }
+}
+
+/// Fits a local polynomial of degree `degree` (≤ 4) to the points `ball` (indices into
+/// `points`/`normals`) and the auxiliary rows `aux`. `fallback_scale` is used as s when the
+/// points all coincide. The error is measured over `measure` (indices).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn fit_local(
+    points: &[[f64; 3]],
+    normals: &[[f64; 3]],
+    ball: &[u32],
+    measure: &[u32],
+    aux: &[AuxPoint],
+    degree: u32,
+    epsilon: f64,
+    kappa: f64,
+    fallback_scale: f64,
+) -> Option<LocalFit> {
+    if ball.is_empty() || degree > 4 {
+        return None;
+    }
+    let n = degree as usize;
+    let c = n_coefficients(degree);
+    // 1. Local radial normalization.
+    let mut mu = [0.0; 3];
+    for &i in ball {
+        let p = points[i as usize];
+        for a in 0..3 {
+            mu[a] += p[a];
+        }
+    }
+    let inv = 1.0 / ball.len() as f64;
+    mu = mu.map(|v| v * inv);
+    let mut s = 0.0;
+    for &i in ball {
+        s += dist(points[i as usize], mu);
+    }
+    s *= inv;
+    if !(s > 1e-12 * fallback_scale && s.is_finite()) {
+        s = fallback_scale;
+    }
+    if !(s > 0.0 && s.is_finite()) {
+        return None;
+    }
+    let norm = |p: [f64; 3]| [0, 1, 2].map(|a| (p[a] - mu[a]) / s);
+
+    // 2. Normal equations MᵀM (upper triangle, row-major c×c) and Mᵀb.
+    let mut ata = [0.0; 35 * 35];
+    let mut atb = [0.0; 35];
+    let mut beta = [0.0; 5];
+    let mut m = [0.0; 35];
+    let mut add_row = |q: [f64; 3], target: f64, ata: &mut [f64; 35 * 35], atb: &mut [f64; 35]| {
+        monomials(n, q, &mut m);
+        for i in 0..c {
+            let mi = m[i];
+            if mi == 0.0 {
+                continue;
+            }
+            atb[i] += mi * target;
+            let row = &mut ata[i * c..i * c + c];
+            for j in i..c {
+                row[j] += mi * m[j];
+            }
+        }
+    };
+    for &i in ball {
+        let q = norm(points[i as usize]);
+        let nv = normals[i as usize];
+        let r2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
+        let mut pw = 1.0;
+        for b in beta.iter_mut().take(n + 1) {
+            *b += pw;
+            pw *= r2;
+        }
+        add_row(q, 0.0, &mut ata, &mut atb);
+        let out = [0, 1, 2].map(|a| q[a] + epsilon * nv[a]);
+        add_row(out, epsilon, &mut ata, &mut atb);
+        let inn = [0, 1, 2].map(|a| q[a] - epsilon * nv[a]);
+        add_row(inn, -epsilon, &mut ata, &mut atb);
+    }
+    for &(p, t) in aux {
+        add_row(norm(p), t / s, &mut ata, &mut atb);
+    }
+    // 3. Ridge term κD, D_ll = β_{|α|}/T_α (paper 6.18).
+    let mut l = 0;
+    for (r, &beta_r) in beta.iter().enumerate().take(n + 1) {
+        for s_ in 0..=r {
+            for k in 0..=s_ {
+                let (i, j) = (r - s_, s_ - k);
+                let t = factorial(r) / (factorial(i) * factorial(j) * factorial(k));
+                ata[l * c + l] += kappa * beta_r / t;
+                l += 1;
+            }
+        }
+    }
+    let a = cholesky_solve(&mut ata[..c * c], &mut atb[..c], c)?;
+
+    // 4. Input units, unit gradient on the data.
+    let coefficients: Vec<f64> = a.iter().map(|v| v * s).collect();
+    let mut poly = ImplicitPolynomial {
+        degree,
+        coefficients,
+        center: mu,
+        scale: s,
+    };
+    let mut gsum = 0.0;
+    for &i in ball {
+        let (_, g) = poly.value_gradient(points[i as usize]);
+        gsum += (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+    }
+    let gmean = gsum * inv;
+    if gmean > 1e-3 && gmean.is_finite() {
+        for v in poly.coefficients.iter_mut() {
+            *v /= gmean;
+        }
+    }
+    if poly.coefficients.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let mut max_error: f64 = 0.0;
+    for &i in measure {
+        let (f, g) = poly.value_gradient(points[i as usize]);
+        let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+        let e = if gn > 0.0 {
+            f.abs() / gn
+        } else {
+            f64::INFINITY
+        };
+        max_error = max_error.max(e);
+    }
+    Some(LocalFit { poly, max_error })
+}
+
+fn factorial(k: usize) -> f64 {
+    (1..=k).map(|v| v as f64).product()
+}
+
+fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// Solves the symmetric positive definite system whose upper triangle is in `a` (row-major
+/// `c × c`) with right-hand side `b`, by Cholesky. `None` when it is not positive definite.
+fn cholesky_solve(a: &mut [f64], b: &mut [f64], c: usize) -> Option<Vec<f64>> {
+    // Factor A = UᵀU in place (U upper).
+    for i in 0..c {
+        let mut d = a[i * c + i];
+        for k in 0..i {
+            d -= a[k * c + i] * a[k * c + i];
+        }
+        if !(d > 0.0 && d.is_finite()) {
+            return None;
+        }
+        let d = d.sqrt();
+        a[i * c + i] = d;
+        for j in i + 1..c {
+            let mut v = a[i * c + j];
+            for k in 0..i {
+                v -= a[k * c + i] * a[k * c + j];
+            }
+            a[i * c + j] = v / d;
+        }
+    }
+    // Uᵀy = b.
+    for i in 0..c {
+        let mut v = b[i];
+        for k in 0..i {
+            v -= a[k * c + i] * b[k];
+        }
+        b[i] = v / a[i * c + i];
+    }
+    // Ux = y.
+    for i in (0..c).rev() {
+        let mut v = b[i];
+        for k in i + 1..c {
+            v -= a[i * c + k] * b[k];
+        }
+        b[i] = v / a[i * c + i];
+    }
+    Some(b.to_vec())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn monomials_follow_the_paper_order() {
+        let mut m = [0.0; 10];
+        monomials(2, [2.0, 3.0, 5.0], &mut m);
+        assert_eq!(m, [1.0, 2.0, 3.0, 5.0, 4.0, 6.0, 10.0, 9.0, 15.0, 25.0]);
+    }
+
+    #[test]
+    fn plane_patch_gives_signed_distance() {
+        // Points on z = 0.5 with normals +z: Q ≈ z − 0.5 with unit gradient.
+        let mut points = Vec::new();
+        for i in 0..10 {
+            for j in 0..10 {
+                points.push([i as f64 * 0.1, j as f64 * 0.1, 0.5]);
+            }
+        }
+        let normals = vec![[0.0, 0.0, 1.0]; points.len()];
+        let idx: Vec<u32> = (0..points.len() as u32).collect();
+        let fit = fit_local(&points, &normals, &idx, &idx, &[], 2, 0.3, 1e-2, 1.0).unwrap();
+        assert!(fit.max_error < 1e-6, "{}", fit.max_error);
+        for p in [[0.4, 0.4, 0.6], [0.5, 0.3, 0.45]] {
+            let v = fit.poly.eval(p);
+            assert!((v - (p[2] - 0.5)).abs() < 1e-3, "{v}");
+        }
+    }
+}

@@ -1,0 +1,616 @@
+//! Stage `fit` in detail mode: an [`OrientedCloud`] → [`MpuModel`], a multi-level partition of
+//! unity of local low-degree 3LRR fits, for scans whose fine detail one global polynomial cannot
+//! carry.
+//!
+//! Input: points with unit outward normals (input coordinates) and [`DetailParams`]. Output: an
+//! [`MpuModel`], f = Σ wᵢQᵢ / Σ wᵢ (f < 0 inside, f > 0 outside, ≈ signed distance in input
+//! units near the data), which implements [`ImplicitFunction`] so that
+//! [`crate::polygonize::polygonize`] meshes it over [`MpuModel::region`].
+//!
+//! Invariants: every leaf cell of the octree carries one ball and one local polynomial with
+//! finite coefficients; the balls cover the root cube, hence the meshing region, so Σ wᵢ > 0
+//! there; where no ball reaches (outside the root cube) f is the positive constant
+//! [`MpuModel::diagonal`]; the model is a deterministic function of the input and the params,
+//! whatever the thread count (children are fitted in parallel but collected in a fixed order).
+//!
+//! # Algorithm (Ohtake, Belyaev, Alexa, Turk & Seidel, *Multi-level partition of unity
+//! implicits*, SIGGRAPH 2003, with the local fits of Sahin & Unel 2008)
+//!
+//! ```text
+//! root cube: side 1.2 × the data's largest extent, centred on the data box
+//! cell (side h) ── ball: centre = cell centre, R = 0.75·√3·h
+//!   │               fewer than N_min = max(15, ⌈1.2·c⌉) points in the ball?
+//!   │                 → fit the N_min nearest points instead (the "grown" ball), at degree ≤ 2,
+//!   │                   and never split; the weight keeps the support R
+//!   ├─ local 3LRR fit on the ball's points (+ auxiliary rows, see below)
+//!   ├─ max |Q|/|∇Q| over the ball's points > tolerance · diagonal and depth < max_depth
+//!   │    → split into 8 children (each child's ball lies inside its parent's)
+//!   └─ otherwise → leaf: (ball, Q) joins the blend
+//! ```
+//!
+//! Safeguards against spurious pieces, from the issue's prototype: every cell's centre and
+//! corners become auxiliary rows whose target is the mean tangent-plane distance nⱼ·(q − pⱼ) of
+//! the 6 nearest data points, kept only where those 6 agree in sign (MPU's off-surface points);
+//! grown cells are fitted at degree 2 at most and never subdivided; the local ridge κ ≈ 1e-2
+//! keeps each local fit tame away from its data.
+//!
+//! Blend weights: wᵢ(p) = b(3|p − cᵢ|/(2Rᵢ)), b the quadratic B-spline (see [`index`]).
+
+mod chamfer;
+mod index;
+mod local;
+
+pub use chamfer::{chamfer_distance, ChamferDistance};
+pub use index::BallIndex;
+
+use std::num::NonZero;
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::cloud::{Aabb, OrientedCloud};
+use crate::poly::{n_coefficients, ImplicitPolynomial};
+#[cfg(doc)]
+use crate::polygonize::ImplicitFunction;
+
+use local::{fit_local, AuxPoint};
+
+/// Version of this stage's algorithm; if you change any input to its cache key or anything
+/// that changes its output for the same input and params, bump it.
+pub const STAGE_VERSION: u32 = 1;
+
+/// Levels near the root whose children are fitted in parallel (8³ tasks at most).
+const PARALLEL_LEVELS: u32 = 3;
+
+/// Nearest data points used to estimate an auxiliary point's signed distance.
+const AUX_NEIGHBOURS: usize = 6;
+
+/// Whether cells get MPU's auxiliary off-surface rows.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum AuxiliaryPoints {
+    /// The cell's centre and its 8 corners, each kept where its 6 nearest data points agree on
+    /// its side (the default).
+    #[default]
+    CentreAndCorners,
+    /// None (for comparison: without them, empty-space cells may extrapolate with either sign).
+    None,
+}
+
+/// Parameters of the detail fit. Lengths are relative to the diagonal of the data's bounding
+/// box unless stated otherwise.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DetailParams {
+    /// Degree of the local polynomials: 2, 3 or 4 (grown cells use 2 at most). Default 2.
+    pub degree: u32,
+    /// A cell is split while the largest |Q|/|∇Q| over its ball's points exceeds this fraction
+    /// of the data diagonal. Default 2e-3.
+    pub tolerance: f64,
+    /// The tolerance used instead of `tolerance` for the cells of levels ≥ `max_depth − 2`
+    /// (the deepest three), where few points remain per cell and a tighter fit is cheap.
+    /// Default 1e-3; set it equal to `tolerance` for one tolerance throughout. (With the default
+    /// `max_depth` 10 the bunny stops at level 7, so there it does not come into play.)
+    pub finest_tolerance: f64,
+    /// Deepest octree level (the root cube is level 0). Default 10.
+    pub max_depth: u32,
+    /// Offset of the 3L layers, in each ball's normalized units (mean radius of its points).
+    /// Default 0.3.
+    pub epsilon: f64,
+    /// Ridge weight κ of every local fit (relative, as in the global fit). Default 1e-2.
+    pub kappa: f64,
+    /// Ball radius as a multiple of the cell's diagonal (Ohtake et al.'s α). Default 0.75.
+    pub support: f64,
+    /// Auxiliary off-surface rows. Default: centre and corners.
+    pub auxiliary: AuxiliaryPoints,
+}
+
+impl Default for DetailParams {
+    fn default() -> Self {
+        DetailParams {
+            degree: 2,
+            tolerance: 2e-3,
+            finest_tolerance: 1e-3,
+            max_depth: 10,
+            epsilon: 0.3,
+            kappa: 1e-2,
+            support: 0.75,
+            auxiliary: AuxiliaryPoints::CentreAndCorners,
+        }
+    }
+}
+
+impl DetailParams {
+    /// Canonical bytes for the cache key: every field, little-endian, in declaration order.
+    ///
+    /// ```
+    /// use stablesurf::detail::DetailParams;
+    /// let a = DetailParams::default();
+    /// let b = DetailParams { degree: 3, ..Default::default() };
+    /// assert_eq!(a.to_bytes(), DetailParams::default().to_bytes());
+    /// assert_ne!(a.to_bytes(), b.to_bytes());
+    /// ```
+    pub fn to_bytes(&self) -> Vec<u8> {
+        let mut out = b"detail-params-v1".to_vec();
+        out.extend_from_slice(&self.degree.to_le_bytes());
+        for v in [
+            self.tolerance,
+            self.finest_tolerance,
+            self.epsilon,
+            self.kappa,
+            self.support,
+        ] {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        out.extend_from_slice(&self.max_depth.to_le_bytes());
+        out.push(match self.auxiliary {
+            AuxiliaryPoints::CentreAndCorners => 1,
+            AuxiliaryPoints::None => 0,
+        });
+        out
+    }
+}
+
+/// Errors of the detail fit.
+#[derive(Debug, thiserror::Error)]
+pub enum DetailError {
+    /// Too few points for one local fit; use a denser scan or the global mode.
+    #[error("detail mode needs at least {min} points, the cloud has {n_points}")]
+    TooFewPoints {
+        /// Points given.
+        n_points: usize,
+        /// Points needed.
+        min: usize,
+    },
+    /// The cloud has a NaN or infinite coordinate or normal (or a normal that is not unit
+    /// length); clean the scan or re-estimate the normals.
+    #[error("point {index} has a non-finite coordinate or a normal that is not unit length")]
+    NonFinite {
+        /// Index of the first bad point.
+        index: usize,
+    },
+    /// The points and normals differ in number.
+    #[error("{n_points} points but {n_normals} normals")]
+    LengthMismatch {
+        /// Points.
+        n_points: usize,
+        /// Normals.
+        n_normals: usize,
+    },
+    /// All points coincide.
+    #[error("all points coincide: the data has no extent")]
+    Degenerate,
+    /// A parameter is out of range; the message names it and its range.
+    #[error("invalid parameter: {0}")]
+    InvalidParams(String),
+    /// A local system could not be solved (only with κ = 0 on degenerate balls); raise --kappa.
+    #[error("the local fit of a level-{level} cell at {center:?} failed: raise kappa")]
+    LocalFit {
+        /// The cell's level.
+        level: u32,
+        /// The cell's centre.
+        center: [f64; 3],
+    },
+}
+
+/// One leaf of the MPU octree: a ball and its local function.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MpuCell {
+    /// Ball centre (the octree cell's centre), input coordinates.
+    pub center: [f64; 3],
+    /// Support radius of the cell's weight, input units: 0.75·√3·(cell side), so the balls of
+    /// the leaves cover the root cube.
+    pub radius: f64,
+    /// Radius of the ball whose points were fitted: `radius`, or larger for a grown cell (the
+    /// distance to its N_min-th nearest point).
+    pub fit_radius: f64,
+    /// Octree level of the cell (0 = root cube).
+    pub level: u32,
+    /// Whether the ball was grown to reach enough points (such cells have degree ≤ 2).
+    pub grown: bool,
+    /// The local fit, with its own centre/scale normalization, scaled so that it is close to a
+    /// signed distance in input units near its data (negative inside).
+    pub poly: ImplicitPolynomial,
+}
+
+/// What the detail fit did and how well the blend matches the data.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct DetailDiagnostics {
+    /// Data points.
+    pub points: usize,
+    /// Leaf cells (balls in the blend).
+    pub cells: usize,
+    /// Octree cells fitted, leaves and split cells together.
+    pub fitted_cells: usize,
+    /// Leaves whose ball was grown.
+    pub grown_cells: usize,
+    /// Deepest level reached.
+    pub depth_reached: u32,
+    /// Auxiliary rows kept (their 6 neighbours agreed in sign).
+    pub auxiliary_kept: usize,
+    /// Auxiliary candidates dropped (neighbours disagreed).
+    pub auxiliary_dropped: usize,
+    /// Largest |f|/|∇f| of the blend over the data points, relative to the diagonal.
+    pub max_residual: f64,
+    /// Mean |f|/|∇f| of the blend over the data points, relative to the diagonal.
+    pub mean_residual: f64,
+    /// Largest local error max |Qᵢ|/|∇Qᵢ| over the leaves that were not grown, relative to the
+    /// diagonal (the split criterion's figure).
+    pub max_local_error: f64,
+}
+
+/// The detail model: the leaves of the MPU octree and an index for fast evaluation.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MpuModel {
+    /// The meshing region: the data box grown by 10% per side (input coordinates).
+    pub region: Aabb,
+    /// The root cube of the octree (input coordinates).
+    pub root: Aabb,
+    /// Diagonal of the data's bounding box (input units); also the value of f where no ball
+    /// reaches.
+    pub diagonal: f64,
+    /// The leaves, in depth-first octree order.
+    pub cells: Vec<MpuCell>,
+    /// What the fit did.
+    pub diagnostics: DetailDiagnostics,
+    /// Ball hierarchy over `cells` (derived: rebuild it with [`MpuModel::new`] after editing
+    /// `cells`).
+    pub index: BallIndex,
+}
+
+impl MpuModel {
+    /// Assembles a model from its parts and builds the evaluation index.
+    pub fn new(
+        region: Aabb,
+        root: Aabb,
+        diagonal: f64,
+        cells: Vec<MpuCell>,
+        diagnostics: DetailDiagnostics,
+    ) -> MpuModel {
+        let index = BallIndex::new(&cells);
+        MpuModel {
+            region,
+            root,
+            diagonal,
+            cells,
+            diagnostics,
+            index,
+        }
+    }
+}
+
+/// Shared read-only state of one fit.
+struct Ctx<'a> {
+    points: &'a [[f64; 3]],
+    normals: &'a [[f64; 3]],
+    tree: ImmutableKdTree<f64, 3>,
+    params: &'a DetailParams,
+    diagonal: f64,
+    n_min: usize,
+    n_min_grown: usize,
+}
+
+/// What a subtree of the octree produced.
+#[derive(Default)]
+struct Part {
+    cells: Vec<MpuCell>,
+    fitted: usize,
+    aux_kept: usize,
+    aux_dropped: usize,
+    max_local_error: f64,
+    error: Option<DetailError>,
+}
+
+impl Part {
+    fn append(&mut self, other: Part) {
+        let Part {
+            mut cells,
+            fitted,
+            aux_kept,
+            aux_dropped,
+            max_local_error,
+            error,
+        } = other;
+        self.cells.append(&mut cells);
+        self.fitted += fitted;
+        self.aux_kept += aux_kept;
+        self.aux_dropped += aux_dropped;
+        self.max_local_error = self.max_local_error.max(max_local_error);
+        if self.error.is_none() {
+            self.error = error;
+        }
+    }
+}
+
+/// Fits the detail model.
+///
+/// # Errors
+/// [`DetailError::TooFewPoints`], [`DetailError::NonFinite`], [`DetailError::LengthMismatch`],
+/// [`DetailError::Degenerate`], [`DetailError::InvalidParams`], and
+/// [`DetailError::LocalFit`] when a local system is singular (only possible with κ = 0).
+///
+/// ```
+/// use stablesurf::detail::{fit_detail, DetailParams};
+/// use stablesurf::fit::study::{sample, Shape, Variant};
+/// use stablesurf::polygonize::ImplicitFunction;
+/// let cloud = sample(Shape::Sphere, Variant::Clean, 500, 1);
+/// let model = fit_detail(&cloud, &DetailParams::default()).unwrap();
+/// assert!(model.value([0.0, 0.0, 0.0]) < 0.0); // inside
+/// assert!(model.value([1.5, 0.0, 0.0]) > 0.0); // outside
+/// assert!((model.value([1.1, 0.0, 0.0]) - 0.1).abs() < 0.02); // ≈ signed distance
+/// ```
+pub fn fit_detail(cloud: &OrientedCloud, params: &DetailParams) -> Result<MpuModel, DetailError> {
+    validate_params(params)?;
+    let n = cloud.points.len();
+    if cloud.normals.len() != n {
+        return Err(DetailError::LengthMismatch {
+            n_points: n,
+            n_normals: cloud.normals.len(),
+        });
+    }
+    let n_min = ((1.2 * n_coefficients(params.degree) as f64).ceil() as usize).max(15);
+    let n_min_grown = ((1.2 * n_coefficients(params.degree.min(2)) as f64).ceil() as usize).max(15);
+    if n < n_min {
+        return Err(DetailError::TooFewPoints {
+            n_points: n,
+            min: n_min,
+        });
+    }
+    for (i, (p, nv)) in cloud.points.iter().zip(&cloud.normals).enumerate() {
+        let len2 = nv[0] * nv[0] + nv[1] * nv[1] + nv[2] * nv[2];
+        if p.iter().chain(nv).any(|v| !v.is_finite()) || (len2 - 1.0).abs() > 1e-3 {
+            return Err(DetailError::NonFinite { index: i });
+        }
+    }
+    let data_box = Aabb::from_points(&cloud.points).ok_or(DetailError::Degenerate)?;
+    let diagonal = data_box.diagonal();
+    let extent = (0..3)
+        .map(|a| data_box.max[a] - data_box.min[a])
+        .fold(0.0, f64::max);
+    if !(extent > 0.0 && diagonal.is_finite()) {
+        return Err(DetailError::Degenerate);
+    }
+    let side = 1.2 * extent;
+    let center = data_box.center();
+    let root = Aabb {
+        min: center.map(|c| c - 0.5 * side),
+        max: center.map(|c| c + 0.5 * side),
+    };
+    let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&cloud.points)
+        .map_err(|e| DetailError::InvalidParams(format!("cannot index the points: {e}")))?;
+    let ctx = Ctx {
+        points: &cloud.points,
+        normals: &cloud.normals,
+        tree,
+        params,
+        diagonal,
+        n_min,
+        n_min_grown,
+    };
+    let all: Vec<u32> = (0..n as u32).collect();
+    let part = visit(&ctx, center, side, 0, &all);
+    if let Some(e) = part.error {
+        return Err(e);
+    }
+    let grown_cells = part.cells.iter().filter(|c| c.grown).count();
+    let depth_reached = part.cells.iter().map(|c| c.level).max().unwrap_or(0);
+    let diagnostics = DetailDiagnostics {
+        points: n,
+        cells: part.cells.len(),
+        fitted_cells: part.fitted,
+        grown_cells,
+        depth_reached,
+        auxiliary_kept: part.aux_kept,
+        auxiliary_dropped: part.aux_dropped,
+        max_residual: 0.0,
+        mean_residual: 0.0,
+        max_local_error: part.max_local_error / diagonal,
+    };
+    let mut model = MpuModel::new(data_box.grown(0.1), root, diagonal, part.cells, diagnostics);
+    let (max_residual, mean_residual) = data_residuals(&model, &cloud.points);
+    model.diagnostics.max_residual = max_residual / diagonal;
+    model.diagnostics.mean_residual = mean_residual / diagonal;
+    Ok(model)
+}
+
+fn validate_params(params: &DetailParams) -> Result<(), DetailError> {
+    let bad = |m: String| Err(DetailError::InvalidParams(m));
+    if !(2..=4).contains(&params.degree) {
+        return bad(format!("degree is {}, choose 2, 3 or 4", params.degree));
+    }
+    for (name, v) in [
+        ("tolerance", params.tolerance),
+        ("finest_tolerance", params.finest_tolerance),
+    ] {
+        if !(v > 0.0 && v < 1.0) {
+            return bad(format!(
+                "{name} is {v}, choose a value in (0, 1), e.g. 2e-3"
+            ));
+        }
+    }
+    if !(1..=20).contains(&params.max_depth) {
+        return bad(format!(
+            "max_depth is {}, choose a value from 1 to 20",
+            params.max_depth
+        ));
+    }
+    if !(params.epsilon > 0.0 && params.epsilon <= 2.0) {
+        return bad(format!(
+            "epsilon is {}, choose a value in (0, 2], e.g. 0.3",
+            params.epsilon
+        ));
+    }
+    if !(params.kappa >= 0.0 && params.kappa.is_finite()) {
+        return bad(format!(
+            "kappa is {}, choose a value ≥ 0, e.g. 1e-2",
+            params.kappa
+        ));
+    }
+    if !(params.support >= 0.6 && params.support <= 2.0) {
+        return bad(format!(
+            "support is {}, choose a value in [0.6, 2], e.g. 0.75 (below 0.5 the balls would not cover their cells)",
+            params.support
+        ));
+    }
+    Ok(())
+}
+
+/// Largest and mean |f|/|∇f| of the blend over `points` (fixed chunks, ordered reduction).
+fn data_residuals(model: &MpuModel, points: &[[f64; 3]]) -> (f64, f64) {
+    use crate::polygonize::ImplicitFunction;
+    let per_chunk: Vec<(f64, f64)> = points
+        .par_chunks(4096)
+        .map(|chunk| {
+            let (mut max, mut sum): (f64, f64) = (0.0, 0.0);
+            for &p in chunk {
+                let (f, g) = model.value_gradient(p);
+                let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+                let e = if gn > 0.0 { f.abs() / gn } else { f.abs() };
+                max = max.max(e);
+                sum += e;
+            }
+            (max, sum)
+        })
+        .collect();
+    let max = per_chunk.iter().map(|c| c.0).fold(0.0, f64::max);
+    let sum: f64 = per_chunk.iter().map(|c| c.1).sum();
+    (max, sum / points.len().max(1) as f64)
+}
+
+/// Fits the cell of side `side` centred at `center` at `level`, whose parent's ball holds
+/// `parent_ball`, and recurses.
+fn visit(ctx: &Ctx, center: [f64; 3], side: f64, level: u32, parent_ball: &[u32]) -> Part {
+    let params = ctx.params;
+    let radius = params.support * 3f64.sqrt() * side;
+    let mut fit_radius = radius;
+    let r2 = radius * radius;
+    let mut ball: Vec<u32> = parent_ball
+        .iter()
+        .copied()
+        .filter(|&i| dist2(ctx.points[i as usize], center) < r2)
+        .collect();
+    let mut part = Part::default();
+    let grown = ball.len() < ctx.n_min;
+    let measure = ball.clone();
+    let degree = if grown {
+        params.degree.min(2)
+    } else {
+        params.degree
+    };
+    if grown {
+        let k = if degree < params.degree {
+            ctx.n_min_grown
+        } else {
+            ctx.n_min
+        };
+        let Some(k_nz) = NonZero::new(k) else {
+            return part;
+        };
+        let nearest = ctx
+            .tree
+            .query(&center)
+            .nearest_n::<SquaredEuclidean<f64>>(k_nz)
+            .execute();
+        ball = nearest.iter().map(|nn| nn.item).collect();
+        let far = nearest
+            .iter()
+            .map(|nn| nn.distance)
+            .fold(0.0, f64::max)
+            .sqrt();
+        fit_radius = radius.max(far * (1.0 + 1e-9));
+    }
+    // MPU's auxiliary rows: the cell's centre and corners.
+    let mut aux: Vec<AuxPoint> = Vec::new();
+    if params.auxiliary == AuxiliaryPoints::CentreAndCorners {
+        let h = 0.5 * side;
+        let mut candidates = vec![center];
+        for corner in 0..8 {
+            candidates
+                .push([0, 1, 2].map(|a| center[a] + if (corner >> a) & 1 == 1 { h } else { -h }));
+        }
+        let k = NonZero::new(AUX_NEIGHBOURS).unwrap_or(NonZero::<usize>::MIN);
+        for q in candidates {
+            let nearest = ctx
+                .tree
+                .query(&q)
+                .nearest_n::<SquaredEuclidean<f64>>(k)
+                .execute();
+            let mut sum = 0.0;
+            let (mut pos, mut neg) = (0, 0);
+            for nn in &nearest {
+                let p = ctx.points[nn.item as usize];
+                let nv = ctx.normals[nn.item as usize];
+                let d = nv[0] * (q[0] - p[0]) + nv[1] * (q[1] - p[1]) + nv[2] * (q[2] - p[2]);
+                sum += d;
+                if d > 0.0 {
+                    pos += 1;
+                } else if d < 0.0 {
+                    neg += 1;
+                }
+            }
+            if nearest.len() == AUX_NEIGHBOURS && (pos == AUX_NEIGHBOURS || neg == AUX_NEIGHBOURS) {
+                aux.push((q, sum / AUX_NEIGHBOURS as f64));
+                part.aux_kept += 1;
+            } else {
+                part.aux_dropped += 1;
+            }
+        }
+    }
+    let Some(fit) = fit_local(
+        ctx.points,
+        ctx.normals,
+        &ball,
+        if grown { &ball } else { &measure },
+        &aux,
+        degree,
+        params.epsilon,
+        params.kappa,
+        fit_radius,
+    ) else {
+        part.error = Some(DetailError::LocalFit { level, center });
+        return part;
+    };
+    part.fitted = 1;
+    let tolerance = if level + 2 >= params.max_depth {
+        params.finest_tolerance
+    } else {
+        params.tolerance
+    };
+    let split = !grown && level < params.max_depth && fit.max_error > tolerance * ctx.diagonal;
+    if !split {
+        if !grown {
+            part.max_local_error = fit.max_error;
+        }
+        part.cells.push(MpuCell {
+            center,
+            radius,
+            fit_radius,
+            level,
+            grown,
+            poly: fit.poly,
+        });
+        return part;
+    }
+    let quarter = 0.25 * side;
+    let children: Vec<[f64; 3]> = (0..8)
+        .map(|i| [0, 1, 2].map(|a| center[a] + if (i >> a) & 1 == 1 { quarter } else { -quarter }))
+        .collect();
+    let parts: Vec<Part> = if level < PARALLEL_LEVELS {
+        children
+            .par_iter()
+            .map(|&c| visit(ctx, c, 0.5 * side, level + 1, &ball))
+            .collect()
+    } else {
+        children
+            .iter()
+            .map(|&c| visit(ctx, c, 0.5 * side, level + 1, &ball))
+            .collect()
+    };
+    for p in parts {
+        part.append(p);
+    }
+    part
+}
+
+fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
+}
