@@ -305,6 +305,7 @@ fn identical_output_with_one_and_two_threads() {
     let params = PolygonizeParams {
         depth: 6,
         guard_levels: 3,
+        ..PolygonizeParams::default()
     };
     let in_pool = |threads: usize| {
         rayon::ThreadPoolBuilder::new()
@@ -381,6 +382,7 @@ fn topology_guard_finds_a_component_smaller_than_a_cell() {
         &PolygonizeParams {
             depth: 4,
             guard_levels: 3,
+            ..PolygonizeParams::default()
         },
     )
     .expect("valid input");
@@ -393,6 +395,7 @@ fn topology_guard_finds_a_component_smaller_than_a_cell() {
         &PolygonizeParams {
             depth: 4,
             guard_levels: 0,
+            ..PolygonizeParams::default()
         },
     )
     .expect("valid input");
@@ -420,6 +423,7 @@ fn mixed_levels_stay_manifold_around_a_singular_point() {
         &PolygonizeParams {
             depth: 4,
             guard_levels: 3,
+            ..PolygonizeParams::default()
         },
     )
     .expect("valid input");
@@ -449,10 +453,12 @@ fn bad_input_is_an_error() {
         PolygonizeParams {
             depth: 0,
             guard_levels: 0,
+            ..PolygonizeParams::default()
         },
         PolygonizeParams {
             depth: 15,
             guard_levels: 2,
+            ..PolygonizeParams::default()
         },
     ] {
         assert!(polygonize(&f, &region, &params).is_err());

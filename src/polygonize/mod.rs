@@ -58,6 +58,7 @@ pub mod function;
 mod grid;
 mod octree;
 pub mod shapes;
+mod simplify;
 
 pub use function::ImplicitFunction;
 
@@ -118,6 +119,22 @@ pub struct PolygonizeParams {
     /// direction may turn by 90° or more (near singular points, thin necks, tiny components).
     /// 0 disables the guard. Default 3; `depth + guard_levels` ≤ [`MAX_LEVEL`] (16).
     pub guard_levels: u32,
+    /// What is done to the marching-tetrahedra mesh before its vertices are projected.
+    /// Default [`Simplification::EdgeCollapse`].
+    pub simplification: Simplification,
+}
+
+/// Post-processing of the extracted mesh (see the module docs, step 3).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Simplification {
+    /// The marching-tetrahedra mesh as extracted: one vertex per crossed lattice edge, about 3×
+    /// the triangles of marching cubes, many of them slivers.
+    None,
+    /// Topology-safe half-edge collapses of the short edges (link condition, normal-turn,
+    /// edge-length and shape checks): the same topology, boundary and vertex guarantees with
+    /// fewer, better-shaped triangles.
+    #[default]
+    EdgeCollapse,
 }
 
 impl Default for PolygonizeParams {
@@ -125,6 +142,7 @@ impl Default for PolygonizeParams {
         PolygonizeParams {
             depth: 8,
             guard_levels: 3,
+            simplification: Simplification::EdgeCollapse,
         }
     }
 }
@@ -182,12 +200,43 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
     function.validate().map_err(PolygonizeError::InvalidModel)?;
     let grid = Grid::new(*region, params.depth, params.depth + params.guard_levels);
 
+    let t0 = std::time::Instant::now();
     let tree = octree::build(function, &grid);
+    let t1 = std::time::Instant::now();
     let (edges, end_values, triangles, extraction_evaluations) =
         extract::triangulate(function, &grid, &tree);
+    let t2 = std::time::Instant::now();
+    let (edges, end_values, triangles) = match params.simplification {
+        Simplification::None => (edges, end_values, triangles),
+        Simplification::EdgeCollapse => {
+            let (positions, sizes) = extract::approximate_vertices(&grid, &edges, &end_values);
+            let simplified = simplify::simplify(&positions, &sizes, triangles);
+            let mut index = vec![u32::MAX; edges.len()];
+            let mut kept_edges = Vec::new();
+            let mut kept_values = Vec::new();
+            for (i, &keep) in simplified.keep.iter().enumerate() {
+                if keep {
+                    index[i] = kept_edges.len() as u32;
+                    kept_edges.push(edges[i]);
+                    kept_values.push(end_values[i]);
+                }
+            }
+            let triangles = simplified
+                .triangles
+                .iter()
+                .map(|t| t.map(|v| index[v as usize]))
+                .collect();
+            (kept_edges, kept_values, triangles)
+        }
+    };
+    let t25 = std::time::Instant::now();
     let diagonal = region.diagonal();
     let tolerance = PROJECTION_TOLERANCE * diagonal;
     let vertices = extract::place_vertices(function, &grid, &edges, &end_values, tolerance);
+    let t3 = std::time::Instant::now();
+    if std::env::var_os("PZ_TIMING").is_some() {
+        eprintln!("octree {:?} extract {:?} simplify {:?} place {:?}", t1 - t0, t2 - t1, t25 - t2, t3 - t25);
+    }
     let mesh = TriangleMesh {
         positions: vertices.iter().map(|v| v.position).collect(),
         normals: vertices.iter().map(|v| v.normal).collect(),
