@@ -92,8 +92,8 @@ fn model_file(path: &str, depth: u32) {
     let mut result = None;
     for _ in 0..3 {
         let start = std::time::Instant::now();
-        let out = polygonize(&model.polynomial, &region, &params)
-            .unwrap_or_else(|e| fail(e.to_string()));
+        let out =
+            polygonize(&model.polynomial, &region, &params).unwrap_or_else(|e| fail(e.to_string()));
         best = best.min(start.elapsed().as_secs_f64());
         result = Some(out);
     }

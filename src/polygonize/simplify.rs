@@ -99,12 +99,65 @@ fn shape(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> (f64, [f64; 3]) {
     (quality, n)
 }
 
+/// Most triangles a vertex's star holds here; a vertex with more is frozen (never removed, never
+/// a target, never an opposite vertex w₁, w₂ of a collapse), and a collapse that would give the
+/// target more is refused.
+const STAR_CAPACITY: usize = 15;
+
+/// The triangles around one vertex, inline (one cache line).
+#[derive(Clone, Copy)]
+#[repr(align(64))]
+struct Star {
+    len: u32,
+    triangles: [u32; STAR_CAPACITY],
+}
+
+impl Star {
+    const FROZEN: u32 = u32::MAX;
+
+    fn as_slice(&self) -> &[u32] {
+        if self.len == Star::FROZEN {
+            return &[];
+        }
+        &self.triangles[..self.len as usize]
+    }
+
+    fn is_frozen(&self) -> bool {
+        self.len == Star::FROZEN
+    }
+
+    /// Number of triangles (infinite-like for a frozen star).
+    fn count(&self) -> usize {
+        if self.is_frozen() {
+            usize::MAX
+        } else {
+            self.len as usize
+        }
+    }
+
+    fn push(&mut self, t: u32) {
+        // Callers check the capacity first.
+        if let Some(slot) = self.triangles.get_mut(self.len as usize) {
+            *slot = t;
+            self.len += 1;
+        }
+    }
+
+    fn remove(&mut self, t: u32) {
+        let n = self.len as usize;
+        if let Some(k) = self.triangles[..n].iter().position(|&s| s == t) {
+            self.triangles[k] = self.triangles[n - 1];
+            self.len -= 1;
+        }
+    }
+}
+
 /// The mesh with its vertex-to-triangle lists, updated by the collapses.
 struct Mesh<'a> {
     positions: &'a [[f64; 3]],
     triangles: Vec<[u32; 3]>,
     alive: Vec<bool>,
-    around: Vec<Vec<u32>>,
+    around: Vec<Star>,
 }
 
 impl Mesh<'_> {
@@ -113,7 +166,7 @@ impl Mesh<'_> {
     fn link_cycle(&self, u: u32, cycle: &mut Vec<u32>, edges: &mut Vec<(u32, u32)>) -> bool {
         cycle.clear();
         edges.clear();
-        let star = &self.around[u as usize];
+        let star = self.around[u as usize].as_slice();
         if star.len() < 3 {
             return false;
         }
@@ -165,12 +218,22 @@ impl Mesh<'_> {
         let w1 = cycle[(i + n - 1) % n];
         let w2 = cycle[(i + 1) % n];
         // Valence of w₁, w₂ stays at least 3.
-        if self.around[w1 as usize].len() < 4 || self.around[w2 as usize].len() < 4 {
+        let (star_v, star_w1, star_w2) = (
+            &self.around[v as usize],
+            &self.around[w1 as usize],
+            &self.around[w2 as usize],
+        );
+        if star_w1.count() < 4 || star_w2.count() < 4 || star_w1.is_frozen() || star_w2.is_frozen()
+        {
+            return None;
+        }
+        // The target keeps its triangles, loses 2 and gains u's others.
+        if star_v.is_frozen() || star_v.count() + n - 2 > STAR_CAPACITY {
             return None;
         }
         // Link condition: no common neighbour besides w₁ and w₂, and, for a valence-3 u, no
         // triangle (v, w₁, w₂) already.
-        for &t in &self.around[v as usize] {
+        for &t in star_v.as_slice() {
             let tri = self.triangles[t as usize];
             let mut common = 0;
             for x in tri {
@@ -219,14 +282,15 @@ impl Mesh<'_> {
     }
 
     fn collapse(&mut self, u: u32, v: u32) {
-        let star = std::mem::take(&mut self.around[u as usize]);
-        for t in star {
+        let star = self.around[u as usize];
+        self.around[u as usize].len = 0;
+        for &t in star.as_slice() {
             let tri = self.triangles[t as usize];
             if tri.contains(&v) {
                 self.alive[t as usize] = false;
                 for x in tri {
                     if x != u {
-                        self.around[x as usize].retain(|&s| s != t);
+                        self.around[x as usize].remove(t);
                     }
                 }
             } else {
@@ -247,7 +311,6 @@ pub(crate) fn simplify(
     // Renumber the vertices by first use in the triangles (which come leaf by leaf in the
     // octree's depth-first order), so that a vertex, its triangles and its neighbours sit close
     // together in memory.
-    let t0 = std::time::Instant::now();
     let mut new_index = vec![u32::MAX; positions.len()];
     let mut old_index = Vec::with_capacity(positions.len());
     let local_triangles: Vec<[u32; 3]> = triangles
@@ -265,9 +328,7 @@ pub(crate) fn simplify(
         .collect();
     let local_positions: Vec<[f64; 3]> = old_index.iter().map(|&x| positions[x as usize]).collect();
     let local_sizes: Vec<f64> = old_index.iter().map(|&x| sizes[x as usize]).collect();
-    let t1 = std::time::Instant::now();
     let local = simplify_local(&local_positions, &local_sizes, local_triangles);
-    let t2 = std::time::Instant::now();
     let mut keep = vec![true; positions.len()];
     for (&old, &k) in old_index.iter().zip(&local.keep) {
         keep[old as usize] = k;
@@ -277,19 +338,11 @@ pub(crate) fn simplify(
         .iter()
         .map(|t| t.map(|x| old_index[x as usize]))
         .collect();
-    if std::env::var_os("PZ_TIMING").is_some() {
-        eprintln!("renumber {:?} local {:?} back {:?}", t1 - t0, t2 - t1, t2.elapsed());
-    }
     Simplified { keep, triangles }
 }
 
 /// [`simplify`] on vertices numbered by first use.
-fn simplify_local(
-    positions: &[[f64; 3]],
-    sizes: &[f64],
-    triangles: Vec<[u32; 3]>,
-) -> Simplified {
-    let t_start = std::time::Instant::now();
+fn simplify_local(positions: &[[f64; 3]], sizes: &[f64], triangles: Vec<[u32; 3]>) -> Simplified {
     let n_vertices = positions.len();
     let mut valence = vec![0u32; n_vertices];
     for tri in &triangles {
@@ -297,13 +350,22 @@ fn simplify_local(
             valence[x as usize] += 1;
         }
     }
-    let mut around: Vec<Vec<u32>> = valence
+    let mut around: Vec<Star> = valence
         .iter()
-        .map(|&n| Vec::with_capacity(n as usize + 4))
+        .map(|&n| Star {
+            len: if n as usize > STAR_CAPACITY {
+                Star::FROZEN
+            } else {
+                0
+            },
+            triangles: [0; STAR_CAPACITY],
+        })
         .collect();
     for (t, tri) in triangles.iter().enumerate() {
         for &x in tri {
-            around[x as usize].push(t as u32);
+            if !around[x as usize].is_frozen() {
+                around[x as usize].push(t as u32);
+            }
         }
     }
     // Candidates: the shortest edge relative to the local size, below SHORT_EDGE.
@@ -316,7 +378,6 @@ fn simplify_local(
             shortest[b] = shortest[b].min(d / sizes[b]);
         }
     }
-    let ta = std::time::Instant::now();
     let mut order: Vec<(u64, u32)> = shortest
         .iter()
         .enumerate()
@@ -326,7 +387,6 @@ fn simplify_local(
     // Sorted within blocks of consecutive vertices (close in space), so the sweep stays in
     // cache.
     order.sort_unstable_by_key(|&(s, v)| (v / ORDER_BLOCK, s, v));
-    let tb = std::time::Instant::now();
     let mut mesh = Mesh {
         positions,
         alive: vec![true; triangles.len()],
@@ -347,7 +407,7 @@ fn simplify_local(
             mark[x as usize] = stamp;
         }
         let mut old_worst = f64::INFINITY;
-        for &t in &mesh.around[u as usize] {
+        for &t in mesh.around[u as usize].as_slice() {
             let [a, b, c] = mesh.triangles[t as usize].map(|x| positions[x as usize]);
             old_worst = old_worst.min(shape(a, b, c).0);
         }
@@ -376,16 +436,6 @@ fn simplify_local(
             mesh.collapse(u, v);
             keep[u as usize] = false;
         }
-    }
-    if std::env::var_os("PZ_TIMING").is_some() {
-        eprintln!("setup {:?} sort {:?} loop {:?}", ta - t_start, tb - ta, tb.elapsed());
-        let mut hist = [0usize; 8];
-        let mut max = 0;
-        for a in &mesh.around {
-            max = max.max(a.len());
-            hist[(a.len() / 4).min(7)] += 1;
-        }
-        eprintln!("valence hist {hist:?} max {max}, removed {}", keep.iter().filter(|&&k| !k).count());
     }
     let triangles = mesh
         .triangles
