@@ -3,13 +3,15 @@
 //! (about 4× for a surface, 8× would mean the octree refines the volume).
 //!
 //! Run: `cargo run --release --example octree_counts` for the exact models, or
-//! `cargo run --release --example octree_counts -- MODEL.json [DEPTH]` for one model file (its
-//! box is the region), which prints the time (best of 3), the mesh checks and the triangle shape
+//! `cargo run --release --example octree_counts -- MODEL.json [DEPTH] [none]` for one model file
+//! (its box is the region; `none` skips the edge collapses), which prints the time (best of 3), the mesh checks and the triangle shape
 //! statistics (minimum angle, radius ratio 2r/R: 1 for an equilateral triangle, 0 for a sliver).
 
 use std::path::Path;
 
-use stablesurf::polygonize::{polygonize, shapes, ImplicitFunction, PolygonizeParams};
+use stablesurf::polygonize::{
+    polygonize, shapes, ImplicitFunction, PolygonizeParams, Simplification,
+};
 use stablesurf::{Aabb, ImplicitPolynomial, TriangleMesh};
 
 fn fail(message: String) -> ! {
@@ -77,7 +79,7 @@ fn print_quality(mesh: &TriangleMesh) {
     );
 }
 
-fn model_file(path: &str, depth: u32) {
+fn model_file(path: &str, depth: u32, simplification: Simplification) {
     let bytes = std::fs::read(path).unwrap_or_else(|e| fail(format!("reading {path}: {e}")));
     let model = stablesurf::export::model::read_model(&bytes, Path::new(path))
         .unwrap_or_else(|e| fail(e.to_string()));
@@ -86,6 +88,7 @@ fn model_file(path: &str, depth: u32) {
         .unwrap_or_else(|| fail(format!("{path} has no box")));
     let params = PolygonizeParams {
         depth,
+        simplification,
         ..PolygonizeParams::default()
     };
     let mut best = f64::INFINITY;
@@ -139,7 +142,11 @@ fn main() {
             .get(1)
             .map(|d| d.parse().unwrap_or_else(|_| fail(format!("bad depth {d}"))))
             .unwrap_or(8);
-        model_file(path, depth);
+        let simplification = match args.get(2).map(String::as_str) {
+            Some("none") => Simplification::None,
+            _ => Simplification::EdgeCollapse,
+        };
+        model_file(path, depth, simplification);
         return;
     }
     let cases: [(&str, ImplicitPolynomial, Aabb); 3] = [

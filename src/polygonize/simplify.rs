@@ -10,8 +10,8 @@
 //! Euler characteristic and boundary), wound consistently, and its vertices are a subset of the
 //! input's, so they stay on their lattice edges and are projected onto the zero set afterwards
 //! exactly like before; vertices on the mesh boundary (the region's faces) are never removed and
-//! never moved. The work is sequential in a fixed order, so the result does not depend on the
-//! thread count.
+//! never moved. The work is split into fixed chunks of vertices and then one sequential sweep
+//! (see [`simplify_chunked`]), so the result does not depend on the thread count.
 //!
 //! # Why a half-edge collapse keeps the guarantees
 //!
@@ -46,7 +46,7 @@
 const MAX_EDGE: f64 = 1.2;
 
 /// A vertex is a candidate when its shortest edge is below this many local cell sizes.
-const SHORT_EDGE: f64 = 0.5;
+const SHORT_EDGE: f64 = 0.6;
 
 /// Squared mean ratio (see [`shape`]) above which a triangle counts as well shaped (mean ratio
 /// 0.6).
@@ -54,6 +54,10 @@ const GOOD_QUALITY: f64 = 0.36;
 
 /// Cosine of the largest turn of a moved triangle's normal (about 40°).
 const MAX_NORMAL_TURN_COS: f64 = 0.75;
+
+/// Vertices per chunk of the parallel pass (fixed, so the result never depends on the thread
+/// count).
+const CHUNK: usize = 65536;
 
 /// Vertices per block of the visiting order.
 const ORDER_BLOCK: u32 = 1024;
@@ -328,7 +332,7 @@ pub(crate) fn simplify(
         .collect();
     let local_positions: Vec<[f64; 3]> = old_index.iter().map(|&x| positions[x as usize]).collect();
     let local_sizes: Vec<f64> = old_index.iter().map(|&x| sizes[x as usize]).collect();
-    let local = simplify_local(&local_positions, &local_sizes, local_triangles);
+    let local = simplify_chunked(&local_positions, &local_sizes, local_triangles);
     let mut keep = vec![true; positions.len()];
     for (&old, &k) in old_index.iter().zip(&local.keep) {
         keep[old as usize] = k;
@@ -341,8 +345,85 @@ pub(crate) fn simplify(
     Simplified { keep, triangles }
 }
 
-/// [`simplify`] on vertices numbered by first use.
-fn simplify_local(positions: &[[f64; 3]], sizes: &[f64], triangles: Vec<[u32; 3]>) -> Simplified {
+/// [`simplify`] on vertices numbered by first use, in two passes. First, in parallel, each chunk
+/// of [`CHUNK`] consecutive vertices is simplified on its own triangles (those whose three
+/// vertices are all in the chunk), with the vertices that also touch other triangles frozen:
+/// a collapse only reads and writes the stars of u, v, w₁, w₂, which are then complete, and
+/// the triangles of u, which are the chunk's own, so chunks never see each other's changes.
+/// Then one sequential pass over the whole mesh tries the vertices that were frozen. The chunks
+/// are fixed by the numbering, so the result does not depend on the thread count.
+fn simplify_chunked(positions: &[[f64; 3]], sizes: &[f64], triangles: Vec<[u32; 3]>) -> Simplified {
+    use rayon::prelude::*;
+    let n_vertices = positions.len();
+    let n_chunks = n_vertices.div_ceil(CHUNK);
+    let chunk_of = |v: u32| v as usize / CHUNK;
+    let mut border = vec![false; n_vertices];
+    let mut own: Vec<Vec<[u32; 3]>> = vec![Vec::new(); n_chunks];
+    let mut shared = Vec::new();
+    for t in triangles {
+        let c = chunk_of(t[0]);
+        if chunk_of(t[1]) == c && chunk_of(t[2]) == c {
+            own[c].push(t);
+        } else {
+            for x in t {
+                border[x as usize] = true;
+            }
+            shared.push(t);
+        }
+    }
+    let everyone = vec![true; CHUNK];
+    let parts: Vec<Simplified> = own
+        .into_par_iter()
+        .enumerate()
+        .map(|(c, tris)| {
+            let start = c * CHUNK;
+            let end = (start + CHUNK).min(n_vertices);
+            let offset = start as u32;
+            let local: Vec<[u32; 3]> = tris.iter().map(|t| t.map(|x| x - offset)).collect();
+            let part = simplify_local(
+                &positions[start..end],
+                &sizes[start..end],
+                local,
+                &border[start..end],
+                &everyone[..end - start],
+            );
+            Simplified {
+                keep: part.keep,
+                triangles: part
+                    .triangles
+                    .iter()
+                    .map(|t| t.map(|x| x + offset))
+                    .collect(),
+            }
+        })
+        .collect();
+    let mut keep = Vec::with_capacity(n_vertices);
+    let mut merged = shared;
+    for part in parts {
+        keep.extend(part.keep);
+        merged.extend(part.triangles);
+    }
+    let none_frozen = vec![false; n_vertices];
+    let second = simplify_local(positions, sizes, merged, &none_frozen, &border);
+    for (k, &k2) in keep.iter_mut().zip(&second.keep) {
+        *k &= k2;
+    }
+    Simplified {
+        keep,
+        triangles: second.triangles,
+    }
+}
+
+/// Core of [`simplify`]: one sequential sweep.
+/// `frozen[v]`: v may not be touched (its star is incomplete here); `candidate[v]`: v may be
+/// removed.
+fn simplify_local(
+    positions: &[[f64; 3]],
+    sizes: &[f64],
+    triangles: Vec<[u32; 3]>,
+    frozen: &[bool],
+    candidate: &[bool],
+) -> Simplified {
     let n_vertices = positions.len();
     let mut valence = vec![0u32; n_vertices];
     for tri in &triangles {
@@ -352,8 +433,9 @@ fn simplify_local(positions: &[[f64; 3]], sizes: &[f64], triangles: Vec<[u32; 3]
     }
     let mut around: Vec<Star> = valence
         .iter()
-        .map(|&n| Star {
-            len: if n as usize > STAR_CAPACITY {
+        .zip(frozen)
+        .map(|(&n, &frozen)| Star {
+            len: if frozen || n as usize > STAR_CAPACITY {
                 Star::FROZEN
             } else {
                 0
@@ -381,7 +463,7 @@ fn simplify_local(positions: &[[f64; 3]], sizes: &[f64], triangles: Vec<[u32; 3]
     let mut order: Vec<(u64, u32)> = shortest
         .iter()
         .enumerate()
-        .filter(|(_, &s)| s < SHORT_EDGE)
+        .filter(|&(v, &s)| s < SHORT_EDGE && candidate[v])
         .map(|(v, &s)| (s.to_bits(), v as u32))
         .collect();
     // Sorted within blocks of consecutive vertices (close in space), so the sweep stays in
