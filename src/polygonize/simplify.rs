@@ -269,7 +269,7 @@ impl Mesh<'_> {
             let old = cross(sub(pa, pu), sub(pb, pu));
             let (quality, new) = shape(pv, pa, pb);
             let (old2, new2) = (dot(old, old), dot(new, new));
-            if !(new2 > 0.0) {
+            if new2.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
                 return None;
             }
             // cos(turn) ≥ MAX_NORMAL_TURN_COS, squared (the cosine must be positive).
