@@ -7,7 +7,9 @@ use std::collections::HashMap;
 use stablesurf::mesh::{
     check, component_labels, drop_components_far_from, MeshReport, TriangleMesh,
 };
-use stablesurf::polygonize::{polygonize, shapes, ImplicitFunction, PolygonizeParams, Polygonized};
+use stablesurf::polygonize::{
+    polygonize, shapes, ImplicitFunction, PolygonizeParams, Polygonized, Simplification,
+};
 use stablesurf::{Aabb, ImplicitPolynomial};
 
 fn boxed(min: [f64; 3], max: [f64; 3]) -> Aabb {
@@ -305,6 +307,7 @@ fn identical_output_with_one_and_two_threads() {
     let params = PolygonizeParams {
         depth: 6,
         guard_levels: 3,
+        ..PolygonizeParams::default()
     };
     let in_pool = |threads: usize| {
         rayon::ThreadPoolBuilder::new()
@@ -381,6 +384,7 @@ fn topology_guard_finds_a_component_smaller_than_a_cell() {
         &PolygonizeParams {
             depth: 4,
             guard_levels: 3,
+            ..PolygonizeParams::default()
         },
     )
     .expect("valid input");
@@ -393,6 +397,7 @@ fn topology_guard_finds_a_component_smaller_than_a_cell() {
         &PolygonizeParams {
             depth: 4,
             guard_levels: 0,
+            ..PolygonizeParams::default()
         },
     )
     .expect("valid input");
@@ -420,6 +425,7 @@ fn mixed_levels_stay_manifold_around_a_singular_point() {
         &PolygonizeParams {
             depth: 4,
             guard_levels: 3,
+            ..PolygonizeParams::default()
         },
     )
     .expect("valid input");
@@ -449,10 +455,12 @@ fn bad_input_is_an_error() {
         PolygonizeParams {
             depth: 0,
             guard_levels: 0,
+            ..PolygonizeParams::default()
         },
         PolygonizeParams {
             depth: 15,
             guard_levels: 2,
+            ..PolygonizeParams::default()
         },
     ] {
         assert!(polygonize(&f, &region, &params).is_err());
@@ -472,4 +480,57 @@ fn empty_zero_set_gives_an_empty_mesh() {
     let out = run(&f, &region, 6);
     assert!(out.mesh.positions.is_empty() && out.mesh.triangles.is_empty());
     assert_eq!(out.evaluations, 1);
+}
+
+/// Squared mean ratio 12|n|²/(Σ lᵢ²)² of each triangle (1 equilateral, 0 degenerate).
+fn shape_qualities(mesh: &TriangleMesh) -> Vec<f64> {
+    mesh.triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+            let (ab, ac, bc) = (sub(b, a), sub(c, a), sub(c, b));
+            let n = [
+                ab[1] * ac[2] - ab[2] * ac[1],
+                ab[2] * ac[0] - ab[0] * ac[2],
+                ab[0] * ac[1] - ab[1] * ac[0],
+            ];
+            let l = dot(ab, ab) + dot(ac, ac) + dot(bc, bc);
+            12.0 * dot(n, n) / (l * l)
+        })
+        .collect()
+}
+
+#[test]
+fn edge_collapses_about_halve_the_triangles_and_keep_the_topology() {
+    let f = shapes::genus_two();
+    let region = boxed([-1.2, -0.7, -0.2], [1.2, 0.7, 0.2]);
+    let mesh_with = |simplification| {
+        polygonize(
+            &f,
+            &region,
+            &PolygonizeParams {
+                depth: 7,
+                simplification,
+                ..PolygonizeParams::default()
+            },
+        )
+        .expect("valid input")
+    };
+    let plain = mesh_with(Simplification::None);
+    let collapsed = mesh_with(Simplification::EdgeCollapse);
+    assert_closed(&check(&plain.mesh), 1, -2);
+    assert_closed(&check(&collapsed.mesh), 1, -2);
+    let (n_plain, n_collapsed) = (plain.mesh.triangles.len(), collapsed.mesh.triangles.len());
+    assert!(
+        100 * n_collapsed < 55 * n_plain,
+        "{n_collapsed} triangles after collapses, {n_plain} before"
+    );
+    // Fewer slivers (mean ratio below 0.2), in number and in share.
+    let slivers = |m: &TriangleMesh| shape_qualities(m).iter().filter(|&&q| q < 0.04).count();
+    let (s_plain, s_collapsed) = (slivers(&plain.mesh), slivers(&collapsed.mesh));
+    assert!(
+        s_collapsed * n_plain < s_plain * n_collapsed,
+        "slivers {s_collapsed}/{n_collapsed} after, {s_plain}/{n_plain} before"
+    );
+    assert_accurate(&f, &region, 7, &collapsed, first_order(&f));
 }

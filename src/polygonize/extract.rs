@@ -503,6 +503,31 @@ fn emit(
     }
 }
 
+/// For each crossed edge: the root of the linear interpolant of its end values (no evaluation)
+/// and its cell size (the edge's longest extent along one axis, input units).
+pub(crate) fn approximate_vertices(
+    grid: &Grid,
+    edges: &[EdgeKey],
+    end_values: &[[f64; 2]],
+) -> (Vec<[f64; 3]>, Vec<f64>) {
+    edges
+        .iter()
+        .zip(end_values)
+        .map(|(&key, &[fa, fb])| {
+            let (la, lb) = (unpack((key >> 64) as u64), unpack(key as u64));
+            let (a, b) = (grid.point(la), grid.point(lb));
+            let s = if fa == fb {
+                0.5
+            } else {
+                (fa / (fa - fb)).clamp(0.0, 1.0)
+            };
+            let p = [0, 1, 2].map(|k| a[k] + s * (b[k] - a[k]));
+            let size = (0..3).map(|k| (b[k] - a[k]).abs()).fold(0.0, f64::max);
+            (p, size)
+        })
+        .unzip()
+}
+
 /// A mesh vertex on the zero set.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct PlacedVertex {

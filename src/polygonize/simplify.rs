@@ -1,0 +1,530 @@
+//! Simplification of the `polygonize` stage: topology-safe half-edge collapses that remove the
+//! short edges and slivers marching tetrahedra makes.
+//!
+//! Input: the marching-tetrahedra mesh as triangles over the crossed lattice edges, a position
+//! per vertex (the linear interpolation of the end values on its lattice edge, which costs no
+//! evaluation) and a local cell size per vertex. Output: which vertices survive and the
+//! surviving triangles (in the input's order, indices still the input's).
+//!
+//! Invariants: the output is a 2-manifold of the same topology as the input (same components,
+//! Euler characteristic and boundary), wound consistently, and its vertices are a subset of the
+//! input's, so they stay on their lattice edges and are projected onto the zero set afterwards
+//! exactly like before; vertices on the mesh boundary (the region's faces) are never removed and
+//! never moved. The work is split into fixed chunks of vertices and then one sequential sweep
+//! (see [`simplify_chunked`]), so the result does not depend on the thread count.
+//!
+//! # Why a half-edge collapse keeps the guarantees
+//!
+//! Collapsing the edge uv by moving u onto v deletes the two triangles around uv and replaces u
+//! by v in the others. On a closed 2-manifold, this preserves the topology exactly when the
+//! *link condition* holds: the vertices adjacent to both u and v are only the two opposite
+//! vertices w₁, w₂ of the deleted triangles, and the edge w₁w₂ is not in both links (Dey,
+//! Edelsbrunner, Guha & Nekhayev, *Topology preserving edge contraction*, Publ. Inst. Math. 1999;
+//! Hoppe et al., *Mesh optimization*, SIGGRAPH 1993). We also refuse to lower the valence of w₁
+//! or w₂ below 3 (which would collapse a tetrahedron-shaped component), and only remove u whose
+//! link is one closed cycle (an interior vertex), so the region's boundary is untouched. Every
+//! surviving triangle keeps its cyclic order, so the winding stays consistent; triangles are
+//! never created across octree leaves' shared faces in a way that could open a crack, because
+//! the mesh is already welded (one vertex per lattice edge) and collapses only merge vertices.
+//!
+//! Geometric checks keep the shape: a collapse is refused when a moved triangle's normal turns
+//! by more than [`MAX_NORMAL_TURN_COS`]'s angle, when a new edge is longer than
+//! [`MAX_EDGE`] local cells (this bounds the distance between the mesh and the surface), or when
+//! it would make the worst triangle shape around u worse than both [`GOOD_QUALITY`] and what it
+//! was. The targets v are tried nearest first: the first one that leaves every triangle around
+//! it well shaped wins, else the valid one with the best worst shape.
+//!
+//! Order: vertices are renumbered by first use in the triangle list (leaf by leaf in the
+//! octree's depth-first order) and visited in blocks of [`ORDER_BLOCK`] consecutive numbers,
+//! which are close in space, so the sweep stays in cache (visiting them by one global ranking,
+//! or in lattice-edge order, was several times slower for cache misses); inside a block by increasing shortest-edge length relative to their cell (ties by
+//! index), and only those whose shortest edge is below [`SHORT_EDGE`] cells are candidates:
+//! these are the vertices marching tetrahedra puts next to a lattice point or next to each other
+//! on a cell's face and body diagonals.
+
+/// Largest length of a new edge, in local cell sizes.
+const MAX_EDGE: f64 = 1.2;
+
+/// A vertex is a candidate when its shortest edge is below this many local cell sizes.
+const SHORT_EDGE: f64 = 0.6;
+
+/// Squared mean ratio (see [`shape`]) above which a triangle counts as well shaped (mean ratio
+/// 0.6).
+const GOOD_QUALITY: f64 = 0.36;
+
+/// Cosine of the largest turn of a moved triangle's normal (about 40°).
+const MAX_NORMAL_TURN_COS: f64 = 0.75;
+
+/// Vertices per chunk of the parallel pass (fixed, so the result never depends on the thread
+/// count).
+const CHUNK: usize = 65536;
+
+/// Vertices per block of the visiting order.
+const ORDER_BLOCK: u32 = 1024;
+
+/// The result: `keep[v]` for each input vertex, and the surviving triangles (input indices).
+pub(crate) struct Simplified {
+    pub keep: Vec<bool>,
+    pub triangles: Vec<[u32; 3]>,
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let d = sub(a, b);
+    dot(d, d).sqrt()
+}
+
+/// The square of the triangle's mean ratio 2√3·|n| / Σ lᵢ² (1 for equilateral, 0 for
+/// degenerate; n = (b − a) × (c − a), twice the area), and n. No square root is taken.
+fn shape(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> (f64, [f64; 3]) {
+    let (ab, ac, bc) = (sub(b, a), sub(c, a), sub(c, b));
+    let n = cross(ab, ac);
+    let lengths = dot(ab, ab) + dot(ac, ac) + dot(bc, bc);
+    let quality = if lengths > 0.0 {
+        12.0 * dot(n, n) / (lengths * lengths)
+    } else {
+        0.0
+    };
+    (quality, n)
+}
+
+/// Most triangles a vertex's star holds here; a vertex with more is frozen (never removed, never
+/// a target, never an opposite vertex w₁, w₂ of a collapse), and a collapse that would give the
+/// target more is refused.
+const STAR_CAPACITY: usize = 15;
+
+/// The triangles around one vertex, inline (one cache line).
+#[derive(Clone, Copy)]
+#[repr(align(64))]
+struct Star {
+    len: u32,
+    triangles: [u32; STAR_CAPACITY],
+}
+
+impl Star {
+    const FROZEN: u32 = u32::MAX;
+
+    fn as_slice(&self) -> &[u32] {
+        if self.len == Star::FROZEN {
+            return &[];
+        }
+        &self.triangles[..self.len as usize]
+    }
+
+    fn is_frozen(&self) -> bool {
+        self.len == Star::FROZEN
+    }
+
+    /// Number of triangles (infinite-like for a frozen star).
+    fn count(&self) -> usize {
+        if self.is_frozen() {
+            usize::MAX
+        } else {
+            self.len as usize
+        }
+    }
+
+    fn push(&mut self, t: u32) {
+        // Callers check the capacity first.
+        if let Some(slot) = self.triangles.get_mut(self.len as usize) {
+            *slot = t;
+            self.len += 1;
+        }
+    }
+
+    fn remove(&mut self, t: u32) {
+        let n = self.len as usize;
+        if let Some(k) = self.triangles[..n].iter().position(|&s| s == t) {
+            self.triangles[k] = self.triangles[n - 1];
+            self.len -= 1;
+        }
+    }
+}
+
+/// The mesh with its vertex-to-triangle lists, updated by the collapses.
+struct Mesh<'a> {
+    positions: &'a [[f64; 3]],
+    triangles: Vec<[u32; 3]>,
+    alive: Vec<bool>,
+    around: Vec<Star>,
+}
+
+impl Mesh<'_> {
+    /// The link of `u` as one closed cycle of neighbours in winding order, or None when u is on
+    /// the boundary or its link is not one cycle.
+    fn link_cycle(&self, u: u32, cycle: &mut Vec<u32>, edges: &mut Vec<(u32, u32)>) -> bool {
+        cycle.clear();
+        edges.clear();
+        let star = self.around[u as usize].as_slice();
+        if star.len() < 3 {
+            return false;
+        }
+        // Link edges a → b of the triangles (u, a, b).
+        for &t in star {
+            let tri = self.triangles[t as usize];
+            let Some(k) = tri.iter().position(|&x| x == u) else {
+                return false;
+            };
+            edges.push((tri[(k + 1) % 3], tri[(k + 2) % 3]));
+        }
+        let start = edges[0].0;
+        let mut current = start;
+        for _ in 0..edges.len() {
+            let mut next = None;
+            for &(a, b) in edges.iter() {
+                if a == current {
+                    if next.is_some() {
+                        return false;
+                    }
+                    next = Some(b);
+                }
+            }
+            let Some(next) = next else {
+                return false;
+            };
+            cycle.push(current);
+            current = next;
+            if current == start {
+                break;
+            }
+        }
+        current == start && cycle.len() == edges.len()
+    }
+
+    /// The worst radius ratio of the triangles around `u` after moving it onto `v`, or None when
+    /// the collapse u → v is not allowed. `cycle` is u's link, `i` the position of v in it.
+    /// `mark[x] == stamp` exactly for the vertices x of `cycle`.
+    fn collapse_quality(
+        &self,
+        u: u32,
+        cycle: &[u32],
+        i: usize,
+        sizes: &[f64],
+        (mark, stamp): (&[u32], u32),
+    ) -> Option<f64> {
+        let n = cycle.len();
+        let v = cycle[i];
+        let w1 = cycle[(i + n - 1) % n];
+        let w2 = cycle[(i + 1) % n];
+        // Valence of w₁, w₂ stays at least 3.
+        let (star_v, star_w1, star_w2) = (
+            &self.around[v as usize],
+            &self.around[w1 as usize],
+            &self.around[w2 as usize],
+        );
+        if star_w1.count() < 4 || star_w2.count() < 4 || star_w1.is_frozen() || star_w2.is_frozen()
+        {
+            return None;
+        }
+        // The target keeps its triangles, loses 2 and gains u's others.
+        if star_v.is_frozen() || star_v.count() + n - 2 > STAR_CAPACITY {
+            return None;
+        }
+        // Link condition: no common neighbour besides w₁ and w₂, and, for a valence-3 u, no
+        // triangle (v, w₁, w₂) already.
+        for &t in star_v.as_slice() {
+            let tri = self.triangles[t as usize];
+            let mut common = 0;
+            for x in tri {
+                if x == w1 || x == w2 {
+                    common += 1;
+                } else if x != v && mark[x as usize] == stamp {
+                    return None;
+                }
+            }
+            if n == 3 && common == 2 {
+                return None;
+            }
+        }
+        let pu = self.positions[u as usize];
+        let pv = self.positions[v as usize];
+        let limit = MAX_EDGE * sizes[u as usize].min(sizes[v as usize]);
+        let limit2 = limit * limit;
+        let mut worst = f64::INFINITY;
+        for k in 0..n {
+            let (a, b) = (cycle[k], cycle[(k + 1) % n]);
+            if a == v || b == v {
+                continue;
+            }
+            let (pa, pb) = (self.positions[a as usize], self.positions[b as usize]);
+            let d = sub(pv, pa);
+            if dot(d, d) > limit2 {
+                return None;
+            }
+            let old = cross(sub(pa, pu), sub(pb, pu));
+            let (quality, new) = shape(pv, pa, pb);
+            let (old2, new2) = (dot(old, old), dot(new, new));
+            if new2.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+                return None;
+            }
+            // cos(turn) ≥ MAX_NORMAL_TURN_COS, squared (the cosine must be positive).
+            let turn = dot(old, new);
+            if old2 > 0.0
+                && (turn <= 0.0
+                    || turn * turn < MAX_NORMAL_TURN_COS * MAX_NORMAL_TURN_COS * old2 * new2)
+            {
+                return None;
+            }
+            worst = worst.min(quality);
+        }
+        Some(worst)
+    }
+
+    fn collapse(&mut self, u: u32, v: u32) {
+        let star = self.around[u as usize];
+        self.around[u as usize].len = 0;
+        for &t in star.as_slice() {
+            let tri = self.triangles[t as usize];
+            if tri.contains(&v) {
+                self.alive[t as usize] = false;
+                for x in tri {
+                    if x != u {
+                        self.around[x as usize].remove(t);
+                    }
+                }
+            } else {
+                self.triangles[t as usize] = tri.map(|x| if x == u { v } else { x });
+                self.around[v as usize].push(t);
+            }
+        }
+    }
+}
+
+/// Collapses the short edges of the mesh `triangles` over `positions`; `sizes[v]` is the local
+/// cell size at vertex v (input units).
+pub(crate) fn simplify(
+    positions: &[[f64; 3]],
+    sizes: &[f64],
+    triangles: Vec<[u32; 3]>,
+) -> Simplified {
+    // Renumber the vertices by first use in the triangles (which come leaf by leaf in the
+    // octree's depth-first order), so that a vertex, its triangles and its neighbours sit close
+    // together in memory.
+    let mut new_index = vec![u32::MAX; positions.len()];
+    let mut old_index = Vec::with_capacity(positions.len());
+    let local_triangles: Vec<[u32; 3]> = triangles
+        .iter()
+        .map(|t| {
+            t.map(|x| {
+                let slot = &mut new_index[x as usize];
+                if *slot == u32::MAX {
+                    *slot = old_index.len() as u32;
+                    old_index.push(x);
+                }
+                *slot
+            })
+        })
+        .collect();
+    let local_positions: Vec<[f64; 3]> = old_index.iter().map(|&x| positions[x as usize]).collect();
+    let local_sizes: Vec<f64> = old_index.iter().map(|&x| sizes[x as usize]).collect();
+    let local = simplify_chunked(&local_positions, &local_sizes, local_triangles);
+    let mut keep = vec![true; positions.len()];
+    for (&old, &k) in old_index.iter().zip(&local.keep) {
+        keep[old as usize] = k;
+    }
+    let triangles = local
+        .triangles
+        .iter()
+        .map(|t| t.map(|x| old_index[x as usize]))
+        .collect();
+    Simplified { keep, triangles }
+}
+
+/// [`simplify`] on vertices numbered by first use, in two passes. First, in parallel, each chunk
+/// of [`CHUNK`] consecutive vertices is simplified on its own triangles (those whose three
+/// vertices are all in the chunk), with the vertices that also touch other triangles frozen:
+/// a collapse only reads and writes the stars of u, v, w₁, w₂, which are then complete, and
+/// the triangles of u, which are the chunk's own, so chunks never see each other's changes.
+/// Then one sequential pass over the whole mesh tries the vertices that were frozen. The chunks
+/// are fixed by the numbering, so the result does not depend on the thread count.
+fn simplify_chunked(positions: &[[f64; 3]], sizes: &[f64], triangles: Vec<[u32; 3]>) -> Simplified {
+    use rayon::prelude::*;
+    let n_vertices = positions.len();
+    let n_chunks = n_vertices.div_ceil(CHUNK);
+    let chunk_of = |v: u32| v as usize / CHUNK;
+    let mut border = vec![false; n_vertices];
+    let mut own: Vec<Vec<[u32; 3]>> = vec![Vec::new(); n_chunks];
+    let mut shared = Vec::new();
+    for t in triangles {
+        let c = chunk_of(t[0]);
+        if chunk_of(t[1]) == c && chunk_of(t[2]) == c {
+            own[c].push(t);
+        } else {
+            for x in t {
+                border[x as usize] = true;
+            }
+            shared.push(t);
+        }
+    }
+    let everyone = vec![true; CHUNK];
+    let parts: Vec<Simplified> = own
+        .into_par_iter()
+        .enumerate()
+        .map(|(c, tris)| {
+            let start = c * CHUNK;
+            let end = (start + CHUNK).min(n_vertices);
+            let offset = start as u32;
+            let local: Vec<[u32; 3]> = tris.iter().map(|t| t.map(|x| x - offset)).collect();
+            let part = simplify_local(
+                &positions[start..end],
+                &sizes[start..end],
+                local,
+                &border[start..end],
+                &everyone[..end - start],
+            );
+            Simplified {
+                keep: part.keep,
+                triangles: part
+                    .triangles
+                    .iter()
+                    .map(|t| t.map(|x| x + offset))
+                    .collect(),
+            }
+        })
+        .collect();
+    let mut keep = Vec::with_capacity(n_vertices);
+    let mut merged = shared;
+    for part in parts {
+        keep.extend(part.keep);
+        merged.extend(part.triangles);
+    }
+    let none_frozen = vec![false; n_vertices];
+    let second = simplify_local(positions, sizes, merged, &none_frozen, &border);
+    for (k, &k2) in keep.iter_mut().zip(&second.keep) {
+        *k &= k2;
+    }
+    Simplified {
+        keep,
+        triangles: second.triangles,
+    }
+}
+
+/// Core of [`simplify`]: one sequential sweep.
+/// `frozen[v]`: v may not be touched (its star is incomplete here); `candidate[v]`: v may be
+/// removed.
+fn simplify_local(
+    positions: &[[f64; 3]],
+    sizes: &[f64],
+    triangles: Vec<[u32; 3]>,
+    frozen: &[bool],
+    candidate: &[bool],
+) -> Simplified {
+    let n_vertices = positions.len();
+    let mut valence = vec![0u32; n_vertices];
+    for tri in &triangles {
+        for &x in tri {
+            valence[x as usize] += 1;
+        }
+    }
+    let mut around: Vec<Star> = valence
+        .iter()
+        .zip(frozen)
+        .map(|(&n, &frozen)| Star {
+            len: if frozen || n as usize > STAR_CAPACITY {
+                Star::FROZEN
+            } else {
+                0
+            },
+            triangles: [0; STAR_CAPACITY],
+        })
+        .collect();
+    for (t, tri) in triangles.iter().enumerate() {
+        for &x in tri {
+            if !around[x as usize].is_frozen() {
+                around[x as usize].push(t as u32);
+            }
+        }
+    }
+    // Candidates: the shortest edge relative to the local size, below SHORT_EDGE.
+    let mut shortest = vec![f64::INFINITY; n_vertices];
+    for tri in &triangles {
+        for k in 0..3 {
+            let (a, b) = (tri[k] as usize, tri[(k + 1) % 3] as usize);
+            let d = distance(positions[a], positions[b]);
+            shortest[a] = shortest[a].min(d / sizes[a]);
+            shortest[b] = shortest[b].min(d / sizes[b]);
+        }
+    }
+    let mut order: Vec<(u64, u32)> = shortest
+        .iter()
+        .enumerate()
+        .filter(|&(v, &s)| s < SHORT_EDGE && candidate[v])
+        .map(|(v, &s)| (s.to_bits(), v as u32))
+        .collect();
+    // Sorted within blocks of consecutive vertices (close in space), so the sweep stays in
+    // cache.
+    order.sort_unstable_by_key(|&(s, v)| (v / ORDER_BLOCK, s, v));
+    let mut mesh = Mesh {
+        positions,
+        alive: vec![true; triangles.len()],
+        triangles,
+        around,
+    };
+    let mut keep = vec![true; n_vertices];
+    let mut cycle = Vec::new();
+    let mut link_edges = Vec::new();
+    let mut candidates: Vec<(f64, usize)> = Vec::new();
+    let mut mark = vec![u32::MAX; n_vertices];
+    for (stamp, (_, u)) in order.into_iter().enumerate() {
+        if !mesh.link_cycle(u, &mut cycle, &mut link_edges) {
+            continue;
+        }
+        let stamp = stamp as u32;
+        for &x in &cycle {
+            mark[x as usize] = stamp;
+        }
+        let mut old_worst = f64::INFINITY;
+        for &t in mesh.around[u as usize].as_slice() {
+            let [a, b, c] = mesh.triangles[t as usize].map(|x| positions[x as usize]);
+            old_worst = old_worst.min(shape(a, b, c).0);
+        }
+        let floor = old_worst.min(GOOD_QUALITY);
+        // Targets nearest first; the first that keeps every triangle well shaped wins, else the
+        // best one that does not make the worst triangle around u worse.
+        let pu = positions[u as usize];
+        candidates.clear();
+        for (i, &v) in cycle.iter().enumerate() {
+            let d = sub(positions[v as usize], pu);
+            candidates.push((dot(d, d), i));
+        }
+        candidates.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut best: Option<(f64, u32)> = None;
+        for &(_, i) in &candidates {
+            if let Some(q) = mesh.collapse_quality(u, &cycle, i, sizes, (&mark, stamp)) {
+                if q >= floor && best.is_none_or(|(b, _)| q > b) {
+                    best = Some((q, cycle[i]));
+                    if q >= GOOD_QUALITY {
+                        break;
+                    }
+                }
+            }
+        }
+        if let Some((_, v)) = best {
+            mesh.collapse(u, v);
+            keep[u as usize] = false;
+        }
+    }
+    let triangles = mesh
+        .triangles
+        .iter()
+        .zip(&mesh.alive)
+        .filter(|(_, &a)| a)
+        .map(|(t, _)| *t)
+        .collect();
+    Simplified { keep, triangles }
+}
