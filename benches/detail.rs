@@ -18,6 +18,7 @@ use stablesurf::OrientedCloud;
 const MESH: PolygonizeParams = PolygonizeParams {
     depth: 7,
     guard_levels: 0,
+    simplification: stablesurf::polygonize::Simplification::EdgeCollapse,
 };
 
 /// CPU seconds of this process (all threads), from /proc/self/stat.

@@ -320,14 +320,28 @@ pub fn slices_from_mesh<F: ImplicitFunction + ?Sized>(
         ..*params
     };
     // Warm-started along each row from the previous pixel's closest vertex (one task per row,
-    // so the result does not depend on the thread count).
+    // so the result does not depend on the thread count). The sign needs f only where it can
+    // change: if f differs in sign at two neighbouring pixels h apart, its zero set crosses the
+    // segment between them, and that crossing lies within the mesh's chord error e of the mesh,
+    // so d_prev + d ≤ h + 2e. Elsewhere the previous pixel's sign carries over (e is bounded
+    // generously by a seed cell).
+    let [u, v, _] = params.axis.frame();
+    let h = (region.max[u] - region.min[u]).max(region.max[v] - region.min[v])
+        / params.resolution as f64;
+    let margin = h + 2.0 * index.seed_cell();
     Ok(fill_grid(region, &params, |row| {
         let mut warm = None;
+        let mut previous: Option<(f64, bool)> = None;
         row.iter()
             .map(|&p| {
-                let (d, v) = index.distance_from(p, warm);
-                warm = Some(v);
-                (if f.value(p) < 0.0 { -d } else { d }) as f32
+                let (d, vertex) = index.distance_from(p, warm);
+                warm = Some(vertex);
+                let inside = match previous {
+                    Some((d_prev, inside)) if d_prev + d > margin => inside,
+                    _ => f.value(p) < 0.0,
+                };
+                previous = Some((d, inside));
+                (if inside { -d } else { d }) as f32
             })
             .collect()
     }))

@@ -194,15 +194,51 @@ fn fit_params(opts: &cli::FitOpts) -> Result<fit::FitParams> {
     })
 }
 
-fn polygonize_params(opts: &cli::MeshOpts) -> Result<polygonize::PolygonizeParams> {
-    if !(1..=12).contains(&opts.depth) {
+fn detail_params(opts: &cli::DetailOpts) -> Result<stablesurf::detail::DetailParams> {
+    if !(2..=4).contains(&opts.local_degree) {
         return Err(usage(format!(
-            "--depth must be between 1 and 12, got {}",
-            opts.depth
+            "--local-degree must be 2, 3 or 4, got {}",
+            opts.local_degree
+        )));
+    }
+    if !(opts.tolerance.is_finite() && opts.tolerance > 0.0 && opts.tolerance < 0.5) {
+        return Err(usage(format!(
+            "--tolerance must be a fraction of the diagonal in (0, 0.5), got {}",
+            opts.tolerance
+        )));
+    }
+    let defaults = stablesurf::detail::DetailParams::default();
+    Ok(stablesurf::detail::DetailParams {
+        degree: opts.local_degree,
+        tolerance: opts.tolerance,
+        finest_tolerance: defaults.finest_tolerance.min(opts.tolerance),
+        ..defaults
+    })
+}
+
+/// Meshing parameters for a model of `mode`. A detail model is meshed one level coarser (its
+/// vertices are projected onto the blend, so depth 7 already matches depth 8's accuracy on the
+/// scans of ../shared/data) and without the topology guard, whose gradient test the blend's
+/// loose gradient enclosure cannot pass (it would refine nearly everywhere).
+fn polygonize_params(
+    opts: &cli::MeshOpts,
+    mode: pipeline::Mode,
+) -> Result<polygonize::PolygonizeParams> {
+    let (depth, guard_levels) = match mode {
+        pipeline::Mode::Global => (
+            opts.depth.unwrap_or(8),
+            polygonize::PolygonizeParams::default().guard_levels,
+        ),
+        pipeline::Mode::Detail => (opts.depth.unwrap_or(7), 0),
+    };
+    if !(1..=12).contains(&depth) {
+        return Err(usage(format!(
+            "--depth must be between 1 and 12, got {depth}"
         )));
     }
     Ok(polygonize::PolygonizeParams {
-        depth: opts.depth,
+        depth,
+        guard_levels,
         ..Default::default()
     })
 }
@@ -222,16 +258,18 @@ fn region_from(bounds: Option<[f64; 6]>) -> Option<Aabb> {
     })
 }
 
+fn parse_mode(mode: &str) -> Result<pipeline::Mode> {
+    match mode {
+        "global" => Ok(pipeline::Mode::Global),
+        "detail" => Ok(pipeline::Mode::Detail),
+        other => Err(usage(format!(
+            "--mode must be global or detail, got '{other}'"
+        ))),
+    }
+}
+
 fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
-    let mode = match args.mode.as_str() {
-        "global" => pipeline::Mode::Global,
-        "detail" => pipeline::Mode::Detail,
-        other => {
-            return Err(usage(format!(
-                "--mode must be global or detail, got '{other}'"
-            )))
-        }
-    };
+    let mode = parse_mode(&args.mode)?;
     let formats = args
         .formats
         .iter()
@@ -241,7 +279,8 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
         mode,
         normals: normals_params(&args.normals)?,
         fit: fit_params(&args.fit)?,
-        polygonize: polygonize_params(&args.mesh)?,
+        detail: detail_params(&args.detail)?,
+        polygonize: polygonize_params(&args.mesh, mode)?,
         keep: match args.keep {
             cli::KeepArg::All => Keep::All,
             cli::KeepArg::Data => Keep::Data,
@@ -278,7 +317,7 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
             args.fit.kappa,
             args.fit.kappa_rule,
             args.fit.epsilon,
-            args.mesh.depth,
+            config.polygonize.depth,
             cache.root().map_or("off".to_string(), |r| r.display().to_string()),
         );
     }
@@ -293,15 +332,24 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
             )
         })?;
     if verbosity != Verbosity::Quiet {
-        let d = report.fit.get("diagnostics");
+        let bounded = match mode {
+            pipeline::Mode::Global => format!(
+                ", bounded {}",
+                report
+                    .fit
+                    .get("diagnostics")
+                    .and_then(|d| d.get("bounded"))
+                    .map_or("unknown".into(), |b| b.to_string())
+            ),
+            pipeline::Mode::Detail => String::new(),
+        };
         eprintln!(
-            "stablesurf: done in {:.2}s: {} vertices, {} triangles, {} component(s), watertight {}, bounded {}, mean distance {:.2e} of the diagonal; outputs in {}",
+            "stablesurf: done in {:.2}s: {} vertices, {} triangles, {} component(s), watertight {}{bounded}, mean distance {:.2e} of the diagonal; outputs in {}",
             report.seconds,
             report.mesh.vertices,
             report.mesh.faces,
             report.mesh.components,
             report.mesh.watertight,
-            d.and_then(|d| d.get("bounded")).map_or("unknown".into(), |b| b.to_string()),
             report.accuracy.mean_relative,
             args.output.display()
         );
@@ -353,8 +401,10 @@ fn cmd_normals(args: cli::NormalsArgs, verbosity: Verbosity) -> Result<()> {
 
 fn cmd_fit(args: cli::FitArgs, verbosity: Verbosity) -> Result<()> {
     let config = PipelineConfig {
+        mode: parse_mode(&args.mode)?,
         normals: normals_params(&args.normals)?,
         fit: fit_params(&args.fit)?,
+        detail: detail_params(&args.detail)?,
         ..Default::default()
     };
     let mut observer = StderrObserver::new(verbosity);
@@ -365,36 +415,51 @@ fn cmd_fit(args: cli::FitArgs, verbosity: Verbosity) -> Result<()> {
         &mut observer,
     )
     .with_context(|| format!("fitting {}", args.input.display()))?;
-    export::write_atomic(&args.output, |w| export::model::write_model(&model, w))?;
+    let (_, bytes) = model.file()?;
+    export::write_atomic(&args.output, |w| {
+        w.write_all(&bytes).map_err(export::ExportError::Write)
+    })?;
     if verbosity != Verbosity::Quiet {
-        if let (Some(f), Some(d)) = (&model.fit, &model.diagnostics) {
-            eprintln!(
-                "stablesurf: degree {} {} fit, kappa {:e} ({}), bounded {}, mean distance {:.2e} of the diagonal",
-                model.polynomial.degree, f.method, f.kappa, f.kappa_rule, d.bounded, d.mean_distance_relative
-            );
-            for w in &d.warnings {
-                eprintln!("stablesurf: warning: {w}");
+        match &model {
+            pipeline::Model::Global(model) => {
+                if let (Some(f), Some(d)) = (&model.fit, &model.diagnostics) {
+                    eprintln!(
+                        "stablesurf: degree {} {} fit, kappa {:e} ({}), bounded {}, mean distance {:.2e} of the diagonal",
+                        model.polynomial.degree, f.method, f.kappa, f.kappa_rule, d.bounded, d.mean_distance_relative
+                    );
+                    for w in &d.warnings {
+                        eprintln!("stablesurf: warning: {w}");
+                    }
+                }
+            }
+            pipeline::Model::Detail(model) => {
+                let d = &model.diagnostics;
+                eprintln!(
+                    "stablesurf: detail fit, {} cells ({} grown), depth {}, mean |f|/|grad f| {:.2e} of the diagonal",
+                    d.cells, d.grown_cells, d.depth_reached, d.mean_residual
+                );
             }
         }
     }
     if args.json {
         let mut out = std::io::stdout().lock();
-        serde_json::to_writer_pretty(
-            &mut out,
-            &serde_json::json!({"fit": model.fit, "diagnostics": model.diagnostics}),
-        )?;
+        serde_json::to_writer_pretty(&mut out, &model.report())?;
         writeln!(out)?;
     }
     Ok(())
 }
 
-fn read_model(path: &Path) -> Result<stablesurf::ImplicitModel> {
+/// Reads a model file of either kind (a `stablesurf.mpu` file by its magic, else model.json).
+fn read_any_model(path: &Path) -> Result<pipeline::Model> {
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    Ok(export::model::read_model(&bytes, path)?)
+    Ok(if export::mpu::is_mpu(&bytes) {
+        pipeline::Model::Detail(export::mpu::read_mpu(&bytes, path)?)
+    } else {
+        pipeline::Model::Global(export::model::read_model(&bytes, path)?)
+    })
 }
 
 fn cmd_mesh(args: cli::MeshArgs, verbosity: Verbosity) -> Result<()> {
-    let params = polygonize_params(&args.mesh)?;
     let ext = extension(&args.output);
     if !matches!(ext.as_str(), "glb" | "gltf" | "ply") {
         return Err(usage(format!(
@@ -402,14 +467,16 @@ fn cmd_mesh(args: cli::MeshArgs, verbosity: Verbosity) -> Result<()> {
             args.output.display()
         )));
     }
-    let model = read_model(&args.model)?;
-    let region = match region_from(args.bounds) {
-        Some(b) => b,
-        None => model.bounds.ok_or_else(|| {
+    let model = read_any_model(&args.model)?;
+    let params = polygonize_params(&args.mesh, model.mode())?;
+    let region = match (region_from(args.bounds), &model) {
+        (Some(b), _) => b,
+        (None, pipeline::Model::Detail(m)) => m.region,
+        (None, pipeline::Model::Global(m)) => m.bounds.ok_or_else(|| {
             anyhow!("{} has no \"box\": pass the meshing region with --bounds xmin,ymin,zmin,xmax,ymax,zmax", args.model.display())
         })?,
     };
-    let out = polygonize::polygonize(&model.polynomial, &region, &params)
+    let out = polygonize::polygonize(model.function(), &region, &params)
         .with_context(|| format!("meshing {}", args.model.display()))?;
     let mesh = out.mesh;
     write_mesh(&mesh, &args.output, args.ascii, args.up)?;
@@ -492,20 +559,39 @@ fn slice_params(
 }
 
 fn cmd_slices(args: cli::SlicesArgs, verbosity: Verbosity) -> Result<()> {
-    let params = slice_params(args.axis, args.count, args.resolution, args.distance)?;
-    let mesh_params = polygonize_params(&args.mesh)?;
-    let model = read_model(&args.model)?;
+    let model = read_any_model(&args.model)?;
+    let mesh_params = polygonize_params(&args.mesh, model.mode())?;
+    let distance = match (args.distance, &model) {
+        (Some(cli::DistanceArg::Mesh) | None, pipeline::Model::Detail(_)) => cli::DistanceArg::Mesh,
+        (Some(other), pipeline::Model::Detail(_)) => {
+            return Err(usage(format!(
+                "--distance {}: a detail model (.mpu) has only the mesh distance",
+                if other == cli::DistanceArg::Exact {
+                    "exact"
+                } else {
+                    "taubin"
+                }
+            )))
+        }
+        (d, pipeline::Model::Global(_)) => d.unwrap_or(cli::DistanceArg::Exact),
+    };
+    let params = slice_params(args.axis, args.count, args.resolution, distance)?;
     let region = match region_from(args.bounds) {
         Some(b) => b,
-        None => pipeline::meshing_region(&model),
+        None => model.region(),
     };
-    let slices = if params.method == stablesurf::distance::DistanceMethod::Mesh {
-        let mesh = polygonize::polygonize(&model.polynomial, &region, &mesh_params)
-            .with_context(|| format!("meshing {}", args.model.display()))?
-            .mesh;
-        stablesurf::distance::slices_from_mesh(&model.polynomial, &mesh, &region, &params)
-    } else {
-        stablesurf::distance::slices(&model.polynomial, &region, &params)
+    let slices = match &model {
+        pipeline::Model::Global(m)
+            if params.method != stablesurf::distance::DistanceMethod::Mesh =>
+        {
+            stablesurf::distance::slices(&m.polynomial, &region, &params)
+        }
+        _ => {
+            let mesh = polygonize::polygonize(model.function(), &region, &mesh_params)
+                .with_context(|| format!("meshing {}", args.model.display()))?
+                .mesh;
+            stablesurf::distance::slices_from_mesh(model.function(), &mesh, &region, &params)
+        }
     }
     .with_context(|| format!("computing distance slices of {}", args.model.display()))?;
     std::fs::create_dir_all(&args.output)
@@ -533,7 +619,16 @@ fn cmd_info(args: cli::InfoArgs) -> Result<()> {
     let bytes =
         std::fs::read(&args.file).with_context(|| format!("reading {}", args.file.display()))?;
     let looks_like_model = bytes.iter().find(|b| !b.is_ascii_whitespace()) == Some(&b'{');
-    let value = if looks_like_model {
+    let value = if export::mpu::is_mpu(&bytes) {
+        let model = export::mpu::read_mpu(&bytes, &args.file)?;
+        serde_json::json!({
+            "format": "stablesurf.mpu",
+            "cells": model.cells.len(),
+            "box": model.region,
+            "diagonal": model.diagonal,
+            "diagnostics": model.diagnostics,
+        })
+    } else if looks_like_model {
         let model = export::model::read_model(&bytes, &args.file)?;
         serde_json::json!({
             "format": "stablesurf.implicit-polynomial",

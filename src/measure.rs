@@ -240,29 +240,24 @@ impl<'a> GridMeshDistance<'a> {
         })
     }
 
+    /// Side of the coarse seed grid's cells, input units.
+    pub fn seed_cell(&self) -> f64 {
+        self.cell
+    }
+
     /// Unsigned distance from `p` to the mesh (see the type's docs) and the vertex the best walk
     /// ended at, to warm-start the next query with `warm`.
     pub fn distance_from(&self, p: [f64; 3], warm: Option<usize>) -> (f64, usize) {
         // Each walk ends at a vertex; the fan (1-ring) distance ranks the ends, and the best
         // end's 2-ring gives the result.
-        let mut best = f64::INFINITY;
-        let mut best_vertex = 0;
-        let mut ends: [usize; N_WALKS + 1] = [usize::MAX; N_WALKS + 1];
+        let mut best = (f64::INFINITY, 0);
+        let mut ends = [usize::MAX; N_WALKS + 1];
         let mut n_ends = 0;
-        let mut walk = |start: usize, best: &mut f64, best_vertex: &mut usize| {
-            let v = self.mesh.descend(p, start);
-            if ends[..n_ends].contains(&v) {
-                return;
-            }
-            ends[n_ends] = v;
-            n_ends += 1;
-            let d = self.mesh.fan_distance(p, v);
-            if d < *best {
-                (*best, *best_vertex) = (d, v);
-            }
-        };
         if let Some(w) = warm {
-            walk(w, &mut best, &mut best_vertex);
+            let v = self.mesh.descend(p, w);
+            best = (self.mesh.fan_distance(p, v), v);
+            ends[0] = v;
+            n_ends = 1;
         }
         let k = std::num::NonZero::new(N_SEEDS.min(self.seeds.len()))
             .unwrap_or(std::num::NonZero::<usize>::MIN);
@@ -273,16 +268,24 @@ impl<'a> GridMeshDistance<'a> {
             .execute();
         let mut walks = 0;
         for n in nearest {
-            if walks == N_WALKS || n.distance.sqrt() > best + 2.0 * self.cell {
+            if walks == N_WALKS || n.distance.sqrt() > best.0 + 2.0 * self.cell {
                 break;
             }
+            let seed = self.seeds[n.item as usize] as usize;
             walks += 1;
-            walk(self.seeds[n.item as usize] as usize, &mut best, &mut best_vertex);
+            let v = self.mesh.descend(p, seed);
+            if ends[..n_ends].contains(&v) {
+                continue;
+            }
+            ends[n_ends] = v;
+            n_ends += 1;
+            let d = self.mesh.fan_distance(p, v);
+            if d < best.0 {
+                best = (d, v);
+            }
         }
-        (
-            best.min(self.mesh.ring_distance(p, best_vertex)),
-            best_vertex,
-        )
+        let (d, v) = best;
+        (d.min(self.mesh.ring_distance(p, v)), v)
     }
 }
 

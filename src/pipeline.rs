@@ -17,6 +17,7 @@ use serde::Serialize;
 
 use crate::cache::{self, Artifact, Cache, Key, Lookup, OutputFiles};
 use crate::cloud::{Aabb, OrientedCloud, PointCloud};
+use crate::detail::{self, DetailParams, MpuModel};
 use crate::export::{self, ExportError};
 use crate::fit::{self, FitParams};
 use crate::import;
@@ -24,7 +25,7 @@ use crate::measure::{self, DistanceSummary};
 use crate::mesh::{self, MeshReport, TriangleMesh};
 use crate::normals::{self, NormalsParams};
 use crate::poly::ImplicitModel;
-use crate::polygonize::{self, PolygonizeParams};
+use crate::polygonize::{self, ImplicitFunction, PolygonizeParams};
 
 /// The small real scan built into the binary: "Spot" the cow by Keenan Crane (CC0 1.0),
 /// 2,930 vertices, 5,856 triangles.
@@ -44,6 +45,9 @@ pub enum PipelineError {
     /// Fitting failed.
     #[error("fit failed")]
     Fit(#[from] fit::FitError),
+    /// The detail (partition of unity) fit failed.
+    #[error("detail fit failed")]
+    Detail(#[from] detail::DetailError),
     /// Meshing failed.
     #[error("meshing failed")]
     Polygonize(#[from] polygonize::PolygonizeError),
@@ -89,6 +93,72 @@ pub enum Mode {
     Detail,
 }
 
+/// The fitted model of a run: one polynomial, or the detail mode's blend of local fits.
+#[derive(Clone, Debug)]
+pub enum Model {
+    /// `--mode global`.
+    Global(ImplicitModel),
+    /// `--mode detail`.
+    Detail(MpuModel),
+}
+
+impl Model {
+    /// The mode that makes this kind of model.
+    pub fn mode(&self) -> Mode {
+        match self {
+            Model::Global(_) => Mode::Global,
+            Model::Detail(_) => Mode::Detail,
+        }
+    }
+
+    /// The model as a function to mesh and sign distances with.
+    pub fn function(&self) -> &dyn ImplicitFunction {
+        match self {
+            Model::Global(m) => &m.polynomial,
+            Model::Detail(m) => m,
+        }
+    }
+
+    /// The region the model is meshed in (input coordinates).
+    pub fn region(&self) -> Aabb {
+        match self {
+            Model::Global(m) => meshing_region(m),
+            Model::Detail(m) => m.region,
+        }
+    }
+
+    /// The model's settings and diagnostics, for `report.json`.
+    pub fn report(&self) -> serde_json::Value {
+        match self {
+            Model::Global(m) => {
+                serde_json::json!({ "mode": "global", "fit": m.fit, "diagnostics": m.diagnostics })
+            }
+            Model::Detail(m) => serde_json::json!({
+                "mode": "detail",
+                "diagnostics": m.diagnostics,
+            }),
+        }
+    }
+
+    /// The model file's name and bytes: `model.json` (global) or `model.mpu` (detail).
+    ///
+    /// # Errors
+    /// [`ExportError`] from the writer.
+    pub fn file(&self) -> Result<(&'static str, Vec<u8>), ExportError> {
+        let mut bytes = Vec::new();
+        match self {
+            Model::Global(m) => {
+                export::model::write_model(m, &mut bytes)?;
+                Ok(("model.json", bytes))
+            }
+            Model::Detail(m) => {
+                export::mpu::write_mpu(m, &mut bytes)?;
+                Ok(("model.mpu", bytes))
+            }
+        }
+    }
+}
+
 /// An output file kind of `run`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 pub enum OutputFormat {
@@ -102,7 +172,7 @@ pub enum OutputFormat {
     Exr,
     /// `preview.png` (a shaded render of the mesh) and `slices/slice_NNN.png` previews.
     Png,
-    /// `model.json` and `report.json`.
+    /// The model file (`model.json`, or `model.mpu` in detail mode) and `report.json`.
     Json,
 }
 
@@ -133,13 +203,16 @@ pub struct PipelineConfig {
     pub mode: Mode,
     /// Normals stage parameters.
     pub normals: NormalsParams,
-    /// Fit stage parameters.
+    /// Fit stage parameters (global mode).
     pub fit: FitParams,
+    /// Detail fit parameters (detail mode).
+    pub detail: DetailParams,
     /// Polygonize stage parameters.
     pub polygonize: PolygonizeParams,
     /// Drop zero-set components with no data point near them.
     pub keep: Keep,
-    /// Distance slice parameters.
+    /// Distance slice parameters (default: 16 slices of 128² along z, exact distances; the
+    /// detail mode needs [`crate::distance::DistanceMethod::Mesh`]).
     pub slices: crate::distance::SliceParams,
     /// glTF options.
     pub gltf: export::gltf::GltfOptions,
@@ -163,9 +236,13 @@ impl Default for PipelineConfig {
             mode: Mode::Global,
             normals: NormalsParams::default(),
             fit: FitParams::default(),
+            detail: DetailParams::default(),
             polygonize: PolygonizeParams::default(),
             keep: Keep::All,
-            slices: Default::default(),
+            slices: crate::distance::SliceParams {
+                resolution: 128,
+                ..Default::default()
+            },
             gltf: Default::default(),
             formats: vec![
                 OutputFormat::Glb,
@@ -237,9 +314,9 @@ impl Observer for Silent {}
 // params (algorithm, defaults, artifact layout), bump its version so old cache entries are not
 // reused.
 const IMPORT_VERSION: u32 = 1;
-const NORMALS_VERSION: u32 = 1;
-const FIT_VERSION: u32 = 1;
-const POLYGONIZE_VERSION: u32 = 1;
+const NORMALS_VERSION: u32 = 2;
+const FIT_VERSION: u32 = 2;
+const POLYGONIZE_VERSION: u32 = 2;
 const EXPORT_VERSION: u32 = 2;
 
 struct Ctx<'a> {
@@ -339,12 +416,7 @@ fn fit_stages(
     ctx: &mut Ctx<'_>,
     source: &ScanSource,
     config: &PipelineConfig,
-) -> Result<(PointCloud, OrientedCloud, ImplicitModel, Key), PipelineError> {
-    if config.mode == Mode::Detail {
-        return Err(PipelineError::Unsupported(
-            "--mode detail is not built yet; use --mode global".into(),
-        ));
-    }
+) -> Result<(PointCloud, OrientedCloud, Model, Key), PipelineError> {
     let (bytes, path, _) = scan_bytes(source)?;
     let (cloud, cloud_key) = ctx.stage(
         "import",
@@ -376,21 +448,47 @@ fn fit_stages(
             Ok((normals.cloud, figures))
         },
     )?;
-    let (model, model_key) = ctx.stage(
-        "fit",
-        FIT_VERSION,
-        &cache::params_bytes(&config.fit),
-        &oriented_key,
-        || {
-            let model = fit::fit(&oriented, &config.fit)?;
-            let figures = serde_json::json!({
-                "degree": model.polynomial.degree,
-                "kappa": model.fit.as_ref().map(|f| f.kappa),
-                "bounded": model.diagnostics.as_ref().map(|d| d.bounded),
-            });
-            Ok((model, figures))
-        },
-    )?;
+    let (model, model_key) = match config.mode {
+        Mode::Global => {
+            let (model, key) = ctx.stage(
+                "fit",
+                FIT_VERSION,
+                &cache::params_bytes(&config.fit),
+                &oriented_key,
+                || {
+                    let model = fit::fit(&oriented, &config.fit)?;
+                    let figures = serde_json::json!({
+                        "degree": model.polynomial.degree,
+                        "kappa": model.fit.as_ref().map(|f| f.kappa),
+                        "bounded": model.diagnostics.as_ref().map(|d| d.bounded),
+                    });
+                    Ok((model, figures))
+                },
+            )?;
+            (Model::Global(model), key)
+        }
+        Mode::Detail => {
+            let (model, key) = ctx.stage(
+                "detail",
+                detail::STAGE_VERSION,
+                &cache::params_bytes(&config.detail),
+                &oriented_key,
+                || {
+                    let model = detail::fit_detail(&oriented, &config.detail)?;
+                    let d = &model.diagnostics;
+                    let figures = serde_json::json!({
+                        "cells": d.cells,
+                        "grown_cells": d.grown_cells,
+                        "depth_reached": d.depth_reached,
+                        "mean_residual": d.mean_residual,
+                        "max_residual": d.max_residual,
+                    });
+                    Ok((model, figures))
+                },
+            )?;
+            (Model::Detail(model), key)
+        }
+    };
     Ok((cloud, oriented, model, model_key))
 }
 
@@ -403,7 +501,7 @@ pub fn fit_model(
     config: &PipelineConfig,
     cache: &Cache,
     observer: &mut dyn Observer,
-) -> Result<(ImplicitModel, OrientedCloud, Vec<StageRecord>), PipelineError> {
+) -> Result<(Model, OrientedCloud, Vec<StageRecord>), PipelineError> {
     let mut ctx = Ctx {
         cache,
         observer,
@@ -448,14 +546,14 @@ pub fn run(
     };
     let (cloud, _oriented, model, model_key) = fit_stages(&mut ctx, source, config)?;
 
-    let region = meshing_region(&model);
+    let region = model.region();
     let (mut mesh, mesh_key) = ctx.stage(
         "polygonize",
         POLYGONIZE_VERSION,
         &cache::params_bytes(&config.polygonize),
         &model_key,
         || {
-            let out = polygonize::polygonize(&model.polynomial, &region, &config.polygonize)?;
+            let out = polygonize::polygonize(model.function(), &region, &config.polygonize)?;
             let figures = serde_json::json!({
                 "vertices": out.mesh.positions.len(),
                 "triangles": out.mesh.triangles.len(),
@@ -519,7 +617,7 @@ pub fn run(
     let mut report = RunReport {
         input: input_name,
         stages: ctx.stages,
-        fit: serde_json::json!({ "fit": model.fit, "diagnostics": model.diagnostics }),
+        fit: model.report(),
         mesh: report_mesh,
         accuracy,
         outputs,
@@ -573,7 +671,7 @@ fn write_files(out_dir: &Path, files: &OutputFiles) -> Result<Vec<String>, Pipel
 /// Computes every output file's bytes in memory (nothing is written here).
 fn render_outputs(
     config: &PipelineConfig,
-    model: &ImplicitModel,
+    model: &Model,
     mesh: &TriangleMesh,
     cloud: &PointCloud,
     region: &Aabb,
@@ -581,10 +679,19 @@ fn render_outputs(
     let want = |f| config.formats.contains(&f);
     let slices = if !(want(OutputFormat::Exr) || want(OutputFormat::Png)) {
         Vec::new()
-    } else if config.slices.method == crate::distance::DistanceMethod::Mesh {
-        crate::distance::slices_from_mesh(&model.polynomial, mesh, region, &config.slices)?
     } else {
-        crate::distance::slices(&model.polynomial, region, &config.slices)?
+        match (model, config.slices.method) {
+            (_, crate::distance::DistanceMethod::Mesh) => {
+                crate::distance::slices_from_mesh(model.function(), mesh, region, &config.slices)?
+            }
+            (Model::Global(m), _) => crate::distance::slices(&m.polynomial, region, &config.slices)?,
+            (Model::Detail(_), method) => {
+                return Err(PipelineError::Unsupported(format!(
+                    "{} distance slices need a global (polynomial) model; use --slice-distance mesh in detail mode",
+                    method.name()
+                )))
+            }
+        }
     };
     let mut files = Vec::new();
     let mut put = |name: &str,
@@ -596,7 +703,11 @@ fn render_outputs(
         Ok(())
     };
     if want(OutputFormat::Json) {
-        put("model.json", &|w| export::model::write_model(model, w))?;
+        let (name, bytes) = model.file()?;
+        put(name, &|w| {
+            w.extend_from_slice(&bytes);
+            Ok(())
+        })?;
     }
     if want(OutputFormat::Glb) {
         put("mesh.glb", &|w| {

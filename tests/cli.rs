@@ -380,3 +380,110 @@ fn concurrent_runs_share_a_cache_safely() {
         assert_eq!(cache_state(&err, stage), "hit", "{stage}");
     }
 }
+
+#[test]
+fn detail_mode_runs_end_to_end_and_its_model_file_works_everywhere() {
+    // `run --mode detail` on a sphere: one closed component close to the data, a model.mpu
+    // that `info`, `mesh` and `slices` accept, and a detail stage that a rerun hits.
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 3000);
+    let out = dir.path().join("out");
+    let cache = dir.path().join("cache");
+    let run = |extra: &[&str]| {
+        let mut cmd = bin();
+        cmd.args(["run", input.to_str().unwrap(), "-o", out.to_str().unwrap()])
+            .args(["--mode", "detail", "--depth", "5", "-v", "--json"])
+            .args(["--cache-dir", cache.to_str().unwrap()])
+            .args(extra);
+        cmd.output().unwrap()
+    };
+    let first = run(&[]);
+    assert!(first.status.success(), "{}", stderr_of(&first));
+    assert_eq!(cache_state(&stderr_of(&first), "detail"), "miss");
+    let report: serde_json::Value = serde_json::from_slice(&first.stdout).unwrap();
+    assert_eq!(report["fit"]["mode"], "detail");
+    assert_eq!(report["mesh"]["components"], 1);
+    assert_eq!(report["mesh"]["watertight"], true);
+    // Data within 0.5% of the diagonal (2·√3·2 ≈ 6.9) of the mesh on average.
+    let mean = report["accuracy"]["mean_relative"].as_f64().unwrap();
+    assert!(mean < 5e-3, "mean distance {mean}");
+    for f in [
+        "model.mpu",
+        "mesh.glb",
+        "mesh.ply",
+        "report.json",
+        "preview.png",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    assert!(!out.join("model.json").exists());
+    assert!(out.join("slices/slice_000.exr").is_file());
+    let second = run(&[]);
+    assert!(second.status.success());
+    assert_eq!(cache_state(&stderr_of(&second), "detail"), "hit");
+
+    let model = out.join("model.mpu");
+    let info = bin()
+        .args(["info", "--json", model.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(info.status.success(), "{}", stderr_of(&info));
+    let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    assert_eq!(info["format"], "stablesurf.mpu");
+    assert!(info["cells"].as_u64().unwrap() > 0);
+
+    let mesh = dir.path().join("again.ply");
+    let meshed = bin()
+        .args([
+            "mesh",
+            model.to_str().unwrap(),
+            "-o",
+            mesh.to_str().unwrap(),
+        ])
+        .args(["--depth", "5"])
+        .output()
+        .unwrap();
+    assert!(meshed.status.success(), "{}", stderr_of(&meshed));
+    assert!(fs::metadata(&mesh).unwrap().len() > 1000);
+
+    let slices = dir.path().join("slices");
+    let sliced = bin()
+        .args([
+            "slices",
+            model.to_str().unwrap(),
+            "-o",
+            slices.to_str().unwrap(),
+        ])
+        .args(["--count", "2", "--resolution", "16", "--depth", "5"])
+        .output()
+        .unwrap();
+    assert!(sliced.status.success(), "{}", stderr_of(&sliced));
+    assert!(slices.join("slice_001.exr").is_file());
+    // The exact distance needs a polynomial: a usage error for a detail model.
+    let exact = bin()
+        .args([
+            "slices",
+            model.to_str().unwrap(),
+            "-o",
+            slices.to_str().unwrap(),
+        ])
+        .args(["--distance", "exact"])
+        .output()
+        .unwrap();
+    assert_eq!(exact.status.code(), Some(2), "{}", stderr_of(&exact));
+
+    // `fit --mode detail` writes the same kind of file.
+    let fitted = dir.path().join("fit.mpu");
+    let fit = bin()
+        .args([
+            "fit",
+            input.to_str().unwrap(),
+            "-o",
+            fitted.to_str().unwrap(),
+        ])
+        .args(["--mode", "detail"])
+        .output()
+        .unwrap();
+    assert!(fit.status.success(), "{}", stderr_of(&fit));
+    assert!(fs::read(&fitted).unwrap().starts_with(b"stablesurf.mpu"));
+}

@@ -20,6 +20,7 @@ fn mesh(model: &MpuModel, depth: u32) -> TriangleMesh {
     let params = PolygonizeParams {
         depth,
         guard_levels: 0,
+        ..PolygonizeParams::default()
     };
     polygonize(model, &model.region, &params).unwrap().mesh
 }

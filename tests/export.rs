@@ -356,6 +356,7 @@ fn sphere_distances_match_analytic() {
                             DistanceMethod::Taubin => {
                                 assert_eq!(got.signum(), expected.signum(), "{p:?}")
                             }
+                            DistanceMethod::Mesh => unreachable!("not in this loop"),
                         }
                     }
                 }

@@ -39,6 +39,7 @@ fn main() -> anyhow::Result<()> {
     let mut mesh_params = PolygonizeParams {
         depth: 8,
         guard_levels: 1,
+        ..PolygonizeParams::default()
     };
     let mut files = Vec::new();
     while !args.is_empty() {

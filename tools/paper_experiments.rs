@@ -282,6 +282,7 @@ fn tile(outcome: &Result<Outcome, String>, size: u32) -> RgbImage {
             let params = PolygonizeParams {
                 depth: 6,
                 guard_levels: 1,
+                ..PolygonizeParams::default()
             };
             match polygonize(p, &region, &params) {
                 Ok(out) => render(

@@ -222,6 +222,24 @@ impl Artifact for ImplicitModel {
     }
 }
 
+/// The detail model: its `stablesurf.mpu` file bytes inside the checked envelope (the file
+/// format is versioned on its own; a file that fails to read back is a miss).
+impl Artifact for crate::detail::MpuModel {
+    const KIND: u32 = 6;
+    const VERSION: u32 = crate::detail::STAGE_VERSION;
+
+    fn encode_payload(&self, out: &mut Vec<u8>) {
+        let mut file = Vec::new();
+        crate::export::mpu::write_mpu(self, &mut file).expect("writing to memory cannot fail");
+        out.extend_from_slice(&(file.len() as u64).to_le_bytes());
+        out.extend_from_slice(&file);
+    }
+
+    fn decode_payload(r: &mut Reader<'_>) -> Option<Self> {
+        crate::export::mpu::read_mpu(r.bytes()?, std::path::Path::new("cache entry")).ok()
+    }
+}
+
 /// The bytes of a run's output files, by path relative to the output directory (the cached
 /// result of the pipeline's `export` stage).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]

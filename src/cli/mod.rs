@@ -81,12 +81,25 @@ pub struct FitOpts {
     pub method: String,
 }
 
+/// Options of the detail fit (`--mode detail`).
+#[derive(Debug, Args, Clone)]
+pub struct DetailOpts {
+    /// Degree of the local fits in detail mode: 2, 3 or 4.
+    #[arg(long, default_value_t = 2)]
+    pub local_degree: u32,
+    /// Detail mode: split a cell while its fit is farther than this from its points (fraction
+    /// of the bounding-box diagonal).
+    #[arg(long, default_value_t = 2e-3)]
+    pub tolerance: f64,
+}
+
 /// Options of the polygonize stage.
 #[derive(Debug, Args, Clone)]
 pub struct MeshOpts {
-    /// Octree depth near the surface: finest cell = longest side of the box / 2^depth.
-    #[arg(long, default_value_t = 8)]
-    pub depth: u32,
+    /// Octree depth near the surface: finest cell = longest side of the box / 2^depth
+    /// [default: 8 for a polynomial (global) model, 7 for a detail model].
+    #[arg(long)]
+    pub depth: Option<u32>,
 }
 
 /// Which zero-set components to keep.
@@ -149,6 +162,9 @@ pub struct RunArgs {
     pub fit: FitOpts,
     #[command(flatten)]
     #[allow(missing_docs)]
+    pub detail: DetailOpts,
+    #[command(flatten)]
+    #[allow(missing_docs)]
     pub mesh: MeshOpts,
     #[command(flatten)]
     #[allow(missing_docs)]
@@ -185,18 +201,25 @@ pub struct FitArgs {
     /// Print the model's diagnostics as JSON on stdout.
     #[arg(long)]
     pub json: bool,
+    /// global: one polynomial, written as model.json; detail: local fits blended, written as a
+    /// stablesurf.mpu file.
+    #[arg(long, default_value = "global")]
+    pub mode: String,
     #[command(flatten)]
     #[allow(missing_docs)]
     pub normals: NormalsOpts,
     #[command(flatten)]
     #[allow(missing_docs)]
     pub fit: FitOpts,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub detail: DetailOpts,
 }
 
 /// `stablesurf mesh`.
 #[derive(Debug, Args)]
 pub struct MeshArgs {
-    /// Model file (model.json).
+    /// Model file (model.json or model.mpu).
     pub model: PathBuf,
     /// Output mesh: .glb, .gltf or .ply (format from the extension).
     #[arg(short, long, value_name = "OUT")]
@@ -243,8 +266,8 @@ pub struct SliceOpts {
     /// Number of distance slices across the box (along z).
     #[arg(long, default_value_t = 16)]
     pub slice_count: usize,
-    /// Pixels per side of each distance slice.
-    #[arg(long, default_value_t = 256)]
+    /// Pixels per side of each distance slice (`stablesurf slices` makes finer ones).
+    #[arg(long, default_value_t = 128)]
     pub slice_resolution: usize,
     /// Distance method of the slices [default: exact for --mode global, mesh for --mode detail].
     #[arg(long, value_enum)]
@@ -254,7 +277,7 @@ pub struct SliceOpts {
 /// `stablesurf slices`.
 #[derive(Debug, Args)]
 pub struct SlicesArgs {
-    /// Model file (model.json).
+    /// Model file (model.json or model.mpu).
     pub model: PathBuf,
     /// Output directory.
     #[arg(short, long, value_name = "DIR")]
@@ -268,9 +291,9 @@ pub struct SlicesArgs {
     /// Pixels per side of each slice.
     #[arg(long, default_value_t = 256)]
     pub resolution: usize,
-    /// Distance method.
-    #[arg(long, value_enum, default_value_t = DistanceArg::Exact)]
-    pub distance: DistanceArg,
+    /// Distance method [default: exact for model.json, mesh for model.mpu].
+    #[arg(long, value_enum)]
+    pub distance: Option<DistanceArg>,
     /// Region in input coordinates: xmin,ymin,zmin,xmax,ymax,zmax (overrides the model's box).
     #[arg(long, value_name = "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX", allow_hyphen_values = true, value_parser = parse_bounds)]
     pub bounds: Option<[f64; 6]>,
@@ -370,7 +393,7 @@ mod tests {
         assert!(r.input.is_none());
         assert_eq!(r.fit.degree, 8);
         assert_eq!(r.fit.kappa, "auto");
-        assert_eq!(r.mesh.depth, 8);
+        assert_eq!(r.mesh.depth, None);
         assert_eq!(r.formats, ["glb", "ply", "exr", "png", "json"]);
     }
 
@@ -420,7 +443,7 @@ mod tests {
         assert_eq!(r.fit.epsilon, 0.01);
         assert_eq!(r.fit.method, "3l");
         assert_eq!(r.fit.kappa_rule, "paper");
-        assert_eq!(r.mesh.depth, 7);
+        assert_eq!(r.mesh.depth, Some(7));
         assert_eq!(r.keep, KeepArg::Data);
         assert_eq!(r.up, UpArg::Z);
         assert_eq!(r.normals.source, "pca");
@@ -472,7 +495,7 @@ mod tests {
         };
         assert_eq!(
             (s.axis, s.count, s.resolution, s.distance),
-            (AxisArg::X, 4, 64, DistanceArg::Taubin)
+            (AxisArg::X, 4, 64, Some(DistanceArg::Taubin))
         );
         let CommandArgs::Info(i) = parse(&["info", "f.ply", "--json"]).command else {
             panic!()
