@@ -266,14 +266,11 @@ impl<'a> GridMeshDistance<'a> {
             .query(&p)
             .nearest_n::<SquaredEuclidean<f64>>(k)
             .execute();
-        let mut walks = 0;
-        for n in nearest {
-            if walks == N_WALKS || n.distance.sqrt() > best.0 + 2.0 * self.cell {
+        for n in nearest.iter().take(N_WALKS) {
+            if n.distance.sqrt() > best.0 + 2.0 * self.cell {
                 break;
             }
-            let seed = self.seeds[n.item as usize] as usize;
-            walks += 1;
-            let v = self.mesh.descend(p, seed);
+            let v = self.mesh.descend(p, self.seeds[n.item as usize] as usize);
             if ends[..n_ends].contains(&v) {
                 continue;
             }
