@@ -275,6 +275,16 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
         .iter()
         .map(|f| OutputFormat::from_str(f).map_err(|e| usage(format!("--formats: {e}"))))
         .collect::<Result<Vec<_>>>()?;
+    if mode == pipeline::Mode::Detail
+        && matches!(
+            args.slices.slice_distance,
+            Some(cli::DistanceArg::Exact | cli::DistanceArg::Taubin)
+        )
+    {
+        return Err(usage(
+            "--slice-distance exact and taubin need a polynomial: use --slice-distance mesh with --mode detail",
+        ));
+    }
     let config = PipelineConfig {
         mode,
         normals: normals_params(&args.normals)?,
@@ -307,17 +317,29 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
             Some(p) => p.display().to_string(),
             None => pipeline::SAMPLE_NAME.to_string(),
         };
+        let model = match mode {
+            pipeline::Mode::Global => format!(
+                "degree {}, method {}, kappa {}, rule {}, epsilon {}",
+                args.fit.degree,
+                args.fit.method,
+                args.fit.kappa,
+                args.fit.kappa_rule,
+                args.fit.epsilon
+            ),
+            pipeline::Mode::Detail => format!(
+                "local degree {}, tolerance {}",
+                args.detail.local_degree, args.detail.tolerance
+            ),
+        };
         eprintln!(
-            "stablesurf: run {input} -> {} (mode {}, normals {}, degree {}, method {}, kappa {}, rule {}, epsilon {}, depth {}, cache {})",
+            "stablesurf: run {input} -> {} (mode {}, normals {}, {model}, depth {}, slices {} x {}^2 {}, cache {})",
             args.output.display(),
             args.mode,
             args.normals.source,
-            args.fit.degree,
-            args.fit.method,
-            args.fit.kappa,
-            args.fit.kappa_rule,
-            args.fit.epsilon,
             config.polygonize.depth,
+            config.slices.count,
+            config.slices.resolution,
+            config.slices.method.name(),
             cache.root().map_or("off".to_string(), |r| r.display().to_string()),
         );
     }

@@ -472,6 +472,10 @@ fn detail_mode_runs_end_to_end_and_its_model_file_works_everywhere() {
         .unwrap();
     assert_eq!(exact.status.code(), Some(2), "{}", stderr_of(&exact));
 
+    // And for `run` it is refused before any work.
+    let refused = run(&["--slice-distance", "exact"]);
+    assert_eq!(refused.status.code(), Some(2), "{}", stderr_of(&refused));
+
     // `fit --mode detail` writes the same kind of file.
     let fitted = dir.path().join("fit.mpu");
     let fit = bin()
