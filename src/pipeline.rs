@@ -617,7 +617,16 @@ pub fn run(
     let mut report = RunReport {
         input: input_name,
         stages: ctx.stages,
-        fit: model.report(),
+        fit: {
+            let mut fit = model.report();
+            if let (Model::Detail(_), Some(map)) = (&model, fit.as_object_mut()) {
+                map.insert(
+                    "params".into(),
+                    serde_json::to_value(&config.detail).unwrap_or_default(),
+                );
+            }
+            fit
+        },
         mesh: report_mesh,
         accuracy,
         outputs,

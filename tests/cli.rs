@@ -402,6 +402,7 @@ fn detail_mode_runs_end_to_end_and_its_model_file_works_everywhere() {
     assert_eq!(cache_state(&stderr_of(&first), "detail"), "miss");
     let report: serde_json::Value = serde_json::from_slice(&first.stdout).unwrap();
     assert_eq!(report["fit"]["mode"], "detail");
+    assert_eq!(report["fit"]["params"]["degree"], 2);
     assert_eq!(report["mesh"]["components"], 1);
     assert_eq!(report["mesh"]["watertight"], true);
     // Data within 0.5% of the diagonal (2·√3·2 ≈ 6.9) of the mesh on average.
