@@ -15,31 +15,15 @@ use stablesurf::normals::{estimate_normals, NormalSource, NormalsParams};
 use stablesurf::polygonize::{polygonize, PolygonizeParams};
 use stablesurf::OrientedCloud;
 
+#[path = "../tools/proc_time.rs"]
+mod proc_time;
+use proc_time::cpu_seconds;
+
 const MESH: PolygonizeParams = PolygonizeParams {
     depth: 7,
     guard_levels: 0,
     simplification: stablesurf::polygonize::Simplification::EdgeCollapse,
 };
-
-/// CPU seconds of this process (all threads), from /proc/self/stat.
-fn cpu_seconds() -> f64 {
-    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
-        return 0.0;
-    };
-    let fields: Vec<&str> = stat
-        .rsplit(')')
-        .next()
-        .unwrap_or("")
-        .split_whitespace()
-        .collect();
-    let ticks = |i: usize| {
-        fields
-            .get(i)
-            .and_then(|v| v.parse::<f64>().ok())
-            .unwrap_or(0.0)
-    };
-    (ticks(11) + ticks(12)) / 100.0
-}
 
 /// Peak resident memory of the process so far, MB.
 fn peak_mb() -> f64 {

@@ -8,6 +8,10 @@ use stablesurf::fit::study::{sample, Shape, Variant};
 use stablesurf::fit::{fit, FitParams, Kappa};
 use stablesurf::OrientedCloud;
 
+#[path = "../tools/proc_time.rs"]
+mod proc_time;
+use proc_time::cpu_seconds;
+
 /// Repeats a sample with small deterministic jitter to reach `n` points.
 fn cloud_of(n: usize) -> OrientedCloud {
     let base = sample(Shape::Heart, Variant::Clean, 36_000.min(n), 1);
@@ -90,25 +94,6 @@ fn phases() {
             summary.beta[0]
         );
     }
-}
-
-/// User + system CPU time of this process so far (from /proc/self/stat, 100 Hz ticks).
-fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
-    let fields: Vec<&str> = stat
-        .rsplit(')')
-        .next()
-        .unwrap_or("")
-        .split_whitespace()
-        .collect();
-    let ticks = |i: usize| {
-        fields
-            .get(i)
-            .and_then(|v| v.parse::<f64>().ok())
-            .unwrap_or(0.0)
-    };
-    // After the command name: state is field 0, utime field 11, stime field 12.
-    (ticks(11) + ticks(12)) / 100.0
 }
 
 fn main() {

@@ -13,25 +13,8 @@ use stablesurf::detail::{chamfer_distance, fit_detail, DetailParams};
 use stablesurf::normals::{estimate_normals, NormalsParams};
 use stablesurf::polygonize::{polygonize, PolygonizeParams};
 
-/// CPU seconds used by this process so far (all threads), from /proc/self/stat; 0 elsewhere.
-fn cpu_seconds() -> f64 {
-    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
-        return 0.0;
-    };
-    let fields: Vec<&str> = stat
-        .rsplit(')')
-        .next()
-        .unwrap_or("")
-        .split_whitespace()
-        .collect();
-    let ticks = |i: usize| {
-        fields
-            .get(i)
-            .and_then(|v| v.parse::<f64>().ok())
-            .unwrap_or(0.0)
-    };
-    (ticks(11) + ticks(12)) / 100.0
-}
+mod proc_time;
+use proc_time::cpu_seconds;
 
 fn main() -> anyhow::Result<()> {
     let mut args: Vec<String> = std::env::args().skip(1).collect();
