@@ -44,7 +44,9 @@ use rayon::prelude::*;
 
 use crate::cloud::Aabb;
 use crate::mesh::VertexTriangles;
-use crate::normals::delaunay::{check_spans_3d, face_vertices, Delaunay, NO_NEIGHBOUR};
+use crate::normals::delaunay::{
+    check_spans_3d, face_vertices, Batch, Delaunay, InsertionOrder, TetHint, NO_NEIGHBOUR,
+};
 use crate::normals::vec3::{add, cross, dot, norm, normalized, scale, sub, triangle_normal};
 use crate::normals::{orient, pca, NormalsError, NormalsParams};
 
@@ -131,10 +133,11 @@ pub fn crust_timed(
         (0..n as u32).collect(),
         0,
         &mut representative,
+        &Batch::default(),
         times,
     );
     laps.lap("delaunay: insertion total", times);
-    let dt = delaunay.extract(representative);
+    let (dt, slots) = delaunay.extract(representative);
     laps.lap("delaunay: compaction", times);
     let centres: Vec<[f64; 3]> = dt
         .tets
@@ -227,12 +230,12 @@ pub fn crust_timed(
             is_pole[second[v].1 as usize] = true;
         }
     }
-    let poles: Vec<[f64; 3]> = is_pole
-        .iter()
-        .zip(&centres)
-        .filter(|&(&p, c)| p && norm(&sub(c, &centre)) <= limit)
-        .map(|(_, c)| *c)
-        .collect();
+    // Each pole starts its cavity from the tetrahedron it is the circumcentre of (while that
+    // one survives), in Hilbert order so that consecutive cavities share memory.
+    let (poles, hints): (Vec<[f64; 3]>, Vec<Option<TetHint>>) = (0..dt.tets.len())
+        .filter(|&t| is_pole[t] && norm(&sub(&centres[t], &centre)) <= limit)
+        .map(|t| (centres[t], delaunay.hint(slots[t])))
+        .unzip();
     let n_poles = poles.len();
     laps.lap("poles", times);
     let mut representative: Vec<u32> = (0..(n + n_poles) as u32).collect();
@@ -241,6 +244,10 @@ pub fn crust_timed(
         (0..n_poles as u32).collect(),
         n as u32,
         &mut representative,
+        &Batch {
+            order: InsertionOrder::Hilbert,
+            hints,
+        },
         times,
     );
     laps.lap("(second delaunay)", times);

@@ -220,9 +220,19 @@ fn hilbert_index(mut x: [u32; 3], bits: u32) -> u64 {
     key
 }
 
-/// Insertion order: a deterministic shuffle cut into rounds of doubling size (BRIO), each
-/// round sorted along a Hilbert curve so that consecutive points are close.
-fn brio_order(points: &[[f64; 3]], ids: &mut [u32]) {
+/// The order in which [`Delaunay::insert`] inserts a batch of points.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum InsertionOrder {
+    /// A deterministic shuffle cut into rounds of doubling size (BRIO), each round sorted along
+    /// a Hilbert curve: the order for building a triangulation, where the walks need it.
+    Brio,
+    /// Along one Hilbert curve: the order for points that come with a start tetrahedron (the
+    /// crust's poles), where only memory locality matters.
+    Hilbert,
+}
+
+/// Sorts `ids` into the insertion order `order` (see [`InsertionOrder`]).
+fn insertion_order(points: &[[f64; 3]], ids: &mut [u32], order: InsertionOrder) {
     const BITS: u32 = 16;
     let Some(bbox) = crate::cloud::Aabb::from_points(points) else {
         return;
@@ -238,6 +248,10 @@ fn brio_order(points: &[[f64; 3]], ids: &mut [u32]) {
             [0, 1, 2].map(|a| (((p[a] - bbox.min[a]) / scale) * cells).clamp(0.0, cells) as u32);
         hilbert_index(q, BITS)
     };
+    if order == InsertionOrder::Hilbert {
+        ids.sort_by_cached_key(|&i| (key(i), i));
+        return;
+    }
     let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
     for i in (1..ids.len()).rev() {
         let j = (rng.next() % (i as u64 + 1)) as usize;
@@ -302,8 +316,15 @@ pub fn tetrahedralize_timed(
         .filter(|&i| representative[i as usize] == i)
         .collect();
     lap("delaunay: checks + dedup", times);
-    delaunay.insert(points, ids, 0, &mut representative, times);
-    let dt = delaunay.extract(representative);
+    delaunay.insert(
+        points,
+        ids,
+        0,
+        &mut representative,
+        &Batch::default(),
+        times,
+    );
+    let (dt, _) = delaunay.extract(representative);
     lap("delaunay: compaction", times);
     Ok(dt)
 }
@@ -336,6 +357,31 @@ struct EdgeSlot {
     key: u64,
     stamp: u32,
     face: u32,
+}
+
+/// A start tetrahedron for one point of a batch: an internal slot and the vertices it held
+/// when the hint was made (a slot may since have been freed and reused).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct TetHint {
+    slot: u32,
+    v: [u32; 4],
+}
+
+/// How [`Delaunay::insert`] treats a batch: its order and, per point, an optional start
+/// tetrahedron (indexed like the batch's `points`; missing entries mean none).
+#[derive(Clone, Debug)]
+pub(crate) struct Batch {
+    pub(crate) order: InsertionOrder,
+    pub(crate) hints: Vec<Option<TetHint>>,
+}
+
+impl Default for Batch {
+    fn default() -> Self {
+        Batch {
+            order: InsertionOrder::Brio,
+            hints: Vec::new(),
+        }
+    }
 }
 
 /// Incremental Bowyer–Watson state, kept between insertions so that a second batch of points
@@ -416,21 +462,28 @@ impl Delaunay {
         })
     }
 
-    /// Inserts `points[i]` for each `i` in `ids` (in BRIO order), as caller index
+    /// Inserts `points[i]` for each `i` in `ids` (in the order `batch.order`), as caller index
     /// `first + i`. A point equal to a vertex already there is not inserted:
     /// `representative[first + i]` is set to that vertex's caller index.
+    ///
+    /// Bowyer–Watson only needs one tetrahedron in conflict with the new point to grow the
+    /// cavity from (the conflict region is connected). Where `batch.hints[i]` names a
+    /// tetrahedron that still exists and whose circumsphere contains the point (the crust's
+    /// poles are circumcentres of tetrahedra of the samples' triangulation), the cavity grows
+    /// from it and the walk is skipped; otherwise the point is located by the walk.
     pub(crate) fn insert(
         &mut self,
         points: &[[f64; 3]],
         mut ids: Vec<u32>,
         first: u32,
         representative: &mut [u32],
+        batch: &Batch,
         times: &mut Vec<(&'static str, std::time::Duration)>,
     ) {
         let clock = std::time::Instant::now();
-        brio_order(points, &mut ids);
+        insertion_order(points, &mut ids, batch.order);
         let now = std::time::Instant::now();
-        times.push(("delaunay: brio sort", now - clock));
+        times.push(("delaunay: insertion order", now - clock));
         self.pts.reserve(ids.len());
         self.orig.reserve(ids.len());
         let expected = self.tets.len() + 7 * ids.len();
@@ -441,12 +494,28 @@ impl Delaunay {
             let v = self.pts.len() as u32;
             self.pts.push(p);
             self.orig.push(first + i);
-            let t = self.locate(self.last, &p);
-            let tv = self.tets[t as usize].v;
-            if let Some(&dup) = tv.iter().find(|&&w| self.pts[w as usize] == p) {
-                representative[(first + i) as usize] = self.orig[dup as usize];
-                continue;
-            }
+            let hinted = batch
+                .hints
+                .get(i as usize)
+                .copied()
+                .flatten()
+                .filter(|h| {
+                    self.tets.get(h.slot as usize).is_some_and(|t| t.v == h.v)
+                        && self.conflict(h.slot, v)
+                });
+            let t = match hinted {
+                // A point strictly inside a circumsphere is none of the vertices.
+                Some(h) => h.slot,
+                None => {
+                    let t = self.locate(self.last, &p);
+                    let tv = self.tets[t as usize].v;
+                    if let Some(&dup) = tv.iter().find(|&&w| self.pts[w as usize] == p) {
+                        representative[(first + i) as usize] = self.orig[dup as usize];
+                        continue;
+                    }
+                    t
+                }
+            };
             if !self.insert_one(t, v) {
                 self.n_rejected += 1;
             }
@@ -454,9 +523,16 @@ impl Delaunay {
         times.push(("delaunay: insertion", now.elapsed()));
     }
 
-    /// The tetrahedra not touching the enclosing vertices, renumbered, with caller indices.
-    /// `representative` chains (a duplicate of a duplicate) are resolved.
-    pub(crate) fn extract(&self, mut representative: Vec<u32>) -> Tetrahedralization {
+    /// A start hint naming the tetrahedron in internal slot `slot` as it is now.
+    pub(crate) fn hint(&self, slot: u32) -> Option<TetHint> {
+        let t = self.tets.get(slot as usize)?;
+        (t.v[0] != NO_NEIGHBOUR).then_some(TetHint { slot, v: t.v })
+    }
+
+    /// The tetrahedra not touching the enclosing vertices, renumbered, with caller indices, and
+    /// the internal slot of each (for [`Delaunay::hint`]). `representative` chains (a duplicate
+    /// of a duplicate) are resolved.
+    pub(crate) fn extract(&self, mut representative: Vec<u32>) -> (Tetrahedralization, Vec<u32>) {
         for i in 0..representative.len() {
             let mut r = representative[i];
             while representative[r as usize] != r {
@@ -466,10 +542,12 @@ impl Delaunay {
         }
         let mut new_index = vec![NO_NEIGHBOUR; self.tets.len()];
         let mut tets = Vec::with_capacity(self.tets.len());
+        let mut slots = Vec::with_capacity(self.tets.len());
         for (t, tet) in self.tets.iter().enumerate() {
             if tet.v[0] != NO_NEIGHBOUR && tet.v.iter().all(|&v| v >= 4) {
                 new_index[t] = tets.len() as u32;
                 tets.push(tet.v.map(|v| self.orig[v as usize]));
+                slots.push(t as u32);
             }
         }
         let mut neighbours = Vec::with_capacity(tets.len());
@@ -484,21 +562,25 @@ impl Delaunay {
                 }));
             }
         }
-        Tetrahedralization {
-            tets,
-            neighbours,
-            representative,
-            n_rejected: self.n_rejected,
-        }
+        (
+            Tetrahedralization {
+                tets,
+                neighbours,
+                representative,
+                n_rejected: self.n_rejected,
+            },
+            slots,
+        )
     }
 
-    /// The faces whose three vertices have caller indices below `limit`, each once, wound as
-    /// [`face_vertices`] winds them for the tetrahedron that reports the face (the first kept
-    /// one in slot order).
+    /// The faces whose three vertices have caller indices below `limit`, each once, sorted.
+    /// The result depends only on the triangulation, not on how its tetrahedra are stored: a
+    /// face is wound as [`face_vertices`] winds it for the adjacent kept tetrahedron whose
+    /// opposite vertex has the smaller caller index, and rotated to start at its smallest index.
     pub(crate) fn faces_among(&self, limit: u32) -> Vec<[u32; 3]> {
         let kept = |t: &Tet| t.v[0] != NO_NEIGHBOUR && t.v.iter().all(|&v| v >= 4);
         let mut faces = Vec::new();
-        for (t, tet) in self.tets.iter().enumerate() {
+        for tet in &self.tets {
             if !kept(tet) {
                 continue;
             }
@@ -508,18 +590,20 @@ impl Delaunay {
             }
             for i in 0..4 {
                 let u = tet.n[i];
-                if u != NO_NEIGHBOUR
-                    && ((u >> 2) as usize) < t
-                    && kept(&self.tets[(u >> 2) as usize])
-                {
-                    continue;
+                if u != NO_NEIGHBOUR {
+                    let other = &self.tets[(u >> 2) as usize];
+                    if kept(other) && self.orig[other.v[(u & 3) as usize] as usize] < ids[i] {
+                        continue;
+                    }
                 }
                 let f = face_vertices(ids, i);
                 if f.iter().all(|&v| v < limit) {
-                    faces.push(f);
+                    let k = (0..3).min_by_key(|&k| f[k]).unwrap_or(0);
+                    faces.push([f[k], f[(k + 1) % 3], f[(k + 2) % 3]]);
                 }
             }
         }
+        faces.sort_unstable();
         faces
     }
 
