@@ -44,9 +44,7 @@ use rayon::prelude::*;
 
 use crate::cloud::Aabb;
 use crate::mesh::VertexTriangles;
-use crate::normals::delaunay::{
-    check_spans_3d, face_vertices, Batch, Delaunay, InsertionOrder, TetHint, NO_NEIGHBOUR,
-};
+use crate::normals::delaunay::{check_spans_3d, face_vertices, Delaunay, Keep, NO_NEIGHBOUR};
 use crate::normals::vec3::{add, cross, dot, norm, normalized, scale, sub, triangle_normal};
 use crate::normals::{orient, pca, NormalsError, NormalsParams};
 
@@ -133,11 +131,11 @@ pub fn crust_timed(
         (0..n as u32).collect(),
         0,
         &mut representative,
-        &Batch::default(),
+        Keep::All,
         times,
     );
     laps.lap("delaunay: insertion total", times);
-    let (dt, slots) = delaunay.extract(representative);
+    let dt = delaunay.extract(representative);
     laps.lap("delaunay: compaction", times);
     let centres: Vec<[f64; 3]> = dt
         .tets
@@ -230,26 +228,29 @@ pub fn crust_timed(
             is_pole[second[v].1 as usize] = true;
         }
     }
-    // Each pole starts its cavity from the tetrahedron it is the circumcentre of (while that
-    // one survives), in Hilbert order so that consecutive cavities share memory.
-    let (poles, hints): (Vec<[f64; 3]>, Vec<Option<TetHint>>) = (0..dt.tets.len())
-        .filter(|&t| is_pole[t] && norm(&sub(&centres[t], &centre)) <= limit)
-        .map(|t| (centres[t], delaunay.hint(slots[t])))
-        .unzip();
+    let poles: Vec<[f64; 3]> = is_pole
+        .iter()
+        .zip(&centres)
+        .filter(|&(&p, c)| p && norm(&sub(c, &centre)) <= limit)
+        .map(|(_, c)| *c)
+        .collect();
     let n_poles = poles.len();
     laps.lap("poles", times);
     let mut representative: Vec<u32> = (0..(n + n_poles) as u32).collect();
+    let rule = if std::env::var_os("NO_SKIP").is_some() {
+        Keep::All
+    } else {
+        Keep::IfCavityHasFaceBelow(n as u32)
+    };
     delaunay.insert(
         &poles,
         (0..n_poles as u32).collect(),
         n as u32,
         &mut representative,
-        &Batch {
-            order: InsertionOrder::Hilbert,
-            hints,
-        },
+        rule,
         times,
     );
+    eprintln!("redundant poles: {} of {}", delaunay.n_redundant, n_poles);
     laps.lap("(second delaunay)", times);
     let triangles = delaunay.faces_among(n as u32);
     laps.lap("face extraction", times);

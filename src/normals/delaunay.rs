@@ -220,19 +220,9 @@ fn hilbert_index(mut x: [u32; 3], bits: u32) -> u64 {
     key
 }
 
-/// The order in which [`Delaunay::insert`] inserts a batch of points.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum InsertionOrder {
-    /// A deterministic shuffle cut into rounds of doubling size (BRIO), each round sorted along
-    /// a Hilbert curve: the order for building a triangulation, where the walks need it.
-    Brio,
-    /// Along one Hilbert curve: the order for points that come with a start tetrahedron (the
-    /// crust's poles), where only memory locality matters.
-    Hilbert,
-}
-
-/// Sorts `ids` into the insertion order `order` (see [`InsertionOrder`]).
-fn insertion_order(points: &[[f64; 3]], ids: &mut [u32], order: InsertionOrder) {
+/// Insertion order: a deterministic shuffle cut into rounds of doubling size (BRIO), each
+/// round sorted along a Hilbert curve so that consecutive points are close.
+fn brio_order(points: &[[f64; 3]], ids: &mut [u32]) {
     const BITS: u32 = 16;
     let Some(bbox) = crate::cloud::Aabb::from_points(points) else {
         return;
@@ -248,10 +238,6 @@ fn insertion_order(points: &[[f64; 3]], ids: &mut [u32], order: InsertionOrder) 
             [0, 1, 2].map(|a| (((p[a] - bbox.min[a]) / scale) * cells).clamp(0.0, cells) as u32);
         hilbert_index(q, BITS)
     };
-    if order == InsertionOrder::Hilbert {
-        ids.sort_by_cached_key(|&i| (key(i), i));
-        return;
-    }
     let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
     for i in (1..ids.len()).rev() {
         let j = (rng.next() % (i as u64 + 1)) as usize;
@@ -316,15 +302,8 @@ pub fn tetrahedralize_timed(
         .filter(|&i| representative[i as usize] == i)
         .collect();
     lap("delaunay: checks + dedup", times);
-    delaunay.insert(
-        points,
-        ids,
-        0,
-        &mut representative,
-        &Batch::default(),
-        times,
-    );
-    let (dt, _) = delaunay.extract(representative);
+    delaunay.insert(points, ids, 0, &mut representative, Keep::All, times);
+    let dt = delaunay.extract(representative);
     lap("delaunay: compaction", times);
     Ok(dt)
 }
@@ -359,29 +338,24 @@ struct EdgeSlot {
     face: u32,
 }
 
-/// A start tetrahedron for one point of a batch: an internal slot and the vertices it held
-/// when the hint was made (a slot may since have been freed and reused).
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct TetHint {
-    slot: u32,
-    v: [u32; 4],
+/// Which points of a batch [`Delaunay::insert`] inserts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Keep {
+    /// Every point.
+    All,
+    /// Only the points whose cavity holds a tetrahedron with a face among the first `limit`
+    /// points inserted (the crust's samples); the others are left out (see
+    /// [`crate::normals::crust`] for why that changes no such face).
+    IfCavityHasFaceBelow(u32),
 }
 
-/// How [`Delaunay::insert`] treats a batch: its order and, per point, an optional start
-/// tetrahedron (indexed like the batch's `points`; missing entries mean none).
-#[derive(Clone, Debug)]
-pub(crate) struct Batch {
-    pub(crate) order: InsertionOrder,
-    pub(crate) hints: Vec<Option<TetHint>>,
-}
-
-impl Default for Batch {
-    fn default() -> Self {
-        Batch {
-            order: InsertionOrder::Brio,
-            hints: Vec::new(),
-        }
-    }
+/// What happened to one point in [`Delaunay::insert_one`].
+enum Outcome {
+    Inserted,
+    /// Left out by the safety net.
+    Rejected,
+    /// Left out by [`Keep::IfCavityHasFaceBelow`].
+    Redundant,
 }
 
 /// Incremental Bowyer–Watson state, kept between insertions so that a second batch of points
@@ -406,6 +380,7 @@ pub(crate) struct Delaunay {
     stack: Vec<u32>,
     table: Vec<EdgeSlot>,
     n_rejected: usize,
+    pub(crate) n_redundant: usize,
 }
 
 /// Priority of enclosing vertex `i` in the symbolic perturbation (above every real point).
@@ -459,31 +434,26 @@ impl Delaunay {
             stack: Vec::new(),
             table: Vec::new(),
             n_rejected: 0,
+            n_redundant: 0,
         })
     }
 
-    /// Inserts `points[i]` for each `i` in `ids` (in the order `batch.order`), as caller index
+    /// Inserts `points[i]` for each `i` in `ids` (in BRIO order), as caller index
     /// `first + i`. A point equal to a vertex already there is not inserted:
     /// `representative[first + i]` is set to that vertex's caller index.
-    ///
-    /// Bowyer–Watson only needs one tetrahedron in conflict with the new point to grow the
-    /// cavity from (the conflict region is connected). Where `batch.hints[i]` names a
-    /// tetrahedron that still exists and whose circumsphere contains the point (the crust's
-    /// poles are circumcentres of tetrahedra of the samples' triangulation), the cavity grows
-    /// from it and the walk is skipped; otherwise the point is located by the walk.
     pub(crate) fn insert(
         &mut self,
         points: &[[f64; 3]],
         mut ids: Vec<u32>,
         first: u32,
         representative: &mut [u32],
-        batch: &Batch,
+        rule: Keep,
         times: &mut Vec<(&'static str, std::time::Duration)>,
     ) {
         let clock = std::time::Instant::now();
-        insertion_order(points, &mut ids, batch.order);
+        brio_order(points, &mut ids);
         let now = std::time::Instant::now();
-        times.push(("delaunay: insertion order", now - clock));
+        times.push(("delaunay: brio sort", now - clock));
         self.pts.reserve(ids.len());
         self.orig.reserve(ids.len());
         let expected = self.tets.len() + 7 * ids.len();
@@ -494,45 +464,24 @@ impl Delaunay {
             let v = self.pts.len() as u32;
             self.pts.push(p);
             self.orig.push(first + i);
-            let hinted = batch
-                .hints
-                .get(i as usize)
-                .copied()
-                .flatten()
-                .filter(|h| {
-                    self.tets.get(h.slot as usize).is_some_and(|t| t.v == h.v)
-                        && self.conflict(h.slot, v)
-                });
-            let t = match hinted {
-                // A point strictly inside a circumsphere is none of the vertices.
-                Some(h) => h.slot,
-                None => {
-                    let t = self.locate(self.last, &p);
-                    let tv = self.tets[t as usize].v;
-                    if let Some(&dup) = tv.iter().find(|&&w| self.pts[w as usize] == p) {
-                        representative[(first + i) as usize] = self.orig[dup as usize];
-                        continue;
-                    }
-                    t
-                }
-            };
-            if !self.insert_one(t, v) {
-                self.n_rejected += 1;
+            let t = self.locate(self.last, &p);
+            let tv = self.tets[t as usize].v;
+            if let Some(&dup) = tv.iter().find(|&&w| self.pts[w as usize] == p) {
+                representative[(first + i) as usize] = self.orig[dup as usize];
+                continue;
+            }
+            match self.insert_one(t, v, rule) {
+                Outcome::Inserted => {}
+                Outcome::Rejected => self.n_rejected += 1,
+                Outcome::Redundant => self.n_redundant += 1,
             }
         }
         times.push(("delaunay: insertion", now.elapsed()));
     }
 
-    /// A start hint naming the tetrahedron in internal slot `slot` as it is now.
-    pub(crate) fn hint(&self, slot: u32) -> Option<TetHint> {
-        let t = self.tets.get(slot as usize)?;
-        (t.v[0] != NO_NEIGHBOUR).then_some(TetHint { slot, v: t.v })
-    }
-
-    /// The tetrahedra not touching the enclosing vertices, renumbered, with caller indices, and
-    /// the internal slot of each (for [`Delaunay::hint`]). `representative` chains (a duplicate
-    /// of a duplicate) are resolved.
-    pub(crate) fn extract(&self, mut representative: Vec<u32>) -> (Tetrahedralization, Vec<u32>) {
+    /// The tetrahedra not touching the enclosing vertices, renumbered, with caller indices.
+    /// `representative` chains (a duplicate of a duplicate) are resolved.
+    pub(crate) fn extract(&self, mut representative: Vec<u32>) -> Tetrahedralization {
         for i in 0..representative.len() {
             let mut r = representative[i];
             while representative[r as usize] != r {
@@ -542,12 +491,10 @@ impl Delaunay {
         }
         let mut new_index = vec![NO_NEIGHBOUR; self.tets.len()];
         let mut tets = Vec::with_capacity(self.tets.len());
-        let mut slots = Vec::with_capacity(self.tets.len());
         for (t, tet) in self.tets.iter().enumerate() {
             if tet.v[0] != NO_NEIGHBOUR && tet.v.iter().all(|&v| v >= 4) {
                 new_index[t] = tets.len() as u32;
                 tets.push(tet.v.map(|v| self.orig[v as usize]));
-                slots.push(t as u32);
             }
         }
         let mut neighbours = Vec::with_capacity(tets.len());
@@ -562,15 +509,12 @@ impl Delaunay {
                 }));
             }
         }
-        (
-            Tetrahedralization {
-                tets,
-                neighbours,
-                representative,
-                n_rejected: self.n_rejected,
-            },
-            slots,
-        )
+        Tetrahedralization {
+            tets,
+            neighbours,
+            representative,
+            n_rejected: self.n_rejected,
+        }
     }
 
     /// The faces whose three vertices have caller indices below `limit`, each once, sorted.
@@ -715,7 +659,7 @@ impl Delaunay {
 
     /// Inserts point `v` into the triangulation, starting from tet `t` that contains it.
     /// Returns false when the point was rejected by the safety net.
-    fn insert_one(&mut self, t: u32, v: u32) -> bool {
+    fn insert_one(&mut self, t: u32, v: u32, rule: Keep) -> Outcome {
         // Stamps go up by two: `stamp` marks the cavity, `stamp + 1` the tested non-cavity tets.
         self.stamp = self.stamp.wrapping_add(2);
         if self.stamp >= u32::MAX - 1 {
@@ -729,9 +673,21 @@ impl Delaunay {
         self.stack.clear();
         self.mark[t as usize] = stamp;
         self.stack.push(t);
+        let mut needed = true;
+        let mut below = u32::MAX;
+        if let Keep::IfCavityHasFaceBelow(limit) = rule {
+            needed = false;
+            below = limit;
+        }
         while let Some(c) = self.stack.pop() {
             self.cavity.push(c);
             let tet = self.tets[c as usize];
+            if !needed {
+                // Internal ids 4.. are in insertion order, so "caller index below the limit"
+                // is "internal id in 4..4 + limit" for a first batch of `limit` points.
+                let low = tet.v.iter().filter(|&&w| w >= 4 && w - 4 < below).count();
+                needed = low >= 3;
+            }
             for i in 0..4 {
                 let u = tet.n[i];
                 let outside = if u == NO_NEIGHBOUR {
@@ -763,11 +719,14 @@ impl Delaunay {
                 }
             }
         }
+        if !needed {
+            return Outcome::Redundant;
+        }
         // Safety net: every cone tet must be positively oriented (a star-shaped cavity).
         for f in &self.boundary {
             let q = f.verts.map(|w| self.p(w));
             if orient3d(&q[0], &q[1], &q[2], &q[3]) <= 0.0 {
-                return false;
+                return Outcome::Rejected;
             }
         }
         // Free the cavity, then build the cone in the freed slots (reused last in, first out).
@@ -835,7 +794,7 @@ impl Delaunay {
             }
         }
         self.last = nt;
-        true
+        Outcome::Inserted
     }
 }
 
