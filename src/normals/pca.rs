@@ -51,6 +51,40 @@ pub fn nearest(
         .collect()
 }
 
+/// [`nearest`] by a range query: every point within squared distance `r2` of point `i`, of
+/// which the `k + 1` smallest by (distance, index) are kept. When fewer than that many lie
+/// within `r2`, falls back to [`nearest`]. For large `k` this is several times faster than
+/// the k-nearest query (whose result list is kept sorted while it is filled); the answer is
+/// the same up to the order of equal distances.
+pub fn nearest_within(
+    tree: &ImmutableKdTree<f64, 3>,
+    points: &[[f64; 3]],
+    i: usize,
+    k: usize,
+    r2: f64,
+) -> Vec<u32> {
+    let want = (k + 1).min(points.len());
+    let found = tree
+        .query(&points[i])
+        .within::<SquaredEuclidean<f64>>(r2)
+        .unsorted()
+        .execute();
+    if found.len() < want || want == 0 {
+        return nearest(tree, points, i, k);
+    }
+    let mut by_distance: Vec<(f64, u32)> = found.iter().map(|r| (r.distance, r.item)).collect();
+    let order = |a: &(f64, u32), b: &(f64, u32)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+    by_distance.select_nth_unstable_by(want - 1, order);
+    by_distance.truncate(want);
+    by_distance.sort_unstable_by(order);
+    by_distance
+        .into_iter()
+        .map(|(_, j)| j)
+        .filter(|&j| j as usize != i)
+        .take(k)
+        .collect()
+}
+
 /// The k nearest neighbours of every point (the point itself excluded), nearest first.
 pub fn knn(points: &[[f64; 3]], k: usize) -> Vec<Vec<u32>> {
     match build_tree(points) {
@@ -122,7 +156,18 @@ pub fn adaptive_plane_fit(
     if thickness <= CLEAN_THICKNESS || 2 * k0 > max_k || k0 == 0 {
         return (normal, k0);
     }
-    let wide = nearest(tree, points, i, max_k);
+    // On a surface the number of neighbours grows like the squared radius: the first
+    // neighbourhood's radius, scaled for max_k points with a margin, usually holds them all.
+    let r2 = neighbours
+        .last()
+        .map_or(0.0, |&j| {
+            let d = sub(&points[j as usize], &points[i]);
+            dot(&d, &d)
+        })
+        * 1.5
+        * max_k as f64
+        / k0 as f64;
+    let wide = nearest_within(tree, points, i, max_k, r2);
     let mut best_k = k0;
     let mut k = 2 * k0;
     while k <= wide.len() {
