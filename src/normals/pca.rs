@@ -158,13 +158,10 @@ pub fn adaptive_plane_fit(
     }
     // On a surface the number of neighbours grows like the squared radius: the first
     // neighbourhood's radius, scaled for max_k points with a margin, usually holds them all.
-    let r2 = neighbours
-        .last()
-        .map_or(0.0, |&j| {
-            let d = sub(&points[j as usize], &points[i]);
-            dot(&d, &d)
-        })
-        * 1.5
+    let r2 = neighbours.last().map_or(0.0, |&j| {
+        let d = sub(&points[j as usize], &points[i]);
+        dot(&d, &d)
+    }) * 1.5
         * max_k as f64
         / k0 as f64;
     let wide = nearest_within(tree, points, i, max_k, r2);
