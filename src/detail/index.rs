@@ -451,16 +451,12 @@ pub(crate) fn blend_value_gradient(
 struct LocalBound {
     /// Σ-able bound of |∇wᵢ| on the box: max |b'| · k.
     slope: f64,
-    /// Enclosure of Qᵢ on the box.
-    lo: f64,
-    hi: f64,
     /// For a quadric: Qᵢ(m + t) = v + g·t + tᵀHt/2 at the box centre m (H's upper triangle
-    /// xx, xy, xz, yy, yz, zz), up to `margin` for rounding. `quadric == false`: unused.
+    /// xx, xy, xz, yy, yz, zz), up to `margin` for rounding. Unused for higher degrees.
     v: f64,
     g: [f64; 3],
     hess: [f64; 6],
     margin: f64,
-    quadric: bool,
 }
 
 /// Value and gradient enclosures of the blend over the box `b` (see the module docs).
@@ -512,12 +508,7 @@ pub(crate) fn blend_enclosure(
                 glo[a] = glo[a].min(e.gradient[a].0);
                 ghi[a] = ghi[a].max(e.gradient[a].1);
             }
-            scratch.local.push(LocalBound {
-                slope,
-                lo: e.value.0,
-                hi: e.value.1,
-                ..local
-            });
+            scratch.local.push(LocalBound { slope, ..local });
         }
         let unbounded = [(f64::NEG_INFINITY, f64::INFINITY); 3];
         if scratch.local.is_empty() {
@@ -638,7 +629,6 @@ fn quadric_enclosure(ball: &Ball, m: [f64; 3], h: [f64; 3]) -> (Enclosure, Local
             hess[0][0], hess[0][1], hess[0][2], hess[1][1], hess[1][2], hess[2][2],
         ],
         margin,
-        quadric: true,
         ..LocalBound::default()
     };
     (enclosure, local)
