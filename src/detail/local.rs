@@ -306,8 +306,8 @@ fn add_packed(ata: &mut [f64; 55], m: &[f64; 10]) {
     let mut k = 0;
     for i in 0..10 {
         let mi = m[i];
-        for j in i..10 {
-            ata[k] += mi * m[j];
+        for mj in &m[i..] {
+            ata[k] += mi * mj;
             k += 1;
         }
     }
