@@ -68,7 +68,13 @@ fn main() -> anyhow::Result<()> {
         let out = polygonize(&model, &model.region, &mesh_params)?;
         let t_mesh = t.elapsed().as_secs_f64();
         let c2 = cpu_seconds();
-        eprintln!("cpu: fit {:.2} s, mesh {:.2} s", c1 - c0, c2 - c1);
+        eprintln!(
+            "cpu: fit {:.2} s, mesh {:.2} s; {} surface leaves, {} evaluations",
+            c1 - c0,
+            c2 - c1,
+            out.cells,
+            out.evaluations
+        );
         let report = stablesurf::mesh::check(&out.mesh);
         let (n_components, labels) = stablesurf::mesh::component_labels(&out.mesh);
         let mut sizes = vec![0usize; n_components];

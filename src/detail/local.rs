@@ -100,6 +100,9 @@ pub(crate) fn fit_local(
         return None;
     }
     let norm = |p: [f64; 3]| [0, 1, 2].map(|a| (p[a] - mu[a]) / s);
+    if n == 2 && c == 10 {
+        return fit_quadric(points, normals, ball, aux, epsilon, kappa, mu, s);
+    }
 
     // 2. Normal equations MᵀM (upper triangle, row-major c×c) and Mᵀb.
     let mut ata = [0.0; 35 * 35];
@@ -186,6 +189,128 @@ pub(crate) fn fit_local(
         max_error = max_error.max(e);
     }
     Some(LocalFit { poly, max_error })
+}
+
+/// The degree-2 case of [`fit_local`] after the normalization (μ, s): the same rows, ridge and
+/// scaling, written for 10 unknowns (packed upper triangle, no zero fills of a 35 × 35 system)
+/// and with the error measured in normalized coordinates, where |Q|/|∇Q| = s·|Q̂(q)|/|∇Q̂(q)|.
+#[allow(clippy::too_many_arguments)]
+fn fit_quadric(
+    points: &[[f64; 3]],
+    normals: &[[f64; 3]],
+    ball: &[u32],
+    aux: &[AuxPoint],
+    epsilon: f64,
+    kappa: f64,
+    mu: [f64; 3],
+    s: f64,
+) -> Option<LocalFit> {
+    let norm = |p: [f64; 3]| [0, 1, 2].map(|a| (p[a] - mu[a]) / s);
+    let mut ata = [0.0; 55];
+    let mut atb = [0.0; 10];
+    let mut beta = [0.0; 3];
+    for &i in ball {
+        let q = norm(points[i as usize]);
+        let nv = normals[i as usize];
+        let r2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
+        beta[0] += 1.0;
+        beta[1] += r2;
+        beta[2] += r2 * r2;
+        let m0 = quadric_monomials(q);
+        add_packed(&mut ata, &m0);
+        let m1 = quadric_monomials([0, 1, 2].map(|a| q[a] + epsilon * nv[a]));
+        add_packed(&mut ata, &m1);
+        let m2 = quadric_monomials([0, 1, 2].map(|a| q[a] - epsilon * nv[a]));
+        add_packed(&mut ata, &m2);
+        for l in 0..10 {
+            atb[l] += m1[l] * epsilon + m2[l] * -epsilon;
+        }
+    }
+    for &(p, t) in aux {
+        let m = quadric_monomials(norm(p));
+        add_packed(&mut ata, &m);
+        let target = t / s;
+        for l in 0..10 {
+            atb[l] += m[l] * target;
+        }
+    }
+    // Ridge κD with D_ll = β_{|α|}/T_α (paper 6.18): T is 1 for 1, x, y, z, x², y², z² and 2
+    // for xy, xz, yz.
+    const DEGREE_OF: [usize; 10] = [0, 1, 1, 1, 2, 2, 2, 2, 2, 2];
+    const MULTINOMIAL: [f64; 10] = [1.0, 1.0, 1.0, 1.0, 1.0, 2.0, 2.0, 1.0, 2.0, 1.0];
+    let mut full = [0.0; 100];
+    let mut k = 0;
+    for i in 0..10 {
+        for j in i..10 {
+            full[i * 10 + j] = ata[k];
+            k += 1;
+        }
+        full[i * 10 + i] += kappa * beta[DEGREE_OF[i]] / MULTINOMIAL[i];
+    }
+    let a = cholesky_solve(&mut full, &mut atb, 10)?;
+    // One pass over the ball: mean |∇Q| (input units, before rescaling: ∇ₚQ = ∇_qQ̂) and the
+    // largest |Q|/|∇Q|, which the rescaling leaves unchanged.
+    let mut gsum = 0.0;
+    let mut max_error: f64 = 0.0;
+    for &i in ball {
+        let q = norm(points[i as usize]);
+        let v = a[0]
+            + q[0] * (a[1] + a[4] * q[0] + a[5] * q[1] + a[6] * q[2])
+            + q[1] * (a[2] + a[7] * q[1] + a[8] * q[2])
+            + q[2] * (a[3] + a[9] * q[2]);
+        let g = [
+            a[1] + 2.0 * a[4] * q[0] + a[5] * q[1] + a[6] * q[2],
+            a[2] + a[5] * q[0] + 2.0 * a[7] * q[1] + a[8] * q[2],
+            a[3] + a[6] * q[0] + a[8] * q[1] + 2.0 * a[9] * q[2],
+        ];
+        let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+        gsum += gn;
+        let e = if gn > 0.0 {
+            s * v.abs() / gn
+        } else {
+            f64::INFINITY
+        };
+        max_error = max_error.max(e);
+    }
+    let gmean = gsum / ball.len() as f64;
+    let rescale = if gmean > 1e-3 && gmean.is_finite() {
+        s / gmean
+    } else {
+        s
+    };
+    let coefficients: Vec<f64> = a.iter().map(|v| v * rescale).collect();
+    if coefficients.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    Some(LocalFit {
+        poly: ImplicitPolynomial {
+            degree: 2,
+            coefficients,
+            center: mu,
+            scale: s,
+        },
+        max_error,
+    })
+}
+
+/// The 10 monomials of degree ≤ 2 at `q` in the paper's order.
+#[inline(always)]
+fn quadric_monomials(q: [f64; 3]) -> [f64; 10] {
+    let [x, y, z] = q;
+    [1.0, x, y, z, x * x, x * y, x * z, y * y, y * z, z * z]
+}
+
+/// Adds m·mᵀ to the packed upper triangle (row-major) of a 10 × 10 matrix.
+#[inline(always)]
+fn add_packed(ata: &mut [f64; 55], m: &[f64; 10]) {
+    let mut k = 0;
+    for i in 0..10 {
+        let mi = m[i];
+        for mj in &m[i..] {
+            ata[k] += mi * mj;
+            k += 1;
+        }
+    }
 }
 
 fn factorial(k: usize) -> f64 {

@@ -287,6 +287,47 @@ struct Ctx<'a> {
     diagonal: f64,
     n_min: usize,
     n_min_grown: usize,
+    /// Lower corner of the root cube.
+    origin: [f64; 3],
+    /// Lattice unit: the root side / 2^(max_depth + 1), so that every cell's centre and
+    /// corners have integer coordinates.
+    unit: f64,
+}
+
+/// Estimated signed distances of auxiliary points already computed in one subtree, by lattice
+/// key (`None`: the 6 neighbours disagreed). The estimate depends only on the point, so sharing
+/// it between the cells that have it as centre or corner changes nothing but the cost.
+type AuxCache = std::collections::HashMap<u128, Option<f64>, BuildLatticeHasher>;
+
+/// A multiplicative hash for lattice keys (the default SipHash is slower than needed here).
+#[derive(Clone, Copy, Default)]
+struct BuildLatticeHasher;
+
+/// The hasher of [`BuildLatticeHasher`].
+#[derive(Default)]
+struct LatticeHasher(u64);
+
+impl std::hash::Hasher for LatticeHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(8) ^ u64::from(b)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        }
+    }
+    fn write_u128(&mut self, v: u128) {
+        let folded = (v as u64) ^ ((v >> 64) as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+        self.0 = (folded ^ (folded >> 29)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        self.0 ^= self.0 >> 32;
+    }
+}
+
+impl std::hash::BuildHasher for BuildLatticeHasher {
+    type Hasher = LatticeHasher;
+    fn build_hasher(&self) -> LatticeHasher {
+        LatticeHasher::default()
+    }
 }
 
 /// What a subtree of the octree produced.
@@ -385,9 +426,12 @@ pub fn fit_detail(cloud: &OrientedCloud, params: &DetailParams) -> Result<MpuMod
         diagonal,
         n_min,
         n_min_grown,
+        origin: root.min,
+        unit: side / f64::from(1u32 << (params.max_depth + 1)),
     };
     let all: Vec<u32> = (0..n as u32).collect();
-    let part = visit(&ctx, center, side, 0, &all);
+    let mut cache = AuxCache::default();
+    let part = visit(&ctx, [0; 3], 0, &all, &mut cache);
     if let Some(e) = part.error {
         return Err(e);
     }
@@ -476,10 +520,22 @@ fn data_residuals(model: &MpuModel, points: &[[f64; 3]]) -> (f64, f64) {
     (max, sum / points.len().max(1) as f64)
 }
 
-/// Fits the cell of side `side` centred at `center` at `level`, whose parent's ball holds
-/// `parent_ball`, and recurses.
-fn visit(ctx: &Ctx, center: [f64; 3], side: f64, level: u32, parent_ball: &[u32]) -> Part {
+/// Fits the cell `coords` (integer position among the cells of its level) at `level`, whose
+/// parent's ball holds `parent_ball`, and recurses.
+fn visit(
+    ctx: &Ctx,
+    coords: [u32; 3],
+    level: u32,
+    parent_ball: &[u32],
+    cache: &mut AuxCache,
+) -> Part {
     let params = ctx.params;
+    // Cell side and centre in lattice units (exact integers), then input coordinates.
+    let step = 1u64 << (params.max_depth + 1 - level);
+    let lattice_center = coords.map(|c| (2 * u64::from(c) + 1) * (step / 2));
+    let at = |l: [u64; 3]| [0, 1, 2].map(|a| ctx.origin[a] + l[a] as f64 * ctx.unit);
+    let center = at(lattice_center);
+    let side = step as f64 * ctx.unit;
     let radius = params.support * 3f64.sqrt() * side;
     let mut fit_radius = radius;
     let r2 = radius * radius;
@@ -490,7 +546,6 @@ fn visit(ctx: &Ctx, center: [f64; 3], side: f64, level: u32, parent_ball: &[u32]
         .collect();
     let mut part = Part::default();
     let grown = ball.len() < ctx.n_min;
-    let measure = ball.clone();
     let degree = if grown {
         params.degree.min(2)
     } else {
@@ -521,37 +576,29 @@ fn visit(ctx: &Ctx, center: [f64; 3], side: f64, level: u32, parent_ball: &[u32]
     // MPU's auxiliary rows: the cell's centre and corners.
     let mut aux: Vec<AuxPoint> = Vec::new();
     if params.auxiliary == AuxiliaryPoints::CentreAndCorners {
-        let h = 0.5 * side;
-        let mut candidates = vec![center];
-        for corner in 0..8 {
-            candidates
-                .push([0, 1, 2].map(|a| center[a] + if (corner >> a) & 1 == 1 { h } else { -h }));
-        }
-        let k = NonZero::new(AUX_NEIGHBOURS).unwrap_or(NonZero::<usize>::MIN);
-        for q in candidates {
-            let nearest = ctx
-                .tree
-                .query(&q)
-                .nearest_n::<SquaredEuclidean<f64>>(k)
-                .execute();
-            let mut sum = 0.0;
-            let (mut pos, mut neg) = (0, 0);
-            for nn in &nearest {
-                let p = ctx.points[nn.item as usize];
-                let nv = ctx.normals[nn.item as usize];
-                let d = nv[0] * (q[0] - p[0]) + nv[1] * (q[1] - p[1]) + nv[2] * (q[2] - p[2]);
-                sum += d;
-                if d > 0.0 {
-                    pos += 1;
-                } else if d < 0.0 {
-                    neg += 1;
+        let half = step / 2;
+        let mut candidates = [lattice_center; 9];
+        for (corner, slot) in candidates.iter_mut().skip(1).enumerate() {
+            *slot = [0, 1, 2].map(|a| {
+                if (corner >> a) & 1 == 1 {
+                    lattice_center[a] + half
+                } else {
+                    lattice_center[a] - half
                 }
-            }
-            if nearest.len() == AUX_NEIGHBOURS && (pos == AUX_NEIGHBOURS || neg == AUX_NEIGHBOURS) {
-                aux.push((q, sum / AUX_NEIGHBOURS as f64));
-                part.aux_kept += 1;
-            } else {
-                part.aux_dropped += 1;
+            });
+        }
+        for l in candidates {
+            let key = u128::from(l[0]) | (u128::from(l[1]) << 42) | (u128::from(l[2]) << 84);
+            let q = at(l);
+            let estimate = *cache
+                .entry(key)
+                .or_insert_with(|| auxiliary_estimate(ctx, q));
+            match estimate {
+                Some(t) => {
+                    aux.push((q, t));
+                    part.aux_kept += 1;
+                }
+                None => part.aux_dropped += 1,
             }
         }
     }
@@ -559,7 +606,7 @@ fn visit(ctx: &Ctx, center: [f64; 3], side: f64, level: u32, parent_ball: &[u32]
         ctx.points,
         ctx.normals,
         &ball,
-        if grown { &ball } else { &measure },
+        &ball,
         &aux,
         degree,
         params.epsilon,
@@ -590,25 +637,50 @@ fn visit(ctx: &Ctx, center: [f64; 3], side: f64, level: u32, parent_ball: &[u32]
         });
         return part;
     }
-    let quarter = 0.25 * side;
-    let children: Vec<[f64; 3]> = (0..8)
-        .map(|i| [0, 1, 2].map(|a| center[a] + if (i >> a) & 1 == 1 { quarter } else { -quarter }))
+    let children: Vec<[u32; 3]> = (0..8)
+        .map(|i| [0, 1, 2].map(|a| 2 * coords[a] + ((i >> a) & 1) as u32))
         .collect();
     let parts: Vec<Part> = if level < PARALLEL_LEVELS {
         children
             .par_iter()
-            .map(|&c| visit(ctx, c, 0.5 * side, level + 1, &ball))
+            .map(|&c| visit(ctx, c, level + 1, &ball, &mut AuxCache::default()))
             .collect()
     } else {
         children
             .iter()
-            .map(|&c| visit(ctx, c, 0.5 * side, level + 1, &ball))
+            .map(|&c| visit(ctx, c, level + 1, &ball, cache))
             .collect()
     };
     for p in parts {
         part.append(p);
     }
     part
+}
+
+/// MPU's estimate of the signed distance at an auxiliary point `q`: the mean tangent-plane
+/// distance nⱼ·(q − pⱼ) of its 6 nearest data points, or `None` when they disagree in sign.
+fn auxiliary_estimate(ctx: &Ctx, q: [f64; 3]) -> Option<f64> {
+    let k = NonZero::new(AUX_NEIGHBOURS).unwrap_or(NonZero::<usize>::MIN);
+    let nearest = ctx
+        .tree
+        .query(&q)
+        .nearest_n::<SquaredEuclidean<f64>>(k)
+        .execute();
+    let mut sum = 0.0;
+    let (mut pos, mut neg) = (0, 0);
+    for nn in &nearest {
+        let p = ctx.points[nn.item as usize];
+        let nv = ctx.normals[nn.item as usize];
+        let d = nv[0] * (q[0] - p[0]) + nv[1] * (q[1] - p[1]) + nv[2] * (q[2] - p[2]);
+        sum += d;
+        if d > 0.0 {
+            pos += 1;
+        } else if d < 0.0 {
+            neg += 1;
+        }
+    }
+    (nearest.len() == AUX_NEIGHBOURS && (pos == AUX_NEIGHBOURS || neg == AUX_NEIGHBOURS))
+        .then(|| sum / AUX_NEIGHBOURS as f64)
 }
 
 fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
