@@ -110,30 +110,11 @@ impl ImplicitFunction for ImplicitPolynomial {
             return self.eval(p);
         }
         let q = normalized(self, p);
-        let mut px = [0.0; STACK_DEGREE + 1];
-        fill_powers(&mut px[..=n], q[0]);
-        // y^j z^k for j + k = s, at s(s+1)/2 + k: the same order as the coefficients inside
-        // every degree block, so each block is a dot product with a prefix of this table.
-        let mut yz = [0.0; YZ_LEN];
-        let n_yz = (n + 1) * (n + 2) / 2;
-        fill_yz(&mut yz[..n_yz], q[1], q[2], n);
-        let mut sum = 0.0;
-        let mut offset = 0;
-        for r in 0..=n {
-            let block = &self.coefficients[offset..offset + (r + 1) * (r + 2) / 2];
-            offset += block.len();
-            let mut start = 0;
-            for s in 0..=r {
-                let inner: f64 = block[start..=start + s]
-                    .iter()
-                    .zip(&yz[start..=start + s])
-                    .map(|(a, m)| a * m)
-                    .sum();
-                start += s + 1;
-                sum += px[r - s] * inner;
-            }
+        if n <= 8 {
+            monomial_dot::<{ n_monomials(8) }>(&self.coefficients, q, n)
+        } else {
+            monomial_dot::<{ n_monomials(STACK_DEGREE) }>(&self.coefficients, q, n)
         }
-        sum
     }
 
     fn value_gradient(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
@@ -264,6 +245,55 @@ fn normalized(f: &ImplicitPolynomial, p: [f64; 3]) -> [f64; 3] {
     ]
 }
 
+/// Number of monomials of degree ≤ n in three variables.
+const fn n_monomials(n: usize) -> usize {
+    (n + 1) * (n + 2) * (n + 3) / 6
+}
+
+/// Σ a_α q^α for a degree-`n` polynomial (graded order, `coefficients.len()` = `n_monomials(n)`
+/// ≤ `L`): the monomials are tabulated first (x^i times a row of the y^j z^k table, in the
+/// coefficients' order), then one dot product with four independent partial sums, so the
+/// additions pipeline instead of forming one long dependent chain.
+#[inline]
+fn monomial_dot<const L: usize>(coefficients: &[f64], q: [f64; 3], n: usize) -> f64 {
+    let mut px = [0.0; STACK_DEGREE + 1];
+    fill_powers(&mut px[..=n], q[0]);
+    // y^j z^k for j + k = s, at s(s+1)/2 + k: the same order as the coefficients inside every
+    // degree block.
+    let mut yz = [0.0; YZ_LEN];
+    let n_yz = (n + 1) * (n + 2) / 2;
+    fill_yz(&mut yz[..n_yz], q[1], q[2], n);
+    let mut monomials = [0.0; L];
+    let mut l = 0;
+    for r in 0..=n {
+        let mut row = 0;
+        for s in 0..=r {
+            let xi = px[r - s];
+            for (slot, m) in monomials[l..=l + s].iter_mut().zip(&yz[row..=row + s]) {
+                *slot = xi * m;
+            }
+            l += s + 1;
+            row += s + 1;
+        }
+    }
+    let (monomials, coefficients) = (&monomials[..l], &coefficients[..l]);
+    let mut partial = [0.0; 4];
+    for (m, a) in monomials.chunks_exact(4).zip(coefficients.chunks_exact(4)) {
+        for t in 0..4 {
+            partial[t] += a[t] * m[t];
+        }
+    }
+    let tail = l - l % 4;
+    for (t, (m, a)) in monomials[tail..]
+        .iter()
+        .zip(&coefficients[tail..])
+        .enumerate()
+    {
+        partial[t] += a * m;
+    }
+    (partial[0] + partial[1]) + (partial[2] + partial[3])
+}
+
 /// Length of the y^j z^k table for degrees up to [`STACK_DEGREE`].
 const YZ_LEN: usize = (STACK_DEGREE + 1) * (STACK_DEGREE + 2) / 2;
 
@@ -322,14 +352,16 @@ impl ImplicitPolynomial {
         let m = n + 1;
         let mut dense = vec![0.0; m * m * m];
         // Magnitude Σ|a_α|(|c| + h)^α of the terms, and of the terms of each derivative, for the
-        // rounding margin.
-        let reach: Vec<Vec<f64>> = (0..3)
-            .map(|a| {
-                let mut p = vec![0.0; m];
-                fill_powers(&mut p, center[a].abs() + half_width[a]);
-                p
-            })
-            .collect();
+        // rounding margin. `reach[e + 1][a]` = (|c_a| + h_a)^e.
+        let mut reach = vec![[0.0; 3]; m + 1];
+        for a in 0..3 {
+            let r = center[a].abs() + half_width[a];
+            let mut v = 1.0;
+            for row in reach.iter_mut().skip(1) {
+                row[a] = v;
+                v *= r;
+            }
+        }
         let mut magnitude = 0.0;
         let mut derivative_magnitude = [0.0; 3];
         let mut l = 0;
@@ -340,51 +372,61 @@ impl ImplicitPolynomial {
                     let a = self.coefficients[l];
                     l += 1;
                     dense[(i * m + j) * m + k] = a;
-                    let e = [i, j, k];
-                    let term = a.abs() * reach[0][i] * reach[1][j] * reach[2][k];
-                    magnitude += term;
-                    for axis in 0..3 {
-                        if e[axis] > 0 {
-                            let mut ed = e;
-                            ed[axis] -= 1;
-                            derivative_magnitude[axis] += a.abs()
-                                * e[axis] as f64
-                                * reach[0][ed[0]]
-                                * reach[1][ed[1]]
-                                * reach[2][ed[2]];
-                        }
+                    let a = a.abs();
+                    let (ri, rj, rk) = (reach[i + 1][0], reach[j + 1][1], reach[k + 1][2]);
+                    magnitude += a * ri * rj * rk;
+                    if i > 0 {
+                        derivative_magnitude[0] += a * i as f64 * reach[i][0] * rj * rk;
+                    }
+                    if j > 0 {
+                        derivative_magnitude[1] += a * j as f64 * ri * reach[j][1] * rk;
+                    }
+                    if k > 0 {
+                        derivative_magnitude[2] += a * k as f64 * ri * rj * reach[k][2];
                     }
                 }
             }
         }
         // Shift and scale along each axis: for every line of coefficients along `axis` (the
-        // other two exponents fixed), p(x) ↦ p(c + h·x).
+        // other two exponents fixed, their sum e), p(x) ↦ p(c + h·x) by synthetic division,
+        // whose step q only changes a line with n − e ≥ q + 1. The steps run over all lines at
+        // once (the line innermost), so consecutive updates are independent and pipeline; each
+        // line still sees exactly its own sequence of updates.
         let strides = [m * m, m, 1];
         for axis in 0..3 {
             let (c, h) = (center[axis], half_width[axis]);
+            let st = strides[axis];
             let (o1, o2) = match axis {
                 0 => (1, 2),
                 1 => (0, 2),
                 _ => (0, 1),
             };
-            for e1 in 0..=n {
-                for e2 in 0..=n - e1 {
-                    let top = n - e1 - e2;
-                    let base = e1 * strides[o1] + e2 * strides[o2];
-                    let st = strides[axis];
-                    if c != 0.0 {
-                        for i in 0..top {
-                            for q in (i..top).rev() {
-                                dense[base + q * st] += c * dense[base + (q + 1) * st];
+            let (s1, s2) = (strides[o1], strides[o2]);
+            if c != 0.0 {
+                for i in 0..n {
+                    for q in (i..n).rev() {
+                        // Lines with e1 + e2 ≤ n − q − 1.
+                        let room = n - q - 1;
+                        for e1 in 0..=room {
+                            let base = e1 * s1 + q * st;
+                            for e2 in 0..=room - e1 {
+                                let at = base + e2 * s2;
+                                dense[at] += c * dense[at + st];
                             }
                         }
                     }
-                    let mut hp = 1.0;
-                    for q in 0..=top {
-                        dense[base + q * st] *= hp;
-                        hp *= h;
+                }
+            }
+            let mut hp = 1.0;
+            for q in 0..=n {
+                let room = n - q;
+                for e1 in 0..=room {
+                    let base = e1 * s1 + q * st;
+                    for e2 in 0..=room - e1 {
+                        dense[base + e2 * s2] *= hp;
                     }
                 }
+                hp *= h;
             }
         }
         let gamma = 8.0 * (n as f64 + 3.0) * f64::EPSILON;

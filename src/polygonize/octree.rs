@@ -27,11 +27,12 @@
 //! so the cell cannot hold a small closed piece, a handle or a singular point.
 
 use std::collections::HashSet;
+use std::hash::BuildHasherDefault;
 
 use rayon::prelude::*;
 
 use super::function::{Enclosure, ImplicitFunction};
-use super::grid::Grid;
+use super::grid::{Grid, MultiplyHasher};
 use crate::cloud::Aabb;
 
 /// Levels below which the children of a cell are processed in parallel (8³ = 512 tasks).
@@ -52,7 +53,7 @@ pub(crate) struct Octree {
     /// Surface leaves in depth-first child order.
     pub leaves: Vec<Cell>,
     /// Keys ([`Grid::cell_key`]) of the subdivided cells at levels ≥ `depth`.
-    pub internal: HashSet<u64>,
+    pub internal: HashSet<u64, BuildHasherDefault<MultiplyHasher>>,
     /// Number of subdivided cells at levels ≥ `depth` (split by the topology guard).
     pub guard_splits: u64,
     /// Bound evaluations spent.
