@@ -45,6 +45,15 @@ pub struct Enclosure {
     pub value_error: f64,
 }
 
+/// f at the 8 points of a 2×2×2 grid, from [`ImplicitFunction::enclosure_and_grid_values`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridValues {
+    /// The values, point i at coordinate `axes[a][(i >> a) & 1]` on axis a.
+    pub values: [f64; 8],
+    /// A bound on |values[i] − f(point i)| against the exact f (rounding included).
+    pub error: f64,
+}
+
 /// What the `polygonize` stage needs from an implicit model f (f < 0 inside, f > 0 outside), in
 /// input coordinates.
 ///
@@ -92,6 +101,21 @@ pub trait ImplicitFunction: Sync {
             gradient: self.gradient_bounds_on_box(b),
             value_error: 0.0,
         }
+    }
+
+    /// The enclosure on `b` ([`ImplicitFunction::enclosure_on_box`]) together with f at the 8
+    /// points of the grid `axes` (point i has coordinate `axes[a][(i >> a) & 1]` on axis a,
+    /// x fastest; every point lies in `b`) and a bound on the error of those values against the
+    /// exact f, when the model gets them cheaply from the enclosure's work (the octree uses them
+    /// for the 8 children's centres). The default returns no values, and the octree evaluates
+    /// [`ImplicitFunction::value`] at each centre it needs.
+    fn enclosure_and_grid_values(
+        &self,
+        b: &Aabb,
+        axes: &[[f64; 2]; 3],
+    ) -> (Enclosure, Option<GridValues>) {
+        let _ = axes;
+        (self.enclosure_on_box(b), None)
     }
 
     /// Why the model cannot be meshed (a malformed model), or `Ok(())`.
@@ -188,27 +212,40 @@ impl ImplicitFunction for ImplicitPolynomial {
     }
 
     fn enclosure_on_box(&self, b: &Aabb) -> Enclosure {
+        match self.taylor(b) {
+            Some(t) => self.enclosure_of(&t),
+            None => UNBOUNDED,
+        }
+    }
+
+    fn enclosure_and_grid_values(
+        &self,
+        b: &Aabb,
+        axes: &[[f64; 2]; 3],
+    ) -> (Enclosure, Option<GridValues>) {
         let Some(t) = self.taylor(b) else {
-            return Enclosure {
-                value: (f64::NEG_INFINITY, f64::INFINITY),
-                gradient: [(f64::NEG_INFINITY, f64::INFINITY); 3],
-                value_error: f64::INFINITY,
-            };
+            return (UNBOUNDED, None);
         };
-        let (value, derivatives) = t.bounds();
-        let mut gradient = [(f64::NEG_INFINITY, f64::INFINITY); 3];
-        for (axis, slot) in gradient.iter_mut().enumerate() {
-            let per_t = self.scale * t.half_width[axis];
-            if per_t > 0.0 && per_t.is_finite() {
-                let (lo, hi) = derivatives[axis];
-                *slot = (lo / per_t, hi / per_t);
-            }
-        }
-        Enclosure {
-            value,
-            gradient,
-            value_error: t.value_margin,
-        }
+        let enclosure = self.enclosure_of(&t);
+        // Local coordinates of the grid: q = c + h ⊙ t.
+        let local = [0, 1, 2].map(|a| {
+            axes[a].map(|x| ((x - self.center[a]) / self.scale - t.center[a]) / t.half_width[a])
+        });
+        let values = t.grid_values(&local);
+        let grid = (local
+            .iter()
+            .flatten()
+            .all(|v| v.is_finite() && v.abs() <= 1.0 + 1e-9)
+            && values.iter().all(|v| v.is_finite()))
+        .then_some(GridValues {
+            values,
+            // The shifted coefficients carry at most `value_margin` of rounding (the enclosure
+            // relies on that too); nested Horner on |t| ≤ 1 adds at most γ_(6n)·Σ|b_α| ≤
+            // γ_(6n)·Σ|a_α|(|c| + h)^α, below another `value_margin`; the rounding of t itself
+            // moves f by at most about 2n·ε·Σ|a_α|(|c| + h)^α, below a third.
+            error: 3.0 * t.value_margin,
+        });
+        (enclosure, grid)
     }
 
     fn validate(&self) -> Result<(), String> {
@@ -232,6 +269,33 @@ impl ImplicitFunction for ImplicitPolynomial {
             ));
         }
         Ok(())
+    }
+}
+
+/// The enclosure of a malformed model or box: nothing excluded.
+const UNBOUNDED: Enclosure = Enclosure {
+    value: (f64::NEG_INFINITY, f64::INFINITY),
+    gradient: [(f64::NEG_INFINITY, f64::INFINITY); 3],
+    value_error: f64::INFINITY,
+};
+
+impl ImplicitPolynomial {
+    /// The enclosures of f and ∇f (input coordinates) from a local expansion.
+    fn enclosure_of(&self, t: &LocalTaylor) -> Enclosure {
+        let (value, derivatives) = t.bounds();
+        let mut gradient = [(f64::NEG_INFINITY, f64::INFINITY); 3];
+        for (axis, slot) in gradient.iter_mut().enumerate() {
+            let per_t = self.scale * t.half_width[axis];
+            if per_t > 0.0 && per_t.is_finite() {
+                let (lo, hi) = derivatives[axis];
+                *slot = (lo / per_t, hi / per_t);
+            }
+        }
+        Enclosure {
+            value,
+            gradient,
+            value_error: t.value_margin,
+        }
     }
 }
 
@@ -329,6 +393,8 @@ struct LocalTaylor {
     degree: usize,
     /// Dense coefficients b_(i,j,k) at `(i·(n+1) + j)·(n+1) + k`, zero where i + j + k > n.
     coefficients: Vec<f64>,
+    /// Centre of the box in normalized coordinates.
+    center: [f64; 3],
     /// Half-widths of the box in normalized coordinates.
     half_width: [f64; 3],
     /// Rounding margin for the value.
@@ -433,6 +499,7 @@ impl ImplicitPolynomial {
         Some(LocalTaylor {
             degree: n,
             coefficients: dense,
+            center,
             half_width,
             value_margin: gamma * magnitude,
             derivative_margin: [0, 1, 2].map(|a| gamma * derivative_magnitude[a] * half_width[a]),
@@ -475,6 +542,44 @@ impl LocalTaylor {
             )
         });
         (value, derivatives)
+    }
+}
+
+impl LocalTaylor {
+    /// Σ b_α t^α at the 8 points of the grid `t` (point i at `t[a][(i >> a) & 1]` on axis a),
+    /// by nested Horner: per (i, j) the z polynomial at both z values, then y, then x — about
+    /// 4 multiply-adds per coefficient for all 8 points instead of 8 full evaluations.
+    fn grid_values(&self, t: &[[f64; 2]; 3]) -> [f64; 8] {
+        let (n, m) = (self.degree, self.degree + 1);
+        // per_x[i][yb·2 + zb] = Σ_(j,k) b_ijk ty^j tz^k.
+        let mut per_x = vec![[0.0; 4]; m];
+        for (i, slot) in per_x.iter_mut().enumerate() {
+            let mut yz = [0.0; 4];
+            for j in (0..=n - i).rev() {
+                let base = (i * m + j) * m;
+                let mut z = [0.0; 2];
+                for k in (0..=n - i - j).rev() {
+                    let b = self.coefficients[base + k];
+                    z = [z[0] * t[2][0] + b, z[1] * t[2][1] + b];
+                }
+                for yb in 0..2 {
+                    for zb in 0..2 {
+                        yz[yb * 2 + zb] = yz[yb * 2 + zb] * t[1][yb] + z[zb];
+                    }
+                }
+            }
+            *slot = yz;
+        }
+        let mut out = [0.0; 8];
+        for (p, slot) in out.iter_mut().enumerate() {
+            let (xb, yb, zb) = (p & 1, (p >> 1) & 1, (p >> 2) & 1);
+            let mut v = 0.0;
+            for row in per_x.iter().rev() {
+                v = v * t[0][xb] + row[yb * 2 + zb];
+            }
+            *slot = v;
+        }
+        out
     }
 }
 
