@@ -60,14 +60,6 @@ pub struct MeshReport {
     pub watertight: bool,
 }
 
-/// Per-edge tally used by [`check`].
-#[derive(Clone, Copy, Default)]
-struct EdgeUse {
-    count: u32,
-    /// Uses in the direction smaller index → larger index.
-    forward: u32,
-}
-
 /// Valid triangles (indices in range and distinct).
 fn valid_triangles(mesh: &TriangleMesh) -> impl Iterator<Item = [u32; 3]> + '_ {
     let n = mesh.positions.len();
@@ -191,30 +183,10 @@ pub fn check(mesh: &TriangleMesh) -> MeshReport {
     let n = mesh.positions.len();
     let triangles: Vec<[u32; 3]> = valid_triangles(mesh).collect();
     let degenerate_faces = mesh.triangles.len() - triangles.len();
-    let mut edges: std::collections::HashMap<(u32, u32), EdgeUse> =
-        std::collections::HashMap::with_capacity(triangles.len() * 3 / 2 + 1);
-    for t in &triangles {
-        for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
-            let e = edges.entry((a.min(b), a.max(b))).or_default();
-            e.count += 1;
-            if a < b {
-                e.forward += 1;
-            }
-        }
-    }
-    let mut boundary_edges = 0;
-    let mut non_manifold_edges = 0;
-    let mut orientation_consistent = true;
-    for e in edges.values() {
-        match e.count {
-            1 => boundary_edges += 1,
-            2 => orientation_consistent &= e.forward == 1,
-            _ => non_manifold_edges += 1,
-        }
-    }
-
-    // Non-manifold vertices: group the triangles around each vertex into fans joined by the
-    // edges through the vertex; more than one fan means sheets touching at a point.
+    // Edges and non-manifold vertices, vertex by vertex from the triangles around it (no hash
+    // map): the edge vw with v < w is counted at v, from the triangles around v that hold w.
+    // The triangles around a vertex group into fans joined by the edges through it; more than
+    // one fan means sheets touching at a point.
     let mut offsets = vec![0usize; n + 1];
     for t in &triangles {
         for &v in t {
@@ -233,24 +205,51 @@ pub fn check(mesh: &TriangleMesh) -> MeshReport {
         }
     }
     let mut non_manifold_vertices = 0;
+    let mut n_edges = 0usize;
+    let mut boundary_edges = 0;
+    let mut non_manifold_edges = 0;
+    let mut orientation_consistent = true;
     let mut parent: Vec<usize> = Vec::new();
-    let mut spokes: Vec<(u32, usize)> = Vec::new();
+    // (w, slot of the triangle around v, whether w follows v in that triangle's winding).
+    let mut spokes: Vec<(u32, usize, bool)> = Vec::new();
     for v in 0..n {
         let around = &incident[offsets[v]..offsets[v + 1]];
+        spokes.clear();
+        for (slot, &ti) in around.iter().enumerate() {
+            let t = triangles[ti as usize];
+            for k in 0..3 {
+                let w = t[k];
+                if w as usize != v {
+                    spokes.push((w, slot, t[(k + 2) % 3] as usize == v));
+                }
+            }
+        }
+        spokes.sort_unstable();
+        // Edges vw with v < w: their uses, and the uses in the direction v → w.
+        let mut g = 0;
+        while g < spokes.len() {
+            let w = spokes[g].0;
+            let mut end = g;
+            let mut forward = 0;
+            while end < spokes.len() && spokes[end].0 == w {
+                forward += u32::from(spokes[end].2);
+                end += 1;
+            }
+            if w as usize > v {
+                n_edges += 1;
+                match end - g {
+                    1 => boundary_edges += 1,
+                    2 => orientation_consistent &= forward == 1,
+                    _ => non_manifold_edges += 1,
+                }
+            }
+            g = end;
+        }
         if around.len() < 2 {
             continue;
         }
         parent.clear();
         parent.extend(0..around.len());
-        spokes.clear();
-        for (slot, &ti) in around.iter().enumerate() {
-            for &w in &triangles[ti as usize] {
-                if w as usize != v {
-                    spokes.push((w, slot));
-                }
-            }
-        }
-        spokes.sort_unstable();
         fn root(parent: &mut [usize], mut i: usize) -> usize {
             while parent[i] != i {
                 parent[i] = parent[parent[i]];
@@ -273,7 +272,6 @@ pub fn check(mesh: &TriangleMesh) -> MeshReport {
     }
 
     let (components, _) = component_labels(mesh);
-    let n_edges = edges.len();
     MeshReport {
         vertices: n,
         faces: mesh.triangles.len(),

@@ -52,12 +52,12 @@
 //! tolerance; its normal is ∇f/|∇f|.
 
 use std::collections::HashMap;
-use std::hash::{BuildHasherDefault, Hasher};
+use std::hash::BuildHasherDefault;
 
 use rayon::prelude::*;
 
 use super::function::ImplicitFunction;
-use super::grid::{pack, unpack, Grid};
+use super::grid::{pack, unpack, Grid, MultiplyHasher};
 use super::octree::{Cell, Octree};
 
 /// A lattice edge: the packed keys of its two ends, smaller one in the high half.
@@ -402,28 +402,6 @@ impl<F: ImplicitFunction + ?Sized> LeafContext<'_, F> {
 /// A map from packed lattice points to f, hashed by one multiplication (the keys are distinct
 /// integers; no protection against adversarial keys is needed).
 type PointValues = HashMap<u64, f64, BuildHasherDefault<MultiplyHasher>>;
-
-/// Fibonacci hashing of one `u64`.
-#[derive(Default)]
-struct MultiplyHasher(u64);
-
-impl Hasher for MultiplyHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-
-    fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.0 = (self.0 ^ u64::from(b)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
-        }
-    }
-
-    fn write_u64(&mut self, key: u64) {
-        self.0 = (self.0 ^ key)
-            .wrapping_mul(0x9e37_79b9_7f4a_7c15)
-            .rotate_left(29);
-    }
-}
 
 /// The two axes other than `axis`, in increasing order.
 fn other_axes(axis: usize) -> (usize, usize) {

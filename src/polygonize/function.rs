@@ -45,6 +45,15 @@ pub struct Enclosure {
     pub value_error: f64,
 }
 
+/// f at the 8 points of a 2×2×2 grid, from [`ImplicitFunction::enclosure_and_grid_values`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridValues {
+    /// The values, point i at coordinate `axes[a][(i >> a) & 1]` on axis a.
+    pub values: [f64; 8],
+    /// A bound on |values[i] − f(point i)| against the exact f (rounding included).
+    pub error: f64,
+}
+
 /// What the `polygonize` stage needs from an implicit model f (f < 0 inside, f > 0 outside), in
 /// input coordinates.
 ///
@@ -94,6 +103,21 @@ pub trait ImplicitFunction: Sync {
         }
     }
 
+    /// The enclosure on `b` ([`ImplicitFunction::enclosure_on_box`]) together with f at the 8
+    /// points of the grid `axes` (point i has coordinate `axes[a][(i >> a) & 1]` on axis a,
+    /// x fastest; every point lies in `b`) and a bound on the error of those values against the
+    /// exact f, when the model gets them cheaply from the enclosure's work (the octree uses them
+    /// for the 8 children's centres). The default returns no values, and the octree evaluates
+    /// [`ImplicitFunction::value`] at each centre it needs.
+    fn enclosure_and_grid_values(
+        &self,
+        b: &Aabb,
+        axes: &[[f64; 2]; 3],
+    ) -> (Enclosure, Option<GridValues>) {
+        let _ = axes;
+        (self.enclosure_on_box(b), None)
+    }
+
     /// Why the model cannot be meshed (a malformed model), or `Ok(())`.
     ///
     /// # Errors
@@ -110,30 +134,11 @@ impl ImplicitFunction for ImplicitPolynomial {
             return self.eval(p);
         }
         let q = normalized(self, p);
-        let mut px = [0.0; STACK_DEGREE + 1];
-        fill_powers(&mut px[..=n], q[0]);
-        // y^j z^k for j + k = s, at s(s+1)/2 + k: the same order as the coefficients inside
-        // every degree block, so each block is a dot product with a prefix of this table.
-        let mut yz = [0.0; YZ_LEN];
-        let n_yz = (n + 1) * (n + 2) / 2;
-        fill_yz(&mut yz[..n_yz], q[1], q[2], n);
-        let mut sum = 0.0;
-        let mut offset = 0;
-        for r in 0..=n {
-            let block = &self.coefficients[offset..offset + (r + 1) * (r + 2) / 2];
-            offset += block.len();
-            let mut start = 0;
-            for s in 0..=r {
-                let inner: f64 = block[start..=start + s]
-                    .iter()
-                    .zip(&yz[start..=start + s])
-                    .map(|(a, m)| a * m)
-                    .sum();
-                start += s + 1;
-                sum += px[r - s] * inner;
-            }
+        if n <= 8 {
+            monomial_dot::<{ n_monomials(8) }>(&self.coefficients, q, n)
+        } else {
+            monomial_dot::<{ n_monomials(STACK_DEGREE) }>(&self.coefficients, q, n)
         }
-        sum
     }
 
     fn value_gradient(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
@@ -207,27 +212,40 @@ impl ImplicitFunction for ImplicitPolynomial {
     }
 
     fn enclosure_on_box(&self, b: &Aabb) -> Enclosure {
+        match self.taylor(b) {
+            Some(t) => self.enclosure_of(&t),
+            None => UNBOUNDED,
+        }
+    }
+
+    fn enclosure_and_grid_values(
+        &self,
+        b: &Aabb,
+        axes: &[[f64; 2]; 3],
+    ) -> (Enclosure, Option<GridValues>) {
         let Some(t) = self.taylor(b) else {
-            return Enclosure {
-                value: (f64::NEG_INFINITY, f64::INFINITY),
-                gradient: [(f64::NEG_INFINITY, f64::INFINITY); 3],
-                value_error: f64::INFINITY,
-            };
+            return (UNBOUNDED, None);
         };
-        let (value, derivatives) = t.bounds();
-        let mut gradient = [(f64::NEG_INFINITY, f64::INFINITY); 3];
-        for (axis, slot) in gradient.iter_mut().enumerate() {
-            let per_t = self.scale * t.half_width[axis];
-            if per_t > 0.0 && per_t.is_finite() {
-                let (lo, hi) = derivatives[axis];
-                *slot = (lo / per_t, hi / per_t);
-            }
-        }
-        Enclosure {
-            value,
-            gradient,
-            value_error: t.value_margin,
-        }
+        let enclosure = self.enclosure_of(&t);
+        // Local coordinates of the grid: q = c + h ⊙ t.
+        let local = [0, 1, 2].map(|a| {
+            axes[a].map(|x| ((x - self.center[a]) / self.scale - t.center[a]) / t.half_width[a])
+        });
+        let values = t.grid_values(&local);
+        let grid = (local
+            .iter()
+            .flatten()
+            .all(|v| v.is_finite() && v.abs() <= 1.0 + 1e-9)
+            && values.iter().all(|v| v.is_finite()))
+        .then_some(GridValues {
+            values,
+            // The shifted coefficients carry at most `value_margin` of rounding (the enclosure
+            // relies on that too); nested Horner on |t| ≤ 1 adds at most γ_(6n)·Σ|b_α| ≤
+            // γ_(6n)·Σ|a_α|(|c| + h)^α, below another `value_margin`; the rounding of t itself
+            // moves f by at most about 2n·ε·Σ|a_α|(|c| + h)^α, below a third.
+            error: 3.0 * t.value_margin,
+        });
+        (enclosure, grid)
     }
 
     fn validate(&self) -> Result<(), String> {
@@ -254,6 +272,33 @@ impl ImplicitFunction for ImplicitPolynomial {
     }
 }
 
+/// The enclosure of a malformed model or box: nothing excluded.
+const UNBOUNDED: Enclosure = Enclosure {
+    value: (f64::NEG_INFINITY, f64::INFINITY),
+    gradient: [(f64::NEG_INFINITY, f64::INFINITY); 3],
+    value_error: f64::INFINITY,
+};
+
+impl ImplicitPolynomial {
+    /// The enclosures of f and ∇f (input coordinates) from a local expansion.
+    fn enclosure_of(&self, t: &LocalTaylor) -> Enclosure {
+        let (value, derivatives) = t.bounds();
+        let mut gradient = [(f64::NEG_INFINITY, f64::INFINITY); 3];
+        for (axis, slot) in gradient.iter_mut().enumerate() {
+            let per_t = self.scale * t.half_width[axis];
+            if per_t > 0.0 && per_t.is_finite() {
+                let (lo, hi) = derivatives[axis];
+                *slot = (lo / per_t, hi / per_t);
+            }
+        }
+        Enclosure {
+            value,
+            gradient,
+            value_error: t.value_margin,
+        }
+    }
+}
+
 /// (p − center)/scale, written out so that it inlines in the hot loops.
 #[inline]
 fn normalized(f: &ImplicitPolynomial, p: [f64; 3]) -> [f64; 3] {
@@ -262,6 +307,55 @@ fn normalized(f: &ImplicitPolynomial, p: [f64; 3]) -> [f64; 3] {
         (p[1] - f.center[1]) / f.scale,
         (p[2] - f.center[2]) / f.scale,
     ]
+}
+
+/// Number of monomials of degree ≤ n in three variables.
+const fn n_monomials(n: usize) -> usize {
+    (n + 1) * (n + 2) * (n + 3) / 6
+}
+
+/// Σ a_α q^α for a degree-`n` polynomial (graded order, `coefficients.len()` = `n_monomials(n)`
+/// ≤ `L`): the monomials are tabulated first (x^i times a row of the y^j z^k table, in the
+/// coefficients' order), then one dot product with four independent partial sums, so the
+/// additions pipeline instead of forming one long dependent chain.
+#[inline]
+fn monomial_dot<const L: usize>(coefficients: &[f64], q: [f64; 3], n: usize) -> f64 {
+    let mut px = [0.0; STACK_DEGREE + 1];
+    fill_powers(&mut px[..=n], q[0]);
+    // y^j z^k for j + k = s, at s(s+1)/2 + k: the same order as the coefficients inside every
+    // degree block.
+    let mut yz = [0.0; YZ_LEN];
+    let n_yz = (n + 1) * (n + 2) / 2;
+    fill_yz(&mut yz[..n_yz], q[1], q[2], n);
+    let mut monomials = [0.0; L];
+    let mut l = 0;
+    for r in 0..=n {
+        let mut row = 0;
+        for s in 0..=r {
+            let xi = px[r - s];
+            for (slot, m) in monomials[l..=l + s].iter_mut().zip(&yz[row..=row + s]) {
+                *slot = xi * m;
+            }
+            l += s + 1;
+            row += s + 1;
+        }
+    }
+    let (monomials, coefficients) = (&monomials[..l], &coefficients[..l]);
+    let mut partial = [0.0; 4];
+    for (m, a) in monomials.chunks_exact(4).zip(coefficients.chunks_exact(4)) {
+        for t in 0..4 {
+            partial[t] += a[t] * m[t];
+        }
+    }
+    let tail = l - l % 4;
+    for (t, (m, a)) in monomials[tail..]
+        .iter()
+        .zip(&coefficients[tail..])
+        .enumerate()
+    {
+        partial[t] += a * m;
+    }
+    (partial[0] + partial[1]) + (partial[2] + partial[3])
 }
 
 /// Length of the y^j z^k table for degrees up to [`STACK_DEGREE`].
@@ -299,6 +393,8 @@ struct LocalTaylor {
     degree: usize,
     /// Dense coefficients b_(i,j,k) at `(i·(n+1) + j)·(n+1) + k`, zero where i + j + k > n.
     coefficients: Vec<f64>,
+    /// Centre of the box in normalized coordinates.
+    center: [f64; 3],
     /// Half-widths of the box in normalized coordinates.
     half_width: [f64; 3],
     /// Rounding margin for the value.
@@ -322,14 +418,16 @@ impl ImplicitPolynomial {
         let m = n + 1;
         let mut dense = vec![0.0; m * m * m];
         // Magnitude Σ|a_α|(|c| + h)^α of the terms, and of the terms of each derivative, for the
-        // rounding margin.
-        let reach: Vec<Vec<f64>> = (0..3)
-            .map(|a| {
-                let mut p = vec![0.0; m];
-                fill_powers(&mut p, center[a].abs() + half_width[a]);
-                p
-            })
-            .collect();
+        // rounding margin. `reach[e + 1][a]` = (|c_a| + h_a)^e.
+        let mut reach = vec![[0.0; 3]; m + 1];
+        for a in 0..3 {
+            let r = center[a].abs() + half_width[a];
+            let mut v = 1.0;
+            for row in reach.iter_mut().skip(1) {
+                row[a] = v;
+                v *= r;
+            }
+        }
         let mut magnitude = 0.0;
         let mut derivative_magnitude = [0.0; 3];
         let mut l = 0;
@@ -340,57 +438,68 @@ impl ImplicitPolynomial {
                     let a = self.coefficients[l];
                     l += 1;
                     dense[(i * m + j) * m + k] = a;
-                    let e = [i, j, k];
-                    let term = a.abs() * reach[0][i] * reach[1][j] * reach[2][k];
-                    magnitude += term;
-                    for axis in 0..3 {
-                        if e[axis] > 0 {
-                            let mut ed = e;
-                            ed[axis] -= 1;
-                            derivative_magnitude[axis] += a.abs()
-                                * e[axis] as f64
-                                * reach[0][ed[0]]
-                                * reach[1][ed[1]]
-                                * reach[2][ed[2]];
-                        }
+                    let a = a.abs();
+                    let (ri, rj, rk) = (reach[i + 1][0], reach[j + 1][1], reach[k + 1][2]);
+                    magnitude += a * ri * rj * rk;
+                    if i > 0 {
+                        derivative_magnitude[0] += a * i as f64 * reach[i][0] * rj * rk;
+                    }
+                    if j > 0 {
+                        derivative_magnitude[1] += a * j as f64 * ri * reach[j][1] * rk;
+                    }
+                    if k > 0 {
+                        derivative_magnitude[2] += a * k as f64 * ri * rj * reach[k][2];
                     }
                 }
             }
         }
         // Shift and scale along each axis: for every line of coefficients along `axis` (the
-        // other two exponents fixed), p(x) ↦ p(c + h·x).
+        // other two exponents fixed, their sum e), p(x) ↦ p(c + h·x) by synthetic division,
+        // whose step q only changes a line with n − e ≥ q + 1. The steps run over all lines at
+        // once (the line innermost), so consecutive updates are independent and pipeline; each
+        // line still sees exactly its own sequence of updates.
         let strides = [m * m, m, 1];
         for axis in 0..3 {
             let (c, h) = (center[axis], half_width[axis]);
+            let st = strides[axis];
             let (o1, o2) = match axis {
                 0 => (1, 2),
                 1 => (0, 2),
                 _ => (0, 1),
             };
-            for e1 in 0..=n {
-                for e2 in 0..=n - e1 {
-                    let top = n - e1 - e2;
-                    let base = e1 * strides[o1] + e2 * strides[o2];
-                    let st = strides[axis];
-                    if c != 0.0 {
-                        for i in 0..top {
-                            for q in (i..top).rev() {
-                                dense[base + q * st] += c * dense[base + (q + 1) * st];
+            let (s1, s2) = (strides[o1], strides[o2]);
+            if c != 0.0 {
+                for i in 0..n {
+                    for q in (i..n).rev() {
+                        // Lines with e1 + e2 ≤ n − q − 1.
+                        let room = n - q - 1;
+                        for e1 in 0..=room {
+                            let base = e1 * s1 + q * st;
+                            for e2 in 0..=room - e1 {
+                                let at = base + e2 * s2;
+                                dense[at] += c * dense[at + st];
                             }
                         }
                     }
-                    let mut hp = 1.0;
-                    for q in 0..=top {
-                        dense[base + q * st] *= hp;
-                        hp *= h;
+                }
+            }
+            let mut hp = 1.0;
+            for q in 0..=n {
+                let room = n - q;
+                for e1 in 0..=room {
+                    let base = e1 * s1 + q * st;
+                    for e2 in 0..=room - e1 {
+                        dense[base + e2 * s2] *= hp;
                     }
                 }
+                hp *= h;
             }
         }
         let gamma = 8.0 * (n as f64 + 3.0) * f64::EPSILON;
         Some(LocalTaylor {
             degree: n,
             coefficients: dense,
+            center,
             half_width,
             value_margin: gamma * magnitude,
             derivative_margin: [0, 1, 2].map(|a| gamma * derivative_magnitude[a] * half_width[a]),
@@ -433,6 +542,44 @@ impl LocalTaylor {
             )
         });
         (value, derivatives)
+    }
+}
+
+impl LocalTaylor {
+    /// Σ b_α t^α at the 8 points of the grid `t` (point i at `t[a][(i >> a) & 1]` on axis a),
+    /// by nested Horner: per (i, j) the z polynomial at both z values, then y, then x — about
+    /// 4 multiply-adds per coefficient for all 8 points instead of 8 full evaluations.
+    fn grid_values(&self, t: &[[f64; 2]; 3]) -> [f64; 8] {
+        let (n, m) = (self.degree, self.degree + 1);
+        // per_x[i][yb·2 + zb] = Σ_(j,k) b_ijk ty^j tz^k.
+        let mut per_x = vec![[0.0; 4]; m];
+        for (i, slot) in per_x.iter_mut().enumerate() {
+            let mut yz = [0.0; 4];
+            for j in (0..=n - i).rev() {
+                let base = (i * m + j) * m;
+                let mut z = [0.0; 2];
+                for k in (0..=n - i - j).rev() {
+                    let b = self.coefficients[base + k];
+                    z = [z[0] * t[2][0] + b, z[1] * t[2][1] + b];
+                }
+                for yb in 0..2 {
+                    for zb in 0..2 {
+                        yz[yb * 2 + zb] = yz[yb * 2 + zb] * t[1][yb] + z[zb];
+                    }
+                }
+            }
+            *slot = yz;
+        }
+        let mut out = [0.0; 8];
+        for (p, slot) in out.iter_mut().enumerate() {
+            let (xb, yb, zb) = (p & 1, (p >> 1) & 1, (p >> 2) & 1);
+            let mut v = 0.0;
+            for row in per_x.iter().rev() {
+                v = v * t[0][xb] + row[yb * 2 + zb];
+            }
+            *slot = v;
+        }
+        out
     }
 }
 

@@ -9,6 +9,8 @@
 //! to the same input-space point every time (one formula), so two cells that share a point see
 //! exactly the same f value and sign there.
 
+use std::hash::Hasher;
+
 use crate::cloud::Aabb;
 
 use super::octree::Cell;
@@ -130,6 +132,34 @@ pub(crate) fn unpack(key: u64) -> [u64; 3] {
         (key >> POINT_BITS) & mask,
         key >> (2 * POINT_BITS),
     ]
+}
+
+/// Fibonacci hashing of integer keys (`u64`, `u128`): the keys here are distinct lattice
+/// points, cells or edges, so no protection against adversarial keys is needed.
+#[derive(Default)]
+pub(crate) struct MultiplyHasher(u64);
+
+impl Hasher for MultiplyHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0 ^ u64::from(b)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+        }
+    }
+
+    fn write_u64(&mut self, key: u64) {
+        self.0 = (self.0 ^ key)
+            .wrapping_mul(0x9e37_79b9_7f4a_7c15)
+            .rotate_left(29);
+    }
+
+    fn write_u128(&mut self, key: u128) {
+        self.write_u64(key as u64);
+        self.write_u64((key >> 64) as u64);
+    }
 }
 
 #[cfg(test)]

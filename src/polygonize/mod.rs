@@ -88,7 +88,7 @@ use grid::Grid;
 
 /// Version of this stage's algorithm; if you change anything that changes its output for the same
 /// input and params, bump it.
-pub const STAGE_VERSION: u32 = 2;
+pub const STAGE_VERSION: u32 = 3;
 
 /// Largest `depth + guard_levels` supported.
 pub const MAX_LEVEL: u32 = Grid::MAX_CAP;

@@ -27,11 +27,12 @@
 //! so the cell cannot hold a small closed piece, a handle or a singular point.
 
 use std::collections::HashSet;
+use std::hash::BuildHasherDefault;
 
 use rayon::prelude::*;
 
-use super::function::{Enclosure, ImplicitFunction};
-use super::grid::Grid;
+use super::function::{Enclosure, GridValues, ImplicitFunction};
+use super::grid::{Grid, MultiplyHasher};
 use crate::cloud::Aabb;
 
 /// Levels below which the children of a cell are processed in parallel (8³ = 512 tasks).
@@ -52,7 +53,7 @@ pub(crate) struct Octree {
     /// Surface leaves in depth-first child order.
     pub leaves: Vec<Cell>,
     /// Keys ([`Grid::cell_key`]) of the subdivided cells at levels ≥ `depth`.
-    pub internal: HashSet<u64>,
+    pub internal: HashSet<u64, BuildHasherDefault<MultiplyHasher>>,
     /// Number of subdivided cells at levels ≥ `depth` (split by the topology guard).
     pub guard_splits: u64,
     /// Bound evaluations spent.
@@ -91,17 +92,27 @@ pub(crate) fn build<F: ImplicitFunction + ?Sized>(function: &F, grid: &Grid) -> 
     }
 }
 
-/// Visits `cell`; `parent` is the enclosure of its parent's box (None for the root).
+/// What a child learns from its parent: the parent's enclosure, and f at the child's centre
+/// with its error bound when the parent's expansion provided it.
+#[derive(Clone, Copy)]
+struct FromParent<'a> {
+    enclosure: &'a Enclosure,
+    center_value: Option<(f64, f64)>,
+}
+
+/// Visits `cell`; `parent` is what its parent passes down (None for the root).
 ///
 /// A child is first tested by the mean-value form with its parent's gradient enclosure G:
-/// f(box) ⊂ f(c) ± Σ_a max|G_a|·h_a (plus twice the rounding error of a point value), which
-/// costs one point value. Only a cell that survives and must be split, or whose parent's
-/// gradient enclosure fails the guard, computes its own (tighter, costlier) enclosure.
+/// f(box) ⊂ f(c) ± Σ_a max|G_a|·h_a, widened by the error of the value at c and of a point value
+/// anywhere in the box. The value at c comes from the parent's local expansion (all 8 children at
+/// once, [`ImplicitFunction::enclosure_and_grid_values`]) when the model provides it, else from
+/// one point value. Only a cell that survives and must be split, or whose parent's gradient
+/// enclosure fails the guard, computes its own (tighter, costlier) enclosure.
 fn visit<F: ImplicitFunction + ?Sized>(
     function: &F,
     grid: &Grid,
     cell: Cell,
-    parent: Option<&Enclosure>,
+    parent: Option<FromParent<'_>>,
 ) -> Part {
     if grid.is_outside(cell) {
         return Part::default();
@@ -109,20 +120,40 @@ fn visit<F: ImplicitFunction + ?Sized>(
     let cell_box = grid.cell_box(cell);
     let mut part = Part::default();
     if let Some(parent) = parent {
-        part.evaluations += 1;
-        if mean_value_excludes_zero(function, &cell_box, parent) {
+        let (v, error) = match parent.center_value {
+            Some(known) => known,
+            None => {
+                part.evaluations += 1;
+                (
+                    function.value(cell_box.center()),
+                    parent.enclosure.value_error,
+                )
+            }
+        };
+        if mean_value_excludes_zero(v, error, &cell_box, parent.enclosure) {
             return part;
         }
     }
     let in_guard_zone = cell.level >= grid.depth && cell.level < grid.cap;
-    let passes_guard_by_parent = parent.is_some_and(|p| normal_variation_small(&p.gradient));
+    let passes_guard_by_parent =
+        parent.is_some_and(|p| normal_variation_small(&p.enclosure.gradient));
     let leaf_without_own_enclosure = cell.level >= grid.depth
         && (cell.level == grid.cap || (in_guard_zone && passes_guard_by_parent));
     if leaf_without_own_enclosure {
         part.leaves.push(cell);
         return part;
     }
-    let enclosure = function.enclosure_on_box(&cell_box);
+    let children = children(cell);
+    // Above `depth` a cell that survives is always split, so its children's centre values are
+    // worth taking from its expansion; below, splits are rare (guard failures only).
+    let (enclosure, grid_values) = if cell.level < grid.depth {
+        let (first, last) = (grid.cell_box(children[0]), grid.cell_box(children[7]));
+        let (c0, c1) = (first.center(), last.center());
+        let axes = [0, 1, 2].map(|a| [c0[a], c1[a]]);
+        function.enclosure_and_grid_values(&cell_box, &axes)
+    } else {
+        (function.enclosure_on_box(&cell_box), None)
+    };
     part.evaluations += 1;
     let (lo, hi) = enclosure.value;
     // Values ≥ 0 count as outside, so a cell is empty when f > 0 or f < 0 throughout.
@@ -137,16 +168,21 @@ fn visit<F: ImplicitFunction + ?Sized>(
     if cell.level >= grid.depth {
         part.internal.push(cell);
     }
-    let children = children(cell);
+    let from_parent = |i: usize| FromParent {
+        enclosure: &enclosure,
+        center_value: grid_values.map(|g: GridValues| (g.values[i], g.error)),
+    };
     let parts: Vec<Part> = if cell.level < PARALLEL_LEVELS {
         children
             .par_iter()
-            .map(|&child| visit(function, grid, child, Some(&enclosure)))
+            .enumerate()
+            .map(|(i, &child)| visit(function, grid, child, Some(from_parent(i))))
             .collect()
     } else {
         children
             .iter()
-            .map(|&child| visit(function, grid, child, Some(&enclosure)))
+            .enumerate()
+            .map(|(i, &child)| visit(function, grid, child, Some(from_parent(i))))
             .collect()
     };
     for p in parts {
@@ -156,22 +192,16 @@ fn visit<F: ImplicitFunction + ?Sized>(
 }
 
 /// Whether the mean-value form with the parent's gradient enclosure shows that f has one strict
-/// sign on `b` (a sub-box of the parent's box).
-fn mean_value_excludes_zero<F: ImplicitFunction + ?Sized>(
-    function: &F,
-    b: &Aabb,
-    parent: &Enclosure,
-) -> bool {
-    let center = b.center();
-    let v = function.value(center);
+/// sign on `b` (a sub-box of the parent's box), given `v` ≈ f(centre of b) within `error`.
+fn mean_value_excludes_zero(v: f64, error: f64, b: &Aabb, parent: &Enclosure) -> bool {
     let mut reach = 0.0;
     for a in 0..3 {
         let (lo, hi) = parent.gradient[a];
         reach += lo.abs().max(hi.abs()) * 0.5 * (b.max[a] - b.min[a]);
     }
-    // The relative 1e-12 covers the rounding of this sum and of the centre; the value error
-    // covers the point value here and at any other point of the box.
-    let slack = reach * (1.0 + 1e-12) + 2.0 * parent.value_error;
+    // The relative 1e-12 covers the rounding of this sum and of the centre; `error` covers the
+    // value at the centre, the value error a point value anywhere else in the box.
+    let slack = reach * (1.0 + 1e-12) + error + parent.value_error;
     if !(slack.is_finite() && v.is_finite()) {
         return false;
     }
