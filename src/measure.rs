@@ -160,10 +160,21 @@ impl<'a> MeshDistance<'a> {
     /// closest triangle of a sliver-rich mesh need not touch the closest vertex, but it is one
     /// of these unless its edges are longer than the ring).
     fn ring_distance(&self, p: [f64; 3], v: usize) -> f64 {
+        // Each triangle of the ring is reached from up to three of its vertices: measure it once
+        // (the first RING_MEMORY distinct ones are remembered, which covers any usual ring).
+        let mut seen = [u32::MAX; RING_MEMORY];
+        let mut n_seen = 0;
         let mut best = f64::INFINITY;
         for &ti in self.around.of(v) {
             for w in self.mesh.triangles[ti as usize] {
                 for &tj in self.around.of(w as usize) {
+                    if seen[..n_seen].contains(&tj) {
+                        continue;
+                    }
+                    if n_seen < RING_MEMORY {
+                        seen[n_seen] = tj;
+                        n_seen += 1;
+                    }
                     best = best.min(self.triangle_distance(p, tj));
                 }
             }
@@ -214,6 +225,9 @@ pub struct GridMeshDistance<'a> {
     seed_tree: ImmutableKdTree<f64, 3>,
     cell: f64,
 }
+
+/// Distinct triangles [`MeshDistance::ring_distance`] remembers to measure each once.
+const RING_MEMORY: usize = 64;
 
 /// Seed cells along the longest side of the mesh's bounding box.
 const SEED_CELLS: f64 = 64.0;
@@ -283,11 +297,13 @@ impl<'a> GridMeshDistance<'a> {
         }
         let k = std::num::NonZero::new(N_SEEDS.min(self.seeds.len()))
             .unwrap_or(std::num::NonZero::<usize>::MIN);
-        let nearest = self
-            .seed_tree
-            .query(&p)
-            .nearest_n::<SquaredEuclidean<f64>>(k)
-            .execute();
+        // Seeds beyond best + two cells are not walked, so a warm start bounds the search.
+        let query = self.seed_tree.query(&p).nearest_n::<SquaredEuclidean<f64>>(k);
+        let nearest = if best.0.is_finite() {
+            query.within((best.0 + 2.0 * self.cell).powi(2)).execute()
+        } else {
+            query.execute()
+        };
         for n in nearest.iter().take(N_WALKS) {
             if n.distance.sqrt() > best.0 + 2.0 * self.cell {
                 break;
