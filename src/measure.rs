@@ -187,25 +187,25 @@ impl<'a> MeshDistance<'a> {
         dist(p, closest_point_on_triangle(p, a, b, c))
     }
 
-    /// Walks from vertex `v` to ever closer neighbouring vertices of `p` until none is closer:
-    /// a vertex where the distance to `p` is locally smallest on the mesh.
-    fn descend(&self, p: [f64; 3], mut v: usize) -> usize {
-        let mut dv = dist2(p, self.mesh.positions[v]);
-        loop {
-            let mut next = v;
+    /// The distinct neighbours of every vertex, in the order the triangles around it list
+    /// them (first occurrence): offsets into one array, as for [`VertexTriangles`].
+    fn neighbours(&self) -> (Vec<u32>, Vec<u32>) {
+        let n = self.mesh.positions.len();
+        let mut offsets = Vec::with_capacity(n + 1);
+        let mut list = Vec::with_capacity(6 * n);
+        offsets.push(0u32);
+        for v in 0..n {
+            let start = list.len();
             for &ti in self.around.of(v) {
                 for w in self.mesh.triangles[ti as usize] {
-                    let d = dist2(p, self.mesh.positions[w as usize]);
-                    if d < dv {
-                        (dv, next) = (d, w as usize);
+                    if w as usize != v && !list[start..].contains(&w) {
+                        list.push(w);
                     }
                 }
             }
-            if next == v {
-                return v;
-            }
-            v = next;
+            offsets.push(list.len() as u32);
         }
+        (offsets, list)
     }
 }
 
@@ -221,6 +221,8 @@ impl<'a> MeshDistance<'a> {
 /// point, which fails only where a piece of surface smaller than a coarse cell is closest.
 pub struct GridMeshDistance<'a> {
     mesh: MeshDistance<'a>,
+    /// Distinct neighbours of each vertex (offsets, list), for the walks.
+    neighbours: (Vec<u32>, Vec<u32>),
     seeds: Vec<u32>,
     seed_tree: ImmutableKdTree<f64, 3>,
     cell: f64,
@@ -269,11 +271,35 @@ impl<'a> GridMeshDistance<'a> {
         let points: Vec<[f64; 3]> = seeds.iter().map(|&i| mesh.positions[i as usize]).collect();
         let seed_tree = ImmutableKdTree::<f64, 3>::new_from_slice(&points).ok()?;
         Some(GridMeshDistance {
+            neighbours: index.neighbours(),
             mesh: index,
             seeds,
             seed_tree,
             cell,
         })
+    }
+
+    /// Walks from vertex `v` to ever closer neighbouring vertices of `p` until none is closer:
+    /// a vertex where the distance to `p` is locally smallest on the mesh. Among equally close
+    /// neighbours the first in [`MeshDistance::neighbours`] order wins.
+    fn descend(&self, p: [f64; 3], mut v: usize) -> usize {
+        let (offsets, list) = &self.neighbours;
+        let positions = &self.mesh.mesh.positions;
+        let mut dv = dist2(p, positions[v]);
+        loop {
+            let mut next = v;
+            let range = offsets[v] as usize..offsets[v + 1] as usize;
+            for &w in &list[range] {
+                let d = dist2(p, positions[w as usize]);
+                if d < dv {
+                    (dv, next) = (d, w as usize);
+                }
+            }
+            if next == v {
+                return v;
+            }
+            v = next;
+        }
     }
 
     /// Side of the coarse seed grid's cells, input units.
@@ -290,7 +316,7 @@ impl<'a> GridMeshDistance<'a> {
         let mut ends = [usize::MAX; N_WALKS + 1];
         let mut n_ends = 0;
         if let Some(w) = warm {
-            let v = self.mesh.descend(p, w);
+            let v = self.descend(p, w);
             best = (self.mesh.fan_distance(p, v), v);
             ends[0] = v;
             n_ends = 1;
@@ -308,7 +334,7 @@ impl<'a> GridMeshDistance<'a> {
             if n.distance.sqrt() > best.0 + 2.0 * self.cell {
                 break;
             }
-            let v = self.mesh.descend(p, self.seeds[n.item as usize] as usize);
+            let v = self.descend(p, self.seeds[n.item as usize] as usize);
             if ends[..n_ends].contains(&v) {
                 continue;
             }
