@@ -722,19 +722,29 @@ impl Evaluator {
 
     /// f at the normalized point `q`.
     fn value(&self, q: [f64; 3]) -> f64 {
-        let t = self.powers(q);
         let n = self.degree;
+        let mut zp = [0.0; TABLE];
+        let mut v = 1.0;
+        for z in zp.iter_mut().take(n + 1) {
+            *z = v;
+            v *= q[2];
+        }
         let mut columns = self.nested.as_slice();
-        let mut f = 0.0;
+        let (mut f, mut xi) = (0.0, 1.0);
         for i in 0..=n {
-            let mut fi = 0.0;
+            let (mut fi, mut yj) = (0.0, 1.0);
             for j in 0..=n - i {
                 let (col, rest) = columns.split_at(n - i - j + 1);
                 columns = rest;
-                let s0: f64 = col.iter().zip(&t[2][2..]).map(|(a, z)| a * z).sum();
-                fi += t[1][j + 2] * s0;
+                let mut s0 = 0.0;
+                for (a, z) in col.iter().zip(&zp) {
+                    s0 += a * z;
+                }
+                fi += yj * s0;
+                yj *= q[1];
             }
-            f += t[0][i + 2] * fi;
+            f += xi * fi;
+            xi *= q[0];
         }
         f
     }

@@ -233,9 +233,7 @@ const RING_MEMORY: usize = 64;
 
 /// Seed cells along the longest side of the mesh's bounding box.
 const SEED_CELLS: f64 = 64.0;
-/// Nearest seeds looked up per query.
-const N_SEEDS: usize = 4;
-/// At most this many seed walks per query.
+/// At most this many seed walks per query, from the nearest seeds.
 const N_WALKS: usize = 3;
 
 impl<'a> GridMeshDistance<'a> {
@@ -321,7 +319,7 @@ impl<'a> GridMeshDistance<'a> {
             ends[0] = v;
             n_ends = 1;
         }
-        let k = std::num::NonZero::new(N_SEEDS.min(self.seeds.len()))
+        let k = std::num::NonZero::new(N_WALKS.min(self.seeds.len()))
             .unwrap_or(std::num::NonZero::<usize>::MIN);
         // Seeds beyond best + two cells are not walked, so a warm start bounds the search.
         let query = self.seed_tree.query(&p).nearest_n::<SquaredEuclidean<f64>>(k);
@@ -330,7 +328,7 @@ impl<'a> GridMeshDistance<'a> {
         } else {
             query.execute()
         };
-        for n in nearest.iter().take(N_WALKS) {
+        for n in &nearest {
             if n.distance.sqrt() > best.0 + 2.0 * self.cell {
                 break;
             }
