@@ -766,6 +766,8 @@ impl Evaluator {
     }
 
     /// f and ∇f at the normalized point `q`.
+    // i and j index three derivative tables each and size the columns: plain ranges read best.
+    #[allow(clippy::needless_range_loop)]
     fn gradient(&self, q: [f64; 3]) -> (f64, [f64; 3]) {
         let [x, y, z] = self.derivative_powers(q);
         let n = self.degree;
@@ -796,6 +798,8 @@ impl Evaluator {
     }
 
     /// f, ∇f and the Hessian at the normalized point `q`.
+    // i and j index three derivative tables each and size the columns: plain ranges read best.
+    #[allow(clippy::needless_range_loop)]
     fn hessian(&self, q: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
         let [x, y, z] = self.derivative_powers(q);
         let n = self.degree;

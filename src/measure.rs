@@ -322,7 +322,10 @@ impl<'a> GridMeshDistance<'a> {
         let k = std::num::NonZero::new(N_WALKS.min(self.seeds.len()))
             .unwrap_or(std::num::NonZero::<usize>::MIN);
         // Seeds beyond best + two cells are not walked, so a warm start bounds the search.
-        let query = self.seed_tree.query(&p).nearest_n::<SquaredEuclidean<f64>>(k);
+        let query = self
+            .seed_tree
+            .query(&p)
+            .nearest_n::<SquaredEuclidean<f64>>(k);
         let nearest = if best.0.is_finite() {
             query.within((best.0 + 2.0 * self.cell).powi(2)).execute()
         } else {

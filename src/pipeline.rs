@@ -703,11 +703,12 @@ fn render_outputs(
     type Files = Vec<(String, Vec<u8>)>;
     let want = |f| config.formats.contains(&f);
     let one = |name: &str, bytes: Vec<u8>| -> Files { vec![(name.to_string(), bytes)] };
-    let encode = |f: &dyn Fn(&mut Vec<u8>) -> Result<(), ExportError>| -> Result<Vec<u8>, PipelineError> {
-        let mut bytes = Vec::new();
-        f(&mut bytes)?;
-        Ok(bytes)
-    };
+    let encode =
+        |f: &dyn Fn(&mut Vec<u8>) -> Result<(), ExportError>| -> Result<Vec<u8>, PipelineError> {
+            let mut bytes = Vec::new();
+            f(&mut bytes)?;
+            Ok(bytes)
+        };
     let slices = || -> Result<Vec<crate::distance::Slice>, PipelineError> {
         if !(want(OutputFormat::Exr) || want(OutputFormat::Png)) {
             return Ok(Vec::new());
@@ -736,7 +737,10 @@ fn render_outputs(
         if !want(OutputFormat::Glb) {
             return Ok(Vec::new());
         }
-        Ok(one("mesh.glb", encode(&|w| export::gltf::write_glb(mesh, w, &config.gltf))?))
+        Ok(one(
+            "mesh.glb",
+            encode(&|w| export::gltf::write_glb(mesh, w, &config.gltf))?,
+        ))
     };
     let gltf = || -> Result<Files, PipelineError> {
         if !want(OutputFormat::Gltf) {
@@ -756,14 +760,20 @@ fn render_outputs(
             quality: Some(&quality),
             ..Default::default()
         };
-        Ok(one("mesh.ply", encode(&|w| export::ply::write(mesh, w, &opts))?))
+        Ok(one(
+            "mesh.ply",
+            encode(&|w| export::ply::write(mesh, w, &opts))?,
+        ))
     };
     let preview = || -> Result<Files, PipelineError> {
         if !want(OutputFormat::Png) {
             return Ok(Vec::new());
         }
         let image = crate::render::render(mesh, &crate::render::RenderParams::default());
-        Ok(one("preview.png", encode(&|w| export::png::write_rgb(&image, w))?))
+        Ok(one(
+            "preview.png",
+            encode(&|w| export::png::write_rgb(&image, w))?,
+        ))
     };
     // The slices take most of the time and are parallel inside; the rest fills the other thread.
     let (slices, (json, ((glb, gltf), (ply, preview)))) = rayon::join(slices, || {
