@@ -4,14 +4,16 @@
 //! The mesh is a closed torus grid of 1000 × 500 vertices (500 000 vertices, 1 000 000
 //! triangles), written to an in-memory buffer, so the figures are encoding cost without disk.
 //! The slices are 4 slices of 128 × 128 pixels (65 536 distances) of a degree-4 torus
-//! polynomial, by each distance method.
+//! polynomial, by each distance method (`mesh` measures against the torus polygonized at depth
+//! 7, as the detail mode does). The pipeline's export stage on the bunny is measured end to end
+//! with `stablesurf run … -v` (see the final report of the export-speed branch).
 //! Run: `cargo bench --bench export`.
 
 use std::hint::black_box;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use stablesurf::cloud::Aabb;
-use stablesurf::distance::{slices, DistanceMethod, SliceParams};
+use stablesurf::distance::{slices, slices_from_mesh, DistanceMethod, SliceParams};
 use stablesurf::export::gltf::{write_glb, GltfOptions};
 use stablesurf::export::ply::{self, PlyEncoding, PlyOptions};
 use stablesurf::poly::{monomial_index, n_coefficients};
@@ -127,6 +129,25 @@ fn bench_slices(c: &mut Criterion) {
             b.iter(|| slices(black_box(&poly), &region, &params).unwrap())
         });
     }
+    let mesh = stablesurf::polygonize::polygonize(
+        &poly,
+        &region,
+        &stablesurf::polygonize::PolygonizeParams {
+            depth: 7,
+            ..Default::default()
+        },
+    )
+    .unwrap()
+    .mesh;
+    let params = SliceParams {
+        count: 4,
+        resolution: 128,
+        method: DistanceMethod::Mesh,
+        ..Default::default()
+    };
+    group.bench_function("mesh/px=65536", |b| {
+        b.iter(|| slices_from_mesh(black_box(&poly), &mesh, &region, &params).unwrap())
+    });
     group.finish();
 }
 

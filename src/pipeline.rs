@@ -578,12 +578,23 @@ pub fn run(
                     mesh::drop_components_far_from(&mesh, &cloud.points, 0.02 * data_diagonal);
                 (mesh, dropped) = (kept, n);
             }
-            let report_mesh = mesh::check(&mesh);
-            let accuracy = DistanceSummary::from_distances(
-                &measure::point_to_mesh_distances(&cloud.points, &mesh),
-                data_diagonal,
+            // The checks, the accuracy and the output files are independent: run them at once.
+            let mesh = &mesh;
+            let ((report_mesh, accuracy), files) = rayon::join(
+                || {
+                    rayon::join(
+                        || mesh::check(mesh),
+                        || {
+                            DistanceSummary::from_distances(
+                                &measure::point_to_mesh_distances(&cloud.points, mesh),
+                                data_diagonal,
+                            )
+                        },
+                    )
+                },
+                || render_outputs(config, &model, mesh, &cloud, &region),
             );
-            let files = render_outputs(config, &model, &mesh, &cloud, &region)?;
+            let files = files?;
             let figures = serde_json::json!({
                 "files": files.0.len(),
                 "bytes": files.0.iter().map(|f| f.1.len()).sum::<usize>(),
@@ -677,7 +688,10 @@ fn write_files(out_dir: &Path, files: &OutputFiles) -> Result<Vec<String>, Pipel
     Ok(written)
 }
 
-/// Computes every output file's bytes in memory (nothing is written here).
+/// Computes every output file's bytes in memory (nothing is written here). The independent
+/// parts (distance slices, model file, glTF, PLY with its vertex quality, preview) run
+/// concurrently, and the slice images are encoded in parallel; the files come out in a fixed
+/// order whatever the thread count.
 fn render_outputs(
     config: &PipelineConfig,
     model: &Model,
@@ -685,11 +699,21 @@ fn render_outputs(
     cloud: &PointCloud,
     region: &Aabb,
 ) -> Result<OutputFiles, PipelineError> {
+    use rayon::prelude::*;
+    type Files = Vec<(String, Vec<u8>)>;
     let want = |f| config.formats.contains(&f);
-    let slices = if !(want(OutputFormat::Exr) || want(OutputFormat::Png)) {
-        Vec::new()
-    } else {
-        match (model, config.slices.method) {
+    let one = |name: &str, bytes: Vec<u8>| -> Files { vec![(name.to_string(), bytes)] };
+    let encode =
+        |f: &dyn Fn(&mut Vec<u8>) -> Result<(), ExportError>| -> Result<Vec<u8>, PipelineError> {
+            let mut bytes = Vec::new();
+            f(&mut bytes)?;
+            Ok(bytes)
+        };
+    let slices = || -> Result<Vec<crate::distance::Slice>, PipelineError> {
+        if !(want(OutputFormat::Exr) || want(OutputFormat::Png)) {
+            return Ok(Vec::new());
+        }
+        Ok(match (model, config.slices.method) {
             (_, crate::distance::DistanceMethod::Mesh) => {
                 crate::distance::slices_from_mesh(model.function(), mesh, region, &config.slices)?
             }
@@ -700,67 +724,85 @@ fn render_outputs(
                     method.name()
                 )))
             }
+        })
+    };
+    let json = || -> Result<Files, PipelineError> {
+        if !want(OutputFormat::Json) {
+            return Ok(Vec::new());
         }
-    };
-    let mut files = Vec::new();
-    let mut put = |name: &str,
-                   f: &dyn Fn(&mut Vec<u8>) -> Result<(), ExportError>|
-     -> Result<(), PipelineError> {
-        let mut bytes = Vec::new();
-        f(&mut bytes)?;
-        files.push((name.to_string(), bytes));
-        Ok(())
-    };
-    if want(OutputFormat::Json) {
         let (name, bytes) = model.file()?;
-        put(name, &|w| {
-            w.extend_from_slice(&bytes);
-            Ok(())
-        })?;
-    }
-    if want(OutputFormat::Glb) {
-        put("mesh.glb", &|w| {
-            export::gltf::write_glb(mesh, w, &config.gltf)
-        })?;
-    }
-    if want(OutputFormat::Gltf) {
+        Ok(one(name, bytes))
+    };
+    let glb = || -> Result<Files, PipelineError> {
+        if !want(OutputFormat::Glb) {
+            return Ok(Vec::new());
+        }
+        Ok(one(
+            "mesh.glb",
+            encode(&|w| export::gltf::write_glb(mesh, w, &config.gltf))?,
+        ))
+    };
+    let gltf = || -> Result<Files, PipelineError> {
+        if !want(OutputFormat::Gltf) {
+            return Ok(Vec::new());
+        }
         let mut bin = Vec::new();
         let mut json = Vec::new();
         export::gltf::write_gltf(mesh, &mut json, &mut bin, "mesh.bin", &config.gltf)?;
-        put("mesh.bin", &|w| {
-            w.extend_from_slice(&bin);
-            Ok(())
-        })?;
-        put("mesh.gltf", &|w| {
-            w.extend_from_slice(&json);
-            Ok(())
-        })?;
-    }
-    if want(OutputFormat::Ply) {
+        Ok(vec![("mesh.bin".into(), bin), ("mesh.gltf".into(), json)])
+    };
+    let ply = || -> Result<Files, PipelineError> {
+        if !want(OutputFormat::Ply) {
+            return Ok(Vec::new());
+        }
         let quality = export::ply::nearest_point_distances(&mesh.positions, &cloud.points)?;
         let opts = export::ply::PlyOptions {
             quality: Some(&quality),
             ..Default::default()
         };
-        put("mesh.ply", &|w| export::ply::write(mesh, w, &opts))?;
-    }
-    if want(OutputFormat::Png) {
+        Ok(one(
+            "mesh.ply",
+            encode(&|w| export::ply::write(mesh, w, &opts))?,
+        ))
+    };
+    let preview = || -> Result<Files, PipelineError> {
+        if !want(OutputFormat::Png) {
+            return Ok(Vec::new());
+        }
         let image = crate::render::render(mesh, &crate::render::RenderParams::default());
-        put("preview.png", &|w| export::png::write_rgb(&image, w))?;
-    }
-    if !slices.is_empty() {
-        for slice in &slices {
+        Ok(one(
+            "preview.png",
+            encode(&|w| export::png::write_rgb(&image, w))?,
+        ))
+    };
+    // The slices take most of the time and are parallel inside; the rest fills the other thread.
+    let (slices, (json, ((glb, gltf), (ply, preview)))) = rayon::join(slices, || {
+        rayon::join(json, || {
+            rayon::join(|| rayon::join(glb, gltf), || rayon::join(ply, preview))
+        })
+    });
+    let slices = slices?;
+    let images: Vec<Files> = slices
+        .par_iter()
+        .map(|slice| -> Result<Files, PipelineError> {
+            let mut files = Vec::new();
             if want(OutputFormat::Exr) {
-                let name = format!("slices/slice_{:03}.exr", slice.index);
-                put(&name, &|w| {
+                let bytes = encode(&|w| {
                     export::exr::write_slice(slice, &export::exr::ExrOptions::default(), w)
                 })?;
+                files.push((format!("slices/slice_{:03}.exr", slice.index), bytes));
             }
             if want(OutputFormat::Png) {
-                let name = format!("slices/slice_{:03}.png", slice.index);
-                put(&name, &|w| export::png::write_preview(slice, w))?;
+                let bytes = encode(&|w| export::png::write_preview(slice, w))?;
+                files.push((format!("slices/slice_{:03}.png", slice.index), bytes));
             }
-        }
+            Ok(files)
+        })
+        .collect::<Result<_, _>>()?;
+    let mut files = Vec::new();
+    for part in [json?, glb?, gltf?, ply?, preview?] {
+        files.extend(part);
     }
+    files.extend(images.into_iter().flatten());
     Ok(OutputFiles(files))
 }

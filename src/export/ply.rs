@@ -34,9 +34,6 @@
 
 use std::io::Write;
 
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
-use rayon::prelude::*;
-
 use crate::export::ExportError;
 use crate::mesh::TriangleMesh;
 
@@ -196,8 +193,9 @@ pub fn write(
 }
 
 /// Distance from each vertex to the nearest of `points` (input units, as `f32`): the `quality`
-/// MeshLab shows. Uses a k-d tree (kiddo) and runs in parallel; the result does not depend on
-/// the thread count. Non-finite points are ignored.
+/// MeshLab shows ([`crate::measure::nearest_point_distances`], a k-d tree, in parallel; the
+/// result does not depend on the thread count). Non-finite points are ignored; a non-finite
+/// vertex gets NaN.
 ///
 /// ```
 /// use stablesurf::export::ply::nearest_point_distances;
@@ -211,31 +209,10 @@ pub fn nearest_point_distances(
     vertices: &[[f64; 3]],
     points: &[[f64; 3]],
 ) -> Result<Vec<f32>, ExportError> {
-    let finite: Vec<[f64; 3]> = points
-        .iter()
-        .copied()
-        .filter(|p| p.iter().all(|c| c.is_finite()))
-        .collect();
-    if finite.is_empty() {
-        return Err(ExportError::InvalidMesh(
-            "no finite input point to measure vertex quality against".into(),
-        ));
-    }
-    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&finite)
-        .map_err(|e| ExportError::Format(format!("cannot index the input points: {e:?}")))?;
-    Ok(vertices
-        .par_iter()
-        .map(|v| {
-            if !v.iter().all(|c| c.is_finite()) {
-                return f32::NAN;
-            }
-            let nearest = tree
-                .query(v)
-                .nearest_one::<SquaredEuclidean<f64>>()
-                .execute();
-            nearest.distance.sqrt() as f32
-        })
-        .collect())
+    let d = crate::measure::nearest_point_distances(vertices, points).ok_or_else(|| {
+        ExportError::InvalidMesh("no finite input point to measure vertex quality against".into())
+    })?;
+    Ok(d.into_iter().map(|d| d as f32).collect())
 }
 
 #[cfg(test)]
