@@ -1,6 +1,8 @@
 //! End-to-end benchmark: import → normals → fit → polygonize → checks with a cold (disabled)
 //! cache, on the Stanford bunny from ../shared/data when present, else on the built-in sample.
-//! Prints the per-stage breakdown of one run before the criterion measurement.
+//! Prints the per-stage breakdown of one run before the criterion measurement. Cases: global mode
+//! without files, global with glb+ply+json, and detail mode with every output (the defaults of
+//! `stablesurf run --mode detail`: depth 7, no topology guard, mesh-distance slices).
 //!
 //! Run: `cargo bench --bench pipeline`.
 
@@ -8,7 +10,9 @@ use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use stablesurf::cache::Cache;
-use stablesurf::pipeline::{self, OutputFormat, PipelineConfig, ScanSource, Silent};
+use stablesurf::distance::DistanceMethod;
+use stablesurf::pipeline::{self, Mode, OutputFormat, PipelineConfig, ScanSource, Silent};
+use stablesurf::polygonize::PolygonizeParams;
 
 fn source() -> (ScanSource, &'static str) {
     let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/bunny_zipper.ply");
@@ -22,17 +26,34 @@ fn source() -> (ScanSource, &'static str) {
 fn bench(c: &mut Criterion) {
     let (source, name) = source();
     let out = tempfile::tempdir().unwrap();
-    for (label, formats) in [
-        ("no files", vec![]),
+    let global = PipelineConfig::default();
+    let mut detail = PipelineConfig {
+        mode: Mode::Detail,
+        polygonize: PolygonizeParams {
+            depth: 7,
+            guard_levels: 0,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    detail.slices.method = DistanceMethod::Mesh;
+    for (label, config) in [
+        (
+            "no files",
+            PipelineConfig {
+                formats: vec![],
+                ..global.clone()
+            },
+        ),
         (
             "glb+ply+json",
-            vec![OutputFormat::Glb, OutputFormat::Ply, OutputFormat::Json],
+            PipelineConfig {
+                formats: vec![OutputFormat::Glb, OutputFormat::Ply, OutputFormat::Json],
+                ..global.clone()
+            },
         ),
+        ("detail, all outputs", detail),
     ] {
-        let config = PipelineConfig {
-            formats: formats.clone(),
-            ..Default::default()
-        };
         let report = pipeline::run(
             &source,
             out.path(),
