@@ -156,15 +156,25 @@ impl Star {
     }
 }
 
+/// One vertex of the link of the vertex u being removed.
+#[derive(Clone, Copy)]
+struct RingVertex {
+    vertex: u32,
+    position: [f64; 3],
+    /// (a − u) × (b − u) for this vertex a and the next one b of the link.
+    normal: [f64; 3],
+    /// Squared length of `normal`.
+    normal2: f64,
+}
+
 /// The mesh with its vertex-to-triangle lists, updated by the collapses.
-struct Mesh<'a> {
-    positions: &'a [[f64; 3]],
+struct Mesh {
     triangles: Vec<[u32; 3]>,
     alive: Vec<bool>,
     around: Vec<Star>,
 }
 
-impl Mesh<'_> {
+impl Mesh {
     /// The link of `u` as one closed cycle of neighbours in winding order, or None when u is on
     /// the boundary or its link is not one cycle.
     fn link_cycle(&self, u: u32, cycle: &mut Vec<u32>, edges: &mut Vec<(u32, u32)>) -> bool {
@@ -207,20 +217,48 @@ impl Mesh<'_> {
     }
 
     /// The worst radius ratio of the triangles around `u` after moving it onto `v`, or None when
-    /// the collapse u → v is not allowed. `cycle` is u's link, `i` the position of v in it.
-    /// `mark[x] == stamp` exactly for the vertices x of `cycle`.
+    /// the collapse u → v is not allowed. `ring` is u's link (vertex, position, and the normal
+    /// (a − u) × (b − u) of the triangle it opens with the next one, with its squared length),
+    /// `i` the position of v in it. `mark[x] == stamp` exactly for the vertices x of the link.
+    /// The checks are independent, so the cheap in-cache geometric ones go first.
     fn collapse_quality(
         &self,
-        u: u32,
-        cycle: &[u32],
+        ring: &[RingVertex],
         i: usize,
-        sizes: &[f64],
+        limit2: f64,
         (mark, stamp): (&[u32], u32),
     ) -> Option<f64> {
-        let n = cycle.len();
-        let v = cycle[i];
-        let w1 = cycle[(i + n - 1) % n];
-        let w2 = cycle[(i + 1) % n];
+        let n = ring.len();
+        let v = ring[i].vertex;
+        let pv = ring[i].position;
+        let mut worst = f64::INFINITY;
+        // The triangles (u, a, b) with a, b ≠ v: k ∉ {i − 1, i}.
+        for k in (i + 1)..(i + n - 1) {
+            let k = if k >= n { k - n } else { k };
+            let (ra, rb) = (&ring[k], &ring[if k + 1 == n { 0 } else { k + 1 }]);
+            let (pa, pb) = (ra.position, rb.position);
+            let d = sub(pv, pa);
+            if dot(d, d) > limit2 {
+                return None;
+            }
+            let (old, old2) = (ra.normal, ra.normal2);
+            let (quality, new) = shape(pv, pa, pb);
+            let new2 = dot(new, new);
+            if new2.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+                return None;
+            }
+            // cos(turn) ≥ MAX_NORMAL_TURN_COS, squared (the cosine must be positive).
+            let turn = dot(old, new);
+            if old2 > 0.0
+                && (turn <= 0.0
+                    || turn * turn < MAX_NORMAL_TURN_COS * MAX_NORMAL_TURN_COS * old2 * new2)
+            {
+                return None;
+            }
+            worst = worst.min(quality);
+        }
+        let w1 = ring[(i + n - 1) % n].vertex;
+        let w2 = ring[(i + 1) % n].vertex;
         // Valence of w₁, w₂ stays at least 3.
         let (star_v, star_w1, star_w2) = (
             &self.around[v as usize],
@@ -250,37 +288,6 @@ impl Mesh<'_> {
             if n == 3 && common == 2 {
                 return None;
             }
-        }
-        let pu = self.positions[u as usize];
-        let pv = self.positions[v as usize];
-        let limit = MAX_EDGE * sizes[u as usize].min(sizes[v as usize]);
-        let limit2 = limit * limit;
-        let mut worst = f64::INFINITY;
-        for k in 0..n {
-            let (a, b) = (cycle[k], cycle[(k + 1) % n]);
-            if a == v || b == v {
-                continue;
-            }
-            let (pa, pb) = (self.positions[a as usize], self.positions[b as usize]);
-            let d = sub(pv, pa);
-            if dot(d, d) > limit2 {
-                return None;
-            }
-            let old = cross(sub(pa, pu), sub(pb, pu));
-            let (quality, new) = shape(pv, pa, pb);
-            let (old2, new2) = (dot(old, old), dot(new, new));
-            if new2.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-                return None;
-            }
-            // cos(turn) ≥ MAX_NORMAL_TURN_COS, squared (the cosine must be positive).
-            let turn = dot(old, new);
-            if old2 > 0.0
-                && (turn <= 0.0
-                    || turn * turn < MAX_NORMAL_TURN_COS * MAX_NORMAL_TURN_COS * old2 * new2)
-            {
-                return None;
-            }
-            worst = worst.min(quality);
         }
         Some(worst)
     }
@@ -455,6 +462,10 @@ fn simplify_local(
     for tri in &triangles {
         for k in 0..3 {
             let (a, b) = (tri[k] as usize, tri[(k + 1) % 3] as usize);
+            // Only the candidates' shortest edges are used.
+            if !candidate[a] && !candidate[b] {
+                continue;
+            }
             let d = distance(positions[a], positions[b]);
             shortest[a] = shortest[a].min(d / sizes[a]);
             shortest[b] = shortest[b].min(d / sizes[b]);
@@ -470,7 +481,6 @@ fn simplify_local(
     // cache.
     order.sort_unstable_by_key(|&(s, v)| (v / ORDER_BLOCK, s, v));
     let mut mesh = Mesh {
-        positions,
         alive: vec![true; triangles.len()],
         triangles,
         around,
@@ -479,6 +489,7 @@ fn simplify_local(
     let mut cycle = Vec::new();
     let mut link_edges = Vec::new();
     let mut candidates: Vec<(f64, usize)> = Vec::new();
+    let mut ring: Vec<RingVertex> = Vec::new();
     let mut mark = vec![u32::MAX; n_vertices];
     for (stamp, (_, u)) in order.into_iter().enumerate() {
         if !mesh.link_cycle(u, &mut cycle, &mut link_edges) {
@@ -498,14 +509,31 @@ fn simplify_local(
         // best one that does not make the worst triangle around u worse.
         let pu = positions[u as usize];
         candidates.clear();
+        ring.clear();
         for (i, &v) in cycle.iter().enumerate() {
-            let d = sub(positions[v as usize], pu);
+            let position = positions[v as usize];
+            let d = sub(position, pu);
             candidates.push((dot(d, d), i));
+            ring.push(RingVertex {
+                vertex: v,
+                position,
+                normal: [0.0; 3],
+                normal2: 0.0,
+            });
+        }
+        let n = ring.len();
+        for k in 0..n {
+            let (pa, pb) = (ring[k].position, ring[(k + 1) % n].position);
+            let normal = cross(sub(pa, pu), sub(pb, pu));
+            ring[k].normal = normal;
+            ring[k].normal2 = dot(normal, normal);
         }
         candidates.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let size_u = sizes[u as usize];
         let mut best: Option<(f64, u32)> = None;
         for &(_, i) in &candidates {
-            if let Some(q) = mesh.collapse_quality(u, &cycle, i, sizes, (&mark, stamp)) {
+            let limit = MAX_EDGE * size_u.min(sizes[cycle[i] as usize]);
+            if let Some(q) = mesh.collapse_quality(&ring, i, limit * limit, (&mark, stamp)) {
                 if q >= floor && best.is_none_or(|(b, _)| q > b) {
                     best = Some((q, cycle[i]));
                     if q >= GOOD_QUALITY {
