@@ -727,6 +727,32 @@ fn positive_on_interval(c: &[f64], s0: f64, s1: f64) -> bool {
     })
 }
 
+/// What one octree cell of [`far_sign`] or [`shell_sign`] settles about f.
+enum Verdict {
+    /// f > 0 on the cell (certified) or the cell is outside the region: dropped.
+    Drop,
+    /// f < 0 at a point of the cell.
+    Negative,
+    /// Neither: refine.
+    Split,
+}
+
+/// The shell's sign once a level's verdicts are in: negative as soon as one cell is; at the
+/// last level positive only if every cell was dropped, else unknown; `None` to refine further.
+fn level_outcome(verdicts: &[Verdict], last_level: bool) -> Option<Shell> {
+    if verdicts.iter().any(|v| matches!(v, Verdict::Negative)) {
+        return Some(Shell::Negative);
+    }
+    if !last_level {
+        return None;
+    }
+    Some(if verdicts.iter().all(|v| matches!(v, Verdict::Drop)) {
+        Shell::Positive
+    } else {
+        Shell::Unknown
+    })
+}
+
 /// The sign of f (normalized coordinates) on the points whose box norm |p|∞ lies in
 /// [s_lo, s_hi] (0 < s_lo): each point is p = s·q with q on a face of the cube |q|∞ = 1, and
 /// f(s·q) = Σ_k s^k H_k(q), so lower bounds of each H_k on a patch of a face give a
@@ -759,11 +785,6 @@ fn far_sign(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64) -> Shell {
             cells.push((face, 0.0, 0.0, 1.0, s0, s1));
             s0 = s1;
         }
-    }
-    enum Verdict {
-        Drop,
-        Negative,
-        Split,
     }
     for level in 0..=FAR_MAX_LEVEL {
         if cells.is_empty() {
@@ -819,15 +840,8 @@ fn far_sign(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64) -> Shell {
                 }
             })
             .collect();
-        if verdicts.iter().any(|v| matches!(v, Verdict::Negative)) {
-            return Shell::Negative;
-        }
-        if level == FAR_MAX_LEVEL {
-            return if verdicts.iter().all(|v| matches!(v, Verdict::Drop)) {
-                Shell::Positive
-            } else {
-                Shell::Unknown
-            };
+        if let Some(shell) = level_outcome(&verdicts, level == FAR_MAX_LEVEL) {
+            return shell;
         }
         cells = cells
             .iter()
@@ -884,11 +898,6 @@ const SHELL_MAX_CELLS: usize = 40_000;
 fn shell_sign(poly: &ImplicitPolynomial, outer: f64, hole: f64) -> Shell {
     use crate::polygonize::ImplicitFunction;
     use rayon::prelude::*;
-    enum Cell {
-        Drop,
-        Negative,
-        Split,
-    }
     let mut cells: Vec<[f64; 3]> = vec![[0.0; 3]];
     let mut half = outer;
     for level in 0..=SHELL_MAX_LEVEL {
@@ -899,12 +908,12 @@ fn shell_sign(poly: &ImplicitPolynomial, outer: f64, hole: f64) -> Shell {
             return Shell::Unknown;
         }
         let h = half;
-        let verdicts: Vec<Cell> = cells
+        let verdicts: Vec<Verdict> = cells
             .par_iter()
             .map(|c| {
                 let far = c.iter().fold(0.0f64, |m, v| m.max(v.abs()));
                 if far + h <= hole {
-                    return Cell::Drop;
+                    return Verdict::Drop;
                 }
                 let b = Aabb {
                     min: c.map(|v| v - h),
@@ -912,29 +921,22 @@ fn shell_sign(poly: &ImplicitPolynomial, outer: f64, hole: f64) -> Shell {
                 };
                 let (lo, _) = poly.bounds_on_box(&b);
                 if lo > 0.0 {
-                    return Cell::Drop;
+                    return Verdict::Drop;
                 }
                 if far > hole && poly.value(*c) < 0.0 {
-                    return Cell::Negative;
+                    return Verdict::Negative;
                 }
-                Cell::Split
+                Verdict::Split
             })
             .collect();
-        if verdicts.iter().any(|v| matches!(v, Cell::Negative)) {
-            return Shell::Negative;
-        }
-        if level == SHELL_MAX_LEVEL {
-            return if verdicts.iter().all(|v| matches!(v, Cell::Drop)) {
-                Shell::Positive
-            } else {
-                Shell::Unknown
-            };
+        if let Some(shell) = level_outcome(&verdicts, level == SHELL_MAX_LEVEL) {
+            return shell;
         }
         let q = 0.5 * h;
         cells = cells
             .iter()
             .zip(&verdicts)
-            .filter(|(_, v)| matches!(v, Cell::Split))
+            .filter(|(_, v)| matches!(v, Verdict::Split))
             .flat_map(|(c, _)| {
                 (0..8)
                     .map(move |k| [0, 1, 2].map(|a| c[a] + if (k >> a) & 1 == 1 { q } else { -q }))
