@@ -955,32 +955,7 @@ mod tests {
     fn sign_grid_counts_two_spheres() {
         // f = ((x − 1.5)² + y² + z² − 0.25)((x + 1.5)² + y² + z² − 0.25) > 0 far away: two
         // components, not touching the box [−4, 4]³.
-        let sphere = |cx: f64| {
-            let mut c = vec![0.0; 10];
-            c[0] = cx * cx - 0.25;
-            c[1] = -2.0 * cx;
-            c[4] = 1.0;
-            c[7] = 1.0;
-            c[9] = 1.0;
-            c
-        };
-        let (a, b) = (sphere(1.5), sphere(-1.5));
-        // Product of two quadrics in the paper's order, by exponents.
-        let e2 = crate::poly::exponents(2);
-        let mut coefficients = vec![0.0; crate::poly::n_coefficients(4)];
-        for (l, el) in e2.iter().enumerate() {
-            for (m, em) in e2.iter().enumerate() {
-                let idx =
-                    crate::poly::monomial_index([el[0] + em[0], el[1] + em[1], el[2] + em[2]]);
-                coefficients[idx] += a[l] * b[m];
-            }
-        }
-        let poly = ImplicitPolynomial {
-            degree: 4,
-            coefficients,
-            center: [0.0; 3],
-            scale: 1.0,
-        };
+        let poly = two_spheres([1.5, 0.0, 0.0], 0.5, [-1.5, 0.0, 0.0], 0.5);
         let zero_set = sign_grid_zero_set(&poly, 4.0, 64);
         assert_eq!(zero_set.components.len(), 2);
         assert!(!zero_set.touches_box);
