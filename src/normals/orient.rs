@@ -23,6 +23,8 @@
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 
+use rayon::prelude::*;
+
 use crate::normals::vec3::{dot, norm, scale, sub};
 
 /// Symmetric neighbour graph in compressed rows: `(neighbour, penalty)` per entry.
@@ -49,7 +51,8 @@ fn build_graph(n: usize, triangles: &[[u32; 3]], knn: &[Vec<u32>]) -> Graph {
             }
         }
     }
-    edges.sort_unstable();
+    // The sort is the same whatever the thread count: the order of the tuples is total.
+    edges.par_sort_unstable();
     // Keep the smallest penalty of each pair.
     edges.dedup_by(|a, b| a.0 == b.0 && a.1 == b.1);
     let mut count = vec![0usize; n + 1];
@@ -90,7 +93,24 @@ pub fn orient_consistently(
 ) -> Vec<u32> {
     let n = points.len();
     let graph = build_graph(n, triangles, knn);
+    // Edge weights do not depend on the signs (|nᵢ·nⱼ|), so they are computed up front, in
+    // parallel, with the same arithmetic as at the time of the push. Non-negative f64 order
+    // equals the order of their bit patterns.
+    let weights: Vec<u64> = (0..n)
+        .into_par_iter()
+        .flat_map_iter(|i| {
+            let normals = &*normals;
+            graph.neighbours(i).iter().map(move |&(j, penalty)| {
+                let w = penalty + 1.0 - dot(&normals[i], &normals[j as usize]).abs().min(1.0);
+                w.max(0.0).to_bits()
+            })
+        })
+        .collect();
     let mut label = vec![u32::MAX; n];
+    // The smallest (weight, from) pushed so far for each point: a push that does not improve
+    // on it would only be popped after that one and skipped, so it is left out. The popped
+    // sequence, hence the tree, is the same as with every push.
+    let mut best: Vec<(u64, u32)> = vec![(u64::MAX, u32::MAX); n];
     let mut heap: BinaryHeap<Reverse<(u64, u32, u32)>> = BinaryHeap::new();
     let mut n_pieces = 0u32;
     for root in 0..n {
@@ -108,11 +128,12 @@ pub fn orient_consistently(
             if dot(&normals[to], &normals[from as usize]) < 0.0 {
                 normals[to] = scale(&normals[to], -1.0);
             }
-            for &(j, penalty) in graph.neighbours(to) {
-                if label[j as usize] == u32::MAX {
-                    let w = penalty + 1.0 - dot(&normals[to], &normals[j as usize]).abs().min(1.0);
-                    // Non-negative f64 order equals the order of their bit patterns.
-                    heap.push(Reverse((w.max(0.0).to_bits(), j, to as u32)));
+            let row = graph.start[to]..graph.start[to + 1];
+            for (&(j, _), &w) in graph.entries[row.clone()].iter().zip(&weights[row]) {
+                let candidate = (w, to as u32);
+                if label[j as usize] == u32::MAX && candidate < best[j as usize] {
+                    best[j as usize] = candidate;
+                    heap.push(Reverse((w, j, to as u32)));
                 }
             }
         }
