@@ -67,6 +67,57 @@ fn compare(stack: &[stablesurf::distance::Slice], reference: &Path) {
     );
 }
 
+/// Nearest-point queries one by one (A) and with the previous answer as a radius (B), single
+/// threaded, for k-d trees with leaves of 32, 16 and 8 points.
+fn kd_ab(queries: &[[f64; 3]], points: &[[f64; 3]], repeats: usize) {
+    macro_rules! ab {
+        ($b:literal) => {{
+            use kiddo::{Eytzinger, KdTree, SquaredEuclidean, VecOfArenas};
+            type Tree = KdTree<f64, u32, Eytzinger, VecOfArenas<f64, u32, 3, $b>, 3, $b>;
+            let tree = time(concat!("build B=", $b), 1, || Tree::new_from_slice(points).expect("tree"));
+            for _ in 0..repeats {
+                let a = time(concat!("one B=", $b), 1, || {
+                    queries
+                        .iter()
+                        .map(|q| tree.query(q).nearest_one::<SquaredEuclidean<f64>>().execute().distance)
+                        .sum::<f64>()
+                });
+                let b = time(concat!("hinted B=", $b), 1, || {
+                    let mut hint: Option<[f64; 3]> = None;
+                    queries
+                        .iter()
+                        .map(|q| {
+                            let d2 = |h: [f64; 3]| {
+                                (q[0] - h[0]).powi(2) + (q[1] - h[1]).powi(2) + (q[2] - h[2]).powi(2)
+                            };
+                            let n = match hint {
+                                Some(h) => {
+                                    let found = tree
+                                        .query(q)
+                                        .nearest_n::<SquaredEuclidean<f64>>(std::num::NonZero::<usize>::MIN)
+                                        .within(d2(h) * (1.0 + 1e-9))
+                                        .execute();
+                                    (found[0].distance, found[0].item)
+                                }
+                                None => {
+                                    let n = tree.query(q).nearest_one::<SquaredEuclidean<f64>>().execute();
+                                    (n.distance, n.item)
+                                }
+                            };
+                            hint = Some(points[n.1 as usize]);
+                            n.0
+                        })
+                        .sum::<f64>()
+                });
+                assert_eq!(a, b);
+            }
+        }};
+    }
+    ab!(32);
+    ab!(16);
+    ab!(8);
+}
+
 fn time<T>(name: &str, repeats: usize, mut f: impl FnMut() -> T) -> T {
     let (mut best_wall, mut best_cpu) = (f64::INFINITY, f64::INFINITY);
     let mut out = None;
@@ -102,6 +153,11 @@ fn main() {
         cloud.points.len(),
         mesh.triangles.len()
     );
+    if std::env::var_os("KD_AB").is_some() {
+        kd_ab(&mesh.positions, &cloud.points, repeats);
+        kd_ab(&cloud.points, &mesh.positions, repeats);
+        return;
+    }
     time("check", repeats, || mesh::check(&mesh));
     time("accuracy", repeats, || {
         DistanceSummary::from_distances(&point_to_mesh_distances(&cloud.points, &mesh), diagonal)
@@ -109,6 +165,17 @@ fn main() {
     let stack = time("slices", repeats, || {
         slices(&model.polynomial, &region, &params).expect("slices")
     });
+    let longest = (0..3)
+        .map(|a| region.max[a] - region.min[a])
+        .fold(0.0, f64::max);
+    let cell = 1.5 * longest / 64.0;
+    let all: Vec<f64> = stack.iter().flat_map(|s| s.data.iter().map(|&d| f64::from(d).abs() / cell)).collect();
+    for k in [0.5, 1.0, 2.0, 4.0, 8.0] {
+        println!(
+            "pixels within {k} seed cells of the surface: {:.3}",
+            all.iter().filter(|&&d| d < k).count() as f64 / all.len() as f64
+        );
+    }
     if let Some(reference) = args.get(3) {
         compare(&stack, Path::new(reference));
     }
