@@ -882,16 +882,19 @@ impl Evaluator {
     }
 
     /// Power tables of the three coordinates with their first and second derivatives:
-    /// `[t^e, e·t^(e−1), e(e−1)·t^(e−2)]` at index e for each axis.
-    fn derivative_powers<const T: usize>(&self, q: [f64; 3]) -> [[[f64; T]; 3]; 3] {
+    /// `[t^e, e·t^(e−1), e(e−1)·t^(e−2)]` at index e for each axis, the three side by side so
+    /// the inner loops read one row per exponent.
+    fn derivative_powers<const T: usize>(&self, q: [f64; 3]) -> [[[f64; 3]; T]; 3] {
         let t = self.powers::<T>(q);
-        let mut d = [[[0.0; T]; 3]; 3];
+        let mut d = [[[0.0; 3]; T]; 3];
         for a in 0..3 {
-            for e in 0..=self.degree {
+            for (e, row) in d[a].iter_mut().enumerate().take(self.degree + 1) {
                 let ef = e as f64;
-                d[a][0][e] = t[a][e + 2];
-                d[a][1][e] = ef * t[a][e + 1];
-                d[a][2][e] = ef * (ef - 1.0) * t[a][e];
+                *row = [
+                    t[a][e + 2],
+                    ef * t[a][e + 1],
+                    ef * (ef - 1.0) * t[a][e],
+                ];
             }
         }
         d
@@ -921,15 +924,16 @@ impl Evaluator {
                 let (col, rest) = columns.split_at(n - i - j + 1);
                 columns = rest;
                 let (mut s0, mut s1) = (0.0, 0.0);
-                for (k, &a) in col.iter().enumerate() {
-                    s0 += a * z[0][k];
-                    s1 += a * z[1][k];
+                for (&a, zk) in col.iter().zip(&z) {
+                    s0 += a * zk[0];
+                    s1 += a * zk[1];
                 }
-                t00 += y[0][j] * s0;
-                t10 += y[1][j] * s0;
-                t01 += y[0][j] * s1;
+                let [y0, y1, _] = y[j];
+                t00 += y0 * s0;
+                t10 += y1 * s0;
+                t01 += y0 * s1;
             }
-            let (x0, x1) = (x[0][i], x[1][i]);
+            let [x0, x1, _] = x[i];
             f += x0 * t00;
             g[0] += x1 * t00;
             g[1] += x0 * t10;
@@ -962,12 +966,12 @@ impl Evaluator {
                 let (col, rest) = columns.split_at(n - i - j + 1);
                 columns = rest;
                 let (mut s0, mut s1, mut s2) = (0.0, 0.0, 0.0);
-                for (k, &a) in col.iter().enumerate() {
-                    s0 += a * z[0][k];
-                    s1 += a * z[1][k];
-                    s2 += a * z[2][k];
+                for (&a, zk) in col.iter().zip(&z) {
+                    s0 += a * zk[0];
+                    s1 += a * zk[1];
+                    s2 += a * zk[2];
                 }
-                let (y0, y1, y2) = (y[0][j], y[1][j], y[2][j]);
+                let [y0, y1, y2] = y[j];
                 t00 += y0 * s0;
                 t10 += y1 * s0;
                 t01 += y0 * s1;
@@ -975,7 +979,7 @@ impl Evaluator {
                 t02 += y0 * s2;
                 t11 += y1 * s1;
             }
-            let (x0, x1, x2) = (x[0][i], x[1][i], x[2][i]);
+            let [x0, x1, x2] = x[i];
             f += x0 * t00;
             g[0] += x1 * t00;
             g[1] += x0 * t10;
