@@ -41,7 +41,11 @@
 //!   excellent start one pixel away); that point then bounds and covers seeds like a refined
 //!   seed, so most pixels need only this warm solve. Cost: a few Hessian evaluations and one
 //!   8-nearest-neighbour query per pixel, some 7× Taubin for a degree-8 model
-//!   (`cargo bench --bench export -- slices`).
+//!   (`cargo bench --bench export -- slices`). Two shortcuts leave every value unchanged (bit
+//!   for bit): the pixels of a row share two coordinates, so f's inner sums over them are
+//!   computed once per row (and once per grid line for the seed grid), and the previous
+//!   pixel's 8 nearest seeds bound the 8-nearest distance of the next query, whose k-d tree
+//!   search then starts with that radius instead of best + cell.
 //!
 //! Invariants: values are finite; the output depends only on the inputs (rayon over fixed rows,
 //! each row computed sequentially from its first pixel), whatever the thread count.
@@ -268,7 +272,9 @@ pub fn slices(
                 let mut feet: [Option<[f64; 3]>; 2] = [None, None];
                 // The row's pixels share their v and w coordinates: f's inner sums are computed
                 // once per row, and the previous pixel's nearest seeds bound the seed search.
-                let line = row.first().map(|&p| exact.eval.line(exact.eval.normalize(p)));
+                let line = row
+                    .first()
+                    .map(|&p| exact.eval.line(exact.eval.normalize(p)));
                 let mut near = NearSeeds::default();
                 row.iter()
                     .map(|&p| {
@@ -569,7 +575,8 @@ impl ExactDistance {
     /// Signed distance from `p` (input coordinates) to the zero set, input units, negative where
     /// f < 0.
     pub fn distance(&self, p: [f64; 3]) -> f64 {
-        self.distance_from(p, None, None, &mut NearSeeds::default()).0
+        self.distance_from(p, None, None, &mut NearSeeds::default())
+            .0
     }
 
     /// [`Self::distance`] with an optional warm start: `warm` is a point of the zero set
@@ -890,11 +897,7 @@ impl Evaluator {
         for a in 0..3 {
             for (e, row) in d[a].iter_mut().enumerate().take(self.degree + 1) {
                 let ef = e as f64;
-                *row = [
-                    t[a][e + 2],
-                    ef * t[a][e + 1],
-                    ef * (ef - 1.0) * t[a][e],
-                ];
+                *row = [t[a][e + 2], ef * t[a][e + 1], ef * (ef - 1.0) * t[a][e]];
             }
         }
         d

@@ -74,12 +74,19 @@ fn kd_ab(queries: &[[f64; 3]], points: &[[f64; 3]], repeats: usize) {
         ($b:literal) => {{
             use kiddo::{Eytzinger, KdTree, SquaredEuclidean, VecOfArenas};
             type Tree = KdTree<f64, u32, Eytzinger, VecOfArenas<f64, u32, 3, $b>, 3, $b>;
-            let tree = time(concat!("build B=", $b), 1, || Tree::new_from_slice(points).expect("tree"));
+            let tree = time(concat!("build B=", $b), 1, || {
+                Tree::new_from_slice(points).expect("tree")
+            });
             for _ in 0..repeats {
                 let a = time(concat!("one B=", $b), 1, || {
                     queries
                         .iter()
-                        .map(|q| tree.query(q).nearest_one::<SquaredEuclidean<f64>>().execute().distance)
+                        .map(|q| {
+                            tree.query(q)
+                                .nearest_one::<SquaredEuclidean<f64>>()
+                                .execute()
+                                .distance
+                        })
                         .sum::<f64>()
                 });
                 let b = time(concat!("hinted B=", $b), 1, || {
@@ -88,19 +95,26 @@ fn kd_ab(queries: &[[f64; 3]], points: &[[f64; 3]], repeats: usize) {
                         .iter()
                         .map(|q| {
                             let d2 = |h: [f64; 3]| {
-                                (q[0] - h[0]).powi(2) + (q[1] - h[1]).powi(2) + (q[2] - h[2]).powi(2)
+                                (q[0] - h[0]).powi(2)
+                                    + (q[1] - h[1]).powi(2)
+                                    + (q[2] - h[2]).powi(2)
                             };
                             let n = match hint {
                                 Some(h) => {
                                     let found = tree
                                         .query(q)
-                                        .nearest_n::<SquaredEuclidean<f64>>(std::num::NonZero::<usize>::MIN)
+                                        .nearest_n::<SquaredEuclidean<f64>>(
+                                            std::num::NonZero::<usize>::MIN,
+                                        )
                                         .within(d2(h) * (1.0 + 1e-9))
                                         .execute();
                                     (found[0].distance, found[0].item)
                                 }
                                 None => {
-                                    let n = tree.query(q).nearest_one::<SquaredEuclidean<f64>>().execute();
+                                    let n = tree
+                                        .query(q)
+                                        .nearest_one::<SquaredEuclidean<f64>>()
+                                        .execute();
                                     (n.distance, n.item)
                                 }
                             };
@@ -169,7 +183,10 @@ fn main() {
         .map(|a| region.max[a] - region.min[a])
         .fold(0.0, f64::max);
     let cell = 1.5 * longest / 64.0;
-    let all: Vec<f64> = stack.iter().flat_map(|s| s.data.iter().map(|&d| f64::from(d).abs() / cell)).collect();
+    let all: Vec<f64> = stack
+        .iter()
+        .flat_map(|s| s.data.iter().map(|&d| f64::from(d).abs() / cell))
+        .collect();
     for k in [0.5, 1.0, 2.0, 4.0, 8.0] {
         println!(
             "pixels within {k} seed cells of the surface: {:.3}",
@@ -193,8 +210,8 @@ fn main() {
         b
     });
     time("ply", repeats, || {
-        let quality = export::ply::nearest_point_distances(&mesh.positions, &cloud.points)
-            .expect("quality");
+        let quality =
+            export::ply::nearest_point_distances(&mesh.positions, &cloud.points).expect("quality");
         let opts = export::ply::PlyOptions {
             quality: Some(&quality),
             ..Default::default()
