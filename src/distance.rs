@@ -41,7 +41,11 @@
 //!   excellent start one pixel away); that point then bounds and covers seeds like a refined
 //!   seed, so most pixels need only this warm solve. Cost: a few Hessian evaluations and one
 //!   8-nearest-neighbour query per pixel, some 7× Taubin for a degree-8 model
-//!   (`cargo bench --bench export -- slices`).
+//!   (`cargo bench --bench export -- slices`). Two shortcuts leave every value unchanged (bit
+//!   for bit): the pixels of a row share two coordinates, so f's inner sums over them are
+//!   computed once per row (and once per grid line for the seed grid), and the previous
+//!   pixel's 8 nearest seeds bound the 8-nearest distance of the next query, whose k-d tree
+//!   search then starts with that radius instead of best + cell.
 //!
 //! Invariants: values are finite; the output depends only on the inputs (rayon over fixed rows,
 //! each row computed sequentially from its first pixel), whatever the thread count.
@@ -266,6 +270,12 @@ pub fn slices(
             // last two feet when they are close (one Newton step fewer).
             Ok(fill_grid(region, params, |row| {
                 let mut feet: [Option<[f64; 3]>; 2] = [None, None];
+                // The row's pixels share their v and w coordinates: f's inner sums are computed
+                // once per row, and the previous pixel's nearest seeds bound the seed search.
+                let line = row
+                    .first()
+                    .map(|&p| exact.eval.line(exact.eval.normalize(p)));
+                let mut near = NearSeeds::default();
                 row.iter()
                     .map(|&p| {
                         let start = match feet {
@@ -274,7 +284,7 @@ pub fn slices(
                             }
                             [_, b] => b,
                         };
-                        let (d, x) = exact.distance_from(p, start);
+                        let (d, x) = exact.distance_from(p, start, line.as_ref(), &mut near);
                         feet = [feet[1], x];
                         d as f32
                     })
@@ -504,8 +514,10 @@ impl ExactDistance {
             .map(|k| {
                 let mut layer = Vec::with_capacity((n[0] + 1) * (n[1] + 1));
                 for j in 0..=n[1] {
+                    // The nodes of a line along x share y and z: f's inner sums once per line.
+                    let line = eval.line(node(0, j, k));
                     for i in 0..=n[0] {
-                        layer.push(eval.value(node(i, j, k)));
+                        layer.push(eval.value_on_line(&line, node(i, j, k)));
                     }
                 }
                 layer
@@ -563,7 +575,8 @@ impl ExactDistance {
     /// Signed distance from `p` (input coordinates) to the zero set, input units, negative where
     /// f < 0.
     pub fn distance(&self, p: [f64; 3]) -> f64 {
-        self.distance_from(p, None).0
+        self.distance_from(p, None, None, &mut NearSeeds::default())
+            .0
     }
 
     /// [`Self::distance`] with an optional warm start: `warm` is a point of the zero set
@@ -571,9 +584,22 @@ impl ExactDistance {
     /// neighbouring pixel. Newton's method is run from it first; its result bounds the seeds
     /// worth refining and, like a refined seed, covers the seeds within two cells of it. Returns
     /// the signed distance and the closest point found (normalized), to warm-start the next query.
-    fn distance_from(&self, p: [f64; 3], warm: Option<[f64; 3]>) -> (f64, Option<[f64; 3]>) {
+    ///
+    /// `line`, when given, caches f's inner sums on the line of `p` (see [`Evaluator::line`]);
+    /// `near` holds the nearest seeds of the previous query, which bound this query's radius
+    /// (the result is the same as without them, only found faster), and receives this query's.
+    fn distance_from(
+        &self,
+        p: [f64; 3],
+        warm: Option<[f64; 3]>,
+        line: Option<&Line>,
+        near: &mut NearSeeds,
+    ) -> (f64, Option<[f64; 3]>) {
         let q = self.eval.normalize(p);
-        let f = self.eval.value(q);
+        let f = match line {
+            Some(line) => self.eval.value_on_line(line, q),
+            None => self.eval.value(q),
+        };
         if f == 0.0 {
             return (0.0, Some(q));
         }
@@ -591,12 +617,34 @@ impl ExactDistance {
         }
         let k = NonZero::new(N_NEAREST.min(self.seeds.len())).unwrap_or(NonZero::<usize>::MIN);
         // Only seeds within best + cell are used below, so a warm start bounds the search.
+        // The previous query's k nearest seeds bound the k-th nearest distance here: a radius
+        // just above that bound gives the same k nearest seeds (all within both radii), and
+        // lets the tree prune far sooner.
+        let mut radius2 = if best.is_finite() {
+            (best + self.cell).powi(2)
+        } else {
+            f64::INFINITY
+        };
+        if near.len == k.get() {
+            let bound2 = near.items[..near.len]
+                .iter()
+                .map(|&i| dist2(q, self.seeds[i as usize]))
+                .fold(0.0, f64::max)
+                * (1.0 + 1e-9);
+            if bound2 < radius2 {
+                radius2 = bound2;
+            }
+        }
         let query = self.tree.query(&q).nearest_n::<SquaredEuclidean<f64>>(k);
-        let nearest = if best.is_finite() {
-            query.within((best + self.cell).powi(2)).execute()
+        let nearest = if radius2.is_finite() {
+            query.within(radius2).execute()
         } else {
             query.execute()
         };
+        near.len = nearest.len().min(N_NEAREST);
+        for (slot, n) in near.items.iter_mut().zip(&nearest) {
+            *slot = n.item;
+        }
         if let Some(n) = nearest.first() {
             if n.distance.sqrt() < best {
                 best = n.distance.sqrt();
@@ -637,6 +685,30 @@ fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
+fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
+}
+
+/// The nearest seeds (indices) found by the previous query of a row.
+#[derive(Clone, Copy, Debug, Default)]
+struct NearSeeds {
+    items: [u32; N_NEAREST],
+    len: usize,
+}
+
+/// f's inner sums on a line of fixed y and z (normalized): `s[i][j] = Σ_k a_ijk z^k` and
+/// `fi[i] = Σ_j y^j s[i][j]`, so that f on the line costs n + 1 products per point, with the
+/// same operations in the same order as [`Evaluator::value`] (hence the same bits).
+#[derive(Clone, Debug)]
+struct Line {
+    y: f64,
+    z: f64,
+    /// `s[i][j]`, in the nested column order.
+    s: Vec<f64>,
+    /// `fi[i]` at `y`.
+    fi: Vec<f64>,
+}
+
 /// The polynomial as a list of non-zero terms, evaluated with its derivatives in normalized
 /// coordinates without allocating.
 #[derive(Clone, Debug)]
@@ -653,6 +725,8 @@ struct Evaluator {
 /// Length of a power table: t^e is stored at e + 2, with two zeros in front so the derivative
 /// lookups t^(e−1), t^(e−2) need no branch.
 const TABLE: usize = MAX_DEGREE as usize + 3;
+/// Table length used up to degree 10 (the usual fits), a quarter of [`TABLE`].
+const SHORT_TABLE: usize = 13;
 
 impl Evaluator {
     fn new(poly: &ImplicitPolynomial) -> Result<Self, DistanceError> {
@@ -707,9 +781,9 @@ impl Evaluator {
         [0, 1, 2].map(|a| (p[a] - self.center[a]) / self.scale)
     }
 
-    /// Power tables of the three coordinates (see [`TABLE`]).
-    fn powers(&self, q: [f64; 3]) -> [[f64; TABLE]; 3] {
-        let mut t = [[0.0; TABLE]; 3];
+    /// Power tables of the three coordinates (see [`TABLE`]), `T ≥ degree + 3` long.
+    fn powers<const T: usize>(&self, q: [f64; 3]) -> [[f64; T]; 3] {
+        let mut t = [[0.0; T]; 3];
         for a in 0..3 {
             let mut v = 1.0;
             for e in 0..=self.degree {
@@ -749,27 +823,100 @@ impl Evaluator {
         f
     }
 
+    /// The inner sums of f on the line through `q` along x (see [`Line`]).
+    fn line(&self, q: [f64; 3]) -> Line {
+        let n = self.degree;
+        let mut zp = [0.0; TABLE];
+        let mut v = 1.0;
+        for z in zp.iter_mut().take(n + 1) {
+            *z = v;
+            v *= q[2];
+        }
+        let mut columns = self.nested.as_slice();
+        let mut s = Vec::with_capacity((n + 1) * (n + 2) / 2);
+        let mut fi = Vec::with_capacity(n + 1);
+        for i in 0..=n {
+            let (mut sum, mut yj) = (0.0, 1.0);
+            for j in 0..=n - i {
+                let (col, rest) = columns.split_at(n - i - j + 1);
+                columns = rest;
+                let mut s0 = 0.0;
+                for (a, z) in col.iter().zip(&zp) {
+                    s0 += a * z;
+                }
+                s.push(s0);
+                sum += yj * s0;
+                yj *= q[1];
+            }
+            fi.push(sum);
+        }
+        Line {
+            y: q[1],
+            z: q[2],
+            s,
+            fi,
+        }
+    }
+
+    /// f at `q`, bit for bit [`Self::value`], from the sums of the line through `q` when `q`
+    /// shares its z (and possibly its y) with `line`.
+    fn value_on_line(&self, line: &Line, q: [f64; 3]) -> f64 {
+        if q[2].to_bits() != line.z.to_bits() {
+            return self.value(q);
+        }
+        let n = self.degree;
+        let (mut f, mut xi) = (0.0, 1.0);
+        if q[1].to_bits() == line.y.to_bits() {
+            for &fi in &line.fi {
+                f += xi * fi;
+                xi *= q[0];
+            }
+            return f;
+        }
+        let mut sums = line.s.as_slice();
+        for i in 0..=n {
+            let (row, rest) = sums.split_at(n - i + 1);
+            sums = rest;
+            let (mut fi, mut yj) = (0.0, 1.0);
+            for &s0 in row {
+                fi += yj * s0;
+                yj *= q[1];
+            }
+            f += xi * fi;
+            xi *= q[0];
+        }
+        f
+    }
+
     /// Power tables of the three coordinates with their first and second derivatives:
-    /// `[t^e, e·t^(e−1), e(e−1)·t^(e−2)]` at index e for each axis.
-    fn derivative_powers(&self, q: [f64; 3]) -> [[[f64; TABLE]; 3]; 3] {
-        let t = self.powers(q);
-        let mut d = [[[0.0; TABLE]; 3]; 3];
+    /// `[t^e, e·t^(e−1), e(e−1)·t^(e−2)]` at index e for each axis, the three side by side so
+    /// the inner loops read one row per exponent.
+    fn derivative_powers<const T: usize>(&self, q: [f64; 3]) -> [[[f64; 3]; T]; 3] {
+        let t = self.powers::<T>(q);
+        let mut d = [[[0.0; 3]; T]; 3];
         for a in 0..3 {
-            for e in 0..=self.degree {
+            for (e, row) in d[a].iter_mut().enumerate().take(self.degree + 1) {
                 let ef = e as f64;
-                d[a][0][e] = t[a][e + 2];
-                d[a][1][e] = ef * t[a][e + 1];
-                d[a][2][e] = ef * (ef - 1.0) * t[a][e];
+                *row = [t[a][e + 2], ef * t[a][e + 1], ef * (ef - 1.0) * t[a][e]];
             }
         }
         d
     }
 
     /// f and ∇f at the normalized point `q`.
+    fn gradient(&self, q: [f64; 3]) -> (f64, [f64; 3]) {
+        // Tables sized to the degree: short ones are cheaper to clear and keep in cache.
+        match self.degree + 3 {
+            0..=SHORT_TABLE => self.gradient_with::<SHORT_TABLE>(q),
+            _ => self.gradient_with::<TABLE>(q),
+        }
+    }
+
+    /// [`Self::gradient`] with tables of length `T ≥ degree + 3`.
     // i and j index three derivative tables each and size the columns: plain ranges read best.
     #[allow(clippy::needless_range_loop)]
-    fn gradient(&self, q: [f64; 3]) -> (f64, [f64; 3]) {
-        let [x, y, z] = self.derivative_powers(q);
+    fn gradient_with<const T: usize>(&self, q: [f64; 3]) -> (f64, [f64; 3]) {
+        let [x, y, z] = self.derivative_powers::<T>(q);
         let n = self.degree;
         let mut columns = self.nested.as_slice();
         let (mut f, mut g) = (0.0, [0.0; 3]);
@@ -780,15 +927,16 @@ impl Evaluator {
                 let (col, rest) = columns.split_at(n - i - j + 1);
                 columns = rest;
                 let (mut s0, mut s1) = (0.0, 0.0);
-                for (k, &a) in col.iter().enumerate() {
-                    s0 += a * z[0][k];
-                    s1 += a * z[1][k];
+                for (&a, zk) in col.iter().zip(&z) {
+                    s0 += a * zk[0];
+                    s1 += a * zk[1];
                 }
-                t00 += y[0][j] * s0;
-                t10 += y[1][j] * s0;
-                t01 += y[0][j] * s1;
+                let [y0, y1, _] = y[j];
+                t00 += y0 * s0;
+                t10 += y1 * s0;
+                t01 += y0 * s1;
             }
-            let (x0, x1) = (x[0][i], x[1][i]);
+            let [x0, x1, _] = x[i];
             f += x0 * t00;
             g[0] += x1 * t00;
             g[1] += x0 * t10;
@@ -798,10 +946,18 @@ impl Evaluator {
     }
 
     /// f, ∇f and the Hessian at the normalized point `q`.
+    fn hessian(&self, q: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
+        match self.degree + 3 {
+            0..=SHORT_TABLE => self.hessian_with::<SHORT_TABLE>(q),
+            _ => self.hessian_with::<TABLE>(q),
+        }
+    }
+
+    /// [`Self::hessian`] with tables of length `T ≥ degree + 3`.
     // i and j index three derivative tables each and size the columns: plain ranges read best.
     #[allow(clippy::needless_range_loop)]
-    fn hessian(&self, q: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
-        let [x, y, z] = self.derivative_powers(q);
+    fn hessian_with<const T: usize>(&self, q: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
+        let [x, y, z] = self.derivative_powers::<T>(q);
         let n = self.degree;
         let mut columns = self.nested.as_slice();
         let (mut f, mut g, mut h) = (0.0, [0.0; 3], [[0.0; 3]; 3]);
@@ -813,12 +969,12 @@ impl Evaluator {
                 let (col, rest) = columns.split_at(n - i - j + 1);
                 columns = rest;
                 let (mut s0, mut s1, mut s2) = (0.0, 0.0, 0.0);
-                for (k, &a) in col.iter().enumerate() {
-                    s0 += a * z[0][k];
-                    s1 += a * z[1][k];
-                    s2 += a * z[2][k];
+                for (&a, zk) in col.iter().zip(&z) {
+                    s0 += a * zk[0];
+                    s1 += a * zk[1];
+                    s2 += a * zk[2];
                 }
-                let (y0, y1, y2) = (y[0][j], y[1][j], y[2][j]);
+                let [y0, y1, y2] = y[j];
                 t00 += y0 * s0;
                 t10 += y1 * s0;
                 t01 += y0 * s1;
@@ -826,7 +982,7 @@ impl Evaluator {
                 t02 += y0 * s2;
                 t11 += y1 * s1;
             }
-            let (x0, x1, x2) = (x[0][i], x[1][i], x[2][i]);
+            let [x0, x1, x2] = x[i];
             f += x0 * t00;
             g[0] += x1 * t00;
             g[1] += x0 * t10;

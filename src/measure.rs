@@ -138,13 +138,15 @@ impl<'a> MeshDistance<'a> {
     /// distance to the mesh whenever the closest triangle touches that vertex, and never more
     /// than it plus the longest edge at the nearest vertex otherwise.
     pub fn distance(&self, p: [f64; 3]) -> f64 {
-        let nearest = self
-            .tree
-            .query(&p)
-            .nearest_one::<SquaredEuclidean<f64>>()
-            .execute();
-        self.fan_distance(p, nearest.item as usize)
-            .min(nearest.distance.sqrt())
+        self.distance_near(p, None).0
+    }
+
+    /// [`Self::distance`] and the nearest vertex, given a vertex `hint` near `p` (typically the
+    /// answer for a neighbouring query): it bounds the tree search, not the result.
+    fn distance_near(&self, p: [f64; 3], hint: Option<usize>) -> (f64, usize) {
+        let hint = hint.map(|v| self.mesh.positions[v]);
+        let (d2, v) = nearest_in(&self.tree, p, hint);
+        (self.fan_distance(p, v).min(d2.sqrt()), v)
     }
 
     /// Distance from `p` to the triangles around vertex `v`.
@@ -365,7 +367,47 @@ pub fn point_to_mesh_distances(points: &[[f64; 3]], mesh: &TriangleMesh) -> Vec<
     let Some(index) = MeshDistance::new(mesh) else {
         return Vec::new();
     };
-    points.par_iter().map(|&p| index.distance(p)).collect()
+    // Consecutive points of a scan lie close together: each query's nearest vertex bounds the
+    // next one's search (the distances are the same as without it).
+    points
+        .par_chunks(QUERY_CHUNK)
+        .flat_map_iter(|chunk| {
+            let mut hint = None;
+            let index = &index;
+            chunk.iter().map(move |&p| {
+                let (d, v) = index.distance_near(p, hint);
+                hint = Some(v);
+                d
+            })
+        })
+        .collect()
+}
+
+/// Queries answered in order by one task, each search bounded by the previous answer; the
+/// answers do not depend on the chunking or the thread count.
+const QUERY_CHUNK: usize = 512;
+
+/// The squared distance from `q` to the nearest point of `tree` and its index. `hint`, a point
+/// of the tree near `q`, bounds the search: the nearest point is within its distance (the
+/// radius is widened by 1e-9 relative so the hint itself is always inside), so the answer is
+/// the same as an unbounded search's and only found sooner.
+fn nearest_in(tree: &ImmutableKdTree<f64, 3>, q: [f64; 3], hint: Option<[f64; 3]>) -> (f64, usize) {
+    if let Some(h) = hint {
+        let radius2 = dist2(q, h) * (1.0 + 1e-9);
+        let found = tree
+            .query(&q)
+            .nearest_n::<SquaredEuclidean<f64>>(std::num::NonZero::<usize>::MIN)
+            .within(radius2)
+            .execute();
+        if let Some(n) = found.first() {
+            return (n.distance, n.item as usize);
+        }
+    }
+    let n = tree
+        .query(&q)
+        .nearest_one::<SquaredEuclidean<f64>>()
+        .execute();
+    (n.distance, n.item as usize)
 }
 
 /// Distance from each of `queries` to the nearest of `points` (input units), by a k-d tree over
@@ -388,18 +430,23 @@ pub fn nearest_point_distances(queries: &[[f64; 3]], points: &[[f64; 3]]) -> Opt
         return None;
     }
     let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&kept).ok()?;
+    // Mesh vertices come in meshing order, neighbours mostly close: each query's answer bounds
+    // the next search.
     Some(
         queries
-            .par_iter()
-            .map(|q| {
-                if !finite(q) {
-                    return f64::NAN;
-                }
-                tree.query(q)
-                    .nearest_one::<SquaredEuclidean<f64>>()
-                    .execute()
-                    .distance
-                    .sqrt()
+            .par_chunks(QUERY_CHUNK)
+            .flat_map_iter(|chunk| {
+                let mut hint = None;
+                let kept = &kept;
+                let tree = &tree;
+                chunk.iter().map(move |q| {
+                    if !finite(q) {
+                        return f64::NAN;
+                    }
+                    let (d2, i) = nearest_in(tree, *q, hint);
+                    hint = Some(kept[i]);
+                    d2.sqrt()
+                })
             })
             .collect(),
     )
