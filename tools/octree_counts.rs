@@ -169,6 +169,19 @@ fn exact_model(name: &str, depth: u32, runs: usize) {
     }
     let Some(out) = result else { return };
     times.sort_by(f64::total_cmp);
+    // A hash of the mesh's bytes, to tell whether a change altered the output.
+    let mut bytes = Vec::new();
+    for (p, n) in out.mesh.positions.iter().zip(&out.mesh.normals) {
+        for c in p.iter().chain(n) {
+            bytes.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for t in &out.mesh.triangles {
+        for i in t {
+            bytes.extend_from_slice(&i.to_le_bytes());
+        }
+    }
+    println!("mesh hash {}", blake3::hash(&bytes).to_hex());
     let report = stablesurf::mesh::check(&out.mesh);
     println!(
         "{name} depth {depth}: min {:.3} s, median {:.3} s over {} runs; {} vertices, {} triangles, {} cells, {} evaluations, guard splits {}, watertight {}, euler {}, components {}, max |f|/|∇f| / diagonal {:.2e}",
