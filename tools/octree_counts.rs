@@ -135,8 +135,82 @@ fn model_file(path: &str, depth: u32, simplification: Simplification) {
     print_quality(&out.mesh);
 }
 
+/// `octree_counts genus_two|linked_tori [DEPTH] [RUNS]`: times `RUNS` polygonizations of one
+/// exact degree-8 model (for profiling and CPU-time comparisons) and prints its counts.
+fn exact_model(name: &str, depth: u32, runs: usize) {
+    let (f, region) = if name == "genus_two" {
+        (
+            shapes::genus_two(),
+            Aabb {
+                min: [-1.2, -0.7, -0.2],
+                max: [1.2, 0.7, 0.2],
+            },
+        )
+    } else {
+        (
+            shapes::linked_tori(),
+            Aabb {
+                min: [-1.4, -1.4, -1.4],
+                max: [2.4, 1.4, 1.4],
+            },
+        )
+    };
+    let params = PolygonizeParams {
+        depth,
+        ..PolygonizeParams::default()
+    };
+    let mut times = Vec::new();
+    let mut result = None;
+    for _ in 0..runs.max(1) {
+        let start = std::time::Instant::now();
+        let out = polygonize(&f, &region, &params).unwrap_or_else(|e| fail(e.to_string()));
+        times.push(start.elapsed().as_secs_f64());
+        result = Some(out);
+    }
+    let Some(out) = result else { return };
+    times.sort_by(f64::total_cmp);
+    // A hash of the mesh's bytes, to tell whether a change altered the output.
+    let mut bytes = Vec::new();
+    for (p, n) in out.mesh.positions.iter().zip(&out.mesh.normals) {
+        for c in p.iter().chain(n) {
+            bytes.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for t in &out.mesh.triangles {
+        for i in t {
+            bytes.extend_from_slice(&i.to_le_bytes());
+        }
+    }
+    println!("mesh hash {}", blake3::hash(&bytes).to_hex());
+    let report = stablesurf::mesh::check(&out.mesh);
+    println!(
+        "{name} depth {depth}: min {:.3} s, median {:.3} s over {} runs; {} vertices, {} triangles, {} cells, {} evaluations, guard splits {}, watertight {}, euler {}, components {}, max |f|/|∇f| / diagonal {:.2e}",
+        times[0],
+        times[times.len() / 2],
+        times.len(),
+        out.mesh.positions.len(),
+        out.mesh.triangles.len(),
+        out.cells,
+        out.evaluations,
+        out.guard_splits,
+        report.watertight,
+        report.euler_characteristic,
+        report.components,
+        out.max_projection_residual
+    );
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
+    if let Some(name) = args
+        .first()
+        .filter(|a| a.as_str() == "genus_two" || a.as_str() == "linked_tori")
+    {
+        let depth = args.get(1).and_then(|d| d.parse().ok()).unwrap_or(8);
+        let runs: usize = args.get(2).and_then(|d| d.parse().ok()).unwrap_or(5);
+        exact_model(name, depth, runs);
+        return;
+    }
     if let Some(path) = args.first() {
         let depth = args
             .get(1)

@@ -63,8 +63,11 @@ use super::octree::{Cell, Octree};
 /// A lattice edge: the packed keys of its two ends, smaller one in the high half.
 pub(crate) type EdgeKey = u128;
 
-/// Leaves per parallel task (fixed, so the work split never depends on the thread count).
-const LEAVES_PER_TASK: usize = 256;
+/// Leaves per parallel task (fixed, so the work split never depends on the thread count). Each
+/// task evaluates the lattice points of its leaves once, so points on the border between two
+/// tasks are evaluated twice: 1024 leaves per task spend about 10% fewer evaluations than 256
+/// (linked tori at depth 8: 378,130 instead of 417,938) and still give ~180 tasks to balance.
+const LEAVES_PER_TASK: usize = 1024;
 
 /// Edges per parallel task in vertex placement.
 const EDGES_PER_TASK: usize = 1024;

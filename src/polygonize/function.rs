@@ -388,11 +388,42 @@ fn fill_powers(out: &mut [f64], t: f64) {
     }
 }
 
+/// Highest degree whose local expansion is kept on the stack (a dense 9×9×9 array) and computed
+/// by code specialised for its degree (constant loop bounds, no bounds checks); higher degrees
+/// use the same code on a heap buffer.
+const INLINE_DEGREE: usize = 8;
+
+/// Length of the inline dense array.
+const INLINE_LEN: usize = (INLINE_DEGREE + 1) * (INLINE_DEGREE + 1) * (INLINE_DEGREE + 1);
+
+/// Calls `$body` (a generic function taking the degree as its first argument) with the degree
+/// as a literal for degrees up to [`INLINE_DEGREE`], so that each arm is compiled for its own
+/// constant degree, and with the runtime degree above.
+macro_rules! with_constant_degree {
+    ($n:expr, $body:ident ( $($arg:expr),* )) => {
+        match $n {
+            0 => $body(0, $($arg),*),
+            1 => $body(1, $($arg),*),
+            2 => $body(2, $($arg),*),
+            3 => $body(3, $($arg),*),
+            4 => $body(4, $($arg),*),
+            5 => $body(5, $($arg),*),
+            6 => $body(6, $($arg),*),
+            7 => $body(7, $($arg),*),
+            8 => $body(8, $($arg),*),
+            n => $body(n, $($arg),*),
+        }
+    };
+}
+
 /// A polynomial re-expanded around a box centre in local coordinates t ∈ [−1, 1]³.
 struct LocalTaylor {
     degree: usize,
-    /// Dense coefficients b_(i,j,k) at `(i·(n+1) + j)·(n+1) + k`, zero where i + j + k > n.
-    coefficients: Vec<f64>,
+    /// Dense coefficients b_(i,j,k) at `(i·(n+1) + j)·(n+1) + k`, zero where i + j + k > n:
+    /// the first (n+1)³ entries for n ≤ [`INLINE_DEGREE`], else in `heap`.
+    inline: [f64; INLINE_LEN],
+    /// The coefficients for n > [`INLINE_DEGREE`] (empty otherwise).
+    heap: Vec<f64>,
     /// Centre of the box in normalized coordinates.
     center: [f64; 3],
     /// Half-widths of the box in normalized coordinates.
@@ -416,123 +447,209 @@ impl ImplicitPolynomial {
             return None;
         }
         let m = n + 1;
-        let mut dense = vec![0.0; m * m * m];
-        // Magnitude Σ|a_α|(|c| + h)^α of the terms, and of the terms of each derivative, for the
-        // rounding margin. `reach[e + 1][a]` = (|c_a| + h_a)^e.
-        let mut reach = vec![[0.0; 3]; m + 1];
-        for a in 0..3 {
-            let r = center[a].abs() + half_width[a];
-            let mut v = 1.0;
-            for row in reach.iter_mut().skip(1) {
-                row[a] = v;
-                v *= r;
-            }
+        let mut t = LocalTaylor {
+            degree: n,
+            inline: [0.0; INLINE_LEN],
+            heap: Vec::new(),
+            center,
+            half_width,
+            value_margin: 0.0,
+            derivative_margin: [0.0; 3],
+        };
+        let dense: &mut [f64] = if n <= INLINE_DEGREE {
+            &mut t.inline[..m * m * m]
+        } else {
+            t.heap = vec![0.0; m * m * m];
+            &mut t.heap
+        };
+        let (magnitude, derivative_magnitude) =
+            with_constant_degree!(n, expand(&self.coefficients, dense, center, half_width));
+        let gamma = 8.0 * (n as f64 + 3.0) * f64::EPSILON;
+        t.value_margin = gamma * magnitude;
+        t.derivative_margin = [0, 1, 2].map(|a| gamma * derivative_magnitude[a] * half_width[a]);
+        Some(t)
+    }
+}
+
+/// Fills `dense` ((n+1)³ entries, zero) with the local expansion of the degree-`n` polynomial
+/// `coefficients` (graded order) around `center` with half-widths `half_width`, and returns the
+/// magnitudes Σ|a_α|(|c| + h)^α of its terms and of the terms of each derivative (for the
+/// rounding margins). Inlined into [`with_constant_degree`]'s arms, so `n` is a constant there.
+#[inline(always)]
+fn expand(
+    n: usize,
+    coefficients: &[f64],
+    dense: &mut [f64],
+    center: [f64; 3],
+    half_width: [f64; 3],
+) -> (f64, [f64; 3]) {
+    let m = n + 1;
+    let dense = &mut dense[..m * m * m];
+    let coefficients = &coefficients[..m * (m + 1) * (m + 2) / 6];
+    // Magnitude Σ|a_α|(|c| + h)^α of the terms, and of the terms of each derivative, for the
+    // rounding margin. `reach[e + 1][a]` = (|c_a| + h_a)^e.
+    let mut reach_inline = [[0.0; 3]; INLINE_DEGREE + 2];
+    let mut reach_heap = Vec::new();
+    let reach: &mut [[f64; 3]] = if m < reach_inline.len() {
+        &mut reach_inline[..m + 1]
+    } else {
+        reach_heap.resize(m + 1, [0.0; 3]);
+        &mut reach_heap
+    };
+    for a in 0..3 {
+        let r = center[a].abs() + half_width[a];
+        let mut v = 1.0;
+        for row in reach.iter_mut().skip(1) {
+            row[a] = v;
+            v *= r;
         }
-        let mut magnitude = 0.0;
-        let mut derivative_magnitude = [0.0; 3];
-        let mut l = 0;
-        for r in 0..=n {
-            for s in 0..=r {
-                for k in 0..=s {
-                    let (i, j) = (r - s, s - k);
-                    let a = self.coefficients[l];
-                    l += 1;
-                    dense[(i * m + j) * m + k] = a;
-                    let a = a.abs();
-                    let (ri, rj, rk) = (reach[i + 1][0], reach[j + 1][1], reach[k + 1][2]);
-                    magnitude += a * ri * rj * rk;
-                    if i > 0 {
-                        derivative_magnitude[0] += a * i as f64 * reach[i][0] * rj * rk;
-                    }
-                    if j > 0 {
-                        derivative_magnitude[1] += a * j as f64 * ri * reach[j][1] * rk;
-                    }
-                    if k > 0 {
-                        derivative_magnitude[2] += a * k as f64 * ri * rj * reach[k][2];
-                    }
+    }
+    let mut magnitude = 0.0;
+    let mut derivative_magnitude = [0.0; 3];
+    let mut l = 0;
+    for r in 0..=n {
+        for s in 0..=r {
+            for k in 0..=s {
+                let (i, j) = (r - s, s - k);
+                let a = coefficients[l];
+                l += 1;
+                dense[(i * m + j) * m + k] = a;
+                let a = a.abs();
+                let (ri, rj, rk) = (reach[i + 1][0], reach[j + 1][1], reach[k + 1][2]);
+                magnitude += a * ri * rj * rk;
+                if i > 0 {
+                    derivative_magnitude[0] += a * i as f64 * reach[i][0] * rj * rk;
+                }
+                if j > 0 {
+                    derivative_magnitude[1] += a * j as f64 * ri * reach[j][1] * rk;
+                }
+                if k > 0 {
+                    derivative_magnitude[2] += a * k as f64 * ri * rj * reach[k][2];
                 }
             }
         }
-        // Shift and scale along each axis: for every line of coefficients along `axis` (the
-        // other two exponents fixed, their sum e), p(x) ↦ p(c + h·x) by synthetic division,
-        // whose step q only changes a line with n − e ≥ q + 1. The steps run over all lines at
-        // once (the line innermost), so consecutive updates are independent and pipeline; each
-        // line still sees exactly its own sequence of updates.
-        let strides = [m * m, m, 1];
-        for axis in 0..3 {
-            let (c, h) = (center[axis], half_width[axis]);
-            let st = strides[axis];
-            let (o1, o2) = match axis {
-                0 => (1, 2),
-                1 => (0, 2),
-                _ => (0, 1),
-            };
-            let (s1, s2) = (strides[o1], strides[o2]);
-            if c != 0.0 {
-                for i in 0..n {
-                    for q in (i..n).rev() {
-                        // Lines with e1 + e2 ≤ n − q − 1.
-                        let room = n - q - 1;
-                        for e1 in 0..=room {
-                            let base = e1 * s1 + q * st;
-                            for e2 in 0..=room - e1 {
-                                let at = base + e2 * s2;
-                                dense[at] += c * dense[at + st];
-                            }
+    }
+    // Shift and scale along each axis: for every line of coefficients along `axis` (the other
+    // two exponents fixed, their sum e), p(x) ↦ p(c + h·x) by synthetic division, whose step q
+    // only changes a line with n − e ≥ q + 1. The steps run over all lines at once (the line
+    // innermost), so consecutive updates are independent and pipeline; each line still sees
+    // exactly its own sequence of updates.
+    // Along x and y the lines are laid out so that whole rows of `m` coefficients (x: the
+    // planes i = q, all rows j) can be updated as contiguous slices, which vectorizes. The
+    // extra entries such a row update touches are exactly the ones outside the polynomial
+    // (i + j + k > n, zero, never read as anything but zero) or ones whose update reads such a
+    // zero, so every coefficient gets the same value as with the line-by-line loop — provided
+    // the factors c and h^q are finite, which keeps the zeros zero (else that loop is used).
+    let powers_finite = half_width.iter().all(|h| h.powi(n as i32).is_finite());
+    let strides = [m * m, m, 1];
+    for axis in 0..3 {
+        let (c, h) = (center[axis], half_width[axis]);
+        if axis < 2 && powers_finite {
+            shift_rows(n, axis, c, h, dense);
+            continue;
+        }
+        let st = strides[axis];
+        let (o1, o2) = match axis {
+            0 => (1, 2),
+            1 => (0, 2),
+            _ => (0, 1),
+        };
+        let (s1, s2) = (strides[o1], strides[o2]);
+        if c != 0.0 {
+            for i in 0..n {
+                for q in (i..n).rev() {
+                    // Lines with e1 + e2 ≤ n − q − 1.
+                    let room = n - q - 1;
+                    for e1 in 0..=room {
+                        let base = e1 * s1 + q * st;
+                        for e2 in 0..=room - e1 {
+                            let at = base + e2 * s2;
+                            dense[at] += c * dense[at + st];
                         }
                     }
                 }
             }
-            let mut hp = 1.0;
-            for q in 0..=n {
-                let room = n - q;
-                for e1 in 0..=room {
-                    let base = e1 * s1 + q * st;
-                    for e2 in 0..=room - e1 {
-                        dense[base + e2 * s2] *= hp;
+        }
+        let mut hp = 1.0;
+        for q in 0..=n {
+            let room = n - q;
+            for e1 in 0..=room {
+                let base = e1 * s1 + q * st;
+                for e2 in 0..=room - e1 {
+                    dense[base + e2 * s2] *= hp;
+                }
+            }
+            hp *= h;
+        }
+    }
+    (magnitude, derivative_magnitude)
+}
+
+/// The shift p(x) ↦ p(c + h·x) along `axis` (0 or 1) of [`expand`], by whole rows: step q of
+/// the synthetic division updates the entries at position q on `axis` from those at q + 1, for
+/// x all the rows j ≤ n − q − 1 of plane q (one contiguous block), for y the row (i, q) of
+/// every plane i ≤ n − q − 1; then position q is scaled by h^q the same way.
+#[inline(always)]
+fn shift_rows(n: usize, axis: usize, c: f64, h: f64, dense: &mut [f64]) {
+    let m = n + 1;
+    let plane = m * m;
+    if c != 0.0 {
+        for i in 0..n {
+            for q in (i..n).rev() {
+                let room = n - q - 1;
+                if axis == 0 {
+                    let (low, high) = dense.split_at_mut((q + 1) * plane);
+                    let len = (room + 1) * m;
+                    let target = &mut low[q * plane..q * plane + len];
+                    for (t, s) in target.iter_mut().zip(&high[..len]) {
+                        *t += c * *s;
+                    }
+                } else {
+                    for e1 in 0..=room {
+                        let base = e1 * plane + q * m;
+                        let (low, high) = dense.split_at_mut(base + m);
+                        for (t, s) in low[base..].iter_mut().zip(&high[..m]) {
+                            *t += c * *s;
+                        }
                     }
                 }
-                hp *= h;
             }
         }
-        let gamma = 8.0 * (n as f64 + 3.0) * f64::EPSILON;
-        Some(LocalTaylor {
-            degree: n,
-            coefficients: dense,
-            center,
-            half_width,
-            value_margin: gamma * magnitude,
-            derivative_margin: [0, 1, 2].map(|a| gamma * derivative_magnitude[a] * half_width[a]),
-        })
+    }
+    let mut hp = 1.0;
+    for q in 0..=n {
+        let room = n - q;
+        if axis == 0 {
+            for t in &mut dense[q * plane..q * plane + (room + 1) * m] {
+                *t *= hp;
+            }
+        } else {
+            for e1 in 0..=room {
+                let base = e1 * plane + q * m;
+                for t in &mut dense[base..base + m] {
+                    *t *= hp;
+                }
+            }
+        }
+        hp *= h;
     }
 }
 
 impl LocalTaylor {
+    /// The dense coefficients ((n+1)³ entries).
+    fn coefficients(&self) -> &[f64] {
+        if self.degree <= INLINE_DEGREE {
+            let m = self.degree + 1;
+            &self.inline[..m * m * m]
+        } else {
+            &self.heap
+        }
+    }
+
     /// Enclosures of f and of ∂f/∂t_axis (local coordinates) over the box, in one pass.
     fn bounds(&self) -> ((f64, f64), [(f64, f64); 3]) {
-        let (n, m) = (self.degree, self.degree + 1);
-        let mut value = (0.0, 0.0);
-        let mut derivatives = [(0.0, 0.0); 3];
-        for i in 0..=n {
-            for j in 0..=n - i {
-                for k in 0..=n - i - j {
-                    let b = self.coefficients[(i * m + j) * m + k];
-                    if b == 0.0 {
-                        continue;
-                    }
-                    let e = [i, j, k];
-                    accumulate(&mut value.0, &mut value.1, b, e);
-                    for axis in 0..3 {
-                        if e[axis] > 0 {
-                            let mut ed = e;
-                            ed[axis] -= 1;
-                            let slot = &mut derivatives[axis];
-                            accumulate(&mut slot.0, &mut slot.1, b * e[axis] as f64, ed);
-                        }
-                    }
-                }
-            }
-        }
+        let (value, derivatives) =
+            with_constant_degree!(self.degree, term_ranges(self.coefficients()));
         let value = (value.0 - self.value_margin, value.1 + self.value_margin);
         let derivatives = [0, 1, 2].map(|a| {
             let (lo, hi) = derivatives[a];
@@ -543,44 +660,89 @@ impl LocalTaylor {
         });
         (value, derivatives)
     }
-}
 
-impl LocalTaylor {
     /// Σ b_α t^α at the 8 points of the grid `t` (point i at `t[a][(i >> a) & 1]` on axis a),
     /// by nested Horner: per (i, j) the z polynomial at both z values, then y, then x — about
     /// 4 multiply-adds per coefficient for all 8 points instead of 8 full evaluations.
     fn grid_values(&self, t: &[[f64; 2]; 3]) -> [f64; 8] {
-        let (n, m) = (self.degree, self.degree + 1);
-        // per_x[i][yb·2 + zb] = Σ_(j,k) b_ijk ty^j tz^k.
-        let mut per_x = vec![[0.0; 4]; m];
-        for (i, slot) in per_x.iter_mut().enumerate() {
-            let mut yz = [0.0; 4];
-            for j in (0..=n - i).rev() {
-                let base = (i * m + j) * m;
-                let mut z = [0.0; 2];
-                for k in (0..=n - i - j).rev() {
-                    let b = self.coefficients[base + k];
-                    z = [z[0] * t[2][0] + b, z[1] * t[2][1] + b];
+        with_constant_degree!(self.degree, grid_values_of(self.coefficients(), t))
+    }
+}
+
+/// The ranges of Σ b_α t^α and of its three partial derivatives over t ∈ [−1, 1]³, without
+/// rounding margins, from the dense degree-`n` coefficients `b` (each range the sum of the
+/// ranges of its terms, added in the order (i, j, k)). Inlined with a constant `n`.
+#[inline(always)]
+fn term_ranges(n: usize, b: &[f64]) -> ((f64, f64), [(f64, f64); 3]) {
+    let m = n + 1;
+    let b = &b[..m * m * m];
+    let mut value = (0.0, 0.0);
+    let mut derivatives = [(0.0, 0.0); 3];
+    for i in 0..=n {
+        for j in 0..=n - i {
+            for k in 0..=n - i - j {
+                let b = b[(i * m + j) * m + k];
+                if b == 0.0 {
+                    continue;
                 }
-                for yb in 0..2 {
-                    for zb in 0..2 {
-                        yz[yb * 2 + zb] = yz[yb * 2 + zb] * t[1][yb] + z[zb];
+                let e = [i, j, k];
+                accumulate(&mut value.0, &mut value.1, b, e);
+                for axis in 0..3 {
+                    if e[axis] > 0 {
+                        let mut ed = e;
+                        ed[axis] -= 1;
+                        let slot = &mut derivatives[axis];
+                        accumulate(&mut slot.0, &mut slot.1, b * e[axis] as f64, ed);
                     }
                 }
             }
-            *slot = yz;
         }
-        let mut out = [0.0; 8];
-        for (p, slot) in out.iter_mut().enumerate() {
-            let (xb, yb, zb) = (p & 1, (p >> 1) & 1, (p >> 2) & 1);
-            let mut v = 0.0;
-            for row in per_x.iter().rev() {
-                v = v * t[0][xb] + row[yb * 2 + zb];
-            }
-            *slot = v;
-        }
-        out
     }
+    (value, derivatives)
+}
+
+/// [`LocalTaylor::grid_values`] on the dense degree-`n` coefficients `b`. Inlined with a
+/// constant `n`.
+#[inline(always)]
+fn grid_values_of(n: usize, b: &[f64], t: &[[f64; 2]; 3]) -> [f64; 8] {
+    let m = n + 1;
+    let b = &b[..m * m * m];
+    // per_x[i][yb·2 + zb] = Σ_(j,k) b_ijk ty^j tz^k.
+    let mut per_x_inline = [[0.0; 4]; INLINE_DEGREE + 1];
+    let mut per_x_heap = Vec::new();
+    let per_x: &mut [[f64; 4]] = if m <= per_x_inline.len() {
+        &mut per_x_inline[..m]
+    } else {
+        per_x_heap.resize(m, [0.0; 4]);
+        &mut per_x_heap
+    };
+    for (i, slot) in per_x.iter_mut().enumerate() {
+        let mut yz = [0.0; 4];
+        for j in (0..=n - i).rev() {
+            let base = (i * m + j) * m;
+            let mut z = [0.0; 2];
+            for k in (0..=n - i - j).rev() {
+                let b = b[base + k];
+                z = [z[0] * t[2][0] + b, z[1] * t[2][1] + b];
+            }
+            for yb in 0..2 {
+                for zb in 0..2 {
+                    yz[yb * 2 + zb] = yz[yb * 2 + zb] * t[1][yb] + z[zb];
+                }
+            }
+        }
+        *slot = yz;
+    }
+    let mut out = [0.0; 8];
+    for (p, slot) in out.iter_mut().enumerate() {
+        let (xb, yb, zb) = (p & 1, (p >> 1) & 1, (p >> 2) & 1);
+        let mut v = 0.0;
+        for row in per_x.iter().rev() {
+            v = v * t[0][xb] + row[yb * 2 + zb];
+        }
+        *slot = v;
+    }
+    out
 }
 
 /// Adds the range of b·t^e over t ∈ [−1, 1]³ to the interval [lo, hi].
