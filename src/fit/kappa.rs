@@ -1291,6 +1291,64 @@ mod tests {
         assert_eq!(far_sign(&poly, 4.0, f64::INFINITY), Shell::Unknown);
     }
 
+    /// The mesh of `poly` in [−half, half]³ with and without the far cells skipped.
+    fn culled_and_plain(
+        poly: &ImplicitPolynomial,
+        half: f64,
+        beyond: f64,
+    ) -> (crate::mesh::TriangleMesh, crate::mesh::TriangleMesh) {
+        use crate::polygonize::{polygonize, PolygonizeParams, Simplification};
+        let region = Aabb {
+            min: [-half; 3],
+            max: [half; 3],
+        };
+        let params = PolygonizeParams {
+            depth: CHECK_DEPTH,
+            simplification: Simplification::None,
+            ..Default::default()
+        };
+        let culled = FarCulled {
+            poly,
+            beyond,
+            reach: 2.0 * half / f64::from(1u32 << CHECK_DEPTH),
+        };
+        let a = polygonize(&culled, &region, &params).map(|o| o.mesh);
+        let b = polygonize(poly, &region, &params).map(|o| o.mesh);
+        (a.unwrap_or_default(), b.unwrap_or_default())
+    }
+
+    #[test]
+    fn skipping_certified_far_cells_keeps_the_mesh() {
+        // Two spheres, the far one at box norms 6.5 … 7.5: f > 0 is certified beyond 8, and the
+        // mesh of [−12, 12]³ is the same, vertex for vertex, when the mesher skips those cells.
+        let poly = two_spheres([0.0; 3], 1.0, [0.0, -7.0, 3.0], 0.5);
+        assert!(far_positive(&poly, 8.0, 12.0, FAR_POSITIVE_RATIO));
+        assert!(!far_positive(&poly, 4.0, 12.0, FAR_POSITIVE_RATIO));
+        let (culled, plain) = culled_and_plain(&poly, 12.0, 8.0);
+        assert!(!plain.positions.is_empty());
+        assert_eq!(culled, plain);
+        // A degree-8 fit of the heart (automatic κ, normalized coordinates), meshed in
+        // [−R, R]³ as rule (d) does, with f > 0 certified from box norm 4 to R.
+        let cloud = crate::fit::study::sample(
+            crate::fit::study::Shape::Heart,
+            crate::fit::study::Variant::Clean,
+            1500,
+            1,
+        );
+        let params = crate::fit::FitParams {
+            degree: 8,
+            ..Default::default()
+        };
+        let model = crate::fit::fit(&cloud, &params).unwrap_or_else(|e| panic!("fit: {e}"));
+        let poly = unit_poly(8, &model.polynomial.coefficients);
+        let radius = poly.containment_radius().unwrap_or(0.0);
+        assert!(radius > OUTER_BOX, "containment radius {radius}");
+        assert!(far_positive(&poly, OUTER_BOX, radius, FAR_POSITIVE_RATIO));
+        let (culled, plain) = culled_and_plain(&poly, radius, OUTER_BOX);
+        assert!(!plain.positions.is_empty());
+        assert_eq!(culled, plain);
+    }
+
     #[test]
     fn bernstein_test_proves_positivity_only_when_true() {
         // (s − 2)² + 0.1 > 0 everywhere; (s − 2)² − 0.1 < 0 near s = 2.
