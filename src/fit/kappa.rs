@@ -642,6 +642,41 @@ fn zero_set_check(
         return (false, None);
     }
     trace(t, format_args!("  probe"));
+    // (d) in [−R, R]³ when R > 4: a coarse mesh (the fixed box is checked on its own below,
+    // because a coarse mesh of a large [−R, R]³ can miss a small stray piece). When f > 0 is
+    // certified from box norm 4 out to R, the mesher skips the far cells ([`FarCulled`]: the
+    // same mesh for a fraction of the work), from 1.6 when the shell between the boxes is
+    // positive too; that mesh then goes first, being the cheapest. (Every check must pass, so
+    // their order changes the cost, never the outcome.) The shell's sign is kept for (d) in
+    // [−4, 4]³ below.
+    let large_box_fails = |positive_beyond: Option<f64>| {
+        let t = std::time::Instant::now();
+        let (outer, used) = coarse_zero_set_culled(poly, radius, positive_beyond);
+        trace(t, format_args!("  R mesh: {} components touches {}", outer.components.len(), outer.touches_box));
+        (outer.touches_box || outer.components.len() != data.n_pieces, used)
+    };
+    let mut early_shell = None;
+    let mut large_box_done = false;
+    if radius > OUTER_BOX {
+        let t = std::time::Instant::now();
+        if far_positive(poly, OUTER_BOX, radius, FAR_POSITIVE_RATIO) {
+            let shell = far_sign(poly, INNER_BOX, OUTER_BOX);
+            early_shell = Some(shell);
+            let beyond = if shell == Shell::Positive {
+                INNER_BOX
+            } else {
+                OUTER_BOX
+            };
+            trace(t, format_args!("  far_positive 4..R, far_sign {shell:?}: beyond {beyond}"));
+            let (fails, used) = large_box_fails(Some(beyond));
+            large_box_done = true;
+            if fails {
+                return (false, Some(used));
+            }
+        } else {
+            trace(t, format_args!("  far_positive 4..R: not proved"));
+        }
+    }
     // (c): in the inner box, one component per data piece, each within NEAR_DATA of the data
     // (its closest point; a closed zero set must bridge holes in the data, so not every point
     // can be near it).
@@ -693,7 +728,10 @@ fn zero_set_check(
     let mut outer_shell = Shell::Unknown;
     if !inner.touches_box {
         let t = std::time::Instant::now();
-        outer_shell = far_sign(poly, INNER_BOX, OUTER_BOX.min(radius));
+        outer_shell = match early_shell {
+            Some(shell) => shell,
+            None => far_sign(poly, INNER_BOX, OUTER_BOX.min(radius)),
+        };
         trace(t, format_args!("  far_sign {outer_shell:?}"));
         if outer_shell == Shell::Unknown {
             let t = std::time::Instant::now();
@@ -704,35 +742,7 @@ fn zero_set_check(
             return (false, Some(mesher));
         }
     }
-    // (d) in [−R, R]³ when R > 4: a coarse mesh. The fixed box is checked on its own because a
-    // coarse mesh of a large [−R, R]³ can miss a small stray piece. When f > 0 is certified
-    // from box norm 4 (or 1.6, when the shell between the boxes is positive) out to R, the
-    // mesher skips the far cells ([`FarCulled`]: the same mesh, a fraction of the work), and
-    // that mesh, then cheaper than the one of [−4, 4]³, goes first. (The checks are all
-    // required, so their order changes the cost, never the outcome.)
-    let t = std::time::Instant::now();
-    let positive_beyond = (radius > OUTER_BOX
-        && far_positive(poly, OUTER_BOX, radius, FAR_POSITIVE_RATIO))
-    .then_some(if outer_shell == Shell::Positive {
-        INNER_BOX
-    } else {
-        OUTER_BOX
-    });
-    trace(t, format_args!("  far_positive 4..R: beyond {positive_beyond:?}"));
-    let large_box_fails = |positive_beyond: Option<f64>| {
-        let t = std::time::Instant::now();
-        let (outer, used) = coarse_zero_set_culled(poly, radius, positive_beyond);
-        trace(t, format_args!("  R mesh: {} components touches {}", outer.components.len(), outer.touches_box));
-        (outer.touches_box || outer.components.len() != data.n_pieces, used)
-    };
     let mut mesher = mesher;
-    if positive_beyond.is_some() {
-        let (fails, used) = large_box_fails(positive_beyond);
-        mesher = used;
-        if fails {
-            return (false, Some(mesher));
-        }
-    }
     if outer_shell != Shell::Positive {
         let t = std::time::Instant::now();
         let (outer, used) = coarse_zero_set(poly, OUTER_BOX);
@@ -742,7 +752,7 @@ fn zero_set_check(
             return (false, Some(mesher));
         }
     }
-    if radius > OUTER_BOX && positive_beyond.is_none() {
+    if radius > OUTER_BOX && !large_box_done {
         let (fails, used) = large_box_fails(None);
         mesher = used;
         if fails {
@@ -1094,11 +1104,13 @@ const FAR_POSITIVE_RATIO: f64 = 0.25;
 
 /// Whether f > 0 is certified on the points with box norm in [s_lo, s_hi] (0 < s_lo < s_hi
 /// finite) by the Bernstein test of [`far_sign`]'s face forms alone: no point values, no box
-/// enclosures. A frustum not proved positive is split across (the patch in four) while it is
+/// enclosures (a point value < 0 at a frustum's centre ends the search). A frustum not proved
+/// positive is split across (the patch in four) while it is
 /// wider than `ratio` times its depth, else along (the radial interval in two); `false` means
 /// "not proved" (the refinement limits were reached). Used only as a certificate that lets the
 /// mesher skip cells ([`FarCulled`]), so it may give up where [`far_sign`] would not.
 fn far_positive(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64, ratio: f64) -> bool {
+    use crate::polygonize::ImplicitFunction;
     use rayon::prelude::*;
     if !(s_lo > 0.0 && s_hi.is_finite()) || poly.coefficients.iter().any(|c| !c.is_finite()) {
         return false;
@@ -1126,6 +1138,7 @@ fn far_positive(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64, ratio: f64) -> 
             break;
         }
         total += cells.len();
+        let negative = std::sync::atomic::AtomicBool::new(false);
         cells = cells
             .par_iter()
             .flat_map_iter(|&(face, uc, vc, w, s0, s1)| {
@@ -1135,6 +1148,18 @@ fn far_positive(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64, ratio: f64) -> 
                     return children;
                 }
                 let sm = (s0 * s1).sqrt();
+                // f < 0 at the frustum's centre: nothing to prove, stop early.
+                let axis = face / 2;
+                let (b, c) = ((axis + 1) % 3, (axis + 2) % 3);
+                let (b, c) = (b.min(c), b.max(c));
+                let mut p = [0.0; 3];
+                p[axis] = if face.is_multiple_of(2) { sm } else { -sm };
+                p[b] = uc * sm;
+                p[c] = vc * sm;
+                if poly.value(p) < 0.0 {
+                    negative.store(true, std::sync::atomic::Ordering::Relaxed);
+                    return children;
+                }
                 if 2.0 * w * sm > ratio * (s1 - s0) {
                     let h = 0.5 * w;
                     for (u, v) in [(uc - h, vc - h), (uc + h, vc - h), (uc - h, vc + h), (uc + h, vc + h)] {
@@ -1147,6 +1172,9 @@ fn far_positive(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64, ratio: f64) -> 
                 children
             })
             .collect();
+        if negative.into_inner() {
+            break;
+        }
     }
     if tracing() {
         eprintln!("      far_positive {s_lo:.2}..{s_hi:.2} ratio {ratio}: {total} frustums, gave up");
