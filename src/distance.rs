@@ -696,6 +696,16 @@ struct NearSeeds {
     len: usize,
 }
 
+/// Σ col[k]·zp[k]: one innermost column of the nested form, summed in order.
+#[inline]
+fn column_sum(col: &[f64], zp: &[f64]) -> f64 {
+    let mut s0 = 0.0;
+    for (a, z) in col.iter().zip(zp) {
+        s0 += a * z;
+    }
+    s0
+}
+
 /// f's inner sums on a line of fixed y and z (normalized): `s[i][j] = Σ_k a_ijk z^k` and
 /// `fi[i] = Σ_j y^j s[i][j]`, so that f on the line costs n + 1 products per point, with the
 /// same operations in the same order as [`Evaluator::value`] (hence the same bits).
@@ -794,15 +804,22 @@ impl Evaluator {
         t
     }
 
+    /// 1, z, z², … z^degree (the rest of the table zero).
+    #[inline]
+    fn z_powers(&self, z: f64) -> [f64; TABLE] {
+        let mut zp = [0.0; TABLE];
+        let mut v = 1.0;
+        for p in zp.iter_mut().take(self.degree + 1) {
+            *p = v;
+            v *= z;
+        }
+        zp
+    }
+
     /// f at the normalized point `q`.
     fn value(&self, q: [f64; 3]) -> f64 {
         let n = self.degree;
-        let mut zp = [0.0; TABLE];
-        let mut v = 1.0;
-        for z in zp.iter_mut().take(n + 1) {
-            *z = v;
-            v *= q[2];
-        }
+        let zp = self.z_powers(q[2]);
         let mut columns = self.nested.as_slice();
         let (mut f, mut xi) = (0.0, 1.0);
         for i in 0..=n {
@@ -810,10 +827,7 @@ impl Evaluator {
             for j in 0..=n - i {
                 let (col, rest) = columns.split_at(n - i - j + 1);
                 columns = rest;
-                let mut s0 = 0.0;
-                for (a, z) in col.iter().zip(&zp) {
-                    s0 += a * z;
-                }
+                let s0 = column_sum(col, &zp);
                 fi += yj * s0;
                 yj *= q[1];
             }
@@ -826,12 +840,7 @@ impl Evaluator {
     /// The inner sums of f on the line through `q` along x (see [`Line`]).
     fn line(&self, q: [f64; 3]) -> Line {
         let n = self.degree;
-        let mut zp = [0.0; TABLE];
-        let mut v = 1.0;
-        for z in zp.iter_mut().take(n + 1) {
-            *z = v;
-            v *= q[2];
-        }
+        let zp = self.z_powers(q[2]);
         let mut columns = self.nested.as_slice();
         let mut s = Vec::with_capacity((n + 1) * (n + 2) / 2);
         let mut fi = Vec::with_capacity(n + 1);
@@ -840,10 +849,7 @@ impl Evaluator {
             for j in 0..=n - i {
                 let (col, rest) = columns.split_at(n - i - j + 1);
                 columns = rest;
-                let mut s0 = 0.0;
-                for (a, z) in col.iter().zip(&zp) {
-                    s0 += a * z;
-                }
+                let s0 = column_sum(col, &zp);
                 s.push(s0);
                 sum += yj * s0;
                 yj *= q[1];

@@ -999,6 +999,25 @@ fn level_outcome(verdicts: &[Verdict], last_level: bool) -> Option<Shell> {
     })
 }
 
+/// A frustum of the shell between |p̂|∞ = s₀ and s₁: face, patch centre u, v, patch half width,
+/// radial interval s₀, s₁.
+type Frustum = (usize, f64, f64, f64, f64, f64);
+
+/// The starting frustums of the shell s_lo ≤ |p̂|∞ ≤ s_hi: each whole face of the cube, its
+/// radial range cut where s doubles.
+fn whole_faces(s_lo: f64, s_hi: f64) -> Vec<Frustum> {
+    let mut cells = Vec::new();
+    for face in 0..6 {
+        let mut s0 = s_lo;
+        while s0 < s_hi {
+            let s1 = (2.0 * s0).min(s_hi);
+            cells.push((face, 0.0, 0.0, 1.0, s0, s1));
+            s0 = s1;
+        }
+    }
+    cells
+}
+
 /// The sign of f (normalized coordinates) on the points whose box norm |p|∞ lies in
 /// [s_lo, s_hi] (0 < s_lo): each point is p = s·q with q on a face of the cube |q|∞ = 1, and
 /// f(s·q) = Σ_k s^k H_k(q), so lower bounds of each H_k on a patch of a face give a
@@ -1021,17 +1040,7 @@ fn far_sign(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64) -> Shell {
         return Shell::Unknown;
     }
     let forms = FaceForms::new(poly);
-    /// face, patch centre u, v, patch half width, radial interval.
-    type Frustum = (usize, f64, f64, f64, f64, f64);
-    let mut cells: Vec<Frustum> = Vec::new();
-    for face in 0..6 {
-        let mut s0 = s_lo;
-        while s0 < s_hi {
-            let s1 = (2.0 * s0).min(s_hi);
-            cells.push((face, 0.0, 0.0, 1.0, s0, s1));
-            s0 = s1;
-        }
-    }
+    let mut cells = whole_faces(s_lo, s_hi);
     for level in 0..=FAR_MAX_LEVEL {
         if cells.is_empty() {
             return Shell::Positive;
@@ -1153,16 +1162,7 @@ fn far_positive(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64, ratio: f64) -> 
         return false;
     }
     let forms = FaceForms::new(poly);
-    type Frustum = (usize, f64, f64, f64, f64, f64);
-    let mut cells: Vec<Frustum> = Vec::new();
-    for face in 0..6 {
-        let mut s0 = s_lo;
-        while s0 < s_hi {
-            let s1 = (2.0 * s0).min(s_hi);
-            cells.push((face, 0.0, 0.0, 1.0, s0, s1));
-            s0 = s1;
-        }
-    }
+    let mut cells = whole_faces(s_lo, s_hi);
     let mut total = 0usize;
     for level in 0..=2 * FAR_MAX_LEVEL {
         if cells.is_empty() {
