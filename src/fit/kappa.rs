@@ -484,8 +484,9 @@ fn coarse_zero_set_culled(
 /// is at most `reach` wide, so it lies in the neighbourhood), have f > 0 at all their lattice
 /// points, so they yield no triangle and no vertex whatever their neighbours, and the leaves
 /// that do yield triangles see the same neighbours (the extraction's tetrahedra depend only on
-/// the leaves touching a leaf). The certificate ([`far_sign`]) keeps a relative margin of 1e-12
-/// over the rounding of the point values.
+/// the leaves touching a leaf). The certificates ([`far_positive`] and [`far_sign`], the same
+/// Bernstein test) keep a relative margin of 1e-12 over the rounding of their coefficients: a
+/// margin, not a rigorous error bound.
 struct FarCulled<'a> {
     poly: &'a ImplicitPolynomial,
     beyond: f64,
