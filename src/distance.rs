@@ -56,7 +56,7 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 
 use crate::cloud::Aabb;
-use crate::measure::GridMeshDistance;
+use crate::measure::{dist, dist2, GridMeshDistance};
 use crate::mesh::TriangleMesh;
 use crate::poly::{n_coefficients, ImplicitPolynomial};
 use crate::polygonize::ImplicitFunction;
@@ -679,14 +679,6 @@ impl ExactDistance {
         }
         (best.copysign(f) * self.eval.scale, foot)
     }
-}
-
-fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-}
-
-fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
-    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
 }
 
 /// The nearest seeds (indices) found by the previous query of a row.

@@ -353,11 +353,13 @@ impl<'a> GridMeshDistance<'a> {
     }
 }
 
-fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
+/// Squared Euclidean distance between two points (the crate's one copy).
+pub(crate) fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
     (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
 }
 
-fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+/// Euclidean distance between two points.
+pub(crate) fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
     dist2(a, b).sqrt()
 }
 

@@ -22,6 +22,7 @@
 //! Invariants: the returned polynomial has finite coefficients and scale > 0; a system that
 //! cannot be solved returns `None` (never a panic).
 
+use crate::measure::dist;
 use crate::poly::{n_coefficients, ImplicitPolynomial};
 use crate::polygonize::ImplicitFunction;
 
@@ -315,10 +316,6 @@ fn add_packed(ata: &mut [f64; 55], m: &[f64; 10]) {
 
 fn factorial(k: usize) -> f64 {
     (1..=k).map(|v| v as f64).product()
-}
-
-fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
 /// Solves the symmetric positive definite system whose upper triangle is in `a` (row-major

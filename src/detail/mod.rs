@@ -50,6 +50,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::cloud::{Aabb, OrientedCloud};
+use crate::measure::dist2;
 use crate::poly::{n_coefficients, ImplicitPolynomial};
 #[cfg(doc)]
 use crate::polygonize::ImplicitFunction;
@@ -681,8 +682,4 @@ fn auxiliary_estimate(ctx: &Ctx, q: [f64; 3]) -> Option<f64> {
     }
     (nearest.len() == AUX_NEIGHBOURS && (pos == AUX_NEIGHBOURS || neg == AUX_NEIGHBOURS))
         .then(|| sum / AUX_NEIGHBOURS as f64)
-}
-
-fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
-    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
 }
