@@ -135,25 +135,31 @@ fn model_file(path: &str, depth: u32, simplification: Simplification) {
     print_quality(&out.mesh);
 }
 
+/// The degree-8 genus-two surface and the box it is meshed in.
+fn genus_two() -> (ImplicitPolynomial, Aabb) {
+    let region = Aabb {
+        min: [-1.2, -0.7, -0.2],
+        max: [1.2, 0.7, 0.2],
+    };
+    (shapes::genus_two(), region)
+}
+
+/// The degree-8 linked tori and the box they are meshed in.
+fn linked_tori() -> (ImplicitPolynomial, Aabb) {
+    let region = Aabb {
+        min: [-1.4, -1.4, -1.4],
+        max: [2.4, 1.4, 1.4],
+    };
+    (shapes::linked_tori(), region)
+}
+
 /// `octree_counts genus_two|linked_tori [DEPTH] [RUNS]`: times `RUNS` polygonizations of one
 /// exact degree-8 model (for profiling and CPU-time comparisons) and prints its counts.
 fn exact_model(name: &str, depth: u32, runs: usize) {
     let (f, region) = if name == "genus_two" {
-        (
-            shapes::genus_two(),
-            Aabb {
-                min: [-1.2, -0.7, -0.2],
-                max: [1.2, 0.7, 0.2],
-            },
-        )
+        genus_two()
     } else {
-        (
-            shapes::linked_tori(),
-            Aabb {
-                min: [-1.4, -1.4, -1.4],
-                max: [2.4, 1.4, 1.4],
-            },
-        )
+        linked_tori()
     };
     let params = PolygonizeParams {
         depth,
@@ -223,6 +229,7 @@ fn main() {
         model_file(path, depth, simplification);
         return;
     }
+    let ((genus, genus_region), (tori, tori_region)) = (genus_two(), linked_tori());
     let cases: [(&str, ImplicitPolynomial, Aabb); 3] = [
         (
             "torus (deg 4)",
@@ -232,22 +239,8 @@ fn main() {
                 max: [1.6; 3],
             },
         ),
-        (
-            "genus two (deg 8)",
-            shapes::genus_two(),
-            Aabb {
-                min: [-1.2, -0.7, -0.2],
-                max: [1.2, 0.7, 0.2],
-            },
-        ),
-        (
-            "linked tori (deg 8)",
-            shapes::linked_tori(),
-            Aabb {
-                min: [-1.4, -1.4, -1.4],
-                max: [2.4, 1.4, 1.4],
-            },
-        ),
+        ("genus two (deg 8)", genus, genus_region),
+        ("linked tori (deg 8)", tori, tori_region),
     ];
     println!(
         "{:<22} {:>5} {:>12} {:>7} {:>10} {:>10} {:>7} {:>9}",
