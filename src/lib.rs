@@ -26,6 +26,7 @@ pub mod pipeline;
 pub mod poly;
 pub mod polygonize;
 pub mod render;
+mod vec3;
 
 pub use cloud::{Aabb, OrientedCloud, PointCloud};
 pub use mesh::TriangleMesh;

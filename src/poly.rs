@@ -23,6 +23,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::cloud::Aabb;
+use crate::vec3::{cross, dot};
 
 /// Number of monomials of degree ≤ `degree` in three variables: (n+1)(n+2)(n+3)/6.
 ///
@@ -708,10 +709,6 @@ fn refine_extremum(
     best
 }
 
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
 fn normalized(a: [f64; 3]) -> [f64; 3] {
     let n = dot(a, a).sqrt();
     a.map(|c| c / n)
@@ -786,14 +783,6 @@ fn riemannian_newton(form: &ImplicitPolynomial, start: [f64; 3], sign: f64) -> (
         }
     }
     (f, u)
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 /// How a model was fitted: the settings that produced it.

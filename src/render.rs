@@ -14,6 +14,7 @@
 use image::{Rgb, RgbImage};
 
 use crate::mesh::TriangleMesh;
+use crate::vec3::{cross, dot, norm};
 
 /// Which direction the camera looks from.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -78,24 +79,12 @@ impl Default for RenderParams {
 }
 
 fn normalize(v: [f64; 3]) -> [f64; 3] {
-    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    let n = norm(v);
     if n > 0.0 {
         v.map(|c| c / n)
     } else {
         v
     }
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 /// Renders `mesh`. An empty mesh gives a background-only image.
