@@ -134,7 +134,10 @@ pub(crate) fn triangulate<F: ImplicitFunction + ?Sized>(
             (edges, ends, triangles, ctx.evaluations)
         })
         .collect();
-    let mut edges: Vec<EdgeKey> = parts.iter().flat_map(|p| p.0.iter().copied()).collect();
+    let mut edges: Vec<EdgeKey> = Vec::with_capacity(parts.iter().map(|p| p.0.len()).sum());
+    for part in &parts {
+        edges.extend_from_slice(&part.0);
+    }
     edges.par_sort_unstable();
     edges.dedup();
     let remapped: Vec<(Vec<u32>, Vec<[u32; 3]>)> = parts
@@ -159,7 +162,10 @@ pub(crate) fn triangulate<F: ImplicitFunction + ?Sized>(
         }
     }
     let evaluations = parts.iter().map(|p| p.3).sum();
-    let triangles = remapped.into_iter().flat_map(|(_, t)| t).collect();
+    let mut triangles = Vec::with_capacity(remapped.iter().map(|(_, t)| t.len()).sum());
+    for (_, part) in remapped {
+        triangles.extend_from_slice(&part);
+    }
     (edges, end_values, triangles, evaluations)
 }
 
