@@ -294,48 +294,56 @@ fn value_gradient_of(n: usize, coefficients: &[f64], q: [f64; 3]) -> (f64, [f64;
     fill_powers(&mut px[1..=n + 1], q[0]);
     let n_yz = (n + 1) * (n + 2) / 2;
     let mut yz = [0.0; YZ_LEN];
-    let mut yz_dy = [0.0; YZ_LEN];
-    let mut yz_dz = [0.0; YZ_LEN];
     fill_yz(&mut yz[..n_yz], q[1], q[2], n);
-    // ∂(y^j z^k)/∂y = j y^(j−1) z^k and ∂/∂z = k y^j z^(k−1), from the degree s − 1 row.
+    // Per y^j z^k: [y^j z^k, ∂/∂y, ∂/∂z, 0], so that the three dot products of a block run as
+    // one multiply-add on four lanes (each lane the same operations as a separate sum). The
+    // derivatives are ∂(y^j z^k)/∂y = j y^(j−1) z^k and ∂/∂z = k y^j z^(k−1), from the degree
+    // s − 1 row.
+    let mut terms = [[0.0; 4]; YZ_LEN];
     let mut row = 0;
     for s in 0..=n {
         for k in 0..=s {
             let j = s - k;
             let below = row - s; // start of the degree s − 1 row
+            let slot = &mut terms[row + k];
+            slot[0] = yz[row + k];
             if j > 0 {
-                yz_dy[row + k] = j as f64 * yz[below + k];
+                slot[1] = j as f64 * yz[below + k];
             }
             if k > 0 {
-                yz_dz[row + k] = k as f64 * yz[below + k - 1];
+                slot[2] = k as f64 * yz[below + k - 1];
             }
         }
         row += s + 1;
     }
-    let (yz, yz_dy, yz_dz) = (&yz[..n_yz], &yz_dy[..n_yz], &yz_dz[..n_yz]);
-    let mut f = 0.0;
-    let mut g = [0.0; 3];
+    let terms = &terms[..n_yz];
+    // [f, ∂f/∂y, ∂f/∂z, ∂f/∂x], each summed block by block in the graded order.
+    let mut sums = [0.0; 4];
     let mut offset = 0;
     for r in 0..=n {
         let mut start = 0;
         for s in 0..=r {
             let i = r - s;
-            let (mut v, mut vy, mut vz) = (0.0, 0.0, 0.0);
-            for k in 0..=s {
-                let a = coefficients[offset + start + k];
-                v += a * yz[start + k];
-                vy += a * yz_dy[start + k];
-                vz += a * yz_dz[start + k];
+            let mut v = [0.0; 4];
+            for (&a, m) in coefficients[offset + start..=offset + start + s]
+                .iter()
+                .zip(&terms[start..=start + s])
+            {
+                for t in 0..4 {
+                    v[t] += a * m[t];
+                }
             }
             start += s + 1;
-            f += px[i + 1] * v;
-            g[0] += i as f64 * px[i] * v;
-            g[1] += px[i + 1] * vy;
-            g[2] += px[i + 1] * vz;
+            let (p, dp) = (px[i + 1], i as f64 * px[i]);
+            let factor = [p, p, p, dp];
+            let block = [v[0], v[1], v[2], v[0]];
+            for t in 0..4 {
+                sums[t] += factor[t] * block[t];
+            }
         }
         offset += start;
     }
-    (f, g)
+    (sums[0], [sums[3], sums[1], sums[2]])
 }
 
 /// The exponent of x and the index of y^j z^k in the [`fill_yz`] table of each monomial, in the

@@ -42,6 +42,8 @@
 //! these are the vertices marching tetrahedra puts next to a lattice point or next to each other
 //! on a cell's face and body diagonals.
 
+use rayon::prelude::*;
+
 /// Largest length of a new edge, in local cell sizes.
 const MAX_EDGE: f64 = 1.2;
 
@@ -220,9 +222,9 @@ impl Mesh {
     /// the collapse u → v is not allowed. `ring` is u's link (vertex, position, and the normal
     /// (a − u) × (b − u) of the triangle it opens with the next one, with its squared length),
     /// `i` the position of v in it. `mark[x] == stamp` exactly for the vertices x of the link.
-    /// The checks are independent (any failing one refuses the collapse), so the cheap ones go
-    /// first: the star sizes, then the new edge lengths, then the shapes and normal turns, then
-    /// the link condition.
+    /// The checks are independent (any failing one refuses the collapse), so the cheap in-cache
+    /// geometric ones go first (the new edge lengths, then the shapes and normal turns), then
+    /// the ones that read the stars of other vertices.
     fn collapse_quality(
         &self,
         ring: &[RingVertex],
@@ -233,22 +235,6 @@ impl Mesh {
         let n = ring.len();
         let v = ring[i].vertex;
         let pv = ring[i].position;
-        let w1 = ring[(i + n - 1) % n].vertex;
-        let w2 = ring[(i + 1) % n].vertex;
-        // Valence of w₁, w₂ stays at least 3.
-        let (star_v, star_w1, star_w2) = (
-            &self.around[v as usize],
-            &self.around[w1 as usize],
-            &self.around[w2 as usize],
-        );
-        if star_w1.count() < 4 || star_w2.count() < 4 || star_w1.is_frozen() || star_w2.is_frozen()
-        {
-            return None;
-        }
-        // The target keeps its triangles, loses 2 and gains u's others.
-        if star_v.is_frozen() || star_v.count() + n - 2 > STAR_CAPACITY {
-            return None;
-        }
         // The triangles (u, a, b) with a, b ≠ v: k ∉ {i − 1, i}. Their new edges first (no
         // shape is computed for a target that one of them rules out).
         for k in (i + 1)..(i + n - 1) {
@@ -278,6 +264,22 @@ impl Mesh {
                 return None;
             }
             worst = worst.min(quality);
+        }
+        let w1 = ring[(i + n - 1) % n].vertex;
+        let w2 = ring[(i + 1) % n].vertex;
+        // Valence of w₁, w₂ stays at least 3.
+        let (star_v, star_w1, star_w2) = (
+            &self.around[v as usize],
+            &self.around[w1 as usize],
+            &self.around[w2 as usize],
+        );
+        if star_w1.count() < 4 || star_w2.count() < 4 || star_w1.is_frozen() || star_w2.is_frozen()
+        {
+            return None;
+        }
+        // The target keeps its triangles, loses 2 and gains u's others.
+        if star_v.is_frozen() || star_v.count() + n - 2 > STAR_CAPACITY {
+            return None;
         }
         // Link condition: no common neighbour besides w₁ and w₂, and, for a valence-3 u, no
         // triangle (v, w₁, w₂) already.
@@ -343,8 +345,11 @@ pub(crate) fn simplify(
             })
         })
         .collect();
-    let local_positions: Vec<[f64; 3]> = old_index.iter().map(|&x| positions[x as usize]).collect();
-    let local_sizes: Vec<f64> = old_index.iter().map(|&x| sizes[x as usize]).collect();
+    let local_positions: Vec<[f64; 3]> = old_index
+        .par_iter()
+        .map(|&x| positions[x as usize])
+        .collect();
+    let local_sizes: Vec<f64> = old_index.par_iter().map(|&x| sizes[x as usize]).collect();
     let local = simplify_chunked(&local_positions, &local_sizes, local_triangles);
     let mut keep = vec![true; positions.len()];
     for (&old, &k) in old_index.iter().zip(&local.keep) {
@@ -352,7 +357,7 @@ pub(crate) fn simplify(
     }
     let triangles = local
         .triangles
-        .iter()
+        .par_iter()
         .map(|t| t.map(|x| old_index[x as usize]))
         .collect();
     Simplified { keep, triangles }
@@ -367,7 +372,6 @@ pub(crate) fn simplify(
 /// the mesh around them, with the result of a pass over the whole mesh). The chunks are fixed by
 /// the numbering, so the result does not depend on the thread count.
 fn simplify_chunked(positions: &[[f64; 3]], sizes: &[f64], triangles: Vec<[u32; 3]>) -> Simplified {
-    use rayon::prelude::*;
     let n_vertices = positions.len();
     let n_chunks = n_vertices.div_ceil(CHUNK);
     let chunk_of = |v: u32| v as usize / CHUNK;
