@@ -127,6 +127,26 @@ pub trait ImplicitFunction: Sync {
     }
 }
 
+/// Calls `$body` (a generic function taking the degree as its first argument) with the degree
+/// as a literal for degrees up to [`INLINE_DEGREE`], so that each arm is compiled for its own
+/// constant degree, and with the runtime degree above.
+macro_rules! with_constant_degree {
+    ($n:expr, $body:ident ( $($arg:expr),* )) => {
+        match $n {
+            0 => $body(0, $($arg),*),
+            1 => $body(1, $($arg),*),
+            2 => $body(2, $($arg),*),
+            3 => $body(3, $($arg),*),
+            4 => $body(4, $($arg),*),
+            5 => $body(5, $($arg),*),
+            6 => $body(6, $($arg),*),
+            7 => $body(7, $($arg),*),
+            8 => $body(8, $($arg),*),
+            n => $body(n, $($arg),*),
+        }
+    };
+}
+
 impl ImplicitFunction for ImplicitPolynomial {
     fn value(&self, p: [f64; 3]) -> f64 {
         let n = self.degree as usize;
@@ -134,11 +154,7 @@ impl ImplicitFunction for ImplicitPolynomial {
             return self.eval(p);
         }
         let q = normalized(self, p);
-        if n <= 8 {
-            monomial_dot::<{ n_monomials(8) }>(&self.coefficients, q, n)
-        } else {
-            monomial_dot::<{ n_monomials(STACK_DEGREE) }>(&self.coefficients, q, n)
-        }
+        with_constant_degree!(n, monomial_dot(&self.coefficients, q))
     }
 
     fn value_gradient(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
@@ -147,56 +163,7 @@ impl ImplicitFunction for ImplicitPolynomial {
             return self.eval_gradient(p);
         }
         let q = normalized(self, p);
-        // px[e + 1] = x^e, px[0] = 0 (the x^(−1) of a derivative's zero term).
-        let mut px = [0.0; STACK_DEGREE + 2];
-        fill_powers(&mut px[1..=n + 1], q[0]);
-        let n_yz = (n + 1) * (n + 2) / 2;
-        let mut yz = [0.0; YZ_LEN];
-        let mut yz_dy = [0.0; YZ_LEN];
-        let mut yz_dz = [0.0; YZ_LEN];
-        fill_yz(&mut yz[..n_yz], q[1], q[2], n);
-        // ∂(y^j z^k)/∂y = j y^(j−1) z^k and ∂/∂z = k y^j z^(k−1), from the degree s − 1 row.
-        let mut row = 0;
-        for s in 0..=n {
-            for k in 0..=s {
-                let j = s - k;
-                let below = row - s; // start of the degree s − 1 row
-                if j > 0 {
-                    yz_dy[row + k] = j as f64 * yz[below + k];
-                }
-                if k > 0 {
-                    yz_dz[row + k] = k as f64 * yz[below + k - 1];
-                }
-            }
-            row += s + 1;
-        }
-        let mut f = 0.0;
-        let mut g = [0.0; 3];
-        let mut offset = 0;
-        for r in 0..=n {
-            let block = &self.coefficients[offset..offset + (r + 1) * (r + 2) / 2];
-            offset += block.len();
-            let mut start = 0;
-            for s in 0..=r {
-                let i = r - s;
-                let (mut v, mut vy, mut vz) = (0.0, 0.0, 0.0);
-                for (((a, m), my), mz) in block[start..=start + s]
-                    .iter()
-                    .zip(&yz[start..=start + s])
-                    .zip(&yz_dy[start..=start + s])
-                    .zip(&yz_dz[start..=start + s])
-                {
-                    v += a * m;
-                    vy += a * my;
-                    vz += a * mz;
-                }
-                start += s + 1;
-                f += px[i + 1] * v;
-                g[0] += i as f64 * px[i] * v;
-                g[1] += px[i + 1] * vy;
-                g[2] += px[i + 1] * vz;
-            }
-        }
+        let (f, g) = with_constant_degree!(n, value_gradient_of(&self.coefficients, q));
         (f, g.map(|c| c / self.scale))
     }
 
@@ -314,46 +281,122 @@ const fn n_monomials(n: usize) -> usize {
     (n + 1) * (n + 2) * (n + 3) / 6
 }
 
-/// Σ a_α q^α for a degree-`n` polynomial (graded order, `coefficients.len()` = `n_monomials(n)`
-/// ≤ `L`): the monomials are tabulated first (x^i times a row of the y^j z^k table, in the
-/// coefficients' order), then one dot product with four independent partial sums, so the
-/// additions pipeline instead of forming one long dependent chain.
-#[inline]
-fn monomial_dot<const L: usize>(coefficients: &[f64], q: [f64; 3], n: usize) -> f64 {
-    let mut px = [0.0; STACK_DEGREE + 1];
+/// f and its gradient with respect to q (normalized coordinates) of the degree-`n` polynomial
+/// `coefficients` (graded order) at `q`: per block of equal (i, s = j + k), the dot products of
+/// the coefficients with y^j z^k and its y and z derivatives, then x^i and its derivative
+/// applied. Inlined with a constant `n` ([`with_constant_degree`]), so the loops have constant
+/// bounds.
+#[inline(always)]
+fn value_gradient_of(n: usize, coefficients: &[f64], q: [f64; 3]) -> (f64, [f64; 3]) {
+    let coefficients = &coefficients[..n_monomials(n)];
+    // px[e + 1] = x^e, px[0] = 0 (the x^(−1) of a derivative's zero term).
+    let mut px = [0.0; STACK_DEGREE + 2];
+    fill_powers(&mut px[1..=n + 1], q[0]);
+    let n_yz = (n + 1) * (n + 2) / 2;
+    let mut yz = [0.0; YZ_LEN];
+    fill_yz(&mut yz[..n_yz], q[1], q[2], n);
+    // Per y^j z^k: [y^j z^k, ∂/∂y, ∂/∂z, 0], so that the three dot products of a block run as
+    // one multiply-add on four lanes (each lane the same operations as a separate sum). The
+    // derivatives are ∂(y^j z^k)/∂y = j y^(j−1) z^k and ∂/∂z = k y^j z^(k−1), from the degree
+    // s − 1 row.
+    let mut terms = [[0.0; 4]; YZ_LEN];
+    let mut row = 0;
+    for s in 0..=n {
+        for k in 0..=s {
+            let j = s - k;
+            let below = row - s; // start of the degree s − 1 row
+            let slot = &mut terms[row + k];
+            slot[0] = yz[row + k];
+            if j > 0 {
+                slot[1] = j as f64 * yz[below + k];
+            }
+            if k > 0 {
+                slot[2] = k as f64 * yz[below + k - 1];
+            }
+        }
+        row += s + 1;
+    }
+    let terms = &terms[..n_yz];
+    // [f, ∂f/∂y, ∂f/∂z, ∂f/∂x], each summed block by block in the graded order.
+    let mut sums = [0.0; 4];
+    let mut offset = 0;
+    for r in 0..=n {
+        let mut start = 0;
+        for s in 0..=r {
+            let i = r - s;
+            let mut v = [0.0; 4];
+            for (&a, m) in coefficients[offset + start..=offset + start + s]
+                .iter()
+                .zip(&terms[start..=start + s])
+            {
+                for t in 0..4 {
+                    v[t] += a * m[t];
+                }
+            }
+            start += s + 1;
+            let (p, dp) = (px[i + 1], i as f64 * px[i]);
+            let factor = [p, p, p, dp];
+            let block = [v[0], v[1], v[2], v[0]];
+            for t in 0..4 {
+                sums[t] += factor[t] * block[t];
+            }
+        }
+        offset += start;
+    }
+    (sums[0], [sums[3], sums[1], sums[2]])
+}
+
+/// The exponent of x and the index of y^j z^k in the [`fill_yz`] table of each monomial, in the
+/// graded order (the first `n_monomials(n)` entries are those of degree ≤ n, for any n ≤
+/// [`STACK_DEGREE`]).
+const MONOMIAL_TABLE: [(u8, u8); n_monomials(STACK_DEGREE)] = {
+    let mut table = [(0, 0); n_monomials(STACK_DEGREE)];
+    let mut l = 0;
+    let mut r = 0;
+    while r <= STACK_DEGREE {
+        let mut s = 0;
+        while s <= r {
+            let mut k = 0;
+            while k <= s {
+                table[l] = ((r - s) as u8, (s * (s + 1) / 2 + k) as u8);
+                l += 1;
+                k += 1;
+            }
+            s += 1;
+        }
+        r += 1;
+    }
+    table
+};
+
+/// Σ a_α q^α for a degree-`n` polynomial (graded order, `coefficients.len()` ≥
+/// `n_monomials(n)`): each monomial is x^i times an entry of the y^j z^k table
+/// ([`MONOMIAL_TABLE`]), multiplied by its coefficient and added to one of four independent
+/// partial sums (monomial l to sum l mod 4), so the additions pipeline instead of forming one
+/// long dependent chain. Inlined with a constant `n` ([`with_constant_degree`]).
+#[inline(always)]
+fn monomial_dot(n: usize, coefficients: &[f64], q: [f64; 3]) -> f64 {
+    // Tables padded to a power of two, so that the masked indices below need no checks.
+    let mut px = [0.0; 16];
     fill_powers(&mut px[..=n], q[0]);
     // y^j z^k for j + k = s, at s(s+1)/2 + k: the same order as the coefficients inside every
     // degree block.
-    let mut yz = [0.0; YZ_LEN];
+    let mut yz = [0.0; 128];
     let n_yz = (n + 1) * (n + 2) / 2;
     fill_yz(&mut yz[..n_yz], q[1], q[2], n);
-    let mut monomials = [0.0; L];
-    let mut l = 0;
-    for r in 0..=n {
-        let mut row = 0;
-        for s in 0..=r {
-            let xi = px[r - s];
-            for (slot, m) in monomials[l..=l + s].iter_mut().zip(&yz[row..=row + s]) {
-                *slot = xi * m;
-            }
-            l += s + 1;
-            row += s + 1;
-        }
-    }
-    let (monomials, coefficients) = (&monomials[..l], &coefficients[..l]);
+    let l = n_monomials(n);
+    let (table, coefficients) = (&MONOMIAL_TABLE[..l], &coefficients[..l]);
+    let term =
+        |(i, yzk): (u8, u8), a: f64| a * (px[usize::from(i) & 15] * yz[usize::from(yzk) & 127]);
     let mut partial = [0.0; 4];
-    for (m, a) in monomials.chunks_exact(4).zip(coefficients.chunks_exact(4)) {
+    for (index, a) in table.chunks_exact(4).zip(coefficients.chunks_exact(4)) {
         for t in 0..4 {
-            partial[t] += a[t] * m[t];
+            partial[t] += term(index[t], a[t]);
         }
     }
     let tail = l - l % 4;
-    for (t, (m, a)) in monomials[tail..]
-        .iter()
-        .zip(&coefficients[tail..])
-        .enumerate()
-    {
-        partial[t] += a * m;
+    for (t, (&index, &a)) in table[tail..].iter().zip(&coefficients[tail..]).enumerate() {
+        partial[t] += term(index, a);
     }
     (partial[0] + partial[1]) + (partial[2] + partial[3])
 }
@@ -362,6 +405,7 @@ fn monomial_dot<const L: usize>(coefficients: &[f64], q: [f64; 3], n: usize) -> 
 const YZ_LEN: usize = (STACK_DEGREE + 1) * (STACK_DEGREE + 2) / 2;
 
 /// `out[s(s+1)/2 + k] = y^(s−k) z^k` for s ≤ n.
+#[inline(always)]
 fn fill_yz(out: &mut [f64], y: f64, z: f64, n: usize) {
     let mut row = 0;
     for s in 0..=n {
@@ -380,6 +424,7 @@ fn fill_yz(out: &mut [f64], y: f64, z: f64, n: usize) {
 }
 
 /// `out[e] = t^e`.
+#[inline(always)]
 fn fill_powers(out: &mut [f64], t: f64) {
     let mut v = 1.0;
     for slot in out.iter_mut() {
@@ -395,26 +440,6 @@ const INLINE_DEGREE: usize = 8;
 
 /// Length of the inline dense array.
 const INLINE_LEN: usize = (INLINE_DEGREE + 1) * (INLINE_DEGREE + 1) * (INLINE_DEGREE + 1);
-
-/// Calls `$body` (a generic function taking the degree as its first argument) with the degree
-/// as a literal for degrees up to [`INLINE_DEGREE`], so that each arm is compiled for its own
-/// constant degree, and with the runtime degree above.
-macro_rules! with_constant_degree {
-    ($n:expr, $body:ident ( $($arg:expr),* )) => {
-        match $n {
-            0 => $body(0, $($arg),*),
-            1 => $body(1, $($arg),*),
-            2 => $body(2, $($arg),*),
-            3 => $body(3, $($arg),*),
-            4 => $body(4, $($arg),*),
-            5 => $body(5, $($arg),*),
-            6 => $body(6, $($arg),*),
-            7 => $body(7, $($arg),*),
-            8 => $body(8, $($arg),*),
-            n => $body(n, $($arg),*),
-        }
-    };
-}
 
 /// A polynomial re-expanded around a box centre in local coordinates t ∈ [−1, 1]³.
 struct LocalTaylor {
@@ -746,17 +771,19 @@ fn grid_values_of(n: usize, b: &[f64], t: &[[f64; 2]; 3]) -> [f64; 8] {
 }
 
 /// Adds the range of b·t^e over t ∈ [−1, 1]³ to the interval [lo, hi].
+#[inline(always)]
 fn accumulate(lo: &mut f64, hi: &mut f64, b: f64, e: [usize; 3]) {
     if e == [0, 0, 0] {
         *lo += b;
         *hi += b;
     } else if e.iter().all(|x| x % 2 == 0) {
-        // t^e ∈ [0, 1].
-        if b > 0.0 {
-            *hi += b;
-        } else {
-            *lo += b;
-        }
+        // t^e ∈ [0, 1]: b goes to hi when positive, else to lo. Written as selects (the sign of
+        // b is unpredictable); adding +0 to the other end leaves it bit for bit unchanged (both
+        // ends start at +0 and never become −0 under round-to-nearest), and a NaN b still goes
+        // to lo.
+        let up = b > 0.0;
+        *hi += if up { b } else { 0.0 };
+        *lo += if up { 0.0 } else { b };
     } else {
         *lo -= b.abs();
         *hi += b.abs();

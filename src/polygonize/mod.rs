@@ -77,6 +77,7 @@ mod simplify;
 
 pub use function::ImplicitFunction;
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::cloud::Aabb;
@@ -235,7 +236,7 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
             }
             let triangles = simplified
                 .triangles
-                .iter()
+                .par_iter()
                 .map(|t| t.map(|v| index[v as usize]))
                 .collect();
             (kept_edges, kept_values, triangles)

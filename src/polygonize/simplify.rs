@@ -42,6 +42,8 @@
 //! these are the vertices marching tetrahedra puts next to a lattice point or next to each other
 //! on a cell's face and body diagonals.
 
+use rayon::prelude::*;
+
 /// Largest length of a new edge, in local cell sizes.
 const MAX_EDGE: f64 = 1.2;
 
@@ -220,7 +222,9 @@ impl Mesh {
     /// the collapse u → v is not allowed. `ring` is u's link (vertex, position, and the normal
     /// (a − u) × (b − u) of the triangle it opens with the next one, with its squared length),
     /// `i` the position of v in it. `mark[x] == stamp` exactly for the vertices x of the link.
-    /// The checks are independent, so the cheap in-cache geometric ones go first.
+    /// The checks are independent (any failing one refuses the collapse), so the cheap in-cache
+    /// geometric ones go first (the new edge lengths, then the shapes and normal turns), then
+    /// the ones that read the stars of other vertices.
     fn collapse_quality(
         &self,
         ring: &[RingVertex],
@@ -231,16 +235,20 @@ impl Mesh {
         let n = ring.len();
         let v = ring[i].vertex;
         let pv = ring[i].position;
+        // The triangles (u, a, b) with a, b ≠ v: k ∉ {i − 1, i}. Their new edges first (no
+        // shape is computed for a target that one of them rules out).
+        for k in (i + 1)..(i + n - 1) {
+            let k = if k >= n { k - n } else { k };
+            let d = sub(pv, ring[k].position);
+            if dot(d, d) > limit2 {
+                return None;
+            }
+        }
         let mut worst = f64::INFINITY;
-        // The triangles (u, a, b) with a, b ≠ v: k ∉ {i − 1, i}.
         for k in (i + 1)..(i + n - 1) {
             let k = if k >= n { k - n } else { k };
             let (ra, rb) = (&ring[k], &ring[if k + 1 == n { 0 } else { k + 1 }]);
             let (pa, pb) = (ra.position, rb.position);
-            let d = sub(pv, pa);
-            if dot(d, d) > limit2 {
-                return None;
-            }
             let (old, old2) = (ra.normal, ra.normal2);
             let (quality, new) = shape(pv, pa, pb);
             let new2 = dot(new, new);
@@ -337,8 +345,11 @@ pub(crate) fn simplify(
             })
         })
         .collect();
-    let local_positions: Vec<[f64; 3]> = old_index.iter().map(|&x| positions[x as usize]).collect();
-    let local_sizes: Vec<f64> = old_index.iter().map(|&x| sizes[x as usize]).collect();
+    let local_positions: Vec<[f64; 3]> = old_index
+        .par_iter()
+        .map(|&x| positions[x as usize])
+        .collect();
+    let local_sizes: Vec<f64> = old_index.par_iter().map(|&x| sizes[x as usize]).collect();
     let local = simplify_chunked(&local_positions, &local_sizes, local_triangles);
     let mut keep = vec![true; positions.len()];
     for (&old, &k) in old_index.iter().zip(&local.keep) {
@@ -346,7 +357,7 @@ pub(crate) fn simplify(
     }
     let triangles = local
         .triangles
-        .iter()
+        .par_iter()
         .map(|t| t.map(|x| old_index[x as usize]))
         .collect();
     Simplified { keep, triangles }
@@ -357,10 +368,10 @@ pub(crate) fn simplify(
 /// vertices are all in the chunk), with the vertices that also touch other triangles frozen:
 /// a collapse only reads and writes the stars of u, v, w₁, w₂, which are then complete, and
 /// the triangles of u, which are the chunk's own, so chunks never see each other's changes.
-/// Then one sequential pass over the whole mesh tries the vertices that were frozen. The chunks
-/// are fixed by the numbering, so the result does not depend on the thread count.
+/// Then one sequential pass tries the vertices that were frozen ([`second_pass`]: on the part of
+/// the mesh around them, with the result of a pass over the whole mesh). The chunks are fixed by
+/// the numbering, so the result does not depend on the thread count.
 fn simplify_chunked(positions: &[[f64; 3]], sizes: &[f64], triangles: Vec<[u32; 3]>) -> Simplified {
-    use rayon::prelude::*;
     let n_vertices = positions.len();
     let n_chunks = n_vertices.div_ceil(CHUNK);
     let chunk_of = |v: u32| v as usize / CHUNK;
@@ -393,44 +404,153 @@ fn simplify_chunked(positions: &[[f64; 3]], sizes: &[f64], triangles: Vec<[u32; 
                 local,
                 &border[start..end],
                 &everyone[..end - start],
+                |v| v + offset,
             );
             Simplified {
-                keep: part.keep,
                 triangles: part
-                    .triangles
-                    .iter()
+                    .alive_triangles()
                     .map(|t| t.map(|x| x + offset))
                     .collect(),
+                keep: part.keep,
             }
         })
         .collect();
     let mut keep = Vec::with_capacity(n_vertices);
     let mut merged = shared;
+    merged.reserve(parts.iter().map(|p| p.triangles.len()).sum());
     for part in parts {
         keep.extend(part.keep);
         merged.extend(part.triangles);
     }
-    let none_frozen = vec![false; n_vertices];
-    let second = simplify_local(positions, sizes, merged, &none_frozen, &border);
-    for (k, &k2) in keep.iter_mut().zip(&second.keep) {
-        *k &= k2;
+    let second = second_pass(positions, sizes, &merged, &border);
+    for (&v, &k) in second.vertices.iter().zip(&second.swept.keep) {
+        keep[v as usize] &= k;
     }
-    Simplified {
-        keep,
-        triangles: second.triangles,
+    // The triangles the second pass did not see are unchanged.
+    let mut changed = second
+        .triangles
+        .iter()
+        .zip(second.swept.triangles.iter().zip(&second.swept.alive))
+        .peekable();
+    let mut triangles = Vec::with_capacity(merged.len());
+    for (i, t) in merged.iter().enumerate() {
+        match changed.peek() {
+            Some(&(&j, (local, &alive))) if j as usize == i => {
+                if alive {
+                    triangles.push(local.map(|x| second.vertices[x as usize]));
+                }
+                changed.next();
+            }
+            _ => triangles.push(*t),
+        }
+    }
+    Simplified { keep, triangles }
+}
+
+/// The second pass of [`simplify_chunked`] on the part of the mesh it can touch, in local
+/// numbers: `vertices` (increasing) and `triangles` (increasing) name that part in the whole
+/// mesh.
+struct SecondPass {
+    vertices: Vec<u32>,
+    triangles: Vec<u32>,
+    swept: Swept,
+}
+
+/// The sequential pass over the `border` vertices (the only candidates) on the part of the
+/// mesh `triangles` it can touch: the zone of the border vertices and their neighbours, and
+/// every triangle with a vertex in the zone. Working there gives exactly the result of the pass
+/// over the whole mesh. A collapse u → v of a border vertex u reads the positions of u's
+/// neighbours, the stars of u, v, w₁, w₂ (all neighbours of u) and the triangles around v, and
+/// rewrites u's triangles; so, by induction over the collapses, every neighbour of a border
+/// vertex stays in the zone (the vertex a border vertex moves onto was its neighbour), the
+/// stars of the zone stay complete (only triangles around border vertices change), and the
+/// vertices outside the zone, which are frozen here because their stars are incomplete, are
+/// never touched. The visiting order is the same because it is set by the whole-mesh numbers.
+fn second_pass(
+    positions: &[[f64; 3]],
+    sizes: &[f64],
+    triangles: &[[u32; 3]],
+    border: &[bool],
+) -> SecondPass {
+    let n_vertices = positions.len();
+    let mut zone = vec![false; n_vertices];
+    for t in triangles {
+        if t.iter().any(|&x| border[x as usize]) {
+            for &x in t {
+                zone[x as usize] = true;
+            }
+        }
+    }
+    let picked: Vec<u32> = (0..triangles.len() as u32)
+        .filter(|&i| triangles[i as usize].iter().any(|&x| zone[x as usize]))
+        .collect();
+    let mut local_id = vec![u32::MAX; n_vertices];
+    for &i in &picked {
+        for &x in &triangles[i as usize] {
+            local_id[x as usize] = 0;
+        }
+    }
+    let mut vertices = Vec::new();
+    for (x, id) in local_id.iter_mut().enumerate() {
+        if *id != u32::MAX {
+            *id = vertices.len() as u32;
+            vertices.push(x as u32);
+        }
+    }
+    let local_triangles = picked
+        .iter()
+        .map(|&i| triangles[i as usize].map(|x| local_id[x as usize]))
+        .collect();
+    let local_positions: Vec<[f64; 3]> = vertices.iter().map(|&x| positions[x as usize]).collect();
+    let local_sizes: Vec<f64> = vertices.iter().map(|&x| sizes[x as usize]).collect();
+    let frozen: Vec<bool> = vertices.iter().map(|&x| !zone[x as usize]).collect();
+    let candidate: Vec<bool> = vertices.iter().map(|&x| border[x as usize]).collect();
+    let swept = simplify_local(
+        &local_positions,
+        &local_sizes,
+        local_triangles,
+        &frozen,
+        &candidate,
+        |v| vertices[v as usize],
+    );
+    SecondPass {
+        vertices,
+        triangles: picked,
+        swept,
+    }
+}
+
+/// The result of one sweep: `keep[v]` per vertex, and every input triangle (in the input's
+/// order, its vertices replaced by the collapses) with whether it is still alive.
+struct Swept {
+    keep: Vec<bool>,
+    triangles: Vec<[u32; 3]>,
+    alive: Vec<bool>,
+}
+
+impl Swept {
+    /// The surviving triangles, in order.
+    fn alive_triangles(&self) -> impl Iterator<Item = [u32; 3]> + '_ {
+        self.triangles
+            .iter()
+            .zip(&self.alive)
+            .filter(|(_, &a)| a)
+            .map(|(t, _)| *t)
     }
 }
 
 /// Core of [`simplify`]: one sequential sweep.
 /// `frozen[v]`: v may not be touched (its star is incomplete here); `candidate[v]`: v may be
-/// removed.
+/// removed; `rank[v]`: v's number in the whole mesh (increasing with v), which sets the
+/// visiting order.
 fn simplify_local(
     positions: &[[f64; 3]],
     sizes: &[f64],
     triangles: Vec<[u32; 3]>,
     frozen: &[bool],
     candidate: &[bool],
-) -> Simplified {
+    rank: impl Fn(u32) -> u32,
+) -> Swept {
     let n_vertices = positions.len();
     let mut valence = vec![0u32; n_vertices];
     for tri in &triangles {
@@ -479,7 +599,10 @@ fn simplify_local(
         .collect();
     // Sorted within blocks of consecutive vertices (close in space), so the sweep stays in
     // cache.
-    order.sort_unstable_by_key(|&(s, v)| (v / ORDER_BLOCK, s, v));
+    order.sort_unstable_by_key(|&(s, v)| {
+        let r = rank(v);
+        (r / ORDER_BLOCK, s, r)
+    });
     let mut mesh = Mesh {
         alive: vec![true; triangles.len()],
         triangles,
@@ -547,12 +670,9 @@ fn simplify_local(
             keep[u as usize] = false;
         }
     }
-    let triangles = mesh
-        .triangles
-        .iter()
-        .zip(&mesh.alive)
-        .filter(|(_, &a)| a)
-        .map(|(t, _)| *t)
-        .collect();
-    Simplified { keep, triangles }
+    Swept {
+        keep,
+        triangles: mesh.triangles,
+        alive: mesh.alive,
+    }
 }
