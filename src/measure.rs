@@ -18,6 +18,16 @@
 //! distance to the nearest data point, unweighted by area. The symmetric figure is the mean of
 //! the two, which is how the prototype measured Poisson's 1.19e-3 (divide by the data
 //! diagonal for the relative figure).
+//!
+//! The nearest-point queries (here and for the seeds of [`crate::distance`]) use
+//! [`PointTree`], a k-d tree (Friedman, Bentley and Finkel 1977) with median splits on the
+//! widest axis, leaves of 8 points and the tight bounding box of every node: a subtree is
+//! entered only when its box is closer than the best distance so far. The queries here lie a
+//! few sample spacings off the other set's surface (scan points vs. mesh vertices), where the
+//! ball around a query crosses many split planes but few tight boxes. On the bunny's export
+//! its queries took about a fifth less CPU time than kiddo's `nearest_n_within` (perf
+//! samples), with the same answers (only the order of points at exactly equal distance may
+//! differ).
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
