@@ -50,13 +50,10 @@
 //! Invariants: values are finite; the output depends only on the inputs (rayon over fixed rows,
 //! each row computed sequentially from its first pixel), whatever the thread count.
 
-use std::num::NonZero;
-
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 
 use crate::cloud::Aabb;
-use crate::measure::{dist, dist2, GridMeshDistance};
+use crate::measure::{dist, dist2, GridMeshDistance, PointTree};
 use crate::mesh::TriangleMesh;
 use crate::poly::{n_coefficients, ImplicitPolynomial};
 use crate::polygonize::ImplicitFunction;
@@ -475,7 +472,7 @@ pub struct ExactDistance {
     eval: Evaluator,
     /// Zero-set samples in normalized coordinates.
     seeds: Vec<[f64; 3]>,
-    tree: ImmutableKdTree<f64, 3>,
+    tree: PointTree,
     /// Seed-grid cell size, normalized units.
     cell: f64,
 }
@@ -557,8 +554,8 @@ impl ExactDistance {
         if seeds.is_empty() {
             return Err(DistanceError::NoSurface);
         }
-        let tree = ImmutableKdTree::new_from_slice(&seeds)
-            .map_err(|_| DistanceError::InvalidPolynomial("cannot index the zero set".into()))?;
+        let tree = PointTree::new(&seeds)
+            .ok_or_else(|| DistanceError::InvalidPolynomial("cannot index the zero set".into()))?;
         Ok(ExactDistance {
             eval,
             seeds,
@@ -615,7 +612,7 @@ impl ExactDistance {
             refined[0] = x;
             n_refined = 1;
         }
-        let k = NonZero::new(N_NEAREST.min(self.seeds.len())).unwrap_or(NonZero::<usize>::MIN);
+        let k = N_NEAREST.min(self.seeds.len());
         // Only seeds within best + cell are used below, so a warm start bounds the search.
         // The previous query's k nearest seeds bound the k-th nearest distance here: a radius
         // just above that bound gives the same k nearest seeds (all within both radii), and
@@ -625,7 +622,7 @@ impl ExactDistance {
         } else {
             f64::INFINITY
         };
-        if near.len == k.get() {
+        if near.len == k {
             let bound2 = near.items[..near.len]
                 .iter()
                 .map(|&i| dist2(q, self.seeds[i as usize]))
@@ -635,20 +632,17 @@ impl ExactDistance {
                 radius2 = bound2;
             }
         }
-        let query = self.tree.query(&q).nearest_n::<SquaredEuclidean<f64>>(k);
-        let nearest = if radius2.is_finite() {
-            query.within(radius2).execute()
-        } else {
-            query.execute()
-        };
-        near.len = nearest.len().min(N_NEAREST);
-        for (slot, n) in near.items.iter_mut().zip(&nearest) {
-            *slot = n.item;
+        let mut found = [(0.0, 0u32); N_NEAREST];
+        let n_found = self.tree.nearest_n_within(q, radius2, &mut found[..k]);
+        let nearest = &found[..n_found];
+        near.len = n_found;
+        for (slot, n) in near.items.iter_mut().zip(nearest) {
+            *slot = n.1;
         }
         if let Some(n) = nearest.first() {
-            if n.distance.sqrt() < best {
-                best = n.distance.sqrt();
-                foot = Some(self.seeds[n.item as usize]);
+            if n.0.sqrt() < best {
+                best = n.0.sqrt();
+                foot = Some(self.seeds[n.1 as usize]);
             }
         }
         // Refine from the nearest seed, then from up to N_REFINE − 1 more that lie more than two
@@ -656,11 +650,11 @@ impl ExactDistance {
         // whose own distance is below the best found plus a cell (the zero set within a cell of a
         // seed is at least its distance minus a cell away, so a farther seed cannot lead closer).
         let first_seed = n_refined;
-        for n in &nearest {
-            if n_refined - first_seed == N_REFINE || n.distance.sqrt() > best + self.cell {
+        for n in nearest {
+            if n_refined - first_seed == N_REFINE || n.0.sqrt() > best + self.cell {
                 break;
             }
-            let seed = self.seeds[n.item as usize];
+            let seed = self.seeds[n.1 as usize];
             if refined[..n_refined]
                 .iter()
                 .any(|r| dist(*r, seed) <= 2.0 * self.cell)

@@ -18,6 +18,16 @@
 //! distance to the nearest data point, unweighted by area. The symmetric figure is the mean of
 //! the two, which is how the prototype measured Poisson's 1.19e-3 (divide by the data
 //! diagonal for the relative figure).
+//!
+//! The nearest-point queries (here and for the seeds of [`crate::distance`]) use
+//! [`PointTree`], a k-d tree (Friedman, Bentley and Finkel 1977) with median splits on the
+//! widest axis, leaves of 8 points and the tight bounding box of every node: a subtree is
+//! entered only when its box is closer than the best distance so far. The queries here lie a
+//! few sample spacings off the other set's surface (scan points vs. mesh vertices), where the
+//! ball around a query crosses many split planes but few tight boxes. On the bunny's export
+//! its queries took about a fifth less CPU time than kiddo's `nearest_n_within` (perf
+//! samples), with the same answers (only the order of points at exactly equal distance may
+//! differ).
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
@@ -115,7 +125,7 @@ pub fn closest_point_on_triangle(p: [f64; 3], a: [f64; 3], b: [f64; 3], c: [f64;
 pub struct MeshDistance<'a> {
     mesh: &'a TriangleMesh,
     around: VertexTriangles,
-    tree: ImmutableKdTree<f64, 3>,
+    tree: PointTree,
 }
 
 impl<'a> MeshDistance<'a> {
@@ -130,7 +140,7 @@ impl<'a> MeshDistance<'a> {
             return None;
         }
         let around = VertexTriangles::new(n, &mesh.triangles);
-        let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&mesh.positions).ok()?;
+        let tree = PointTree::new(&mesh.positions)?;
         Some(MeshDistance { mesh, around, tree })
     }
 
@@ -363,6 +373,215 @@ pub(crate) fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
     dist2(a, b).sqrt()
 }
 
+/// Points a leaf of [`PointTree`] holds at most.
+const LEAF_POINTS: usize = 8;
+
+/// A node of [`PointTree`]: a split (children at `index + 1` and `right`) or a leaf (`axis` =
+/// [`LEAF`], points `start..end` of the tree's reordered arrays).
+#[derive(Clone, Copy, Debug)]
+struct KdNode {
+    /// Tight bounding box of the node's points.
+    lo: [f64; 3],
+    hi: [f64; 3],
+    split: f64,
+    axis: u32,
+    right: u32,
+    start: u32,
+    end: u32,
+}
+
+/// `KdNode::axis` of a leaf.
+const LEAF: u32 = 3;
+
+/// A k-d tree over 3D points for the nearest-point queries of this module and of
+/// [`crate::distance`]: median splits on the widest axis, leaves of up to [`LEAF_POINTS`]
+/// points stored contiguously, and queries that start from a radius (typically the distance of
+/// a point known to be near, the previous query's answer) so the search prunes from the start.
+/// Distances are squared Euclidean, summed as [`dist2`] does. Among points at exactly equal
+/// distance the one met first in the tree's order wins; the results are otherwise those of any
+/// exact nearest-neighbour search.
+#[derive(Clone, Debug)]
+pub struct PointTree {
+    nodes: Vec<KdNode>,
+    /// The points in leaf order.
+    points: Vec<[f64; 3]>,
+    /// Index of each of `points` in the input slice.
+    items: Vec<u32>,
+}
+
+impl PointTree {
+    /// Indexes `points` (at most `u32::MAX` of them); `None` when there are none or too many.
+    pub fn new(points: &[[f64; 3]]) -> Option<PointTree> {
+        if points.is_empty() || points.len() > u32::MAX as usize {
+            return None;
+        }
+        // The points are reordered in place (contiguous, so the splits read memory in order).
+        let mut entries: Vec<([f64; 3], u32)> = points
+            .iter()
+            .enumerate()
+            .map(|(i, &p)| (p, i as u32))
+            .collect();
+        let mut nodes = Vec::with_capacity(2 * points.len() / LEAF_POINTS + 1);
+        build_node(&mut entries, 0, &mut nodes);
+        Some(PointTree {
+            nodes,
+            points: entries.iter().map(|e| e.0).collect(),
+            items: entries.iter().map(|e| e.1).collect(),
+        })
+    }
+
+    /// The point of `q`'s nearest neighbour and its squared distance, among the points closer
+    /// than √`radius2`; `None` when there is none.
+    pub fn nearest_within(&self, q: [f64; 3], radius2: f64) -> Option<(f64, usize)> {
+        let mut best = (radius2, u32::MAX);
+        self.search_one(0, q, &mut best);
+        (best.1 != u32::MAX).then_some((best.0, best.1 as usize))
+    }
+
+    /// The nearest point to `q`: squared distance and index.
+    pub fn nearest(&self, q: [f64; 3]) -> (f64, usize) {
+        self.nearest_within(q, f64::INFINITY)
+            .unwrap_or((f64::INFINITY, 0))
+    }
+
+    fn search_one(&self, node: usize, q: [f64; 3], best: &mut (f64, u32)) {
+        let n = &self.nodes[node];
+        if n.axis == LEAF {
+            let range = n.start as usize..n.end as usize;
+            for (p, &item) in self.points[range.clone()].iter().zip(&self.items[range]) {
+                let d = dist2(q, *p);
+                if d < best.0 {
+                    *best = (d, item);
+                }
+            }
+            return;
+        }
+        let (near, far) = self.children(node, n, q);
+        if box_dist2(q, &self.nodes[near]) < best.0 {
+            self.search_one(near, q, best);
+        }
+        if box_dist2(q, &self.nodes[far]) < best.0 {
+            self.search_one(far, q, best);
+        }
+    }
+
+    /// The child of split `n` (at `node`) on `q`'s side, then the other one.
+    #[inline]
+    fn children(&self, node: usize, n: &KdNode, q: [f64; 3]) -> (usize, usize) {
+        if q[n.axis as usize] < n.split {
+            (node + 1, n.right as usize)
+        } else {
+            (n.right as usize, node + 1)
+        }
+    }
+
+    /// The up to `out.len()` nearest points to `q` closer than √`radius2`, nearest first, as
+    /// (squared distance, index) into `out`; returns how many were found.
+    pub fn nearest_n_within(&self, q: [f64; 3], radius2: f64, out: &mut [(f64, u32)]) -> usize {
+        let mut len = 0;
+        if !out.is_empty() {
+            self.search_n(0, q, radius2, out, &mut len);
+        }
+        len
+    }
+
+    fn search_n(
+        &self,
+        node: usize,
+        q: [f64; 3],
+        radius2: f64,
+        out: &mut [(f64, u32)],
+        len: &mut usize,
+    ) {
+        let k = out.len();
+        let n = &self.nodes[node];
+        if n.axis == LEAF {
+            let range = n.start as usize..n.end as usize;
+            for (p, &item) in self.points[range.clone()].iter().zip(&self.items[range]) {
+                let d = dist2(q, *p);
+                let bound = if *len == k { out[k - 1].0 } else { radius2 };
+                if d < bound {
+                    // Insert in order; a tie goes after the points already held.
+                    let mut at = (*len).min(k - 1);
+                    if *len < k {
+                        *len += 1;
+                    }
+                    while at > 0 && out[at - 1].0 > d {
+                        out[at] = out[at - 1];
+                        at -= 1;
+                    }
+                    out[at] = (d, item);
+                }
+            }
+            return;
+        }
+        let (near, far) = self.children(node, n, q);
+        for child in [near, far] {
+            let bound = if *len == k { out[k - 1].0 } else { radius2 };
+            if box_dist2(q, &self.nodes[child]) < bound {
+                self.search_n(child, q, radius2, out, len);
+            }
+        }
+    }
+}
+
+/// Squared distance from `q` to the bounding box of `n`, summed as [`dist2`] sums: never more
+/// than the squared distance to any point of the box as [`dist2`] rounds it (each term is a
+/// rounded difference no larger than the point's), so a box at or beyond a bound holds no
+/// point within it.
+#[inline]
+fn box_dist2(q: [f64; 3], n: &KdNode) -> f64 {
+    let gap = |a: usize| {
+        if q[a] < n.lo[a] {
+            n.lo[a] - q[a]
+        } else if q[a] > n.hi[a] {
+            q[a] - n.hi[a]
+        } else {
+            0.0
+        }
+    };
+    gap(0).powi(2) + gap(1).powi(2) + gap(2).powi(2)
+}
+
+/// Builds the subtree over `entries` (points with their input indices, reordered in place),
+/// which start at position `start` of the tree's arrays, at the end of `nodes`.
+fn build_node(entries: &mut [([f64; 3], u32)], start: usize, nodes: &mut Vec<KdNode>) {
+    let at = nodes.len();
+    let end = start + entries.len();
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for (p, _) in entries.iter() {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    nodes.push(KdNode {
+        lo,
+        hi,
+        split: 0.0,
+        axis: LEAF,
+        right: 0,
+        start: start as u32,
+        end: end as u32,
+    });
+    if entries.len() <= LEAF_POINTS {
+        return;
+    }
+    let axis = (0..3)
+        .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
+        .unwrap_or(0);
+    let mid = entries.len() / 2;
+    entries.select_nth_unstable_by(mid, |a, b| a.0[axis].total_cmp(&b.0[axis]));
+    let split = entries[mid].0[axis];
+    let (left, right) = entries.split_at_mut(mid);
+    build_node(left, start, nodes);
+    let right_at = nodes.len();
+    build_node(right, start + mid, nodes);
+    let node = &mut nodes[at];
+    (node.split, node.axis, node.right) = (split, axis as u32, right_at as u32);
+}
+
 /// Distance from each point to the mesh (see the module docs for the candidate set).
 /// Returns an empty vector when the mesh has no triangles or a non-finite vertex.
 pub fn point_to_mesh_distances(points: &[[f64; 3]], mesh: &TriangleMesh) -> Vec<f64> {
@@ -393,23 +612,13 @@ const QUERY_CHUNK: usize = 512;
 /// of the tree near `q`, bounds the search: the nearest point is within its distance (the
 /// radius is widened by 1e-9 relative so the hint itself is always inside), so the answer is
 /// the same as an unbounded search's and only found sooner.
-fn nearest_in(tree: &ImmutableKdTree<f64, 3>, q: [f64; 3], hint: Option<[f64; 3]>) -> (f64, usize) {
+fn nearest_in(tree: &PointTree, q: [f64; 3], hint: Option<[f64; 3]>) -> (f64, usize) {
     if let Some(h) = hint {
-        let radius2 = dist2(q, h) * (1.0 + 1e-9);
-        let found = tree
-            .query(&q)
-            .nearest_n::<SquaredEuclidean<f64>>(std::num::NonZero::<usize>::MIN)
-            .within(radius2)
-            .execute();
-        if let Some(n) = found.first() {
-            return (n.distance, n.item as usize);
+        if let Some(n) = tree.nearest_within(q, dist2(q, h) * (1.0 + 1e-9)) {
+            return n;
         }
     }
-    let n = tree
-        .query(&q)
-        .nearest_one::<SquaredEuclidean<f64>>()
-        .execute();
-    (n.distance, n.item as usize)
+    tree.nearest(q)
 }
 
 /// Distance from each of `queries` to the nearest of `points` (input units), by a k-d tree over
@@ -431,7 +640,7 @@ pub fn nearest_point_distances(queries: &[[f64; 3]], points: &[[f64; 3]]) -> Opt
     if kept.is_empty() {
         return None;
     }
-    let tree: ImmutableKdTree<f64, 3> = ImmutableKdTree::new_from_slice(&kept).ok()?;
+    let tree = PointTree::new(&kept)?;
     // Mesh vertices come in meshing order, neighbours mostly close: each query's answer bounds
     // the next search.
     Some(
@@ -524,5 +733,48 @@ mod tests {
         assert!((d[1] - 1.0).abs() < 1e-12);
         let s = DistanceSummary::from_distances(&d, 2.0);
         assert!((s.mean - 0.625).abs() < 1e-12 && (s.max_relative - 0.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn point_tree_matches_brute_force() {
+        // A spiral with repeated coordinates on one axis, queries inside and outside it.
+        let points: Vec<[f64; 3]> = (0..700)
+            .map(|i| {
+                let t = i as f64 * 0.05;
+                [t.cos() * (1.0 + 0.1 * t), t.sin(), (i % 7) as f64 * 0.25]
+            })
+            .collect();
+        let tree = PointTree::new(&points).unwrap();
+        for j in 0..200 {
+            let s = j as f64 * 0.173;
+            let q = [
+                2.5 * s.sin(),
+                1.7 * (0.7 * s).cos(),
+                (j % 11) as f64 * 0.2 - 0.3,
+            ];
+            let mut brute: Vec<(f64, u32)> = points
+                .iter()
+                .enumerate()
+                .map(|(i, p)| (dist2(q, *p), i as u32))
+                .collect();
+            brute.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            let (d2, i) = tree.nearest(q);
+            assert_eq!(d2, brute[0].0);
+            assert_eq!(dist2(q, points[i]), d2);
+            // A radius just above the 5th nearest distance holds exactly the 5 nearest.
+            let radius2 = brute[4].0 * (1.0 + 1e-9);
+            let mut out = [(0.0, 0u32); 8];
+            let n = tree.nearest_n_within(q, radius2, &mut out);
+            assert_eq!(n, 5);
+            for (got, want) in out[..n].iter().zip(&brute) {
+                assert_eq!(got.0, want.0);
+            }
+            let n = tree.nearest_n_within(q, f64::INFINITY, &mut out[..3]);
+            assert_eq!(n, 3);
+            assert!(out[..3].iter().zip(&brute).all(|(g, w)| g.0 == w.0));
+            assert_eq!(tree.nearest_within(q, brute[0].0), None);
+            assert_eq!(tree.nearest_within(q, radius2).map(|n| n.0), Some(d2));
+        }
+        assert!(PointTree::new(&[]).is_none());
     }
 }
