@@ -839,8 +839,7 @@ fn far_probe_negative(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64) -> bool {
     let ratio = (s_hi / s_lo).powf(1.0 / steps as f64);
     let radii: Vec<f64> = (0..=steps).map(|j| s_lo * ratio.powi(j as i32)).collect();
     let forms = FaceForms::new(poly);
-    let n = forms.degree;
-    let side = n + 1;
+    let side = forms.degree + 1;
     (0..6 * PROBE_PATCHES).into_par_iter().any(|row| {
         let face = row / PROBE_PATCHES;
         let i = row % PROBE_PATCHES;
@@ -877,9 +876,9 @@ fn far_probe_negative(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64) -> bool {
             }
             for &s in &radii {
                 let (mut f, mut m) = (0.0, 0.0);
-                for k in (0..=n).rev() {
-                    f = f * s + h[k];
-                    m = m * s + a[k];
+                for (hk, ak) in h.iter().zip(&a).rev() {
+                    f = f * s + hk;
+                    m = m * s + ak;
                 }
                 if f < -PROBE_MARGIN * m {
                     return true;
