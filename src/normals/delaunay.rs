@@ -28,12 +28,16 @@
 //! points are stored in insertion order, so that nearby tetrahedra refer to nearby memory;
 //! the cavity uses a reused stack and per-tetrahedron generation stamps (nothing is cleared or
 //! allocated per insertion); the cone is glued through a small stamped open-addressing table
-//! keyed by boundary edge; freed slots are reused by the cone. The walk never re-tests the face
+//! keyed by boundary edge; freed slots are reused by the cone; the cavity search prefetches the
+//! four neighbours of each cavity tetrahedron before testing them (their records are random
+//! accesses, the largest cost of the search). The walk never re-tests the face
 //! it came through. A second batch of points can be inserted into an existing triangulation
 //! (the crust's poles).
 //!
 //! Predicates are Shewchuk's adaptive exact `orient3d` and `insphere` (the `robust` crate), so
-//! no decision is ever wrong because of rounding. Co-spherical subsets (insphere exactly zero,
+//! no decision is ever wrong because of rounding; an inlined semi-static filter in front of
+//! them takes the sign where Shewchuk's own first stage would have (see [`orient3d`]), so they
+//! are called only for nearly degenerate configurations. Co-spherical subsets (insphere exactly zero,
 //! common in scans and lattices) are decided by symbolic perturbation: each point is lifted onto
 //! the paraboloid with an infinitesimal extra height that grows with its index (the
 //! "simulation of simplicity" of Edelsbrunner & Mücke 1990, in the form of Devillers & Teillaud
