@@ -28,12 +28,16 @@
 //! points are stored in insertion order, so that nearby tetrahedra refer to nearby memory;
 //! the cavity uses a reused stack and per-tetrahedron generation stamps (nothing is cleared or
 //! allocated per insertion); the cone is glued through a small stamped open-addressing table
-//! keyed by boundary edge; freed slots are reused by the cone. The walk never re-tests the face
+//! keyed by boundary edge; freed slots are reused by the cone; the cavity search prefetches the
+//! four neighbours of each cavity tetrahedron before testing them (their records are random
+//! accesses, the largest cost of the search). The walk never re-tests the face
 //! it came through. A second batch of points can be inserted into an existing triangulation
 //! (the crust's poles).
 //!
 //! Predicates are Shewchuk's adaptive exact `orient3d` and `insphere` (the `robust` crate), so
-//! no decision is ever wrong because of rounding. Co-spherical subsets (insphere exactly zero,
+//! no decision is ever wrong because of rounding; an inlined semi-static filter in front of
+//! them takes the sign where Shewchuk's own first stage would have (see [`orient3d`]), so they
+//! are called only for nearly degenerate configurations. Co-spherical subsets (insphere exactly zero,
 //! common in scans and lattices) are decided by symbolic perturbation: each point is lifted onto
 //! the paraboloid with an infinitesimal extra height that grows with its index (the
 //! "simulation of simplicity" of Edelsbrunner & Mücke 1990, in the form of Devillers & Teillaud
@@ -102,15 +106,116 @@ fn c3(p: &[f64; 3]) -> robust::Coord3D<f64> {
 }
 
 /// Shewchuk's exact orientation: positive when `d` lies below the plane of `a, b, c`.
-#[inline]
+///
+/// A semi-static filter decides first (the usual first stage of fast exact predicates, e.g.
+/// CGAL's static filters): the determinant is evaluated exactly as Shewchuk's first stage
+/// evaluates it, and its sign is taken when it exceeds his error bound with the permanent
+/// replaced by an upper bound from the largest coordinate differences (the permanent is a sum
+/// of 6 products of one x, one y and one z difference). Whenever the filter decides, Shewchuk's
+/// first stage would have returned this same value; otherwise his full adaptive predicate runs.
+#[inline(always)]
 pub fn orient3d(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], d: &[f64; 3]) -> f64 {
+    let adx = a[0] - d[0];
+    let bdx = b[0] - d[0];
+    let cdx = c[0] - d[0];
+    let ady = a[1] - d[1];
+    let bdy = b[1] - d[1];
+    let cdy = c[1] - d[1];
+    let adz = a[2] - d[2];
+    let bdz = b[2] - d[2];
+    let cdz = c[2] - d[2];
+    let det = adz * (bdx * cdy - cdx * bdy)
+        + bdz * (cdx * ady - adx * cdy)
+        + cdz * (adx * bdy - bdx * ady);
+    let mx = adx.abs().max(bdx.abs()).max(cdx.abs());
+    let my = ady.abs().max(bdy.abs()).max(cdy.abs());
+    let mz = adz.abs().max(bdz.abs()).max(cdz.abs());
+    let bound = O3D_SEMI_STATIC * (mx * my * mz);
+    if bound > SEMI_STATIC_MIN && (det > bound || -det > bound) {
+        return det;
+    }
+    orient3d_exact(a, b, c, d)
+}
+
+/// Shewchuk's error bound coefficient for orient3d's first stage, (7 + 56ε)ε with ε = 2⁻⁵³.
+const O3D_ERRBOUND_A: f64 = (7.0 + 56.0 * f64::EPSILON / 2.0) * f64::EPSILON / 2.0;
+/// [`O3D_ERRBOUND_A`] times the 6 products of the permanent, with a margin of 10⁻⁴ for the
+/// rounding of both the permanent and this bound.
+const O3D_SEMI_STATIC: f64 = O3D_ERRBOUND_A * 6.0 * 1.0001;
+/// Shewchuk's error bound coefficient for insphere's first stage, (16 + 224ε)ε.
+const ISP_ERRBOUND_A: f64 = (16.0 + 224.0 * f64::EPSILON / 2.0) * f64::EPSILON / 2.0;
+/// [`ISP_ERRBOUND_A`] times the 24 products (x·y·z·lift) of the permanent, with a margin.
+const ISP_SEMI_STATIC: f64 = ISP_ERRBOUND_A * 24.0 * 1.0001;
+/// Below this the filter's bound may have lost accuracy to underflow: the exact predicate
+/// decides.
+const SEMI_STATIC_MIN: f64 = 1e-200;
+
+#[inline(never)]
+fn orient3d_exact(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], d: &[f64; 3]) -> f64 {
     robust::orient3d(c3(a), c3(b), c3(c), c3(d))
 }
 
 /// Shewchuk's exact insphere: positive when `e` is inside the sphere of the positive tet `a..d`.
-#[inline]
+///
+/// Filtered as [`orient3d`] is: the determinant is evaluated as Shewchuk's first stage
+/// evaluates it, and its bound uses the permanent's upper bound 24·mx·my·mz·(mx² + my² + mz²)
+/// (4 lifted terms of 6 products each) from the largest coordinate differences.
+#[inline(always)]
 pub fn insphere(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], d: &[f64; 3], e: &[f64; 3]) -> f64 {
+    let aex = a[0] - e[0];
+    let bex = b[0] - e[0];
+    let cex = c[0] - e[0];
+    let dex = d[0] - e[0];
+    let aey = a[1] - e[1];
+    let bey = b[1] - e[1];
+    let cey = c[1] - e[1];
+    let dey = d[1] - e[1];
+    let aez = a[2] - e[2];
+    let bez = b[2] - e[2];
+    let cez = c[2] - e[2];
+    let dez = d[2] - e[2];
+    let ab = aex * bey - bex * aey;
+    let bc = bex * cey - cex * bey;
+    let cd = cex * dey - dex * cey;
+    let da = dex * aey - aex * dey;
+    let ac = aex * cey - cex * aey;
+    let bd = bex * dey - dex * bey;
+    let abc = aez * bc - bez * ac + cez * ab;
+    let bcd = bez * cd - cez * bd + dez * bc;
+    let cda = cez * da + dez * ac + aez * cd;
+    let dab = dez * ab + aez * bd + bez * da;
+    let alift = aex * aex + aey * aey + aez * aez;
+    let blift = bex * bex + bey * bey + bez * bez;
+    let clift = cex * cex + cey * cey + cez * cez;
+    let dlift = dex * dex + dey * dey + dez * dez;
+    let det = (dlift * abc - clift * dab) + (blift * cda - alift * bcd);
+    let mx = aex.abs().max(bex.abs()).max(cex.abs()).max(dex.abs());
+    let my = aey.abs().max(bey.abs()).max(cey.abs()).max(dey.abs());
+    let mz = aez.abs().max(bez.abs()).max(cez.abs()).max(dez.abs());
+    let bound = ISP_SEMI_STATIC * (mx * my * mz) * (mx * mx + my * my + mz * mz);
+    if bound > SEMI_STATIC_MIN && (det > bound || -det > bound) {
+        return det;
+    }
+    insphere_exact(a, b, c, d, e)
+}
+
+#[inline(never)]
+fn insphere_exact(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], d: &[f64; 3], e: &[f64; 3]) -> f64 {
     robust::insphere(c3(a), c3(b), c3(c), c3(d), c3(e))
+}
+
+/// Asks the processor to bring the cache line of `r` in: a hint, with no effect on results.
+#[inline(always)]
+fn prefetch<T>(r: Option<&T>) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(r) = r {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        // SAFETY: SSE is part of the x86_64 baseline, and a prefetch never faults nor changes
+        // memory: it is only a hint, valid for any address.
+        unsafe { _mm_prefetch::<_MM_HINT_T0>((r as *const T).cast::<i8>()) };
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = r;
 }
 
 /// A small deterministic generator (xorshift64*), so the insertion order and the walk never
@@ -682,6 +787,15 @@ impl Delaunay {
         while let Some(c) = self.stack.pop() {
             self.cavity.push(c);
             let tet = self.tets[c as usize];
+            // The four neighbours are about to be tested: fetch their records and marks from
+            // memory together rather than one miss after another.
+            for &u in &tet.n {
+                if u != NO_NEIGHBOUR {
+                    let ut = (u >> 2) as usize;
+                    prefetch(self.tets.get(ut));
+                    prefetch(self.mark.get(ut));
+                }
+            }
             if !needed {
                 // Internal ids 4.. are in insertion order, so "caller index below the limit"
                 // is "internal id in 4..4 + limit" for a first batch of `limit` points.
