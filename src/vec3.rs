@@ -5,6 +5,12 @@
 //! operations on them that several modules need. Each is the textbook formula written out in a
 //! fixed order, so every caller gets the same bits for the same arguments.
 
+/// `a − b`.
+#[inline]
+pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
 /// `a · b`, summed x, y, z in that order.
 #[inline]
 pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
@@ -38,6 +44,6 @@ mod tests {
         let (a, b) = ([0.3, -1.7, 2.2], [4.1, 0.6, -0.9]);
         let c = cross(a, b);
         assert!(dot(c, a).abs() <= 1e-12 && dot(c, b).abs() <= 1e-12);
-        assert_eq!(norm([3.0, 4.0, 0.0]), 5.0);
+        assert_eq!(norm(sub([4.0, 6.0, 3.0], [1.0, 2.0, 3.0])), 5.0);
     }
 }

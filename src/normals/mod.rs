@@ -398,11 +398,12 @@ impl Dedup {
     }
 }
 
-/// Small vector helpers shared by the submodules.
+/// The crate's vector helpers ([`crate::vec3`]) by reference, as the submodules call them, with
+/// the few more they need.
 pub(crate) mod vec3 {
     #[inline]
     pub fn sub(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
-        [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+        crate::vec3::sub(*a, *b)
     }
     #[inline]
     pub fn add(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
@@ -414,19 +415,15 @@ pub(crate) mod vec3 {
     }
     #[inline]
     pub fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-        a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+        crate::vec3::dot(*a, *b)
     }
     #[inline]
     pub fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
-        [
-            a[1] * b[2] - a[2] * b[1],
-            a[2] * b[0] - a[0] * b[2],
-            a[0] * b[1] - a[1] * b[0],
-        ]
+        crate::vec3::cross(*a, *b)
     }
     #[inline]
     pub fn norm(a: &[f64; 3]) -> f64 {
-        dot(a, a).sqrt()
+        crate::vec3::norm(*a)
     }
     /// `a` scaled to unit length, or `None` when it is zero or not finite.
     #[inline]

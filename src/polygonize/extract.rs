@@ -59,6 +59,7 @@ use rayon::prelude::*;
 use super::function::ImplicitFunction;
 use super::grid::{pack, unpack, Grid, MultiplyHasher};
 use super::octree::{Cell, Octree};
+use crate::vec3::norm;
 
 /// A lattice edge: the packed keys of its two ends, smaller one in the high half.
 pub(crate) type EdgeKey = u128;
@@ -732,8 +733,4 @@ fn newton<F: ImplicitFunction + ?Sized>(
         x = [0, 1, 2].map(|k| x[k] - step[k]);
     }
     (None, 8)
-}
-
-fn norm(v: [f64; 3]) -> f64 {
-    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
 }

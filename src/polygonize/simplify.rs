@@ -44,6 +44,8 @@
 
 use rayon::prelude::*;
 
+use crate::vec3::{cross, dot, sub};
+
 /// Largest length of a new edge, in local cell sizes.
 const MAX_EDGE: f64 = 1.2;
 
@@ -68,22 +70,6 @@ const ORDER_BLOCK: u32 = 1024;
 pub(crate) struct Simplified {
     pub keep: Vec<bool>,
     pub triangles: Vec<[u32; 3]>,
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
