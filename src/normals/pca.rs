@@ -37,18 +37,37 @@ pub fn nearest(
     let Some(qty) = std::num::NonZeroUsize::new((k + 1).min(points.len())) else {
         return Vec::new();
     };
-    let mut found = tree
+    let found = tree
         .query(&points[i])
         .nearest_n::<SquaredEuclidean<f64>>(qty)
         .execute();
     // Sort by (distance, index) so that ties are broken the same way on every run.
-    found.sort_by(|a, b| a.distance.total_cmp(&b.distance).then(a.item.cmp(&b.item)));
-    found
-        .into_iter()
-        .map(|r| r.item)
+    let mut keys: Vec<u128> = found
+        .iter()
+        .map(|r| order_key(r.distance, r.item))
+        .collect();
+    keys.sort_unstable();
+    keys.into_iter()
+        .map(|key| key as u32)
         .filter(|&j| j as usize != i)
         .take(k)
         .collect()
+}
+
+/// A key whose integer order is the order of `(distance, index)` by `f64::total_cmp` and then
+/// index: the distance's bits mapped as `total_cmp` maps them (sign bit set for non-negative
+/// values, all bits flipped for negative ones), followed by the index. Comparing one `u128`
+/// is much cheaper than the two-level comparison, and the keys are distinct, so an unstable
+/// sort gives the same order as a stable one.
+#[inline]
+fn order_key(distance: f64, index: u32) -> u128 {
+    let bits = distance.to_bits();
+    let ordered = if bits >> 63 == 1 {
+        !bits
+    } else {
+        bits | 1 << 63
+    };
+    (u128::from(ordered) << 32) | u128::from(index)
 }
 
 /// [`nearest`] by a range query: every point within squared distance `r2` of point `i`, of
@@ -72,14 +91,16 @@ pub fn nearest_within(
     if found.len() < want || want == 0 {
         return nearest(tree, points, i, k);
     }
-    let mut by_distance: Vec<(f64, u32)> = found.iter().map(|r| (r.distance, r.item)).collect();
-    let order = |a: &(f64, u32), b: &(f64, u32)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
-    by_distance.select_nth_unstable_by(want - 1, order);
+    let mut by_distance: Vec<u128> = found
+        .iter()
+        .map(|r| order_key(r.distance, r.item))
+        .collect();
+    by_distance.select_nth_unstable(want - 1);
     by_distance.truncate(want);
-    by_distance.sort_unstable_by(order);
+    by_distance.sort_unstable();
     by_distance
         .into_iter()
-        .map(|(_, j)| j)
+        .map(|key| key as u32)
         .filter(|&j| j as usize != i)
         .take(k)
         .collect()
@@ -293,6 +314,32 @@ pub fn abs_cos(a: &[f64; 3], b: &[f64; 3]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn order_key_orders_as_total_cmp_then_index() {
+        let values = [
+            0.0,
+            -0.0,
+            1e-300,
+            0.5,
+            0.5,
+            2.0,
+            f64::INFINITY,
+            -1.0,
+            f64::NAN,
+        ];
+        let pairs: Vec<(f64, u32)> = values
+            .iter()
+            .enumerate()
+            .flat_map(|(i, &d)| [(d, i as u32), (d, 100 - i as u32)])
+            .collect();
+        for a in &pairs {
+            for b in &pairs {
+                let expected = a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+                assert_eq!(order_key(a.0, a.1).cmp(&order_key(b.0, b.1)), expected);
+            }
+        }
+    }
 
     #[test]
     fn jacobi_finds_smallest_axis() {
