@@ -51,8 +51,27 @@ fn build_graph(n: usize, triangles: &[[u32; 3]], knn: &[Vec<u32>]) -> Graph {
             }
         }
     }
-    // The sort is the same whatever the thread count: the order of the tuples is total.
-    edges.par_sort_unstable();
+    // Sorted by (a, b, penalty): a counting sort by a, then each point's short list sorted by
+    // (b, penalty). The order of the tuples is total, so this is the order a full sort gives.
+    let mut bucket = vec![0usize; n + 1];
+    for e in &edges {
+        bucket[e.0 as usize + 1] += 1;
+    }
+    for i in 0..n {
+        bucket[i + 1] += bucket[i];
+    }
+    let mut fill = bucket.clone();
+    let mut rest = vec![(0u32, 0u8); edges.len()];
+    for e in &edges {
+        rest[fill[e.0 as usize]] = (e.1, e.2);
+        fill[e.0 as usize] += 1;
+    }
+    edges.clear();
+    for a in 0..n {
+        let row = &mut rest[bucket[a]..bucket[a + 1]];
+        row.sort_unstable();
+        edges.extend(row.iter().map(|&(b, p)| (a as u32, b, p)));
+    }
     // Keep the smallest penalty of each pair.
     edges.dedup_by(|a, b| a.0 == b.0 && a.1 == b.1);
     let mut count = vec![0usize; n + 1];
@@ -167,8 +186,14 @@ pub fn orient_outward_pieces(
             .iter()
             .map(|&i| (norm(&sub(&points[i as usize], &centre)), i))
             .collect();
-        by_distance.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+        // Only the voters are sorted: the order is total (indices are distinct), so they come
+        // out as a full sort would order them.
+        let order = |a: &(f64, u32), b: &(f64, u32)| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1));
         let voters = (piece.len() / 50).max(8).min(piece.len());
+        if voters > 0 && voters < by_distance.len() {
+            by_distance.select_nth_unstable_by(voters - 1, order);
+        }
+        by_distance[..voters].sort_unstable_by(order);
         let vote: f64 = by_distance[..voters]
             .iter()
             .filter(|(d, _)| *d > 0.0)
