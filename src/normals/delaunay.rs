@@ -578,7 +578,13 @@ impl Delaunay {
             match self.insert_one(t, v, rule) {
                 Outcome::Inserted => {}
                 Outcome::Rejected => self.n_rejected += 1,
-                Outcome::Redundant => self.n_redundant += 1,
+                Outcome::Redundant => {
+                    // Nothing changed, and `t` contains this point: the next point, close to
+                    // it in the insertion order, is found faster from here than from the last
+                    // point inserted.
+                    self.n_redundant += 1;
+                    self.last = t;
+                }
             }
         }
         times.push(("delaunay: insertion", now.elapsed()));
@@ -794,6 +800,16 @@ impl Delaunay {
                     let ut = (u >> 2) as usize;
                     prefetch(self.tets.get(ut));
                     prefetch(self.mark.get(ut));
+                }
+            }
+            // Each neighbour's test needs its one vertex off the shared face (the other
+            // three are this tetrahedron's, already in cache): once the neighbour records
+            // are in, request those four points together too.
+            for &u in &tet.n {
+                if u != NO_NEIGHBOUR {
+                    if let Some(nt) = self.tets.get((u >> 2) as usize) {
+                        prefetch(self.pts.get(nt.v[(u & 3) as usize] as usize));
+                    }
                 }
             }
             if !needed {
