@@ -17,7 +17,8 @@
 //! ```text
 //! order the points: BRIO rounds (Amenta, Choi & Rote 2003), each round along a Hilbert curve
 //! for each point p:
-//!     walk from the last created tetrahedron towards p (visibility walk, orient3d tests)
+//!     walk from the last created tetrahedron (or, after a pole left out, the one that
+//!         contained it) towards p (visibility walk, orient3d tests)
 //!     grow the cavity: all tetrahedra whose circumsphere contains p (insphere tests, BFS)
 //!     replace the cavity by the cone from p to its boundary faces
 //! ```
