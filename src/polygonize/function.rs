@@ -176,6 +176,11 @@ macro_rules! with_avx2 {
 }
 
 with_avx2! {
+    /// [`value_gradient_of`] for any degree.
+    fn value_gradient_any(n: usize, coefficients: &[f64], q: [f64; 3]) -> (f64, [f64; 3]) => value_gradient_of
+}
+
+with_avx2! {
     /// [`expand`] for any degree.
     fn expand_any(
         n: usize,
@@ -212,7 +217,7 @@ impl ImplicitFunction for ImplicitPolynomial {
             return self.eval_gradient(p);
         }
         let q = normalized(self, p);
-        let (f, g) = with_constant_degree!(n, value_gradient_of(&self.coefficients, q));
+        let (f, g) = value_gradient_any(n, &self.coefficients, q);
         (f, g.map(|c| c / self.scale))
     }
 
