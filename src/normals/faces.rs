@@ -16,6 +16,8 @@
 
 use std::collections::VecDeque;
 
+use rayon::prelude::*;
+
 use crate::normals::vec3::{add, dot, normalized, scale, sub, triangle_normal};
 use crate::normals::{orient, pca, NormalsError, NormalsParams};
 
@@ -156,16 +158,25 @@ pub fn mesh_normals(
 }
 
 /// Replaces `None` normals by plane fits signed like the sum of their neighbours' known normals
-/// (or outward by the farthest-points vote when no neighbour has one).
+/// (or outward by the farthest-points vote when no neighbour has one). Only the points without
+/// a normal look up their neighbours (the same k nearest that [`pca::knn`] gives them), so a
+/// mesh with a few loose points costs a few queries, not one per point.
 fn fill_missing(points: &[[f64; 3]], normals: &mut [Option<[f64; 3]>], params: &NormalsParams) {
-    let knn = pca::knn(points, params.k_neighbours);
+    let tree = pca::build_tree(points);
+    let missing: Vec<usize> = (0..points.len())
+        .filter(|&i| normals[i].is_none())
+        .collect();
+    let neighbours: Vec<Vec<u32>> = missing
+        .par_iter()
+        .map(|&i| match &tree {
+            Some(tree) => pca::nearest(tree, points, i, params.k_neighbours),
+            None => Vec::new(),
+        })
+        .collect();
     let mut orphans = Vec::new();
-    for i in 0..points.len() {
-        if normals[i].is_some() {
-            continue;
-        }
-        let mut nrm = pca::plane_normal(points, i, &knn[i]);
-        let reference = knn[i]
+    for (&i, near) in missing.iter().zip(&neighbours) {
+        let mut nrm = pca::plane_normal(points, i, near);
+        let reference = near
             .iter()
             .filter_map(|&j| normals[j as usize])
             .fold([0.0; 3], |a, x| add(&a, &x));
@@ -178,17 +189,17 @@ fn fill_missing(points: &[[f64; 3]], normals: &mut [Option<[f64; 3]>], params: &
         }
         normals[i] = Some(nrm);
     }
-    if !orphans.is_empty() {
+    // No point has a known normal (every one was missing and found no signed neighbour): orient
+    // them all outward together.
+    if orphans.len() == points.len() {
+        let knn = pca::knn(points, params.k_neighbours);
         let mut all: Vec<[f64; 3]> = normals
             .iter()
             .map(|x| x.unwrap_or([0.0, 0.0, 1.0]))
             .collect();
-        let known: Vec<bool> = (0..points.len()).map(|i| !orphans.contains(&i)).collect();
-        if known.iter().all(|k| !k) {
-            orient::orient_outward(points, &mut all, &[], &knn);
-            for (i, a) in all.into_iter().enumerate() {
-                normals[i] = Some(a);
-            }
+        orient::orient_outward(points, &mut all, &[], &knn);
+        for (i, a) in all.into_iter().enumerate() {
+            normals[i] = Some(a);
         }
     }
 }

@@ -147,6 +147,60 @@ macro_rules! with_constant_degree {
     };
 }
 
+/// Defines `$name`, which runs `$body` for the degree `n` ([`with_constant_degree`]) compiled
+/// twice: for the baseline target and, on x86-64, for AVX2, chosen at run time by the CPU's
+/// features (one cached check). Both versions perform the same IEEE operations in the same
+/// order: Rust never fuses a multiply and an add into an FMA, and AVX2 only widens the vector
+/// instructions the loops were already vectorized with, so the results are the same bits on
+/// every CPU, only faster where the wider lanes exist.
+macro_rules! with_avx2 {
+    ($(#[$doc:meta])* fn $name:ident(n: usize $(, $arg:ident: $ty:ty)*) -> $ret:ty => $body:ident) => {
+        $(#[$doc])*
+        #[inline]
+        fn $name(n: usize $(, $arg: $ty)*) -> $ret {
+            #[cfg(target_arch = "x86_64")]
+            {
+                #[target_feature(enable = "avx2")]
+                fn avx2(n: usize $(, $arg: $ty)*) -> $ret {
+                    with_constant_degree!(n, $body($($arg),*))
+                }
+                if std::arch::is_x86_feature_detected!("avx2") {
+                    // SAFETY: `avx2` needs only the AVX2 instructions, which this CPU has
+                    // (checked just above).
+                    return unsafe { avx2(n $(, $arg)*) };
+                }
+            }
+            with_constant_degree!(n, $body($($arg),*))
+        }
+    };
+}
+
+with_avx2! {
+    /// [`value_gradient_of`] for any degree.
+    fn value_gradient_any(n: usize, coefficients: &[f64], q: [f64; 3]) -> (f64, [f64; 3]) => value_gradient_of
+}
+
+with_avx2! {
+    /// [`expand`] for any degree.
+    fn expand_any(
+        n: usize,
+        coefficients: &[f64],
+        dense: &mut [f64],
+        center: [f64; 3],
+        half_width: [f64; 3]
+    ) -> (f64, [f64; 3]) => expand
+}
+
+with_avx2! {
+    /// [`term_ranges`] for any degree.
+    fn term_ranges_any(n: usize, b: &[f64]) -> ((f64, f64), [(f64, f64); 3]) => term_ranges
+}
+
+with_avx2! {
+    /// [`grid_values_of`] for any degree.
+    fn grid_values_any(n: usize, b: &[f64], t: &[[f64; 2]; 3]) -> [f64; 8] => grid_values_of
+}
+
 impl ImplicitFunction for ImplicitPolynomial {
     fn value(&self, p: [f64; 3]) -> f64 {
         let n = self.degree as usize;
@@ -163,7 +217,7 @@ impl ImplicitFunction for ImplicitPolynomial {
             return self.eval_gradient(p);
         }
         let q = normalized(self, p);
-        let (f, g) = with_constant_degree!(n, value_gradient_of(&self.coefficients, q));
+        let (f, g) = value_gradient_any(n, &self.coefficients, q);
         (f, g.map(|c| c / self.scale))
     }
 
@@ -488,7 +542,7 @@ impl ImplicitPolynomial {
             &mut t.heap
         };
         let (magnitude, derivative_magnitude) =
-            with_constant_degree!(n, expand(&self.coefficients, dense, center, half_width));
+            expand_any(n, &self.coefficients, dense, center, half_width);
         let gamma = 8.0 * (n as f64 + 3.0) * f64::EPSILON;
         t.value_margin = gamma * magnitude;
         t.derivative_margin = [0, 1, 2].map(|a| gamma * derivative_magnitude[a] * half_width[a]);
@@ -673,8 +727,7 @@ impl LocalTaylor {
 
     /// Enclosures of f and of ∂f/∂t_axis (local coordinates) over the box, in one pass.
     fn bounds(&self) -> ((f64, f64), [(f64, f64); 3]) {
-        let (value, derivatives) =
-            with_constant_degree!(self.degree, term_ranges(self.coefficients()));
+        let (value, derivatives) = term_ranges_any(self.degree, self.coefficients());
         let value = (value.0 - self.value_margin, value.1 + self.value_margin);
         let derivatives = [0, 1, 2].map(|a| {
             let (lo, hi) = derivatives[a];
@@ -690,7 +743,7 @@ impl LocalTaylor {
     /// by nested Horner: per (i, j) the z polynomial at both z values, then y, then x — about
     /// 4 multiply-adds per coefficient for all 8 points instead of 8 full evaluations.
     fn grid_values(&self, t: &[[f64; 2]; 3]) -> [f64; 8] {
-        with_constant_degree!(self.degree, grid_values_of(self.coefficients(), t))
+        grid_values_any(self.degree, self.coefficients(), t)
     }
 }
 
