@@ -152,11 +152,37 @@ impl<'a> MeshDistance<'a> {
     }
 
     /// [`Self::distance`] and the nearest vertex, given a vertex `hint` near `p` (typically the
-    /// answer for a neighbouring query): it bounds the tree search, not the result.
+    /// answer for a neighbouring query): it bounds the tree search, not the result. The hint is
+    /// first walked along the mesh towards `p` (see [`Self::descend`]), so the search starts
+    /// from an almost tight radius.
     fn distance_near(&self, p: [f64; 3], hint: Option<usize>) -> (f64, usize) {
-        let hint = hint.map(|v| self.mesh.positions[v]);
+        let hint = hint.map(|v| self.mesh.positions[self.descend(p, v)]);
         let (d2, v) = nearest_in(&self.tree, p, hint);
         (self.fan_distance(p, v).min(d2.sqrt()), v)
+    }
+
+    /// Walks from vertex `v` to ever closer vertices of the triangles around it until none is
+    /// closer to `p` (a vertex where the distance is locally smallest on the mesh, usually the
+    /// nearest one), for at most [`HINT_STEPS`] steps.
+    fn descend(&self, p: [f64; 3], mut v: usize) -> usize {
+        let positions = &self.mesh.positions;
+        let mut dv = dist2(p, positions[v]);
+        for _ in 0..HINT_STEPS {
+            let mut next = v;
+            for &ti in self.around.of(v) {
+                for w in self.mesh.triangles[ti as usize] {
+                    let d = dist2(p, positions[w as usize]);
+                    if d < dv {
+                        (dv, next) = (d, w as usize);
+                    }
+                }
+            }
+            if next == v {
+                break;
+            }
+            v = next;
+        }
+        v
     }
 
     /// Distance from `p` to the triangles around vertex `v`.
@@ -239,6 +265,9 @@ pub struct GridMeshDistance<'a> {
     seed_tree: ImmutableKdTree<f64, 3>,
     cell: f64,
 }
+
+/// Steps of the walk that improves a hint of [`MeshDistance::distance_near`].
+const HINT_STEPS: usize = 16;
 
 /// Distinct triangles [`MeshDistance::ring_distance`] remembers to measure each once.
 const RING_MEMORY: usize = 64;
@@ -588,21 +617,79 @@ pub fn point_to_mesh_distances(points: &[[f64; 3]], mesh: &TriangleMesh) -> Vec<
     let Some(index) = MeshDistance::new(mesh) else {
         return Vec::new();
     };
-    // Consecutive points of a scan lie close together: each query's nearest vertex bounds the
-    // next one's search (the distances are the same as without it).
-    points
+    // Queried in spatial order (scans interleave their lines), each query's nearest vertex
+    // bounds the next one's search; the distances are the same as without it.
+    let order = spatial_order(points);
+    let found: Vec<(u32, f64)> = order
         .par_chunks(QUERY_CHUNK)
         .flat_map_iter(|chunk| {
             let mut hint = None;
             let index = &index;
-            chunk.iter().map(move |&p| {
-                let (d, v) = index.distance_near(p, hint);
+            chunk.iter().map(move |&i| {
+                let (d, v) = index.distance_near(points[i as usize], hint);
                 hint = Some(v);
-                d
+                (i, d)
             })
         })
-        .collect()
+        .collect();
+    let mut out = vec![0.0; points.len()];
+    for (i, d) in found {
+        out[i as usize] = d;
+    }
+    out
 }
+
+/// The indices of `points` sorted along a Z-order (Morton) curve over their bounding box, ties
+/// by index: consecutive points of the order lie close together. Non-finite coordinates sort
+/// as the box's minimum.
+pub fn spatial_order(points: &[[f64; 3]]) -> Vec<u32> {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in points {
+        for a in 0..3 {
+            if p[a].is_finite() {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+    }
+    let scale = [0, 1, 2].map(|a| {
+        let e = hi[a] - lo[a];
+        if e > 0.0 {
+            MORTON_CELLS / e
+        } else {
+            0.0
+        }
+    });
+    // Spreads the low 21 bits of v to every third bit.
+    let spread = |v: u64| {
+        let mut x = v & 0x1f_ffff;
+        x = (x | (x << 32)) & 0x1f_0000_0000_ffff;
+        x = (x | (x << 16)) & 0x1f_0000_ff00_00ff;
+        x = (x | (x << 8)) & 0x100f_00f0_0f00_f00f;
+        x = (x | (x << 4)) & 0x10c3_0c30_c30c_30c3;
+        (x | (x << 2)) & 0x1249_2492_4924_9249
+    };
+    let mut keyed: Vec<(u64, u32)> = points
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            // `as` saturates (NaN to 0), so every cell index is within 0 ..= 2^21 − 1.
+            let cell = |a: usize| (((p[a] - lo[a]) * scale[a]) as u64).min(MORTON_MAX);
+            (
+                spread(cell(0)) | (spread(cell(1)) << 1) | (spread(cell(2)) << 2),
+                i as u32,
+            )
+        })
+        .collect();
+    keyed.par_sort_unstable();
+    keyed.into_iter().map(|(_, i)| i).collect()
+}
+
+/// Cells of the Morton grid along each axis (2^21, so three fit in 63 bits).
+const MORTON_CELLS: f64 = 2_097_151.0;
+/// The largest cell index of the Morton grid.
+const MORTON_MAX: u64 = 2_097_151;
 
 /// Queries answered in order by one task, each search bounded by the previous answer; the
 /// answers do not depend on the chunking or the thread count.
@@ -641,26 +728,31 @@ pub fn nearest_point_distances(queries: &[[f64; 3]], points: &[[f64; 3]]) -> Opt
         return None;
     }
     let tree = PointTree::new(&kept)?;
-    // Mesh vertices come in meshing order, neighbours mostly close: each query's answer bounds
-    // the next search.
-    Some(
-        queries
-            .par_chunks(QUERY_CHUNK)
-            .flat_map_iter(|chunk| {
-                let mut hint = None;
-                let kept = &kept;
-                let tree = &tree;
-                chunk.iter().map(move |q| {
-                    if !finite(q) {
-                        return f64::NAN;
-                    }
-                    let (d2, i) = nearest_in(tree, *q, hint);
-                    hint = Some(kept[i]);
-                    d2.sqrt()
-                })
+    // Queried in spatial order, each query's answer bounds the next search (the distances are
+    // the same as without it).
+    let order = spatial_order(queries);
+    let found: Vec<(u32, f64)> = order
+        .par_chunks(QUERY_CHUNK)
+        .flat_map_iter(|chunk| {
+            let mut hint = None;
+            let kept = &kept;
+            let tree = &tree;
+            chunk.iter().map(move |&j| {
+                let q = queries[j as usize];
+                if !finite(&q) {
+                    return (j, f64::NAN);
+                }
+                let (d2, i) = nearest_in(tree, q, hint);
+                hint = Some(kept[i]);
+                (j, d2.sqrt())
             })
-            .collect(),
-    )
+        })
+        .collect();
+    let mut out = vec![0.0; queries.len()];
+    for (j, d) in found {
+        out[j as usize] = d;
+    }
+    Some(out)
 }
 
 /// The Chamfer distance between `points` and `mesh` (see the module docs); `None` when either is
@@ -733,6 +825,42 @@ mod tests {
         assert!((d[1] - 1.0).abs() < 1e-12);
         let s = DistanceSummary::from_distances(&d, 2.0);
         assert!((s.mean - 0.625).abs() < 1e-12 && (s.max_relative - 0.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn spatially_ordered_queries_match_brute_force() {
+        // Queries in an interleaved order (as scans store them) and one that is not finite:
+        // the answers come back in input order, equal to a brute-force search's.
+        let points: Vec<[f64; 3]> = (0..500)
+            .map(|i| {
+                let t = i as f64 * 0.11;
+                [t.sin() * 2.0, (1.3 * t).cos(), (i % 13) as f64 * 0.1]
+            })
+            .collect();
+        let mut queries: Vec<[f64; 3]> = (0..1200)
+            .map(|j| {
+                let s = ((j * 7) % 1200) as f64 * 0.017;
+                [
+                    2.2 * s.cos(),
+                    1.1 * (0.8 * s).sin(),
+                    (j % 5) as f64 * 0.3 - 0.2,
+                ]
+            })
+            .collect();
+        queries[17] = [f64::NAN, 0.0, 0.0];
+        let order = spatial_order(&queries);
+        let mut sorted = order.clone();
+        sorted.sort_unstable();
+        assert!(sorted.iter().enumerate().all(|(i, &j)| j as usize == i));
+        let d = nearest_point_distances(&queries, &points).unwrap();
+        assert!(d[17].is_nan());
+        for (j, q) in queries.iter().enumerate().filter(|(j, _)| *j != 17) {
+            let brute = points
+                .iter()
+                .map(|p| dist2(*q, *p))
+                .fold(f64::INFINITY, f64::min);
+            assert_eq!(d[j], brute.sqrt());
+        }
     }
 
     #[test]

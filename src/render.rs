@@ -6,7 +6,8 @@
 //!
 //! The camera is orthographic, looking at the mesh's bounding-box centre along the chosen view
 //! direction, framed so the whole box fits with a 5% margin. Triangles are rasterized with
-//! barycentric edge functions and a depth buffer; each pixel is shaded with the interpolated
+//! barycentric edge functions and a depth buffer; each pixel is shaded once, after the depth
+//! pass, for its nearest triangle (the first drawn among equal depths), with the interpolated
 //! vertex normal (two-sided, so an open mesh seen from inside is still readable) under a key
 //! light and a dim fill light, over a light grey background. Deterministic: no threads, no
 //! randomness.
@@ -127,9 +128,22 @@ pub fn render(mesh: &TriangleMesh, params: &RenderParams) -> RgbImage {
         let ns = if ns[2] < 0.0 { ns.map(|c| -c) } else { ns };
         0.18 + 0.72 * dot(ns, key).max(0.0) + 0.22 * dot(ns, fill).max(0.0)
     };
-    for tri in &mesh.triangles {
+    // Depth pass: the nearest triangle of each pixel (the first drawn among equal depths).
+    // Shading only the winners, afterwards, gives the same colours as shading every pixel a
+    // nearer triangle overwrites: the barycentric weights are recomputed by the same formula.
+    let mut winner = vec![u32::MAX; (size * size) as usize];
+    let corners = |tri: &[u32; 3]| {
         let [a, b, c] = tri.map(|i| screen[i as usize]);
         let area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
+        ([a, b, c], area)
+    };
+    let weights = |[a, b, c]: [[f64; 3]; 3], area: f64, px: f64, py: f64| {
+        let w0 = ((b[0] - px) * (c[1] - py) - (b[1] - py) * (c[0] - px)) / area;
+        let w1 = ((c[0] - px) * (a[1] - py) - (c[1] - py) * (a[0] - px)) / area;
+        (w0, w1, 1.0 - w0 - w1)
+    };
+    for (ti, tri) in mesh.triangles.iter().enumerate() {
+        let ([a, b, c], area) = corners(tri);
         if area.abs() < 1e-12 {
             continue;
         }
@@ -137,18 +151,10 @@ pub fn render(mesh: &TriangleMesh, params: &RenderParams) -> RgbImage {
         let x1 = (a[0].max(b[0]).max(c[0]).ceil() as i64).clamp(0, i64::from(size) - 1) as u32;
         let y0 = a[1].min(b[1]).min(c[1]).floor().max(0.0) as u32;
         let y1 = (a[1].max(b[1]).max(c[1]).ceil() as i64).clamp(0, i64::from(size) - 1) as u32;
-        let normals = tri.map(|i| {
-            mesh.normals
-                .get(i as usize)
-                .copied()
-                .unwrap_or([0.0, 0.0, 1.0])
-        });
         for y in y0..=y1 {
             for x in x0..=x1 {
                 let (px, py) = (f64::from(x) + 0.5, f64::from(y) + 0.5);
-                let w0 = ((b[0] - px) * (c[1] - py) - (b[1] - py) * (c[0] - px)) / area;
-                let w1 = ((c[0] - px) * (a[1] - py) - (c[1] - py) * (a[0] - px)) / area;
-                let w2 = 1.0 - w0 - w1;
+                let (w0, w1, w2) = weights([a, b, c], area, px, py);
                 if w0 < 0.0 || w1 < 0.0 || w2 < 0.0 {
                     continue;
                 }
@@ -158,16 +164,31 @@ pub fn render(mesh: &TriangleMesh, params: &RenderParams) -> RgbImage {
                     continue;
                 }
                 depth[idx] = z;
-                let n = normalize(
-                    [0, 1, 2].map(|k| w0 * normals[0][k] + w1 * normals[1][k] + w2 * normals[2][k]),
-                );
-                let shade = light(n);
-                let rgb = params
-                    .color
-                    .map(|c| ((c * shade).clamp(0.0, 1.0).powf(1.0 / 2.2) * 255.0).round() as u8);
-                img.put_pixel(x, y, Rgb(rgb));
+                winner[idx] = ti as u32;
             }
         }
+    }
+    for (idx, &ti) in winner.iter().enumerate() {
+        let Some(tri) = mesh.triangles.get(ti as usize) else {
+            continue;
+        };
+        let (x, y) = (idx as u32 % size, idx as u32 / size);
+        let (abc, area) = corners(tri);
+        let (w0, w1, w2) = weights(abc, area, f64::from(x) + 0.5, f64::from(y) + 0.5);
+        let normals = tri.map(|i| {
+            mesh.normals
+                .get(i as usize)
+                .copied()
+                .unwrap_or([0.0, 0.0, 1.0])
+        });
+        let n = normalize(
+            [0, 1, 2].map(|k| w0 * normals[0][k] + w1 * normals[1][k] + w2 * normals[2][k]),
+        );
+        let shade = light(n);
+        let rgb = params
+            .color
+            .map(|c| ((c * shade).clamp(0.0, 1.0).powf(1.0 / 2.2) * 255.0).round() as u8);
+        img.put_pixel(x, y, Rgb(rgb));
     }
     img
 }

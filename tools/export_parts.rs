@@ -133,6 +133,11 @@ fn kd_ab(queries: &[[f64; 3]], points: &[[f64; 3]], repeats: usize) {
 }
 
 fn time<T>(name: &str, repeats: usize, mut f: impl FnMut() -> T) -> T {
+    // PARTS=slices,ply repeats only the named parts (for profiling); the others run once.
+    let repeats = match std::env::var("PARTS") {
+        Ok(parts) if !parts.split(',').any(|p| p == name) => 1,
+        _ => repeats,
+    };
     let (mut best_wall, mut best_cpu) = (f64::INFINITY, f64::INFINITY);
     let mut out = None;
     for _ in 0..repeats {
