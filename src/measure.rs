@@ -619,15 +619,29 @@ pub fn point_to_mesh_distances(points: &[[f64; 3]], mesh: &TriangleMesh) -> Vec<
     };
     // Queried in spatial order (scans interleave their lines), each query's nearest vertex
     // bounds the next one's search; the distances are the same as without it.
+    in_spatial_order(points, |i, hint| {
+        let (d, v) = index.distance_near(points[i], hint);
+        (d, Some(v))
+    })
+}
+
+/// `query(i, hint)` for every point i of `points`, run in [`spatial_order`] in parallel chunks
+/// of [`QUERY_CHUNK`]: each call gets the hint that the previous call of its chunk returned
+/// (`None` first), which only bounds its search. Returns the values in input order, the same
+/// whatever the thread count.
+fn in_spatial_order<H: Copy + Send>(
+    points: &[[f64; 3]],
+    query: impl Fn(usize, Option<H>) -> (f64, Option<H>) + Sync,
+) -> Vec<f64> {
     let order = spatial_order(points);
     let found: Vec<(u32, f64)> = order
         .par_chunks(QUERY_CHUNK)
         .flat_map_iter(|chunk| {
             let mut hint = None;
-            let index = &index;
+            let query = &query;
             chunk.iter().map(move |&i| {
-                let (d, v) = index.distance_near(points[i as usize], hint);
-                hint = Some(v);
+                let (d, next) = query(i as usize, hint);
+                hint = next;
                 (i, d)
             })
         })
@@ -730,29 +744,14 @@ pub fn nearest_point_distances(queries: &[[f64; 3]], points: &[[f64; 3]]) -> Opt
     let tree = PointTree::new(&kept)?;
     // Queried in spatial order, each query's answer bounds the next search (the distances are
     // the same as without it).
-    let order = spatial_order(queries);
-    let found: Vec<(u32, f64)> = order
-        .par_chunks(QUERY_CHUNK)
-        .flat_map_iter(|chunk| {
-            let mut hint = None;
-            let kept = &kept;
-            let tree = &tree;
-            chunk.iter().map(move |&j| {
-                let q = queries[j as usize];
-                if !finite(&q) {
-                    return (j, f64::NAN);
-                }
-                let (d2, i) = nearest_in(tree, q, hint);
-                hint = Some(kept[i]);
-                (j, d2.sqrt())
-            })
-        })
-        .collect();
-    let mut out = vec![0.0; queries.len()];
-    for (j, d) in found {
-        out[j as usize] = d;
-    }
-    Some(out)
+    Some(in_spatial_order(queries, |j, hint| {
+        let q = queries[j];
+        if !finite(&q) {
+            return (f64::NAN, hint);
+        }
+        let (d2, i) = nearest_in(&tree, q, hint);
+        (d2.sqrt(), Some(kept[i]))
+    }))
 }
 
 /// The Chamfer distance between `points` and `mesh` (see the module docs); `None` when either is
