@@ -150,9 +150,9 @@ macro_rules! with_constant_degree {
 /// Defines `$name`, which runs `$body` for the degree `n` ([`with_constant_degree`]) compiled
 /// twice: for the baseline target and, on x86-64, for AVX2, chosen at run time by the CPU's
 /// features (one cached check). Both versions perform the same IEEE operations in the same
-/// order: Rust never fuses a multiply and an add into an FMA, and AVX2 only widens the vector
-/// instructions the loops were already vectorized with, so the results are the same bits on
-/// every CPU, only faster where the wider lanes exist.
+/// order: Rust never fuses a multiply and an add into an FMA, and without fast-math the
+/// compiler vectorizes only where the order of every sum is kept, so wider lanes change the
+/// speed, not the bits (the kernels' hash in `tools/polygonize_kernels.rs` is the same).
 macro_rules! with_avx2 {
     ($(#[$doc:meta])* fn $name:ident(n: usize $(, $arg:ident: $ty:ty)*) -> $ret:ty => $body:ident) => {
         $(#[$doc])*
