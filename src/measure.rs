@@ -670,7 +670,7 @@ pub fn spatial_order(points: &[[f64; 3]]) -> Vec<u32> {
     let scale = [0, 1, 2].map(|a| {
         let e = hi[a] - lo[a];
         if e > 0.0 {
-            MORTON_CELLS / e
+            MORTON_MAX as f64 / e
         } else {
             0.0
         }
@@ -700,10 +700,9 @@ pub fn spatial_order(points: &[[f64; 3]]) -> Vec<u32> {
     keyed.into_iter().map(|(_, i)| i).collect()
 }
 
-/// Cells of the Morton grid along each axis (2^21, so three fit in 63 bits).
-const MORTON_CELLS: f64 = 2_097_151.0;
-/// The largest cell index of the Morton grid.
-const MORTON_MAX: u64 = 2_097_151;
+/// The largest cell index of the Morton grid along each axis (2^21 cells, so three indices
+/// fit in 63 bits); the box's extent maps onto 0 ..= MORTON_MAX.
+const MORTON_MAX: u64 = (1 << 21) - 1;
 
 /// Queries answered in order by one task, each search bounded by the previous answer; the
 /// answers do not depend on the chunking or the thread count.
