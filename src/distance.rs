@@ -897,58 +897,32 @@ impl Evaluator {
 
     /// f and ∇f at the normalized point `q`.
     fn gradient(&self, q: [f64; 3]) -> (f64, [f64; 3]) {
-        // Tables sized to the degree: short ones are cheaper to clear and keep in cache.
-        match self.degree + 3 {
-            0..=SHORT_TABLE => self.gradient_with::<SHORT_TABLE>(q),
-            _ => self.gradient_with::<TABLE>(q),
-        }
-    }
-
-    /// [`Self::gradient`] with tables of length `T ≥ degree + 3`.
-    // i and j index three derivative tables each and size the columns: plain ranges read best.
-    #[allow(clippy::needless_range_loop)]
-    fn gradient_with<const T: usize>(&self, q: [f64; 3]) -> (f64, [f64; 3]) {
-        let [x, y, z] = self.derivative_powers::<T>(q);
-        let n = self.degree;
-        let mut columns = self.nested.as_slice();
-        let (mut f, mut g) = (0.0, [0.0; 3]);
-        for i in 0..=n {
-            // t_ab = Σ_j y^(a)_j s^(b)_ij with s^(b)_ij = Σ_k a_ijk z^(b)_k.
-            let (mut t00, mut t10, mut t01) = (0.0, 0.0, 0.0);
-            for j in 0..=n - i {
-                let (col, rest) = columns.split_at(n - i - j + 1);
-                columns = rest;
-                let (mut s0, mut s1) = (0.0, 0.0);
-                for (&a, zk) in col.iter().zip(&z) {
-                    s0 += a * zk[0];
-                    s1 += a * zk[1];
-                }
-                let [y0, y1, _] = y[j];
-                t00 += y0 * s0;
-                t10 += y1 * s0;
-                t01 += y0 * s1;
-            }
-            let [x0, x1, _] = x[i];
-            f += x0 * t00;
-            g[0] += x1 * t00;
-            g[1] += x0 * t10;
-            g[2] += x0 * t01;
-        }
+        let (f, g, _) = self.derivatives::<false>(q);
         (f, g)
     }
 
     /// f, ∇f and the Hessian at the normalized point `q`.
     fn hessian(&self, q: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
+        self.derivatives::<true>(q)
+    }
+
+    /// f, ∇f and, when `HESSIAN`, the Hessian (zero otherwise) at the normalized point `q`.
+    fn derivatives<const HESSIAN: bool>(&self, q: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
+        // Tables sized to the degree: short ones are cheaper to clear and keep in cache.
         match self.degree + 3 {
-            0..=SHORT_TABLE => self.hessian_with::<SHORT_TABLE>(q),
-            _ => self.hessian_with::<TABLE>(q),
+            0..=SHORT_TABLE => self.derivatives_with::<SHORT_TABLE, HESSIAN>(q),
+            _ => self.derivatives_with::<TABLE, HESSIAN>(q),
         }
     }
 
-    /// [`Self::hessian`] with tables of length `T ≥ degree + 3`.
+    /// [`Self::derivatives`] with tables of length `T ≥ degree + 3`. The second-order sums are
+    /// compiled out when `HESSIAN` is false; f and ∇f are summed in the same order either way.
     // i and j index three derivative tables each and size the columns: plain ranges read best.
     #[allow(clippy::needless_range_loop)]
-    fn hessian_with<const T: usize>(&self, q: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
+    fn derivatives_with<const T: usize, const HESSIAN: bool>(
+        &self,
+        q: [f64; 3],
+    ) -> (f64, [f64; 3], [[f64; 3]; 3]) {
         let [x, y, z] = self.derivative_powers::<T>(q);
         let n = self.degree;
         let mut columns = self.nested.as_slice();
@@ -964,27 +938,33 @@ impl Evaluator {
                 for (&a, zk) in col.iter().zip(&z) {
                     s0 += a * zk[0];
                     s1 += a * zk[1];
-                    s2 += a * zk[2];
+                    if HESSIAN {
+                        s2 += a * zk[2];
+                    }
                 }
                 let [y0, y1, y2] = y[j];
                 t00 += y0 * s0;
                 t10 += y1 * s0;
                 t01 += y0 * s1;
-                t20 += y2 * s0;
-                t02 += y0 * s2;
-                t11 += y1 * s1;
+                if HESSIAN {
+                    t20 += y2 * s0;
+                    t02 += y0 * s2;
+                    t11 += y1 * s1;
+                }
             }
             let [x0, x1, x2] = x[i];
             f += x0 * t00;
             g[0] += x1 * t00;
             g[1] += x0 * t10;
             g[2] += x0 * t01;
-            h[0][0] += x2 * t00;
-            h[1][1] += x0 * t20;
-            h[2][2] += x0 * t02;
-            h[0][1] += x1 * t10;
-            h[0][2] += x1 * t01;
-            h[1][2] += x0 * t11;
+            if HESSIAN {
+                h[0][0] += x2 * t00;
+                h[1][1] += x0 * t20;
+                h[2][2] += x0 * t02;
+                h[0][1] += x1 * t10;
+                h[0][2] += x1 * t01;
+                h[1][2] += x0 * t11;
+            }
         }
         (h[1][0], h[2][0], h[2][1]) = (h[0][1], h[0][2], h[1][2]);
         (f, g, h)
