@@ -42,6 +42,8 @@
 //! these are the vertices marching tetrahedra puts next to a lattice point or next to each other
 //! on a cell's face and body diagonals.
 
+use std::sync::atomic::{AtomicUsize, Ordering};
+
 use rayon::prelude::*;
 
 use crate::vec3::{cross, dot, sub};
@@ -62,6 +64,10 @@ const MAX_NORMAL_TURN_COS: f64 = 0.75;
 /// Vertices per chunk of the parallel pass (fixed, so the result never depends on the thread
 /// count).
 const CHUNK: usize = 65536;
+
+/// Triangles per block of the parallel renumbering and partition (any fixed size gives the same
+/// result; this one gives tens of tasks for the meshes here).
+const RENUMBER_BLOCK: usize = 16384;
 
 /// Vertices per block of the visiting order.
 const ORDER_BLOCK: u32 = 1024;
@@ -316,20 +322,10 @@ pub(crate) fn simplify(
     // Renumber the vertices by first use in the triangles (which come leaf by leaf in the
     // octree's depth-first order), so that a vertex, its triangles and its neighbours sit close
     // together in memory.
-    let mut new_index = vec![u32::MAX; positions.len()];
-    let mut old_index = Vec::with_capacity(positions.len());
+    let (old_index, new_index) = first_use_order(positions.len(), &triangles);
     let local_triangles: Vec<[u32; 3]> = triangles
-        .iter()
-        .map(|t| {
-            t.map(|x| {
-                let slot = &mut new_index[x as usize];
-                if *slot == u32::MAX {
-                    *slot = old_index.len() as u32;
-                    old_index.push(x);
-                }
-                *slot
-            })
-        })
+        .par_iter()
+        .map(|t| t.map(|x| new_index[x as usize]))
         .collect();
     let local_positions: Vec<[f64; 3]> = old_index
         .par_iter()
@@ -349,6 +345,54 @@ pub(crate) fn simplify(
     Simplified { keep, triangles }
 }
 
+/// The vertices of `triangles` in order of first use (`old_index`: new number → vertex), and
+/// the inverse (`new_index`: vertex → new number, `u32::MAX` for a vertex no triangle uses).
+/// In parallel: each vertex's first corner (3·triangle + slot) is the minimum over its
+/// corners (an atomic minimum, whatever order the threads take), each block of
+/// [`RENUMBER_BLOCK`] triangles lists the vertices whose first corner it holds, and the blocks'
+/// lists are concatenated in order — the same numbering as one sequential scan.
+fn first_use_order(n_vertices: usize, triangles: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
+    let first: Vec<AtomicUsize> = (0..n_vertices)
+        .into_par_iter()
+        .map(|_| AtomicUsize::new(usize::MAX))
+        .collect();
+    triangles.par_iter().enumerate().for_each(|(t, tri)| {
+        for (k, &x) in tri.iter().enumerate() {
+            // Most corners are not the first (about 6 per vertex), and a plain load tells.
+            let slot = &first[x as usize];
+            if slot.load(Ordering::Relaxed) > 3 * t + k {
+                slot.fetch_min(3 * t + k, Ordering::Relaxed);
+            }
+        }
+    });
+    let blocks: Vec<Vec<u32>> = triangles
+        .par_chunks(RENUMBER_BLOCK)
+        .enumerate()
+        .map(|(b, block)| {
+            let base = 3 * b * RENUMBER_BLOCK;
+            let mut firsts = Vec::new();
+            for (t, tri) in block.iter().enumerate() {
+                for (k, &x) in tri.iter().enumerate() {
+                    if first[x as usize].load(Ordering::Relaxed) == base + 3 * t + k {
+                        firsts.push(x);
+                    }
+                }
+            }
+            firsts
+        })
+        .collect();
+    let old_index = blocks.concat();
+    old_index
+        .par_iter()
+        .enumerate()
+        .for_each(|(i, &x)| first[x as usize].store(i, Ordering::Relaxed));
+    let new_index = first
+        .into_par_iter()
+        .map(|slot| u32::try_from(slot.into_inner()).unwrap_or(u32::MAX))
+        .collect();
+    (old_index, new_index)
+}
+
 /// [`simplify`] on vertices numbered by first use, in two passes. First, in parallel, each chunk
 /// of [`CHUNK`] consecutive vertices is simplified on its own triangles (those whose three
 /// vertices are all in the chunk), with the vertices that also touch other triangles frozen:
@@ -361,18 +405,44 @@ fn simplify_chunked(positions: &[[f64; 3]], sizes: &[f64], triangles: Vec<[u32; 
     let n_vertices = positions.len();
     let n_chunks = n_vertices.div_ceil(CHUNK);
     let chunk_of = |v: u32| v as usize / CHUNK;
-    let mut border = vec![false; n_vertices];
-    let mut own: Vec<Vec<[u32; 3]>> = vec![Vec::new(); n_chunks];
-    let mut shared = Vec::new();
-    for t in triangles {
-        let c = chunk_of(t[0]);
-        if chunk_of(t[1]) == c && chunk_of(t[2]) == c {
-            own[c].push(t);
-        } else {
-            for x in t {
-                border[x as usize] = true;
+    // Each block of triangles split into the chunks' own triangles and the shared ones, in
+    // parallel; then concatenated per chunk in block order (the input's order, as before).
+    let blocks: Vec<_> = triangles
+        .par_chunks(RENUMBER_BLOCK)
+        .map(|block| {
+            let mut own: Vec<Vec<[u32; 3]>> = vec![Vec::new(); n_chunks];
+            let mut shared = Vec::new();
+            for &t in block {
+                let c = chunk_of(t[0]);
+                if chunk_of(t[1]) == c && chunk_of(t[2]) == c {
+                    own[c].push(t);
+                } else {
+                    shared.push(t);
+                }
             }
-            shared.push(t);
+            (own, shared)
+        })
+        .collect();
+    drop(triangles);
+    let own: Vec<Vec<[u32; 3]>> = (0..n_chunks)
+        .into_par_iter()
+        .map(|c| {
+            let mut tris = Vec::with_capacity(blocks.iter().map(|b| b.0[c].len()).sum());
+            for b in &blocks {
+                tris.extend_from_slice(&b.0[c]);
+            }
+            tris
+        })
+        .collect();
+    let mut shared = Vec::with_capacity(blocks.iter().map(|b| b.1.len()).sum());
+    for b in &blocks {
+        shared.extend_from_slice(&b.1);
+    }
+    drop(blocks);
+    let mut border = vec![false; n_vertices];
+    for t in &shared {
+        for &x in t {
+            border[x as usize] = true;
         }
     }
     let everyone = vec![true; CHUNK];
