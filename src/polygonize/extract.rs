@@ -549,7 +549,9 @@ pub(crate) fn place_vertices<F: ImplicitFunction + ?Sized>(
         .concat()
 }
 
-fn place_vertex<F: ImplicitFunction + ?Sized>(
+/// The vertex on the zero set for the crossed edge `key` with end values `[fa, fb]` (see the
+/// module docs): the same result wherever and whenever it is computed.
+pub(crate) fn place_vertex<F: ImplicitFunction + ?Sized>(
     function: &F,
     grid: &Grid,
     key: EdgeKey,
