@@ -172,6 +172,8 @@ pub struct Polygonized {
     pub mesh: TriangleMesh,
     /// Number of function evaluations spent: point values, value-and-gradient evaluations, and
     /// box enclosures (of the value, or of value and gradient together), each counted once.
+    /// Placements computed ahead for vertices a later collapse removes are not counted, so the
+    /// count does not depend on the scheduling.
     pub evaluations: u64,
     /// Number of surface leaves (octree cells the zero set may cross) that were triangulated.
     pub cells: usize,
