@@ -51,6 +51,7 @@
 //! regula falsi, then Newton steps x ← x − f∇f/|∇f|² until |f|/|∇f| is below the projection
 //! tolerance; its normal is ∇f/|∇f|.
 
+use std::collections::hash_map::Entry;
 use std::collections::HashMap;
 use std::hash::BuildHasherDefault;
 
@@ -103,16 +104,21 @@ pub(crate) fn triangulate<F: ImplicitFunction + ?Sized>(
                 function,
                 grid,
                 octree,
-                triangles: Vec::new(),
+                // Sized for the usual counts per leaf (about 2 new lattice points, 3 new
+                // crossed edges and 6 triangles), so the tables rarely grow.
+                triangles: Vec::with_capacity(8 * chunk.len()),
                 evaluations: 0,
-                values: PointValues::default(),
+                values: PointValues::with_capacity_and_hasher(
+                    4 * chunk.len(),
+                    BuildHasherDefault::default(),
+                ),
             };
             for &leaf in chunk {
                 ctx.leaf(leaf);
             }
             let mut local: HashMap<EdgeKey, u32, BuildHasherDefault<MultiplyHasher>> =
-                HashMap::default();
-            let mut edges = Vec::new();
+                HashMap::with_capacity_and_hasher(4 * chunk.len(), BuildHasherDefault::default());
+            let mut edges = Vec::with_capacity(4 * chunk.len());
             let triangles = ctx
                 .triangles
                 .iter()
@@ -157,17 +163,26 @@ pub(crate) fn triangulate<F: ImplicitFunction + ?Sized>(
         })
         .collect();
     // Tasks that share an edge computed the same end values (one formula per lattice point).
-    let mut end_values = vec![[f64::NAN; 2]; edges.len()];
-    for ((global, _), part) in remapped.iter().zip(&parts) {
-        for (&g, &ends) in global.iter().zip(&part.1) {
-            end_values[g as usize] = ends;
-        }
-    }
+    // The two gathers below are sequential; each runs on its own core.
+    let (end_values, triangles) = rayon::join(
+        || {
+            let mut end_values = vec![[f64::NAN; 2]; edges.len()];
+            for ((global, _), part) in remapped.iter().zip(&parts) {
+                for (&g, &ends) in global.iter().zip(&part.1) {
+                    end_values[g as usize] = ends;
+                }
+            }
+            end_values
+        },
+        || {
+            let mut triangles = Vec::with_capacity(remapped.iter().map(|(_, t)| t.len()).sum());
+            for (_, part) in &remapped {
+                triangles.extend_from_slice(part);
+            }
+            triangles
+        },
+    );
     let evaluations = parts.iter().map(|p| p.3).sum();
-    let mut triangles = Vec::with_capacity(remapped.iter().map(|(_, t)| t.len()).sum());
-    for (_, part) in remapped {
-        triangles.extend_from_slice(&part);
-    }
     (edges, end_values, triangles, evaluations)
 }
 
@@ -211,14 +226,14 @@ impl<F: ImplicitFunction + ?Sized> LeafContext<'_, F> {
 
     /// f at a lattice point, computed once per task.
     fn value(&mut self, l: [u64; 3]) -> f64 {
-        let key = pack(l);
-        if let Some(&v) = self.values.get(&key) {
-            return v;
+        // One probe of the table whether or not the point is new.
+        match self.values.entry(pack(l)) {
+            Entry::Occupied(known) => *known.get(),
+            Entry::Vacant(slot) => {
+                self.evaluations += 1;
+                *slot.insert(self.function.value(self.grid.point(l)))
+            }
         }
-        self.evaluations += 1;
-        let v = self.function.value(self.grid.point(l));
-        self.values.insert(key, v);
-        v
     }
 
     fn leaf(&mut self, leaf: Cell) {
@@ -549,7 +564,9 @@ pub(crate) fn place_vertices<F: ImplicitFunction + ?Sized>(
         .concat()
 }
 
-fn place_vertex<F: ImplicitFunction + ?Sized>(
+/// The vertex on the zero set for the crossed edge `key` with end values `[fa, fb]` (see the
+/// module docs): the same result wherever and whenever it is computed.
+pub(crate) fn place_vertex<F: ImplicitFunction + ?Sized>(
     function: &F,
     grid: &Grid,
     key: EdgeKey,

@@ -222,10 +222,8 @@ impl ImplicitFunction for ImplicitPolynomial {
     }
 
     fn bounds_on_box(&self, b: &Aabb) -> (f64, f64) {
-        match self.taylor(b) {
-            Some(t) => t.bounds().0,
-            None => (f64::NEG_INFINITY, f64::INFINITY),
-        }
+        self.with_taylor(b, |t| t.bounds().0)
+            .unwrap_or((f64::NEG_INFINITY, f64::INFINITY))
     }
 
     fn gradient_bounds_on_box(&self, b: &Aabb) -> [(f64, f64); 3] {
@@ -233,10 +231,8 @@ impl ImplicitFunction for ImplicitPolynomial {
     }
 
     fn enclosure_on_box(&self, b: &Aabb) -> Enclosure {
-        match self.taylor(b) {
-            Some(t) => self.enclosure_of(&t),
-            None => UNBOUNDED,
-        }
+        self.with_taylor(b, |t| self.enclosure_of(t))
+            .unwrap_or(UNBOUNDED)
     }
 
     fn enclosure_and_grid_values(
@@ -244,29 +240,8 @@ impl ImplicitFunction for ImplicitPolynomial {
         b: &Aabb,
         axes: &[[f64; 2]; 3],
     ) -> (Enclosure, Option<GridValues>) {
-        let Some(t) = self.taylor(b) else {
-            return (UNBOUNDED, None);
-        };
-        let enclosure = self.enclosure_of(&t);
-        // Local coordinates of the grid: q = c + h ⊙ t.
-        let local = [0, 1, 2].map(|a| {
-            axes[a].map(|x| ((x - self.center[a]) / self.scale - t.center[a]) / t.half_width[a])
-        });
-        let values = t.grid_values(&local);
-        let grid = (local
-            .iter()
-            .flatten()
-            .all(|v| v.is_finite() && v.abs() <= 1.0 + 1e-9)
-            && values.iter().all(|v| v.is_finite()))
-        .then_some(GridValues {
-            values,
-            // The shifted coefficients carry at most `value_margin` of rounding (the enclosure
-            // relies on that too); nested Horner on |t| ≤ 1 adds at most γ_(6n)·Σ|b_α| ≤
-            // γ_(6n)·Σ|a_α|(|c| + h)^α, below another `value_margin`; the rounding of t itself
-            // moves f by at most about 2n·ε·Σ|a_α|(|c| + h)^α, below a third.
-            error: 3.0 * t.value_margin,
-        });
-        (enclosure, grid)
+        self.with_taylor(b, |t| self.enclosure_and_values_of(t, axes))
+            .unwrap_or((UNBOUNDED, None))
     }
 
     fn validate(&self) -> Result<(), String> {
@@ -301,6 +276,35 @@ const UNBOUNDED: Enclosure = Enclosure {
 };
 
 impl ImplicitPolynomial {
+    /// The enclosure and the grid values of
+    /// [`ImplicitFunction::enclosure_and_grid_values`] from a local expansion.
+    fn enclosure_and_values_of(
+        &self,
+        t: &LocalTaylor,
+        axes: &[[f64; 2]; 3],
+    ) -> (Enclosure, Option<GridValues>) {
+        let enclosure = self.enclosure_of(t);
+        // Local coordinates of the grid: q = c + h ⊙ t.
+        let local = [0, 1, 2].map(|a| {
+            axes[a].map(|x| ((x - self.center[a]) / self.scale - t.center[a]) / t.half_width[a])
+        });
+        let values = t.grid_values(&local);
+        let grid = (local
+            .iter()
+            .flatten()
+            .all(|v| v.is_finite() && v.abs() <= 1.0 + 1e-9)
+            && values.iter().all(|v| v.is_finite()))
+        .then_some(GridValues {
+            values,
+            // The shifted coefficients carry at most `value_margin` of rounding (the enclosure
+            // relies on that too); nested Horner on |t| ≤ 1 adds at most γ_(6n)·Σ|b_α| ≤
+            // γ_(6n)·Σ|a_α|(|c| + h)^α, below another `value_margin`; the rounding of t itself
+            // moves f by at most about 2n·ε·Σ|a_α|(|c| + h)^α, below a third.
+            error: 3.0 * t.value_margin,
+        });
+        (enclosure, grid)
+    }
+
     /// The enclosures of f and ∇f (input coordinates) from a local expansion.
     fn enclosure_of(&self, t: &LocalTaylor) -> Enclosure {
         let (value, derivatives) = t.bounds();
@@ -514,8 +518,11 @@ struct LocalTaylor {
 }
 
 impl ImplicitPolynomial {
-    /// The local Taylor expansion of f over the box `b`, or `None` for a malformed model or box.
-    fn taylor(&self, b: &Aabb) -> Option<LocalTaylor> {
+    /// `use_it` applied to the local Taylor expansion of f over the box `b`, or `None` for a
+    /// malformed model or box. The expansion (a 5.8 kB array for degree 8) is built in place
+    /// and lent, never returned by value, so it is not copied on its way to its users.
+    #[inline]
+    fn with_taylor<R>(&self, b: &Aabb, use_it: impl FnOnce(&LocalTaylor) -> R) -> Option<R> {
         let n = self.degree as usize;
         if self.coefficients.len() != crate::poly::n_coefficients(self.degree) {
             return None;
@@ -546,7 +553,7 @@ impl ImplicitPolynomial {
         let gamma = 8.0 * (n as f64 + 3.0) * f64::EPSILON;
         t.value_margin = gamma * magnitude;
         t.derivative_margin = [0, 1, 2].map(|a| gamma * derivative_magnitude[a] * half_width[a]);
-        Some(t)
+        Some(use_it(&t))
     }
 }
 

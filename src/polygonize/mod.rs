@@ -47,8 +47,10 @@
 //!    projected by Newton steps along ∇f; normal ∇f/|∇f|.
 //!
 //! Determinism: the octree visits children in a fixed order and concatenates their results;
-//! leaves and edges are processed in fixed-size chunks collected in order; the simplification is
-//! sequential in a fixed order; vertices are ordered by their lattice edge, triangles by leaf.
+//! leaves and edges are processed in fixed-size chunks collected in order; the simplification
+//! sweeps fixed chunks, each sequentially in a fixed order; a vertex is placed (step 4) as soon
+//! as the simplification knows it survives, overlapping the sweeps, and its placement depends
+//! on its lattice edge alone; vertices are ordered by their lattice edge, triangles by leaf.
 //!
 //! ```
 //! use stablesurf::polygonize::{polygonize, PolygonizeParams};
@@ -170,6 +172,8 @@ pub struct Polygonized {
     pub mesh: TriangleMesh,
     /// Number of function evaluations spent: point values, value-and-gradient evaluations, and
     /// box enclosures (of the value, or of value and gradient together), each counted once.
+    /// Placements computed ahead for vertices a later collapse removes are not counted, so the
+    /// count does not depend on the scheduling.
     pub evaluations: u64,
     /// Number of surface leaves (octree cells the zero set may cross) that were triangulated.
     pub cells: usize,
@@ -219,19 +223,28 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
     let tree = octree::build(function, &grid);
     let (edges, end_values, triangles, extraction_evaluations) =
         extract::triangulate(function, &grid, &tree);
-    let (edges, end_values, triangles) = match params.simplification {
-        Simplification::None => (edges, end_values, triangles),
+    let diagonal = region.diagonal();
+    let tolerance = PROJECTION_TOLERANCE * diagonal;
+    let (vertices, triangles) = match params.simplification {
+        Simplification::None => (
+            extract::place_vertices(function, &grid, &edges, &end_values, tolerance),
+            triangles,
+        ),
         Simplification::EdgeCollapse => {
             let (positions, sizes) = extract::approximate_vertices(&grid, &edges, &end_values);
-            let simplified = simplify::simplify(&positions, &sizes, triangles);
+            // The surviving vertices are placed inside the simplification, as soon as each is
+            // known to survive (see simplify::simplify).
+            let place = |v: u32| {
+                let v = v as usize;
+                extract::place_vertex(function, &grid, edges[v], end_values[v], tolerance)
+            };
+            let simplified = simplify::simplify(&positions, &sizes, triangles, &place);
             let mut index = vec![u32::MAX; edges.len()];
-            let mut kept_edges = Vec::new();
-            let mut kept_values = Vec::new();
-            for (i, &keep) in simplified.keep.iter().enumerate() {
+            let mut next = 0;
+            for (slot, &keep) in index.iter_mut().zip(&simplified.keep) {
                 if keep {
-                    index[i] = kept_edges.len() as u32;
-                    kept_edges.push(edges[i]);
-                    kept_values.push(end_values[i]);
+                    *slot = next;
+                    next += 1;
                 }
             }
             let triangles = simplified
@@ -239,12 +252,9 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
                 .par_iter()
                 .map(|t| t.map(|v| index[v as usize]))
                 .collect();
-            (kept_edges, kept_values, triangles)
+            (simplified.results, triangles)
         }
     };
-    let diagonal = region.diagonal();
-    let tolerance = PROJECTION_TOLERANCE * diagonal;
-    let vertices = extract::place_vertices(function, &grid, &edges, &end_values, tolerance);
     let mesh = TriangleMesh {
         positions: vertices.iter().map(|v| v.position).collect(),
         normals: vertices.iter().map(|v| v.normal).collect(),

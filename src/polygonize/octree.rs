@@ -82,7 +82,8 @@ pub(crate) fn build<F: ImplicitFunction + ?Sized>(function: &F, grid: &Grid) -> 
         level: 0,
         coords: [0, 0, 0],
     };
-    let part = visit(function, grid, root, None);
+    let mut part = Part::default();
+    visit(function, grid, root, None, &mut part);
     let guard_splits = part.internal.len() as u64;
     Octree {
         leaves: part.leaves,
@@ -100,7 +101,8 @@ struct FromParent<'a> {
     center_value: Option<(f64, f64)>,
 }
 
-/// Visits `cell`; `parent` is what its parent passes down (None for the root).
+/// Visits `cell`, appending what its subtree contributes to `part`; `parent` is what its parent
+/// passes down (None for the root).
 ///
 /// A child is first tested by the mean-value form with its parent's gradient enclosure G:
 /// f(box) ⊂ f(c) ± Σ_a max|G_a|·h_a, widened by the error of the value at c and of a point value
@@ -113,12 +115,12 @@ fn visit<F: ImplicitFunction + ?Sized>(
     grid: &Grid,
     cell: Cell,
     parent: Option<FromParent<'_>>,
-) -> Part {
+    part: &mut Part,
+) {
     if grid.is_outside(cell) {
-        return Part::default();
+        return;
     }
     let cell_box = grid.cell_box(cell);
-    let mut part = Part::default();
     if let Some(parent) = parent {
         let (v, error) = match parent.center_value {
             Some(known) => known,
@@ -131,7 +133,7 @@ fn visit<F: ImplicitFunction + ?Sized>(
             }
         };
         if mean_value_excludes_zero(v, error, &cell_box, parent.enclosure) {
-            return part;
+            return;
         }
     }
     let in_guard_zone = cell.level >= grid.depth && cell.level < grid.cap;
@@ -141,7 +143,7 @@ fn visit<F: ImplicitFunction + ?Sized>(
         && (cell.level == grid.cap || (in_guard_zone && passes_guard_by_parent));
     if leaf_without_own_enclosure {
         part.leaves.push(cell);
-        return part;
+        return;
     }
     let children = children(cell);
     // Above `depth` a cell that survives is always split, so its children's centre values are
@@ -158,12 +160,12 @@ fn visit<F: ImplicitFunction + ?Sized>(
     let (lo, hi) = enclosure.value;
     // Values ≥ 0 count as outside, so a cell is empty when f > 0 or f < 0 throughout.
     if lo > 0.0 || hi < 0.0 {
-        return part;
+        return;
     }
     let split = cell.level < grid.depth || !normal_variation_small(&enclosure.gradient);
     if !split {
         part.leaves.push(cell);
-        return part;
+        return;
     }
     if cell.level >= grid.depth {
         part.internal.push(cell);
@@ -172,23 +174,25 @@ fn visit<F: ImplicitFunction + ?Sized>(
         enclosure: &enclosure,
         center_value: grid_values.map(|g: GridValues| (g.values[i], g.error)),
     };
-    let parts: Vec<Part> = if cell.level < PARALLEL_LEVELS {
-        children
+    if cell.level < PARALLEL_LEVELS {
+        let parts: Vec<Part> = children
             .par_iter()
             .enumerate()
-            .map(|(i, &child)| visit(function, grid, child, Some(from_parent(i))))
-            .collect()
+            .map(|(i, &child)| {
+                let mut child_part = Part::default();
+                visit(function, grid, child, Some(from_parent(i)), &mut child_part);
+                child_part
+            })
+            .collect();
+        for p in parts {
+            part.append(p);
+        }
     } else {
-        children
-            .iter()
-            .enumerate()
-            .map(|(i, &child)| visit(function, grid, child, Some(from_parent(i))))
-            .collect()
-    };
-    for p in parts {
-        part.append(p);
+        // Sequentially, straight into `part`: the same order as concatenating.
+        for (i, &child) in children.iter().enumerate() {
+            visit(function, grid, child, Some(from_parent(i)), part);
+        }
     }
-    part
 }
 
 /// Whether the mean-value form with the parent's gradient enclosure shows that f has one strict

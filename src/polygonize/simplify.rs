@@ -3,8 +3,9 @@
 //!
 //! Input: the marching-tetrahedra mesh as triangles over the crossed lattice edges, a position
 //! per vertex (the linear interpolation of the end values on its lattice edge, which costs no
-//! evaluation) and a local cell size per vertex. Output: which vertices survive and the
-//! surviving triangles (in the input's order, indices still the input's).
+//! evaluation) and a local cell size per vertex. Output: which vertices survive, the
+//! surviving triangles (in the input's order, indices still the input's), and the caller's
+//! per-vertex work (vertex placement) on the survivors, run as soon as each is known to survive.
 //!
 //! Invariants: the output is a 2-manifold of the same topology as the input (same components,
 //! Euler characteristic and boundary), wound consistently, and its vertices are a subset of the
@@ -42,6 +43,8 @@
 //! these are the vertices marching tetrahedra puts next to a lattice point or next to each other
 //! on a cell's face and body diagonals.
 
+use std::sync::atomic::{AtomicUsize, Ordering};
+
 use rayon::prelude::*;
 
 use crate::vec3::{cross, dot, sub};
@@ -63,13 +66,55 @@ const MAX_NORMAL_TURN_COS: f64 = 0.75;
 /// count).
 const CHUNK: usize = 65536;
 
+/// Triangles per block of the parallel renumbering and partition (any fixed size gives the same
+/// result; this one gives tens of tasks for the meshes here).
+const RENUMBER_BLOCK: usize = 16384;
+
+/// Vertices per parallel task of the caller's per-vertex work.
+const WORK_BLOCK: usize = 1024;
+
 /// Vertices per block of the visiting order.
 const ORDER_BLOCK: u32 = 1024;
 
-/// The result: `keep[v]` for each input vertex, and the surviving triangles (input indices).
-pub(crate) struct Simplified {
+/// The result: `keep[v]` for each input vertex, the surviving triangles (input indices), and
+/// the caller's per-vertex work on each surviving vertex, in increasing vertex order.
+pub(crate) struct Simplified<T> {
     pub keep: Vec<bool>,
     pub triangles: Vec<[u32; 3]>,
+    pub results: Vec<T>,
+}
+
+/// One chunk's part of the parallel pass: its surviving triangles and `keep` (whole-mesh
+/// numbers), and the work on its settled vertices (kept, not on the chunk border), in order.
+struct ChunkPart<T> {
+    keep: Vec<bool>,
+    triangles: Vec<[u32; 3]>,
+    results: Vec<T>,
+}
+
+/// [`simplify_chunked`]'s result: `keep` and the surviving triangles, and the work on every
+/// surviving vertex v, found at `lists[slot[v].0][slot[v].1]`.
+struct Chunked<T> {
+    keep: Vec<bool>,
+    triangles: Vec<[u32; 3]>,
+    slot: Vec<(u32, u32)>,
+    lists: Vec<Vec<T>>,
+}
+
+impl<T: Copy> Chunked<T> {
+    /// The work's result on the surviving vertex `v`.
+    fn result(&self, v: u32) -> T {
+        let (list, i) = self.slot[v as usize];
+        self.lists[list as usize][i as usize]
+    }
+}
+
+/// `work` on each vertex of `vertices`, in order, in parallel blocks.
+fn work_on<T: Send, W: Fn(u32) -> T + Sync>(vertices: &[u32], work: &W) -> Vec<T> {
+    vertices
+        .par_chunks(WORK_BLOCK)
+        .flat_map_iter(|block| block.iter().map(|&v| work(v)))
+        .collect()
 }
 
 fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
@@ -307,46 +352,116 @@ impl Mesh {
 }
 
 /// Collapses the short edges of the mesh `triangles` over `positions`; `sizes[v]` is the local
-/// cell size at vertex v (input units).
-pub(crate) fn simplify(
+/// cell size at vertex v (input units). `work(v)` is run once on every surviving vertex v (the
+/// caller's next step, vertex placement), as soon as v is known to survive: a vertex that no
+/// collapse of the sequential pass can remove (every one off the chunk borders) right after its
+/// chunk's sweep, in parallel with the other chunks' sweeps; the border vertices in parallel
+/// with the sequential pass, ahead of it (the results of those it removes are dropped). So no
+/// core waits for a chunk's or the pass's end, and the results do not depend on the
+/// scheduling, as long as `work` is a function of v alone.
+pub(crate) fn simplify<T, W>(
     positions: &[[f64; 3]],
     sizes: &[f64],
     triangles: Vec<[u32; 3]>,
-) -> Simplified {
+    work: &W,
+) -> Simplified<T>
+where
+    T: Copy + Send + Sync,
+    W: Fn(u32) -> T + Sync,
+{
     // Renumber the vertices by first use in the triangles (which come leaf by leaf in the
     // octree's depth-first order), so that a vertex, its triangles and its neighbours sit close
     // together in memory.
-    let mut new_index = vec![u32::MAX; positions.len()];
-    let mut old_index = Vec::with_capacity(positions.len());
+    let (old_index, new_index) = first_use_order(positions.len(), &triangles);
     let local_triangles: Vec<[u32; 3]> = triangles
-        .iter()
-        .map(|t| {
-            t.map(|x| {
-                let slot = &mut new_index[x as usize];
-                if *slot == u32::MAX {
-                    *slot = old_index.len() as u32;
-                    old_index.push(x);
-                }
-                *slot
-            })
-        })
+        .par_iter()
+        .map(|t| t.map(|x| new_index[x as usize]))
         .collect();
+    drop(triangles);
     let local_positions: Vec<[f64; 3]> = old_index
         .par_iter()
         .map(|&x| positions[x as usize])
         .collect();
     let local_sizes: Vec<f64> = old_index.par_iter().map(|&x| sizes[x as usize]).collect();
-    let local = simplify_chunked(&local_positions, &local_sizes, local_triangles);
-    let mut keep = vec![true; positions.len()];
-    for (&old, &k) in old_index.iter().zip(&local.keep) {
-        keep[old as usize] = k;
-    }
+    let local = simplify_chunked(
+        &local_positions,
+        &local_sizes,
+        local_triangles,
+        &|v: u32| work(old_index[v as usize]),
+    );
+    // A vertex no triangle uses (none here: every vertex comes from a triangle) is kept as is.
+    let keep: Vec<bool> = new_index
+        .par_iter()
+        .map(|&v| v == u32::MAX || local.keep[v as usize])
+        .collect();
     let triangles = local
         .triangles
         .par_iter()
         .map(|t| t.map(|x| old_index[x as usize]))
         .collect();
-    Simplified { keep, triangles }
+    let kept: Vec<u32> = (0..keep.len() as u32)
+        .filter(|&old| keep[old as usize])
+        .collect();
+    let results = kept
+        .par_iter()
+        .map(|&old| match new_index[old as usize] {
+            u32::MAX => work(old),
+            v => local.result(v),
+        })
+        .collect();
+    Simplified {
+        keep,
+        triangles,
+        results,
+    }
+}
+
+/// The vertices of `triangles` in order of first use (`old_index`: new number → vertex), and
+/// the inverse (`new_index`: vertex → new number, `u32::MAX` for a vertex no triangle uses).
+/// In parallel: each vertex's first corner (3·triangle + slot) is the minimum over its
+/// corners (an atomic minimum, whatever order the threads take), each block of
+/// [`RENUMBER_BLOCK`] triangles lists the vertices whose first corner it holds, and the blocks'
+/// lists are concatenated in order — the same numbering as one sequential scan.
+fn first_use_order(n_vertices: usize, triangles: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
+    let first: Vec<AtomicUsize> = (0..n_vertices)
+        .into_par_iter()
+        .map(|_| AtomicUsize::new(usize::MAX))
+        .collect();
+    triangles.par_iter().enumerate().for_each(|(t, tri)| {
+        for (k, &x) in tri.iter().enumerate() {
+            // Most corners are not the first (about 6 per vertex), and a plain load tells.
+            let slot = &first[x as usize];
+            if slot.load(Ordering::Relaxed) > 3 * t + k {
+                slot.fetch_min(3 * t + k, Ordering::Relaxed);
+            }
+        }
+    });
+    let blocks: Vec<Vec<u32>> = triangles
+        .par_chunks(RENUMBER_BLOCK)
+        .enumerate()
+        .map(|(b, block)| {
+            let base = 3 * b * RENUMBER_BLOCK;
+            let mut firsts = Vec::new();
+            for (t, tri) in block.iter().enumerate() {
+                for (k, &x) in tri.iter().enumerate() {
+                    if first[x as usize].load(Ordering::Relaxed) == base + 3 * t + k {
+                        firsts.push(x);
+                    }
+                }
+            }
+            firsts
+        })
+        .collect();
+    let old_index = blocks.concat();
+    old_index
+        .par_iter()
+        .enumerate()
+        .for_each(|(i, &x)| first[x as usize].store(i, Ordering::Relaxed));
+    let new_index = first
+        .into_par_iter()
+        .map(|slot| u32::try_from(slot.into_inner()).unwrap_or(u32::MAX))
+        .collect();
+    (old_index, new_index)
 }
 
 /// [`simplify`] on vertices numbered by first use, in two passes. First, in parallel, each chunk
@@ -357,26 +472,61 @@ pub(crate) fn simplify(
 /// Then one sequential pass tries the vertices that were frozen ([`second_pass`]: on the part of
 /// the mesh around them, with the result of a pass over the whole mesh). The chunks are fixed by
 /// the numbering, so the result does not depend on the thread count.
-fn simplify_chunked(positions: &[[f64; 3]], sizes: &[f64], triangles: Vec<[u32; 3]>) -> Simplified {
+fn simplify_chunked<T, W>(
+    positions: &[[f64; 3]],
+    sizes: &[f64],
+    triangles: Vec<[u32; 3]>,
+    work: &W,
+) -> Chunked<T>
+where
+    T: Copy + Send + Sync,
+    W: Fn(u32) -> T + Sync,
+{
     let n_vertices = positions.len();
     let n_chunks = n_vertices.div_ceil(CHUNK);
     let chunk_of = |v: u32| v as usize / CHUNK;
-    let mut border = vec![false; n_vertices];
-    let mut own: Vec<Vec<[u32; 3]>> = vec![Vec::new(); n_chunks];
-    let mut shared = Vec::new();
-    for t in triangles {
-        let c = chunk_of(t[0]);
-        if chunk_of(t[1]) == c && chunk_of(t[2]) == c {
-            own[c].push(t);
-        } else {
-            for x in t {
-                border[x as usize] = true;
+    // Each block of triangles split into the chunks' own triangles and the shared ones, in
+    // parallel; then concatenated per chunk in block order (the input's order, as before).
+    let blocks: Vec<_> = triangles
+        .par_chunks(RENUMBER_BLOCK)
+        .map(|block| {
+            let mut own: Vec<Vec<[u32; 3]>> = vec![Vec::new(); n_chunks];
+            let mut shared = Vec::new();
+            for &t in block {
+                let c = chunk_of(t[0]);
+                if chunk_of(t[1]) == c && chunk_of(t[2]) == c {
+                    own[c].push(t);
+                } else {
+                    shared.push(t);
+                }
             }
-            shared.push(t);
+            (own, shared)
+        })
+        .collect();
+    drop(triangles);
+    let own: Vec<Vec<[u32; 3]>> = (0..n_chunks)
+        .into_par_iter()
+        .map(|c| {
+            let mut tris = Vec::with_capacity(blocks.iter().map(|b| b.0[c].len()).sum());
+            for b in &blocks {
+                tris.extend_from_slice(&b.0[c]);
+            }
+            tris
+        })
+        .collect();
+    let mut shared = Vec::with_capacity(blocks.iter().map(|b| b.1.len()).sum());
+    for b in &blocks {
+        shared.extend_from_slice(&b.1);
+    }
+    drop(blocks);
+    let mut border = vec![false; n_vertices];
+    for t in &shared {
+        for &x in t {
+            border[x as usize] = true;
         }
     }
     let everyone = vec![true; CHUNK];
-    let parts: Vec<Simplified> = own
+    let parts: Vec<ChunkPart<T>> = own
         .into_par_iter()
         .enumerate()
         .map(|(c, tris)| {
@@ -392,45 +542,89 @@ fn simplify_chunked(positions: &[[f64; 3]], sizes: &[f64], triangles: Vec<[u32; 
                 &everyone[..end - start],
                 |v| v + offset,
             );
-            Simplified {
+            // The chunk's kept vertices off its border are final: the sequential pass
+            // removes border vertices only.
+            let settled: Vec<u32> = (start..end)
+                .filter(|&v| part.keep[v - start] && !border[v])
+                .map(|v| v as u32)
+                .collect();
+            ChunkPart {
                 triangles: part
                     .alive_triangles()
                     .map(|t| t.map(|x| x + offset))
                     .collect(),
                 keep: part.keep,
+                results: work_on(&settled, work),
             }
         })
         .collect();
     let mut keep = Vec::with_capacity(n_vertices);
+    let mut lists = Vec::with_capacity(n_chunks + 1);
     let mut merged = shared;
     merged.reserve(parts.iter().map(|p| p.triangles.len()).sum());
     for part in parts {
         keep.extend(part.keep);
         merged.extend(part.triangles);
+        lists.push(part.results);
     }
-    let second = second_pass(positions, sizes, &merged, &border);
-    for (&v, &k) in second.vertices.iter().zip(&second.swept.keep) {
-        keep[v as usize] &= k;
-    }
-    // The triangles the second pass did not see are unchanged.
-    let mut changed = second
-        .triangles
-        .iter()
-        .zip(second.swept.triangles.iter().zip(&second.swept.alive))
-        .peekable();
-    let mut triangles = Vec::with_capacity(merged.len());
-    for (i, t) in merged.iter().enumerate() {
-        match changed.peek() {
-            Some(&(&j, (local, &alive))) if j as usize == i => {
-                if alive {
-                    triangles.push(local.map(|x| second.vertices[x as usize]));
-                }
-                changed.next();
+    // The border vertices are all kept so far (frozen in the chunks): their work runs ahead,
+    // beside the sequential pass.
+    let border_vertices: Vec<u32> = (0..n_vertices as u32)
+        .filter(|&v| border[v as usize])
+        .collect();
+    let (triangles, border_results) = rayon::join(
+        || {
+            let second = second_pass(positions, sizes, &merged, &border);
+            for (&v, &k) in second.vertices.iter().zip(&second.swept.keep) {
+                keep[v as usize] &= k;
             }
-            _ => triangles.push(*t),
-        }
+            // The triangles the second pass did not see are unchanged.
+            let mut changed = second
+                .triangles
+                .iter()
+                .zip(second.swept.triangles.iter().zip(&second.swept.alive))
+                .peekable();
+            let mut triangles = Vec::with_capacity(merged.len());
+            for (i, t) in merged.iter().enumerate() {
+                match changed.peek() {
+                    Some(&(&j, (local, &alive))) if j as usize == i => {
+                        if alive {
+                            triangles.push(local.map(|x| second.vertices[x as usize]));
+                        }
+                        changed.next();
+                    }
+                    _ => triangles.push(*t),
+                }
+            }
+            triangles
+        },
+        || work_on(&border_vertices, work),
+    );
+    // Where each surviving vertex's result is: its chunk's list (in vertex order) or the border
+    // list.
+    let mut slot = vec![(u32::MAX, 0); n_vertices];
+    slot.par_chunks_mut(CHUNK)
+        .enumerate()
+        .for_each(|(c, slots)| {
+            let mut next = 0;
+            for (i, s) in slots.iter_mut().enumerate() {
+                let v = c * CHUNK + i;
+                if keep[v] && !border[v] {
+                    *s = (c as u32, next);
+                    next += 1;
+                }
+            }
+        });
+    for (i, &v) in border_vertices.iter().enumerate() {
+        slot[v as usize] = (n_chunks as u32, i as u32);
     }
-    Simplified { keep, triangles }
+    lists.push(border_results);
+    Chunked {
+        keep,
+        triangles,
+        slot,
+        lists,
+    }
 }
 
 /// The second pass of [`simplify_chunked`] on the part of the mesh it can touch, in local
