@@ -17,9 +17,15 @@
 //! crust                  the faces of Delaunay(P ∪ poles) whose three vertices are samples
 //! ```
 //!
-//! Delaunay(P ∪ poles) is obtained by inserting the poles into Delaunay(P) (the triangulation is
-//! unique, so the insertion order does not matter), and the k-nearest-neighbour plane fits run on
-//! the other core meanwhile.
+//! Delaunay(P ∪ poles) is never built whole. The poles (each position once) are cut into two
+//! slabs along the longest axis, each slab is inserted into its own copy of Delaunay(P) in
+//! parallel, and the faces among samples of the union are decided from the two copies' faces
+//! and the apexes of their tetrahedra ([`faces_among_union`]: a face's Voronoi edge loses a
+//! prefix or a suffix to each pole, so the union's remaining edge is the intersection of the
+//! parts'). The result is the list that inserting every pole into one triangulation gives
+//! (the triangulation is unique under the symbolic perturbation, so neither the order nor the
+//! cut matters); a unit test in `delaunay.rs` checks it on a degenerate lattice. The
+//! k-nearest-neighbour plane fits run beside all this on the other core.
 //!
 //! Most poles cannot change the crust, and those are not inserted (on the bunny, 45k of 70k).
 //! Let f be a face of Delaunay(P) and [c₁, c₂] its dual Voronoi edge (the centres of the empty
@@ -59,7 +65,9 @@ use rayon::prelude::*;
 
 use crate::cloud::Aabb;
 use crate::mesh::VertexTriangles;
-use crate::normals::delaunay::{check_spans_3d, face_vertices, Delaunay, Keep, NO_NEIGHBOUR};
+use crate::normals::delaunay::{
+    check_spans_3d, face_vertices, faces_among_union, Delaunay, Keep, NO_NEIGHBOUR,
+};
 use crate::normals::vec3::{add, cross, dot, norm, normalized, scale, sub, triangle_normal};
 use crate::normals::{orient, pca, NormalsError, NormalsParams};
 
@@ -75,11 +83,45 @@ pub struct Crust {
     pub on_hull: Vec<bool>,
     /// Number of poles (within two box diagonals) offered to the second tetrahedralization.
     pub n_poles: usize,
-    /// Number of those left out because they could not change the crust.
+    /// Number of those left out because they could not change the crust (summed over the
+    /// slabs, each of which decides it for its own poles).
     pub n_poles_redundant: usize,
 }
 
 /// Circumcentre of a tetrahedron (not finite for a flat one).
+/// Number of pole sets inserted in parallel, each into its own copy of Delaunay(P).
+const POLE_SETS: usize = 2;
+
+/// The indices of `poles` in `k` slabs of (nearly) equal size along the longest axis of their
+/// bounding box, cut at their sorted coordinates: spatially compact sets, so that each set's
+/// insertions stay local. A pole equal to another (five co-spherical samples give two
+/// tetrahedra the same circumcentre) is left out but for the one with the smallest index, so
+/// the vertex that stands for a position never depends on the insertion order. Deterministic;
+/// the crust does not depend on the cut.
+fn pole_sets(poles: &[[f64; 3]], k: usize) -> Vec<Vec<u32>> {
+    let k = k.max(1);
+    let Some(bbox) = Aabb::from_points(poles) else {
+        return vec![Vec::new(); k];
+    };
+    let extent = [0, 1, 2].map(|a| bbox.max[a] - bbox.min[a]);
+    let axis = (0..3).fold(0, |best, a| if extent[a] > extent[best] { a } else { best });
+    let axes = [axis, (axis + 1) % 3, (axis + 2) % 3];
+    let mut ids: Vec<u32> = (0..poles.len() as u32).collect();
+    ids.par_sort_unstable_by(|&i, &j| {
+        let (p, q) = (&poles[i as usize], &poles[j as usize]);
+        axes.iter()
+            .fold(std::cmp::Ordering::Equal, |o, &a| {
+                o.then(p[a].total_cmp(&q[a]))
+            })
+            .then(i.cmp(&j))
+    });
+    ids.dedup_by(|later, kept| poles[*later as usize] == poles[*kept as usize]);
+    let size = ids.len().div_ceil(k).max(1);
+    let mut sets: Vec<Vec<u32>> = ids.chunks(size).map(<[u32]>::to_vec).collect();
+    sets.resize(k, Vec::new());
+    sets
+}
+
 fn circumcentre(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], d: &[f64; 3]) -> [f64; 3] {
     let ba = sub(b, a);
     let ca = sub(c, a);
@@ -137,9 +179,8 @@ pub fn crust_timed(
     let n = points.len();
     check_spans_3d(points)?;
     let mut laps = Laps(std::time::Instant::now());
-    // Both tetrahedralizations share one incremental triangulation: the poles are inserted into
-    // the Delaunay tetrahedralization of the samples, which gives Delaunay(P ∪ poles) without
-    // inserting the samples twice. The enclosing tetrahedron (1000 times the samples' size)
+    // The poles are inserted into copies of the Delaunay tetrahedralization of the samples, so
+    // the samples are inserted once. The enclosing tetrahedron (1000 times the samples' size)
     // contains the poles kept (within two box diagonals).
     let mut delaunay = Delaunay::enclosing(points)?;
     let mut representative: Vec<u32> = (0..n as u32).collect();
@@ -253,24 +294,45 @@ pub fn crust_timed(
         .collect();
     let n_poles = poles.len();
     laps.lap("poles", times);
-    let mut representative: Vec<u32> = (0..(n + n_poles) as u32).collect();
-    delaunay.insert(
-        &poles,
-        (0..n_poles as u32).collect(),
-        n as u32,
-        &mut representative,
-        Keep::IfCavityHasFaceBelow(n as u32),
-        times,
-    );
+    // The poles in POLE_SETS slabs along the longest axis of their box, each inserted into its
+    // own copy of Delaunay(P), in parallel; the crust faces of the union are then decided from
+    // the copies' faces alone (`faces_among_union`, which says why that is exact).
+    let sets = pole_sets(&poles, POLE_SETS);
+    let parts: Vec<_> = sets
+        .into_par_iter()
+        .map(|ids| {
+            let mut copy = delaunay.clone();
+            let mut part_times = Vec::new();
+            let mut representative: Vec<u32> = (0..(n + n_poles) as u32).collect();
+            copy.insert(
+                &poles,
+                ids,
+                n as u32,
+                &mut representative,
+                Keep::IfCavityHasFaceBelow(n as u32),
+                &mut part_times,
+            );
+            let faces = copy.face_apexes(n as u32);
+            (faces, copy.n_redundant, part_times)
+        })
+        .collect();
+    drop(delaunay);
+    let mut n_poles_redundant = 0;
+    let mut lists = Vec::with_capacity(parts.len());
+    for (faces, redundant, part_times) in parts {
+        n_poles_redundant += redundant;
+        times.extend(part_times);
+        lists.push(faces);
+    }
     laps.lap("(second delaunay)", times);
-    let triangles = delaunay.faces_among(n as u32);
+    let triangles = faces_among_union(&lists, points);
     laps.lap("face extraction", times);
     Ok(Crust {
         triangles,
         pole_vectors,
         on_hull,
         n_poles,
-        n_poles_redundant: delaunay.n_redundant,
+        n_poles_redundant,
     })
 }
 

@@ -33,7 +33,8 @@
 //! four neighbours of each cavity tetrahedron before testing them (their records are random
 //! accesses, the largest cost of the search). The walk never re-tests the face
 //! it came through. A second batch of points can be inserted into an existing triangulation
-//! (the crust's poles).
+//! (the crust's poles), and the faces among the first batch of several such triangulations,
+//! each with its own second batch, combined into those of the union ([`faces_among_union`]).
 //!
 //! Predicates are Shewchuk's adaptive exact `orient3d` and `insphere` (the `robust` crate), so
 //! no decision is ever wrong because of rounding; an inlined semi-static filter in front of
@@ -52,6 +53,8 @@
 //! convex hull. With the enclosing vertices at 1000 times the size of the input, only hull
 //! tetrahedra whose circumsphere is about that large can be missing, which changes nothing for
 //! the crust.
+
+use rayon::prelude::*;
 
 use crate::normals::NormalsError;
 
@@ -221,6 +224,7 @@ fn prefetch<T>(r: Option<&T>) {
 
 /// A small deterministic generator (xorshift64*), so the insertion order and the walk never
 /// depend on anything but the input.
+#[derive(Clone)]
 struct Rng(u64);
 
 impl Rng {
@@ -470,6 +474,7 @@ enum Outcome {
 /// Internally, points are stored in insertion order (internal id 0–3: the enclosing
 /// tetrahedron), so that the vertices of nearby tetrahedra are close in memory; `orig` maps an
 /// internal id back to the caller's index, which is also the symbolic perturbation's priority.
+#[derive(Clone)]
 pub(crate) struct Delaunay {
     pts: Vec<[f64; 3]>,
     orig: Vec<u32>,
@@ -491,6 +496,150 @@ pub(crate) struct Delaunay {
 
 /// Priority of enclosing vertex `i` in the symbolic perturbation (above every real point).
 const ENCLOSING_KEY: u32 = u32::MAX - 4;
+
+/// Whether `p` (caller index `key`) is strictly inside the perturbed circumsphere of the
+/// positive tet `q` (caller indices `keys`): the exact insphere sign, and for an exactly
+/// co-spherical configuration the symbolic perturbation ([`perturbed_inside`]). The same
+/// decision the insertion makes, so it can be asked of points in different triangulations.
+fn inside(q: &[[f64; 3]; 4], keys: [u32; 4], p: &[f64; 3], key: u32) -> bool {
+    let s = insphere(&q[0], &q[1], &q[2], &q[3], p);
+    if s != 0.0 {
+        return s > 0.0;
+    }
+    perturbed_inside(q, keys, p, key)
+}
+
+/// The symbolic perturbation for an exactly co-spherical configuration: the point with the
+/// largest caller index is lifted most. Lifting the new point `p` (caller index `key`) puts it
+/// outside; lifting tet vertex j (caller index `keys[j]`) moves the sphere towards the side of
+/// the opposite face where vertex j is, so p is inside when it is on that side.
+#[cold]
+fn perturbed_inside(q: &[[f64; 3]; 4], keys: [u32; 4], p: &[f64; 3], key: u32) -> bool {
+    let mut order = [0usize, 1, 2, 3, 4].map(|j| (if j == 4 { key } else { keys[j] }, j));
+    order.sort_unstable_by_key(|x| std::cmp::Reverse(x.0));
+    for (_, j) in order {
+        if j == 4 {
+            return false;
+        }
+        let mut r = *q;
+        r[j] = *p;
+        let o = orient3d(&r[0], &r[1], &r[2], &r[3]);
+        if o != 0.0 {
+            return o > 0.0;
+        }
+    }
+    false
+}
+
+/// A vertex of a triangulation by caller index, with its position.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Apex {
+    key: u32,
+    point: [f64; 3],
+}
+
+/// A face among the first points of a triangulation ([`Delaunay::face_apexes`]): its vertices
+/// in increasing caller index `[a, b, c]`, and the opposite vertices of its two tetrahedra, on
+/// the side where `orient3d(a, b, c, ·) > 0` (`plus`) and on the other (`minus`).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct FaceApexes {
+    key: [u32; 3],
+    plus: Apex,
+    minus: Apex,
+}
+
+/// The faces among the first points (caller indices below the `limit` given to
+/// [`Delaunay::face_apexes`], positions `points`) of the Delaunay tetrahedralization of the
+/// union of the point sets of several triangulations that all contain those first points, from
+/// their [`FaceApexes`] lists alone; the same list, wound and sorted the same way, as
+/// [`Delaunay::faces_among`] on one triangulation of the union would give.
+///
+/// Why it holds: the centres of the balls through a face's three vertices form a line; a point
+/// on the plus side is strictly inside the ball for the centres beyond some position along it,
+/// a point on the minus side for those before some position, and the face is a Delaunay face
+/// exactly when some centre has an empty ball, i.e. when the plus side's first position comes
+/// after the minus side's last. In each triangulation the face's two tetrahedra have as
+/// apexes the plus point with the first position and the minus point with the last among its
+/// points; over the union, the plus apex is the earliest of the triangulations' plus apexes
+/// (one point precedes another when it is strictly inside the sphere through the face and the
+/// other), the minus apex the latest, and the face survives when the minus apex is outside the
+/// sphere through the face and the plus apex. Every comparison is the insertion's own perturbed
+/// insphere test, so the union's faces are decided exactly as inserting all the points into
+/// one triangulation would. A face missing from any triangulation is not a Delaunay face of the
+/// union (an empty ball for the union is empty for each part).
+pub(crate) fn faces_among_union(parts: &[Vec<FaceApexes>], points: &[[f64; 3]]) -> Vec<[u32; 3]> {
+    let Some((first, rest)) = parts.split_first() else {
+        return Vec::new();
+    };
+    // Merge walk over the sorted lists: the faces in every part, as one index per part.
+    let k = parts.len();
+    let mut matched: Vec<u32> = Vec::with_capacity(first.len() * k);
+    let mut cursors = vec![0usize; rest.len()];
+    'faces: for (i, face) in first.iter().enumerate() {
+        for (c, part) in cursors.iter_mut().zip(rest) {
+            while *c < part.len() && part[*c].key < face.key {
+                *c += 1;
+            }
+            if *c == part.len() || part[*c].key != face.key {
+                continue 'faces;
+            }
+        }
+        matched.push(i as u32);
+        matched.extend(cursors.iter().map(|&c| c as u32));
+    }
+    let mut faces: Vec<[u32; 3]> = matched
+        .par_chunks(k)
+        .filter_map(|indices| {
+            union_face(
+                points,
+                indices
+                    .iter()
+                    .zip(parts)
+                    .map(|(&i, part)| &part[i as usize]),
+            )
+        })
+        .collect();
+    faces.sort_unstable();
+    faces
+}
+
+/// One face of [`faces_among_union`]: its records in the parts (at least one, all with the same
+/// key); the face as [`Delaunay::faces_among`] winds it, or None when it is not a face of the
+/// union or not one of the kept faces (both its tetrahedra touch the enclosing vertices).
+fn union_face<'a>(
+    points: &[[f64; 3]],
+    mut records: impl Iterator<Item = &'a FaceApexes>,
+) -> Option<[u32; 3]> {
+    let first = records.next()?;
+    let [ka, kb, kc] = first.key;
+    let [a, b, c] = first.key.map(|v| points[v as usize]);
+    // The positive tetrahedra of the face with a plus apex and with a minus apex.
+    let plus_tet = |x: Apex| ([a, b, c, x.point], [ka, kb, kc, x.key]);
+    let minus_tet = |x: Apex| ([a, c, b, x.point], [ka, kc, kb, x.key]);
+    let precedes = |tet: ([[f64; 3]; 4], [u32; 4]), x: Apex| inside(&tet.0, tet.1, &x.point, x.key);
+    let (mut plus, mut minus) = (first.plus, first.minus);
+    for r in records {
+        if r.plus.key != plus.key && precedes(plus_tet(plus), r.plus) {
+            plus = r.plus;
+        }
+        if r.minus.key != minus.key && precedes(minus_tet(minus), r.minus) {
+            minus = r.minus;
+        }
+    }
+    if precedes(plus_tet(plus), minus) {
+        return None;
+    }
+    // Wound for the tetrahedron whose apex has the smaller caller index, as `faces_among`
+    // does; the enclosing vertices have the largest ones.
+    if plus.key.min(minus.key) >= ENCLOSING_KEY {
+        return None;
+    }
+    Some(if plus.key < minus.key {
+        [ka, kb, kc]
+    } else {
+        [ka, kc, kb]
+    })
+}
 
 impl Delaunay {
     /// An empty triangulation inside a tetrahedron 1000 times the size of `points` (their
@@ -630,9 +779,11 @@ impl Delaunay {
     }
 
     /// The faces whose three vertices have caller indices below `limit`, each once, sorted.
+    /// (The crust uses [`faces_among_union`]; this is its reference in the tests.)
     /// The result depends only on the triangulation, not on how its tetrahedra are stored: a
     /// face is wound as [`face_vertices`] winds it for the adjacent kept tetrahedron whose
     /// opposite vertex has the smaller caller index, and rotated to start at its smallest index.
+    #[cfg(test)]
     pub(crate) fn faces_among(&self, limit: u32) -> Vec<[u32; 3]> {
         let kept = |t: &Tet| t.v[0] != NO_NEIGHBOUR && t.v.iter().all(|&v| v >= 4);
         let mut faces = Vec::new();
@@ -660,6 +811,55 @@ impl Delaunay {
             }
         }
         faces.sort_unstable();
+        faces
+    }
+
+    /// The faces whose three vertices have caller indices below `limit`, with the apexes of
+    /// their two tetrahedra, sorted by their vertices: a part for [`faces_among_union`].
+    pub(crate) fn face_apexes(&self, limit: u32) -> Vec<FaceApexes> {
+        let apex = |v: u32| Apex {
+            key: self.orig[v as usize],
+            point: self.pts[v as usize],
+        };
+        let mut faces: Vec<FaceApexes> = self
+            .tets
+            .par_chunks(4096)
+            .flat_map_iter(|block| {
+                block.iter().flat_map(move |tet| {
+                    let ids = tet.v.map(|v| {
+                        if v == NO_NEIGHBOUR {
+                            u32::MAX
+                        } else {
+                            self.orig[v as usize]
+                        }
+                    });
+                    let live = tet.v[0] != NO_NEIGHBOUR;
+                    (0..4).filter_map(move |i| {
+                        let u = tet.n[i];
+                        if !live || u == NO_NEIGHBOUR {
+                            return None;
+                        }
+                        // Each face once, from the tetrahedron on its plus side.
+                        let f = face_vertices(ids, i);
+                        if f.iter().any(|&v| v >= limit) {
+                            return None;
+                        }
+                        let k = (0..3).min_by_key(|&k| f[k]).unwrap_or(0);
+                        let (x, y) = (f[(k + 1) % 3], f[(k + 2) % 3]);
+                        if x > y {
+                            return None;
+                        }
+                        let other = self.tets[(u >> 2) as usize].v[(u & 3) as usize];
+                        Some(FaceApexes {
+                            key: [f[k], x, y],
+                            plus: apex(tet.v[i]),
+                            minus: apex(other),
+                        })
+                    })
+                })
+            })
+            .collect();
+        faces.par_sort_unstable_by_key(|f| f.key);
         faces
     }
 
@@ -727,32 +927,12 @@ impl Delaunay {
         if s != 0.0 {
             return s > 0.0;
         }
-        self.conflict_perturbed(tet, &q, v, &p)
-    }
-
-    /// The symbolic perturbation for an exactly co-spherical configuration: the point with the
-    /// largest caller index is lifted most. Lifting the new point puts it outside; lifting tet
-    /// vertex j moves the sphere towards the side of the opposite face where vertex j is, so p
-    /// is inside when it is on that side.
-    #[cold]
-    fn conflict_perturbed(&self, tet: [u32; 4], q: &[[f64; 3]; 4], v: u32, p: &[f64; 3]) -> bool {
-        let mut order = [0usize, 1, 2, 3, 4].map(|j| {
-            let w = if j == 4 { v } else { tet[j] };
-            (self.orig[w as usize], j)
-        });
-        order.sort_unstable_by_key(|x| std::cmp::Reverse(x.0));
-        for (_, j) in order {
-            if j == 4 {
-                return false;
-            }
-            let mut r = *q;
-            r[j] = *p;
-            let o = orient3d(&r[0], &r[1], &r[2], &r[3]);
-            if o != 0.0 {
-                return o > 0.0;
-            }
-        }
-        false
+        perturbed_inside(
+            &q,
+            tet.map(|w| self.orig[w as usize]),
+            &p,
+            self.orig[v as usize],
+        )
     }
 
     fn alloc(&mut self) -> u32 {
@@ -956,6 +1136,64 @@ mod tests {
         for w in cells.windows(2) {
             let d: u32 = (0..3).map(|a| w[0].1[a].abs_diff(w[1].1[a])).sum();
             assert_eq!(d, 1, "consecutive Hilbert cells {:?} {:?}", w[0], w[1]);
+        }
+    }
+
+    /// Samples on a lattice (exactly co-spherical subsets everywhere) and extra points, some on
+    /// the half lattice (co-spherical with samples) and some on a sample: the faces among the
+    /// samples decided from parts ([`faces_among_union`]) are those of one triangulation of
+    /// all the points, wound the same way, for 1, 2 and 3 parts and both insertion rules.
+    #[test]
+    fn faces_of_a_union_are_those_of_one_triangulation() {
+        let mut samples = Vec::new();
+        for i in 0..5 {
+            for j in 0..5 {
+                for k in 0..3 {
+                    samples.push([f64::from(i), f64::from(j), 0.75 * f64::from(k)]);
+                }
+            }
+        }
+        let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+        let mut unit = || (rng.next() >> 11) as f64 / (1u64 << 53) as f64;
+        let mut extra: Vec<[f64; 3]> = (0..120)
+            .map(|_| [4.4 * unit() - 0.2, 4.4 * unit() - 0.2, 1.8 * unit() - 0.15])
+            .collect();
+        extra
+            .extend((0..4).flat_map(|i| {
+                (0..4).map(move |j| [f64::from(i) + 0.5, f64::from(j) + 0.5, 0.375])
+            }));
+        extra.push(samples[7]);
+        let (n, m) = (samples.len() as u32, extra.len() as u32);
+        let mut base = Delaunay::enclosing(&samples).expect("3D samples");
+        let mut representative: Vec<u32> = (0..n).collect();
+        base.insert(
+            &samples,
+            (0..n).collect(),
+            0,
+            &mut representative,
+            Keep::All,
+            &mut Vec::new(),
+        );
+        let with = |d: &Delaunay, ids: Vec<u32>, rule: Keep| {
+            let mut d = d.clone();
+            let mut representative: Vec<u32> = (0..n + m).collect();
+            d.insert(&extra, ids, n, &mut representative, rule, &mut Vec::new());
+            d
+        };
+        let all_samples = base.faces_among(n);
+        for rule in [Keep::All, Keep::IfCavityHasFaceBelow(n)] {
+            let expected = with(&base, (0..m).collect(), rule).faces_among(n);
+            assert!(
+                expected.len() + 50 < all_samples.len(),
+                "the extra points remove faces"
+            );
+            for k in 1..=3 {
+                let parts: Vec<Vec<FaceApexes>> = (0..k)
+                    .map(|p| with(&base, (0..m).filter(|i| i % k == p).collect(), rule))
+                    .map(|d| d.face_apexes(n))
+                    .collect();
+                assert_eq!(faces_among_union(&parts, &samples), expected, "{k} parts");
+            }
         }
     }
 }
