@@ -181,11 +181,6 @@ with_avx2! {
 }
 
 with_avx2! {
-    /// [`monomial_dot`] for any degree.
-    fn monomial_dot_any(n: usize, coefficients: &[f64], q: [f64; 3]) -> f64 => monomial_dot
-}
-
-with_avx2! {
     /// [`expand`] for any degree.
     fn expand_any(
         n: usize,
@@ -213,7 +208,7 @@ impl ImplicitFunction for ImplicitPolynomial {
             return self.eval(p);
         }
         let q = normalized(self, p);
-        monomial_dot_any(n, &self.coefficients, q)
+        with_constant_degree!(n, monomial_dot(&self.coefficients, q))
     }
 
     fn value_gradient(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
