@@ -927,6 +927,8 @@ impl Delaunay {
         if s != 0.0 {
             return s > 0.0;
         }
+        // The decision of `inside`, written out so that the caller indices are looked up only
+        // on this rare co-spherical path, not before every test of the cavity search.
         perturbed_inside(
             &q,
             tet.map(|w| self.orig[w as usize]),
