@@ -314,7 +314,7 @@ impl Observer for Silent {}
 // params (algorithm, defaults, artifact layout), bump its version so old cache entries are not
 // reused.
 const IMPORT_VERSION: u32 = 1;
-const NORMALS_VERSION: u32 = 2;
+const NORMALS_VERSION: u32 = 3;
 const FIT_VERSION: u32 = 2;
 const POLYGONIZE_VERSION: u32 = 2;
 const EXPORT_VERSION: u32 = 2;

@@ -66,7 +66,7 @@ use rayon::prelude::*;
 use crate::cloud::Aabb;
 use crate::mesh::VertexTriangles;
 use crate::normals::delaunay::{
-    check_spans_3d, face_vertices, faces_among_union, Delaunay, Keep, NO_NEIGHBOUR,
+    check_spans_3d, face_vertices, faces_among_union, Delaunay, Keep, KeyedPoints, NO_NEIGHBOUR,
 };
 use crate::normals::vec3::{add, cross, dot, norm, normalized, scale, sub, triangle_normal};
 use crate::normals::{orient, pca, NormalsError, NormalsParams};
@@ -310,6 +310,11 @@ pub fn crust_timed(
             (faces, copy.n_redundant, part_times)
         })
         .collect();
+    let keyed = KeyedPoints {
+        first: points,
+        extra: &poles,
+        enclosing: delaunay.enclosing_points(),
+    };
     drop(delaunay);
     let mut n_poles_redundant = 0;
     let mut lists = Vec::with_capacity(parts.len());
@@ -319,7 +324,7 @@ pub fn crust_timed(
         lists.push(faces);
     }
     laps.lap("(second delaunay)", times);
-    let triangles = faces_among_union(&lists, points);
+    let triangles = faces_among_union(&lists, &keyed);
     laps.lap("face extraction", times);
     Ok(Crust {
         triangles,

@@ -533,23 +533,48 @@ fn perturbed_inside(q: &[[f64; 3]; 4], keys: [u32; 4], p: &[f64; 3], key: u32) -
 
 /// A vertex of a triangulation by caller index, with its position.
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct Apex {
+struct Apex {
     key: u32,
     point: [f64; 3],
 }
 
 /// A face among the first points of a triangulation ([`Delaunay::face_apexes`]): its vertices
-/// in increasing caller index `[a, b, c]`, and the opposite vertices of its two tetrahedra, on
-/// the side where `orient3d(a, b, c, ·) > 0` (`plus`) and on the other (`minus`).
+/// in increasing caller index `[a, b, c]`, and the caller indices of the opposite vertices of
+/// its two tetrahedra, on the side where `orient3d(a, b, c, ·) > 0` (`plus`) and on the other
+/// (`minus`). Twenty bytes, so that the lists of hundreds of thousands of faces sort and merge
+/// in cache-sized strides; the positions are looked up in [`KeyedPoints`] when needed.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct FaceApexes {
     key: [u32; 3],
-    plus: Apex,
-    minus: Apex,
+    plus: u32,
+    minus: u32,
+}
+
+/// The positions of a triangulation's vertices by caller index: `first` (indices below its
+/// length), the points inserted after them (`extra`, index `first.len() + j`), and the
+/// enclosing tetrahedron's vertices ([`Delaunay::enclosing_points`]).
+pub(crate) struct KeyedPoints<'a> {
+    pub first: &'a [[f64; 3]],
+    pub extra: &'a [[f64; 3]],
+    pub enclosing: [[f64; 3]; 4],
+}
+
+impl KeyedPoints<'_> {
+    fn apex(&self, key: u32) -> Apex {
+        let k = key as usize;
+        let point = if key >= ENCLOSING_KEY {
+            self.enclosing[(key - ENCLOSING_KEY) as usize]
+        } else if k < self.first.len() {
+            self.first[k]
+        } else {
+            self.extra[k - self.first.len()]
+        };
+        Apex { key, point }
+    }
 }
 
 /// The faces among the first points (caller indices below the `limit` given to
-/// [`Delaunay::face_apexes`], positions `points`) of the Delaunay tetrahedralization of the
+/// [`Delaunay::face_apexes`], positions `points.first`) of the Delaunay tetrahedralization of the
 /// union of the point sets of several triangulations that all contain those first points, from
 /// their [`FaceApexes`] lists alone; the same list, wound and sorted the same way, as
 /// [`Delaunay::faces_among`] on one triangulation of the union would give.
@@ -567,7 +592,7 @@ pub(crate) struct FaceApexes {
 /// insphere test, so the union's faces are decided exactly as inserting all the points into
 /// one triangulation would. A face missing from any triangulation is not a Delaunay face of the
 /// union (an empty ball for the union is empty for each part).
-pub(crate) fn faces_among_union(parts: &[Vec<FaceApexes>], points: &[[f64; 3]]) -> Vec<[u32; 3]> {
+pub(crate) fn faces_among_union(parts: &[Vec<FaceApexes>], points: &KeyedPoints) -> Vec<[u32; 3]> {
     let Some((first, rest)) = parts.split_first() else {
         return Vec::new();
     };
@@ -607,23 +632,29 @@ pub(crate) fn faces_among_union(parts: &[Vec<FaceApexes>], points: &[[f64; 3]]) 
 /// key); the face as [`Delaunay::faces_among`] winds it, or None when it is not a face of the
 /// union or not one of the kept faces (both its tetrahedra touch the enclosing vertices).
 fn union_face<'a>(
-    points: &[[f64; 3]],
+    points: &KeyedPoints,
     mut records: impl Iterator<Item = &'a FaceApexes>,
 ) -> Option<[u32; 3]> {
     let first = records.next()?;
     let [ka, kb, kc] = first.key;
-    let [a, b, c] = first.key.map(|v| points[v as usize]);
+    let [a, b, c] = first.key.map(|v| points.first[v as usize]);
     // The positive tetrahedra of the face with a plus apex and with a minus apex.
     let plus_tet = |x: Apex| ([a, b, c, x.point], [ka, kb, kc, x.key]);
     let minus_tet = |x: Apex| ([a, c, b, x.point], [ka, kc, kb, x.key]);
     let precedes = |tet: ([[f64; 3]; 4], [u32; 4]), x: Apex| inside(&tet.0, tet.1, &x.point, x.key);
-    let (mut plus, mut minus) = (first.plus, first.minus);
+    let (mut plus, mut minus) = (points.apex(first.plus), points.apex(first.minus));
     for r in records {
-        if r.plus.key != plus.key && precedes(plus_tet(plus), r.plus) {
-            plus = r.plus;
+        if r.plus != plus.key {
+            let other = points.apex(r.plus);
+            if precedes(plus_tet(plus), other) {
+                plus = other;
+            }
         }
-        if r.minus.key != minus.key && precedes(minus_tet(minus), r.minus) {
-            minus = r.minus;
+        if r.minus != minus.key {
+            let other = points.apex(r.minus);
+            if precedes(minus_tet(minus), other) {
+                minus = other;
+            }
         }
     }
     if precedes(plus_tet(plus), minus) {
@@ -817,10 +848,6 @@ impl Delaunay {
     /// The faces whose three vertices have caller indices below `limit`, with the apexes of
     /// their two tetrahedra, sorted by their vertices: a part for [`faces_among_union`].
     pub(crate) fn face_apexes(&self, limit: u32) -> Vec<FaceApexes> {
-        let apex = |v: u32| Apex {
-            key: self.orig[v as usize],
-            point: self.pts[v as usize],
-        };
         let mut faces: Vec<FaceApexes> = self
             .tets
             .par_chunks(4096)
@@ -852,8 +879,8 @@ impl Delaunay {
                         let other = self.tets[(u >> 2) as usize].v[(u & 3) as usize];
                         Some(FaceApexes {
                             key: [f[k], x, y],
-                            plus: apex(tet.v[i]),
-                            minus: apex(other),
+                            plus: ids[i],
+                            minus: self.orig[other as usize],
                         })
                     })
                 })
@@ -861,6 +888,12 @@ impl Delaunay {
             .collect();
         faces.par_sort_unstable_by_key(|f| f.key);
         faces
+    }
+
+    /// The positions of the enclosing tetrahedron's vertices (caller indices `ENCLOSING_KEY`
+    /// and the three after it).
+    pub(crate) fn enclosing_points(&self) -> [[f64; 3]; 4] {
+        [0, 1, 2, 3].map(|v| self.pts[v])
     }
 
     #[inline]
@@ -1194,7 +1227,12 @@ mod tests {
                     .map(|p| with(&base, (0..m).filter(|i| i % k == p).collect(), rule))
                     .map(|d| d.face_apexes(n))
                     .collect();
-                assert_eq!(faces_among_union(&parts, &samples), expected, "{k} parts");
+                let points = KeyedPoints {
+                    first: &samples,
+                    extra: &extra,
+                    enclosing: base.enclosing_points(),
+                };
+                assert_eq!(faces_among_union(&parts, &points), expected, "{k} parts");
             }
         }
     }

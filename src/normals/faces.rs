@@ -162,14 +162,14 @@ pub fn mesh_normals(
 /// a normal look up their neighbours (the same k nearest that [`pca::knn`] gives them), so a
 /// mesh with a few loose points costs a few queries, not one per point.
 fn fill_missing(points: &[[f64; 3]], normals: &mut [Option<[f64; 3]>], params: &NormalsParams) {
-    let tree = pca::build_tree(points);
+    let index = pca::build_index(points);
     let missing: Vec<usize> = (0..points.len())
         .filter(|&i| normals[i].is_none())
         .collect();
     let neighbours: Vec<Vec<u32>> = missing
         .par_iter()
-        .map(|&i| match &tree {
-            Some(tree) => pca::nearest(tree, points, i, params.k_neighbours),
+        .map(|&i| match &index {
+            Some(index) => pca::nearest(index, points, i, params.k_neighbours),
             None => Vec::new(),
         })
         .collect();

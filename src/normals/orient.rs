@@ -34,66 +34,100 @@ struct Graph {
 }
 
 fn build_graph(n: usize, triangles: &[[u32; 3]], knn: &[Vec<u32>]) -> Graph {
-    let mut edges: Vec<(u32, u32, u8)> = Vec::new();
-    for t in triangles {
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            if a != b && (a as usize) < n && (b as usize) < n {
-                edges.push((a.min(b), a.max(b), 0));
+    let knn_penalty = u32::from(!triangles.is_empty());
+    // Who names whom: the triangles at each point, and the points whose k-nearest lists hold
+    // it, in compressed rows.
+    let (tri_start, tri_rows) = rows_by_point(
+        n,
+        triangles.iter().enumerate().flat_map(|(t, tri)| {
+            tri.iter()
+                .filter(|&&v| (v as usize) < n)
+                .map(move |&v| (v, t as u32))
+        }),
+    );
+    let (named_start, named_by) = rows_by_point(
+        n,
+        knn.iter().enumerate().flat_map(|(i, list)| {
+            list.iter()
+                .filter(move |&&j| j as usize != i && (j as usize) < n)
+                .map(move |&j| (j, i as u32))
+        }),
+    );
+    // Each point's row: its crust neighbours (penalty 0), its k nearest and the points that
+    // count it among theirs (penalty 1 when there is a crust), each neighbour once with its
+    // smallest penalty. The rows are independent, so they are built in parallel; the order
+    // inside a row does not matter to the spanning tree (see `orient_consistently`).
+    // Per block of points: the entries of its rows, and each row's length.
+    type Block = (Vec<(u32, f64)>, Vec<usize>);
+    let rows: Vec<Block> = (0..n)
+        .collect::<Vec<usize>>()
+        .par_chunks(4096)
+        .map(|block| {
+            let mut entries = Vec::new();
+            let mut lengths = Vec::with_capacity(block.len());
+            let mut row: Vec<(u32, u32)> = Vec::new();
+            for &v in block {
+                row.clear();
+                for &t in &tri_rows[tri_start[v]..tri_start[v + 1]] {
+                    let tri = triangles[t as usize];
+                    for k in 0..3 {
+                        let (a, b) = (tri[k] as usize, tri[(k + 1) % 3] as usize);
+                        if a == b || a >= n || b >= n {
+                            continue;
+                        }
+                        if a == v {
+                            row.push((b as u32, 0));
+                        } else if b == v {
+                            row.push((a as u32, 0));
+                        }
+                    }
+                }
+                for &j in knn[v]
+                    .iter()
+                    .chain(&named_by[named_start[v]..named_start[v + 1]])
+                {
+                    if j as usize != v && (j as usize) < n {
+                        row.push((j, knn_penalty));
+                    }
+                }
+                row.sort_unstable();
+                row.dedup_by_key(|e| e.0);
+                entries.extend(row.iter().map(|&(j, p)| (j, f64::from(p))));
+                lengths.push(row.len());
             }
+            (entries, lengths)
+        })
+        .collect();
+    let mut start = Vec::with_capacity(n + 1);
+    start.push(0);
+    let mut entries = Vec::with_capacity(rows.iter().map(|r| r.0.len()).sum());
+    for (block, lengths) in rows {
+        for length in lengths {
+            start.push(start.last().copied().unwrap_or(0) + length);
         }
+        entries.extend(block);
     }
-    let penalty = if triangles.is_empty() { 0 } else { 1 };
-    for (i, list) in knn.iter().enumerate() {
-        for &j in list {
-            if j as usize != i && (j as usize) < n {
-                edges.push(((i as u32).min(j), (i as u32).max(j), penalty));
-            }
-        }
-    }
-    // Sorted by (a, b, penalty): a counting sort by a, then each point's short list sorted by
-    // (b, penalty). The order of the tuples is total, so this is the order a full sort gives.
-    let mut bucket = vec![0usize; n + 1];
-    for e in &edges {
-        bucket[e.0 as usize + 1] += 1;
+    Graph { start, entries }
+}
+
+/// The values of `pairs` (point, value) grouped by point (each point below `n`) in compressed
+/// rows, in the pairs' order within a row (a counting sort): row starts and values.
+fn rows_by_point(n: usize, pairs: impl Iterator<Item = (u32, u32)>) -> (Vec<usize>, Vec<u32>) {
+    let pairs: Vec<(u32, u32)> = pairs.collect();
+    let mut start = vec![0usize; n + 1];
+    for &(v, _) in &pairs {
+        start[v as usize + 1] += 1;
     }
     for i in 0..n {
-        bucket[i + 1] += bucket[i];
+        start[i + 1] += start[i];
     }
-    let mut fill = bucket.clone();
-    let mut rest = vec![(0u32, 0u8); edges.len()];
-    for e in &edges {
-        rest[fill[e.0 as usize]] = (e.1, e.2);
-        fill[e.0 as usize] += 1;
+    let mut fill = start.clone();
+    let mut rows = vec![0u32; pairs.len()];
+    for &(v, x) in &pairs {
+        rows[fill[v as usize]] = x;
+        fill[v as usize] += 1;
     }
-    edges.clear();
-    for a in 0..n {
-        let row = &mut rest[bucket[a]..bucket[a + 1]];
-        row.sort_unstable();
-        edges.extend(row.iter().map(|&(b, p)| (a as u32, b, p)));
-    }
-    // Keep the smallest penalty of each pair.
-    edges.dedup_by(|a, b| a.0 == b.0 && a.1 == b.1);
-    let mut count = vec![0usize; n + 1];
-    for e in &edges {
-        count[e.0 as usize + 1] += 1;
-        count[e.1 as usize + 1] += 1;
-    }
-    for i in 0..n {
-        count[i + 1] += count[i];
-    }
-    let mut fill = count.clone();
-    let mut entries = vec![(0u32, 0.0); count[n]];
-    for e in &edges {
-        entries[fill[e.0 as usize]] = (e.1, f64::from(e.2));
-        fill[e.0 as usize] += 1;
-        entries[fill[e.1 as usize]] = (e.0, f64::from(e.2));
-        fill[e.1 as usize] += 1;
-    }
-    Graph {
-        start: count,
-        entries,
-    }
+    (start, rows)
 }
 
 impl Graph {
@@ -128,7 +162,9 @@ pub fn orient_consistently(
     let mut label = vec![u32::MAX; n];
     // The smallest (weight, from) pushed so far for each point: a push that does not improve
     // on it would only be popped after that one and skipped, so it is left out. The popped
-    // sequence, hence the tree, is the same as with every push.
+    // sequence, hence the tree, is the same as with every push. Whether a neighbour j of the
+    // popped point is pushed depends on j's entry alone, and the heap orders by (weight, j,
+    // from), all distinct: the order of a row's entries changes nothing.
     let mut best: Vec<(u64, u32)> = vec![(u64::MAX, u32::MAX); n];
     let mut heap: BinaryHeap<Reverse<(u64, u32, u32)>> = BinaryHeap::new();
     let mut n_pieces = 0u32;

@@ -16,103 +16,28 @@
 //! the best direction the eigen-solver finds, never NaN); results do not depend on the thread
 //! count (each point is computed independently and collected in order).
 
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 
+use crate::normals::neighbours::PointGrid;
 use crate::normals::vec3::{dot, normalized, sub};
 use crate::normals::NormalsParams;
 
-/// A k-d tree over the points (`None` only when kiddo refuses the input).
-pub fn build_tree(points: &[[f64; 3]]) -> Option<ImmutableKdTree<f64, 3>> {
-    ImmutableKdTree::<f64, 3>::new_from_slice(points).ok()
+/// The neighbour index over the points (`None` when there are none or a coordinate is not
+/// finite).
+pub fn build_index(points: &[[f64; 3]]) -> Option<PointGrid> {
+    PointGrid::new(points)
 }
 
 /// The `k` nearest neighbours of point `i` (itself excluded), nearest first, ties by index.
-pub fn nearest(
-    tree: &ImmutableKdTree<f64, 3>,
-    points: &[[f64; 3]],
-    i: usize,
-    k: usize,
-) -> Vec<u32> {
-    let Some(qty) = std::num::NonZeroUsize::new((k + 1).min(points.len())) else {
-        return Vec::new();
-    };
-    let found = tree
-        .query(&points[i])
-        .nearest_n::<SquaredEuclidean<f64>>(qty)
-        .execute();
-    // Sort by (distance, index) so that ties are broken the same way on every run.
-    let mut keys: Vec<u128> = found
-        .iter()
-        .map(|r| order_key(r.distance, r.item))
-        .collect();
-    keys.sort_unstable();
-    keys.into_iter()
-        .map(|key| key as u32)
-        .filter(|&j| j as usize != i)
-        .take(k)
-        .collect()
+pub fn nearest(index: &PointGrid, points: &[[f64; 3]], i: usize, k: usize) -> Vec<u32> {
+    index.nearest(points, i, k, 0.0, &mut Vec::new()).0
 }
 
-/// A key whose integer order is the order of `(distance, index)` by `f64::total_cmp` and then
-/// index: the distance's bits mapped as `total_cmp` maps them (sign bit set for non-negative
-/// values, all bits flipped for negative ones), followed by the index. Comparing one `u128`
-/// is much cheaper than the two-level comparison, and the keys are distinct, so an unstable
-/// sort gives the same order as a stable one.
-#[inline]
-fn order_key(distance: f64, index: u32) -> u128 {
-    let bits = distance.to_bits();
-    let ordered = if bits >> 63 == 1 {
-        !bits
-    } else {
-        bits | 1 << 63
-    };
-    (u128::from(ordered) << 32) | u128::from(index)
-}
-
-/// [`nearest`] by a range query: every point within squared distance `r2` of point `i`, of
-/// which the `k + 1` smallest by (distance, index) are kept. When fewer than that many lie
-/// within `r2`, falls back to [`nearest`]. For large `k` this is several times faster than
-/// the k-nearest query (whose result list is kept sorted while it is filled); the answer is
-/// the same up to the order of equal distances.
-pub fn nearest_within(
-    tree: &ImmutableKdTree<f64, 3>,
-    points: &[[f64; 3]],
-    i: usize,
-    k: usize,
-    r2: f64,
-) -> Vec<u32> {
-    let want = (k + 1).min(points.len());
-    let found = tree
-        .query(&points[i])
-        .within::<SquaredEuclidean<f64>>(r2)
-        .unsorted()
-        .execute();
-    if found.len() < want || want == 0 {
-        return nearest(tree, points, i, k);
-    }
-    let mut by_distance: Vec<u128> = found
-        .iter()
-        .map(|r| order_key(r.distance, r.item))
-        .collect();
-    by_distance.select_nth_unstable(want - 1);
-    by_distance.truncate(want);
-    by_distance.sort_unstable();
-    by_distance
-        .into_iter()
-        .map(|key| key as u32)
-        .filter(|&j| j as usize != i)
-        .take(k)
-        .collect()
-}
-
-/// The k nearest neighbours of every point (the point itself excluded), nearest first.
+/// The k nearest neighbours of every point (the point itself excluded), nearest first, ties
+/// by index.
 pub fn knn(points: &[[f64; 3]], k: usize) -> Vec<Vec<u32>> {
-    match build_tree(points) {
-        Some(tree) => (0..points.len())
-            .into_par_iter()
-            .map(|i| nearest(&tree, points, i, k))
-            .collect(),
+    match build_index(points) {
+        Some(index) => index.all_nearest(points, k),
         None => vec![Vec::new(); points.len()],
     }
 }
@@ -143,6 +68,15 @@ pub fn plane_fit(points: &[[f64; 3]], centre: usize, neighbours: &[u32]) -> ([f6
             }
         }
     }
+    fit_of_covariance(cov)
+}
+
+/// The upper triangle of a symmetric 3×3 matrix, row by row.
+const MOMENT_PAIRS: [(usize, usize); 6] = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)];
+
+/// The plane normal and thickness √(λ₀/λ₁) of a neighbourhood's covariance (any positive
+/// multiple of it).
+fn fit_of_covariance(cov: [[f64; 3]; 3]) -> ([f64; 3], f64) {
     let (normal, l0, l1) = smallest_eigen(cov);
     let thickness = if l1 > 0.0 {
         (l0.max(0.0) / l1).sqrt()
@@ -165,11 +99,12 @@ const CLEAN_THICKNESS: f64 = 0.05;
 /// neighbourhood is kept unless the flattest is at least 20% flatter. Returns the normal and the
 /// number of neighbours used.
 pub fn adaptive_plane_fit(
-    tree: &ImmutableKdTree<f64, 3>,
+    index: &PointGrid,
     points: &[[f64; 3]],
     i: usize,
     neighbours: &[u32],
     max_k: usize,
+    keys: &mut Vec<u128>,
 ) -> ([f64; 3], usize) {
     let (first_normal, first_thickness) = plane_fit(points, i, neighbours);
     let (mut normal, mut thickness) = (first_normal, first_thickness);
@@ -178,24 +113,50 @@ pub fn adaptive_plane_fit(
         return (normal, k0);
     }
     // On a surface the number of neighbours grows like the squared radius: the first
-    // neighbourhood's radius, scaled for max_k points with a margin, usually holds them all.
+    // neighbourhood's radius, scaled for max_k points with a margin, usually holds them all
+    // (the radius only guides the search; the answer is the max_k nearest in any case).
     let r2 = neighbours.last().map_or(0.0, |&j| {
         let d = sub(&points[j as usize], &points[i]);
         dot(&d, &d)
     }) * 1.5
         * max_k as f64
         / k0 as f64;
-    let wide = nearest_within(tree, points, i, max_k, r2);
+    let (wide, _) = index.nearest(points, i, max_k, r2, keys);
+    // The fits of the prefixes 2k₀, 4k₀, … in one pass: the moments of the offsets from point i
+    // (which is in every neighbourhood, at offset 0), and at each prefix the covariance
+    // Σ d dᵀ − (Σ d)(Σ d)ᵀ / count. The offsets are of the neighbourhood's size, so the
+    // subtraction loses no more than a digit.
     let mut best_k = k0;
     let mut k = 2 * k0;
-    while k <= wide.len() {
-        let (n2, t2) = plane_fit(points, i, &wide[..k]);
-        if t2 < thickness {
-            normal = n2;
-            thickness = t2;
-            best_k = k;
+    let (mut first, mut second) = ([0.0; 3], [0.0; 6]);
+    let centre = points[i];
+    for (used, &j) in wide.iter().enumerate() {
+        if k > wide.len() {
+            break;
         }
-        k *= 2;
+        let d = sub(&points[j as usize], &centre);
+        for a in 0..3 {
+            first[a] += d[a];
+        }
+        for (slot, (r, c)) in second.iter_mut().zip(MOMENT_PAIRS) {
+            *slot += d[r] * d[c];
+        }
+        if used + 1 == k {
+            let count = (k + 1) as f64;
+            let mut cov = [[0.0; 3]; 3];
+            for (&moment, (r, c)) in second.iter().zip(MOMENT_PAIRS) {
+                let entry = moment - first[r] * first[c] / count;
+                cov[r][c] = entry;
+                cov[c][r] = entry;
+            }
+            let (n2, t2) = fit_of_covariance(cov);
+            if t2 < thickness {
+                normal = n2;
+                thickness = t2;
+                best_k = k;
+            }
+            k *= 2;
+        }
     }
     // Curvature alone changes the thickness little from one scale to the next; only a clear
     // drop says that noise dominated the small neighbourhood.
@@ -212,7 +173,7 @@ pub fn adaptive_normals(
     neighbours: &[Vec<u32>],
     max_k: usize,
 ) -> (Vec<[f64; 3]>, Vec<bool>) {
-    let Some(tree) = build_tree(points) else {
+    let Some(index) = build_index(points) else {
         return (
             (0..points.len())
                 .map(|i| plane_normal(points, i, &neighbours[i]))
@@ -222,8 +183,8 @@ pub fn adaptive_normals(
     };
     let fits: Vec<([f64; 3], bool)> = (0..points.len())
         .into_par_iter()
-        .map(|i| {
-            let (n, k) = adaptive_plane_fit(&tree, points, i, &neighbours[i], max_k);
+        .map_init(Vec::new, |keys, i| {
+            let (n, k) = adaptive_plane_fit(&index, points, i, &neighbours[i], max_k, keys);
             (n, k > neighbours[i].len())
         })
         .collect();
@@ -314,32 +275,6 @@ pub fn abs_cos(a: &[f64; 3], b: &[f64; 3]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn order_key_orders_as_total_cmp_then_index() {
-        let values = [
-            0.0,
-            -0.0,
-            1e-300,
-            0.5,
-            0.5,
-            2.0,
-            f64::INFINITY,
-            -1.0,
-            f64::NAN,
-        ];
-        let pairs: Vec<(f64, u32)> = values
-            .iter()
-            .enumerate()
-            .flat_map(|(i, &d)| [(d, i as u32), (d, 100 - i as u32)])
-            .collect();
-        for a in &pairs {
-            for b in &pairs {
-                let expected = a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
-                assert_eq!(order_key(a.0, a.1).cmp(&order_key(b.0, b.1)), expected);
-            }
-        }
-    }
 
     #[test]
     fn jacobi_finds_smallest_axis() {

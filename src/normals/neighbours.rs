@@ -1,0 +1,382 @@
+//! Exact k-nearest-neighbour queries of the `normals` stage, on a uniform grid of buckets.
+//!
+//! Input: the points (finite coordinates, any number up to `u32::MAX`). Output: for a point of
+//! the set, its k nearest neighbours, nearest first, ties in distance broken by the smaller
+//! index: exactly the k smallest (squared distance, index) pairs, whatever the grid's cell size.
+//!
+//! Why a grid and not a k-d tree: the queries here are many (every point asks for its 16
+//! nearest, three quarters of a scan's points then ask for their 128 nearest) and each answer
+//! lies in a small ball of nearly known radius. The points are sorted by cell (a counting sort,
+//! cells numbered x fastest), so the cells of a row along x hold one contiguous run of points
+//! and a ball query reads a few dozen contiguous runs: no tree descent, no heap, no allocation
+//! but the answer. On the 36k-point bunny this answers the 16-nearest queries and the 128-nearest
+//! queries of the plane fits in about a third of the time the `kiddo` k-d tree took.
+//!
+//! Method of a query for the k nearest of point i: every point in the ball of radius r around
+//! it (the cells overlapping the ball's bounding cube, each point's squared distance compared
+//! with r²) is collected; if at least k + 1 were found (i itself among them), the k + 1
+//! smallest by (distance, index) are the answer, since every point outside the ball is farther
+//! than each of them; else r is grown and the query repeated. The starting r is a hint (the
+//! caller's, or the previous answer's k-th distance in the same block of nearby points), so it
+//! changes the speed, never the result.
+//!
+//! Distances are squared Euclidean summed as ((dx² + dy²) + dz²), the same operations as the
+//! `kiddo` crate's, so the order of non-tied neighbours is the one it gave.
+
+use rayon::prelude::*;
+
+use crate::normals::vec3::sub;
+
+/// Largest number of cells the grid may have, per point (the cell size grows to keep it).
+const CELLS_PER_POINT: usize = 2;
+
+/// Points per task of [`PointGrid::all_nearest`] (fixed, so the hints, which only change the
+/// speed, follow the same sequence on any thread count).
+const BLOCK: usize = 1024;
+
+/// The points bucketed in a uniform grid (see the module docs).
+#[derive(Clone, Debug)]
+pub struct PointGrid {
+    /// The grid's lowest corner.
+    origin: [f64; 3],
+    /// Side of a cell.
+    cell: f64,
+    /// Number of cells along each axis.
+    dims: [usize; 3],
+    /// `start[c]..start[c + 1]` are the points of cell c (c = x + dims₀(y + dims₁ z)) in `sorted`.
+    start: Vec<u32>,
+    /// The points in cell order.
+    sorted: Vec<[f64; 3]>,
+    /// The input index of each of `sorted`.
+    items: Vec<u32>,
+}
+
+/// A key whose integer order is the order of `(distance, index)` by `f64::total_cmp` and then
+/// index: the distance's bits mapped as `total_cmp` maps them (sign bit set for non-negative
+/// values, all bits flipped for negative ones), followed by the index. Comparing one `u128`
+/// is much cheaper than the two-level comparison, and the keys are distinct, so an unstable
+/// sort gives the same order as a stable one.
+#[inline]
+pub(crate) fn order_key(distance: f64, index: u32) -> u128 {
+    let bits = distance.to_bits();
+    let ordered = if bits >> 63 == 1 {
+        !bits
+    } else {
+        bits | 1 << 63
+    };
+    (u128::from(ordered) << 32) | u128::from(index)
+}
+
+impl PointGrid {
+    /// Buckets `points`; `None` when there are none, more than `u32::MAX`, or a non-finite
+    /// coordinate.
+    pub fn new(points: &[[f64; 3]]) -> Option<PointGrid> {
+        let n = points.len();
+        if n == 0 || n > u32::MAX as usize || points.iter().flatten().any(|x| !x.is_finite()) {
+            return None;
+        }
+        let mut lo = points[0];
+        let mut hi = points[0];
+        for p in points {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        let extent = [0, 1, 2].map(|a| hi[a] - lo[a]);
+        let longest = extent.iter().fold(0.0f64, |m, &e| m.max(e));
+        if !longest.is_finite() {
+            return None;
+        }
+        // The volume per point (a flat axis counts as one cell thick): about one point per cell
+        // in a cloud that fills its box, a few per occupied cell on a scanned surface.
+        let floor = if longest > 0.0 { longest * 1e-6 } else { 1.0 };
+        let volume: f64 = extent.iter().map(|&e| e.max(floor)).product();
+        let mut cell = (volume / n as f64).cbrt().max(floor);
+        let dims = loop {
+            let dims = extent.map(|e| (e / cell).floor() as usize + 1);
+            let cells = dims.iter().try_fold(1usize, |acc, &d| acc.checked_mul(d));
+            match cells {
+                Some(c) if c <= CELLS_PER_POINT * n + 8 => break dims,
+                _ => cell *= 1.25,
+            }
+        };
+        let n_cells = dims[0] * dims[1] * dims[2];
+        let index = |p: &[f64; 3]| {
+            let c = [0, 1, 2].map(|a| (((p[a] - lo[a]) / cell) as usize).min(dims[a] - 1));
+            c[0] + dims[0] * (c[1] + dims[1] * c[2])
+        };
+        let cells: Vec<u32> = points.par_iter().map(|p| index(p) as u32).collect();
+        let mut start = vec![0u32; n_cells + 1];
+        for &c in &cells {
+            start[c as usize + 1] += 1;
+        }
+        for c in 0..n_cells {
+            start[c + 1] += start[c];
+        }
+        let mut next = start.clone();
+        let mut items = vec![0u32; n];
+        for (i, &c) in cells.iter().enumerate() {
+            let slot = &mut next[c as usize];
+            items[*slot as usize] = i as u32;
+            *slot += 1;
+        }
+        let sorted = items.iter().map(|&i| points[i as usize]).collect();
+        Some(PointGrid {
+            origin: lo,
+            cell,
+            dims,
+            start,
+            sorted,
+            items,
+        })
+    }
+
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.items.len()
+    }
+
+    /// Whether there are no points (never, for a grid [`PointGrid::new`] made).
+    pub fn is_empty(&self) -> bool {
+        self.items.is_empty()
+    }
+
+    /// The cell coordinate of `x` along `axis`, clamped to the grid.
+    fn cell_of(&self, x: f64, axis: usize) -> usize {
+        let c = (x - self.origin[axis]) / self.cell;
+        if c <= 0.0 {
+            0
+        } else {
+            (c as usize).min(self.dims[axis] - 1)
+        }
+    }
+
+    /// Appends to `keys` the [`order_key`] of every point within squared distance `r2` of `q`;
+    /// returns whether the ball's bounding cube covered the whole grid.
+    fn collect_ball(&self, q: [f64; 3], r2: f64, keys: &mut Vec<u128>) -> bool {
+        let r = r2.sqrt();
+        let lo = [0, 1, 2].map(|a| self.cell_of(q[a] - r, a));
+        let hi = [0, 1, 2].map(|a| self.cell_of(q[a] + r, a));
+        for z in lo[2]..=hi[2] {
+            for y in lo[1]..=hi[1] {
+                let row = self.dims[0] * (y + self.dims[1] * z);
+                let from = self.start[row + lo[0]] as usize;
+                let to = self.start[row + hi[0] + 1] as usize;
+                for (p, &item) in self.sorted[from..to].iter().zip(&self.items[from..to]) {
+                    let d = sub(p, &q);
+                    let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+                    if d2 <= r2 {
+                        keys.push(order_key(d2, item));
+                    }
+                }
+            }
+        }
+        (0..3).all(|a| lo[a] == 0 && hi[a] == self.dims[a] - 1)
+    }
+
+    /// The `k` nearest neighbours of `points[i]` (itself excluded), nearest first, ties by
+    /// index; `hint2` is a squared radius likely to hold k + 1 points (any positive value gives
+    /// the same answer). Also returns the squared distance of the farthest of the k + 1 nearest
+    /// (i included), a hint for the next query nearby.
+    pub fn nearest(
+        &self,
+        points: &[[f64; 3]],
+        i: usize,
+        k: usize,
+        hint2: f64,
+        keys: &mut Vec<u128>,
+    ) -> (Vec<u32>, f64) {
+        let want = (k + 1).min(self.len());
+        if want == 0 {
+            return (Vec::new(), 0.0);
+        }
+        let q = points[i];
+        let mut r2 = if hint2 > 0.0 && hint2.is_finite() {
+            hint2
+        } else {
+            self.cell * self.cell
+        };
+        loop {
+            keys.clear();
+            let everything = self.collect_ball(q, r2, keys);
+            if keys.len() >= want || everything {
+                break;
+            }
+            // Grow the ball for about twice the points still missing (the area of a surface
+            // patch, or the volume of a cloud, grows at least like r²).
+            let ratio = want as f64 / keys.len().max(1) as f64;
+            r2 *= (2.0 * ratio).max(2.0);
+            if !r2.is_finite() {
+                keys.clear();
+                self.collect_ball(q, f64::MAX, keys);
+                break;
+            }
+        }
+        let want = want.min(keys.len());
+        if want < keys.len() {
+            keys.select_nth_unstable(want - 1);
+            keys.truncate(want);
+        }
+        keys.sort_unstable();
+        let farthest = keys.last().map_or(0.0, |&key| distance_of_key(key));
+        let list = keys
+            .iter()
+            .map(|&key| key as u32)
+            .filter(|&j| j as usize != i)
+            .take(k)
+            .collect();
+        (list, farthest)
+    }
+
+    /// The `k` nearest neighbours of every point of `points` (the points the grid was made
+    /// of), as [`PointGrid::nearest`] gives them.
+    pub fn all_nearest(&self, points: &[[f64; 3]], k: usize) -> Vec<Vec<u32>> {
+        // In cell order, so that each query's hint is the answer of a point next to it.
+        let blocks: Vec<Vec<(u32, Vec<u32>)>> = self
+            .items
+            .par_chunks(BLOCK)
+            .map(|block| {
+                let mut keys = Vec::new();
+                let mut hint2 = 0.0;
+                block
+                    .iter()
+                    .map(|&i| {
+                        let (list, farthest) =
+                            self.nearest(points, i as usize, k, hint2, &mut keys);
+                        // A little more than the neighbour's radius, so that most queries need
+                        // one pass.
+                        hint2 = farthest * 1.3;
+                        (i, list)
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut out = vec![Vec::new(); points.len()];
+        for (i, list) in blocks.into_iter().flatten() {
+            out[i as usize] = list;
+        }
+        out
+    }
+}
+
+/// The squared distance an [`order_key`] was made of (for a non-negative distance).
+fn distance_of_key(key: u128) -> f64 {
+    let ordered = (key >> 32) as u64;
+    f64::from_bits(ordered & !(1 << 63))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The k nearest by brute force: all (distance, index) keys sorted.
+    fn brute(points: &[[f64; 3]], i: usize, k: usize) -> Vec<u32> {
+        let mut keys: Vec<u128> = points
+            .iter()
+            .enumerate()
+            .map(|(j, p)| {
+                let d = sub(p, &points[i]);
+                order_key(d[0] * d[0] + d[1] * d[1] + d[2] * d[2], j as u32)
+            })
+            .collect();
+        keys.sort_unstable();
+        keys.into_iter()
+            .map(|key| key as u32)
+            .filter(|&j| j as usize != i)
+            .take(k)
+            .collect()
+    }
+
+    fn lcg(seed: &mut u64) -> f64 {
+        *seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (*seed >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    #[test]
+    fn nearest_is_exact_on_surfaces_clouds_lattices_and_outliers() {
+        let mut seed = 7;
+        let mut sphere: Vec<[f64; 3]> = (0..1500)
+            .map(|_| {
+                let (u, v) = (lcg(&mut seed), lcg(&mut seed));
+                let z = 2.0 * u - 1.0;
+                let r = (1.0 - z * z).sqrt();
+                let a = std::f64::consts::TAU * v;
+                [r * a.cos(), r * a.sin(), z]
+            })
+            .collect();
+        // A far outlier and a dense clump: cells far from uniform.
+        sphere.push([40.0, -3.0, 7.0]);
+        for t in 0..50 {
+            sphere.push([0.2 + 1e-4 * t as f64, 0.1, 0.97]);
+        }
+        let cloud: Vec<[f64; 3]> = (0..1000)
+            .map(|_| [lcg(&mut seed), 2.0 * lcg(&mut seed), 0.5 * lcg(&mut seed)])
+            .collect();
+        // A lattice: many exactly equal distances, so the ties decide.
+        let lattice: Vec<[f64; 3]> = (0..729)
+            .map(|i| [(i % 9) as f64, (i / 9 % 9) as f64, (i / 81) as f64])
+            .collect();
+        // A plane (one axis flat) and a line.
+        let plane: Vec<[f64; 3]> = (0..400)
+            .map(|i| [(i % 20) as f64 * 0.1, (i / 20) as f64 * 0.1, 3.0])
+            .collect();
+        let line: Vec<[f64; 3]> = (0..100).map(|i| [i as f64, 0.0, 0.0]).collect();
+        for points in [&sphere, &cloud, &lattice, &plane, &line] {
+            let grid = PointGrid::new(points).unwrap();
+            for k in [1, 16, 128] {
+                let all = grid.all_nearest(points, k);
+                let mut keys = Vec::new();
+                for i in (0..points.len()).step_by(7) {
+                    let expected = brute(points, i, k);
+                    assert_eq!(all[i], expected, "all_nearest, point {i}, k {k}");
+                    for hint2 in [1e-12, 0.3, 1e9] {
+                        let (list, _) = grid.nearest(points, i, k, hint2, &mut keys);
+                        assert_eq!(list, expected, "point {i}, k {k}, hint {hint2}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn order_key_orders_as_total_cmp_then_index() {
+        let values = [
+            0.0,
+            -0.0,
+            1e-300,
+            0.5,
+            0.5,
+            2.0,
+            f64::INFINITY,
+            -1.0,
+            f64::NAN,
+        ];
+        let pairs: Vec<(f64, u32)> = values
+            .iter()
+            .enumerate()
+            .flat_map(|(i, &d)| [(d, i as u32), (d, 100 - i as u32)])
+            .collect();
+        for a in &pairs {
+            for b in &pairs {
+                let expected = a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+                assert_eq!(order_key(a.0, a.1).cmp(&order_key(b.0, b.1)), expected);
+            }
+        }
+    }
+
+    #[test]
+    fn fewer_points_than_asked_gives_all_of_them() {
+        let points = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 2.0, 0.0]];
+        let grid = PointGrid::new(&points).unwrap();
+        let (list, _) = grid.nearest(&points, 0, 16, 0.0, &mut Vec::new());
+        assert_eq!(list, vec![1, 2]);
+        let one = [[5.0, 5.0, 5.0]];
+        let grid = PointGrid::new(&one).unwrap();
+        assert_eq!(grid.all_nearest(&one, 4), vec![Vec::<u32>::new()]);
+        assert!(PointGrid::new(&[]).is_none());
+        assert!(PointGrid::new(&[[f64::NAN, 0.0, 0.0]]).is_none());
+    }
+}
