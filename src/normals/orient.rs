@@ -59,14 +59,15 @@ fn build_graph(n: usize, triangles: &[[u32; 3]], knn: &[Vec<u32>]) -> Graph {
     // inside a row does not matter to the spanning tree (see `orient_consistently`).
     // Per block of points: the entries of its rows, and each row's length.
     type Block = (Vec<(u32, f64)>, Vec<usize>);
-    let rows: Vec<Block> = (0..n)
-        .collect::<Vec<usize>>()
-        .par_chunks(4096)
-        .map(|block| {
+    const BLOCK: usize = 4096;
+    let rows: Vec<Block> = (0..n.div_ceil(BLOCK))
+        .into_par_iter()
+        .map(|b| {
+            let block = b * BLOCK..((b + 1) * BLOCK).min(n);
             let mut entries = Vec::new();
             let mut lengths = Vec::with_capacity(block.len());
             let mut row: Vec<(u32, u32)> = Vec::new();
-            for &v in block {
+            for v in block {
                 row.clear();
                 for &t in &tri_rows[tri_start[v]..tri_start[v + 1]] {
                     let tri = triangles[t as usize];
