@@ -76,14 +76,7 @@ impl PointGrid {
         if n == 0 || n > u32::MAX as usize || points.iter().flatten().any(|x| !x.is_finite()) {
             return None;
         }
-        let mut lo = points[0];
-        let mut hi = points[0];
-        for p in points {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
+        let (lo, hi) = robust_box(points);
         let extent = [0, 1, 2].map(|a| hi[a] - lo[a]);
         let longest = extent.iter().fold(0.0f64, |m, &e| m.max(e));
         if !longest.is_finite() {
@@ -200,17 +193,18 @@ impl PointGrid {
         };
         loop {
             keys.clear();
-            let everything = self.collect_ball(q, r2, keys);
-            if keys.len() >= want || everything {
+            let whole_grid = self.collect_ball(q, r2, keys);
+            if keys.len() >= want {
                 break;
             }
             // Grow the ball for about twice the points still missing (the area of a surface
-            // patch, or the volume of a cloud, grows at least like r²).
+            // patch, or the volume of a cloud, grows at least like r²); once its cube covers
+            // every cell, or r² overflows, take every point.
             let ratio = want as f64 / keys.len().max(1) as f64;
             r2 *= (2.0 * ratio).max(2.0);
-            if !r2.is_finite() {
+            if whole_grid || !r2.is_finite() {
                 keys.clear();
-                self.collect_ball(q, f64::MAX, keys);
+                self.collect_ball(q, f64::INFINITY, keys);
                 break;
             }
         }
@@ -259,6 +253,35 @@ impl PointGrid {
         }
         out
     }
+}
+
+/// The box the grid covers: per axis, the 1% and 99% quantiles of the coordinates widened by a
+/// quarter of their distance, within the points' bounding box. A legitimate object lies inside
+/// it; a few stray points far away (a scan's outliers) fall outside and are kept in the cells
+/// at the grid's faces (cell coordinates are clamped), which keeps the queries exact, while
+/// the cells stay sized for the object: with the plain bounding box, one point 1000 sizes
+/// away made every cell hold the whole object and the queries 30 times slower.
+fn robust_box(points: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
+    let n = points.len();
+    let tail = n / 100;
+    let mut lo = [0.0; 3];
+    let mut hi = [0.0; 3];
+    let mut coordinate: Vec<f64> = Vec::with_capacity(n);
+    for a in 0..3 {
+        coordinate.clear();
+        coordinate.extend(points.iter().map(|p| p[a]));
+        let (min, max) = coordinate
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &x| {
+                (l.min(x), h.max(x))
+            });
+        let (_, &mut low, _) = coordinate.select_nth_unstable_by(tail, f64::total_cmp);
+        let (_, &mut high, _) = coordinate.select_nth_unstable_by(n - 1 - tail, f64::total_cmp);
+        let margin = 0.25 * (high - low);
+        lo[a] = (low - margin).max(min);
+        hi[a] = (high + margin).min(max);
+    }
+    (lo, hi)
 }
 
 /// The squared distance an [`order_key`] was made of (for a non-negative distance).
@@ -330,7 +353,11 @@ mod tests {
             for k in [1, 16, 128] {
                 let all = grid.all_nearest(points, k);
                 let mut keys = Vec::new();
-                for i in (0..points.len()).step_by(7) {
+                // Every 7th point, and the last 60 (the outliers and the clump).
+                let checked = (0..points.len())
+                    .step_by(7)
+                    .chain(points.len().saturating_sub(60)..points.len());
+                for i in checked {
                     let expected = brute(points, i, k);
                     assert_eq!(all[i], expected, "all_nearest, point {i}, k {k}");
                     for hint2 in [1e-12, 0.3, 1e9] {
