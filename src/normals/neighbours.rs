@@ -170,9 +170,10 @@ impl PointGrid {
     }
 
     /// The `k` nearest neighbours of `points[i]` (itself excluded), nearest first, ties by
-    /// index; `hint2` is a squared radius likely to hold k + 1 points (any positive value gives
-    /// the same answer). Also returns the squared distance of the farthest of the k + 1 nearest
-    /// (i included), a hint for the next query nearby.
+    /// index, where `points` are the points the grid was made of; `hint2` is a squared radius
+    /// likely to hold k + 1 points (any positive value gives the same answer). Also returns the
+    /// squared distance of the farthest of the k + 1 nearest (i included), a hint for the next
+    /// query nearby.
     pub fn nearest(
         &self,
         points: &[[f64; 3]],
