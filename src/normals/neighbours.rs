@@ -58,7 +58,7 @@ pub struct PointGrid {
 /// is much cheaper than the two-level comparison, and the keys are distinct, so an unstable
 /// sort gives the same order as a stable one.
 #[inline]
-pub(crate) fn order_key(distance: f64, index: u32) -> u128 {
+fn order_key(distance: f64, index: u32) -> u128 {
     let bits = distance.to_bits();
     let ordered = if bits >> 63 == 1 {
         !bits
