@@ -547,64 +547,83 @@ pub fn run(
     let (cloud, _oriented, model, model_key) = fit_stages(&mut ctx, source, config)?;
 
     let region = model.region();
-    let (mut mesh, mesh_key) = ctx.stage(
-        "polygonize",
-        POLYGONIZE_VERSION,
-        &cache::params_bytes(&config.polygonize),
-        &model_key,
-        || {
-            let out = polygonize::polygonize(model.function(), &region, &config.polygonize)?;
-            let figures = serde_json::json!({
-                "vertices": out.mesh.positions.len(),
-                "triangles": out.mesh.triangles.len(),
-                "evaluations": out.evaluations,
-            });
-            Ok((out.mesh, figures))
-        },
-    )?;
+    let polygonize_params = cache::params_bytes(&config.polygonize);
+    let export_params = export_params_bytes(config);
+    // The distance slices of a polynomial model need the model only, not the mesh. When the
+    // export stage is going to run, they are computed beside the meshing, whose sequential
+    // parts would otherwise leave a core idle; the export stage then takes them as they are
+    // (the same values it would compute: they depend on the model, the region and the slice
+    // parameters alone).
+    let export_key = cache::stage_key(
+        "export",
+        EXPORT_VERSION,
+        &export_params,
+        &cache::stage_key(
+            "polygonize",
+            POLYGONIZE_VERSION,
+            &polygonize_params,
+            &model_key,
+        ),
+    );
+    let mut early_slices = None;
+    let polygonized = rayon::in_place_scope(|scope| {
+        if !cache.contains("export", &export_key) {
+            scope.spawn(|_| early_slices = model_slices(config, &model, &region));
+        }
+        ctx.stage(
+            "polygonize",
+            POLYGONIZE_VERSION,
+            &polygonize_params,
+            &model_key,
+            || {
+                let out = polygonize::polygonize(model.function(), &region, &config.polygonize)?;
+                let figures = serde_json::json!({
+                    "vertices": out.mesh.positions.len(),
+                    "triangles": out.mesh.triangles.len(),
+                    "evaluations": out.evaluations,
+                });
+                Ok((out.mesh, figures))
+            },
+        )
+    });
+    let (mut mesh, mesh_key) = polygonized?;
 
     // Everything after meshing (component filter, checks, accuracy, the bytes of every output
     // file) is one more cached stage: a rerun with the same inputs only copies files out.
-    let (files, _) = ctx.stage(
-        "export",
-        EXPORT_VERSION,
-        &export_params_bytes(config),
-        &mesh_key,
-        || {
-            let data_diagonal = Aabb::from_points(&cloud.points).map_or(0.0, |b| b.diagonal());
-            let mut dropped = 0;
-            if config.keep == Keep::Data {
-                let (kept, n) =
-                    mesh::drop_components_far_from(&mesh, &cloud.points, 0.02 * data_diagonal);
-                (mesh, dropped) = (kept, n);
-            }
-            // The checks, the accuracy and the output files are independent: run them at once.
-            let mesh = &mesh;
-            let ((report_mesh, accuracy), files) = rayon::join(
-                || {
-                    rayon::join(
-                        || mesh::check(mesh),
-                        || {
-                            DistanceSummary::from_distances(
-                                &measure::point_to_mesh_distances(&cloud.points, mesh),
-                                data_diagonal,
-                            )
-                        },
-                    )
-                },
-                || render_outputs(config, &model, mesh, &cloud, &region),
-            );
-            let files = files?;
-            let figures = serde_json::json!({
-                "files": files.0.len(),
-                "bytes": files.0.iter().map(|f| f.1.len()).sum::<usize>(),
-                "dropped_components": dropped,
-                "mesh": report_mesh,
-                "accuracy": accuracy,
-            });
-            Ok((files, figures))
-        },
-    )?;
+    let (files, _) = ctx.stage("export", EXPORT_VERSION, &export_params, &mesh_key, || {
+        let data_diagonal = Aabb::from_points(&cloud.points).map_or(0.0, |b| b.diagonal());
+        let mut dropped = 0;
+        if config.keep == Keep::Data {
+            let (kept, n) =
+                mesh::drop_components_far_from(&mesh, &cloud.points, 0.02 * data_diagonal);
+            (mesh, dropped) = (kept, n);
+        }
+        // The checks, the accuracy and the output files are independent: run them at once.
+        let mesh = &mesh;
+        let ((report_mesh, accuracy), files) = rayon::join(
+            || {
+                rayon::join(
+                    || mesh::check(mesh),
+                    || {
+                        DistanceSummary::from_distances(
+                            &measure::point_to_mesh_distances(&cloud.points, mesh),
+                            data_diagonal,
+                        )
+                    },
+                )
+            },
+            || render_outputs(config, &model, mesh, &cloud, &region, early_slices),
+        );
+        let files = files?;
+        let figures = serde_json::json!({
+            "files": files.0.len(),
+            "bytes": files.0.iter().map(|f| f.1.len()).sum::<usize>(),
+            "dropped_components": dropped,
+            "mesh": report_mesh,
+            "accuracy": accuracy,
+        });
+        Ok((files, figures))
+    })?;
     let figures = &ctx
         .stages
         .last()
@@ -688,16 +707,36 @@ fn write_files(out_dir: &Path, files: &OutputFiles) -> Result<Vec<String>, Pipel
     Ok(written)
 }
 
+/// The distance slices when they can be computed without the mesh (a polynomial model, a
+/// distance that is not the mesh's, and slices among the formats); `None` otherwise.
+fn model_slices(
+    config: &PipelineConfig,
+    model: &Model,
+    region: &Aabb,
+) -> Option<Result<Vec<crate::distance::Slice>, PipelineError>> {
+    let wanted = [OutputFormat::Exr, OutputFormat::Png]
+        .iter()
+        .any(|f| config.formats.contains(f));
+    match (model, config.slices.method) {
+        (Model::Global(m), method) if wanted && method != crate::distance::DistanceMethod::Mesh => {
+            Some(crate::distance::slices(&m.polynomial, region, &config.slices).map_err(Into::into))
+        }
+        _ => None,
+    }
+}
+
 /// Computes every output file's bytes in memory (nothing is written here). The independent
 /// parts (distance slices, model file, glTF, PLY with its vertex quality, preview) run
 /// concurrently, and the slice images are encoded in parallel; the files come out in a fixed
-/// order whatever the thread count.
+/// order whatever the thread count. `early` holds the slices when [`model_slices`] has
+/// already computed them.
 fn render_outputs(
     config: &PipelineConfig,
     model: &Model,
     mesh: &TriangleMesh,
     cloud: &PointCloud,
     region: &Aabb,
+    early: Option<Result<Vec<crate::distance::Slice>, PipelineError>>,
 ) -> Result<OutputFiles, PipelineError> {
     use rayon::prelude::*;
     type Files = Vec<(String, Vec<u8>)>;
@@ -712,6 +751,9 @@ fn render_outputs(
     let slices = || -> Result<Vec<crate::distance::Slice>, PipelineError> {
         if !(want(OutputFormat::Exr) || want(OutputFormat::Png)) {
             return Ok(Vec::new());
+        }
+        if let Some(early) = early {
+            return early;
         }
         Ok(match (model, config.slices.method) {
             (_, crate::distance::DistanceMethod::Mesh) => {

@@ -184,6 +184,13 @@ impl Cache {
         }
     }
 
+    /// Whether an entry for `key` is on disk (not decoded: a corrupt entry still counts). Lets a
+    /// caller skip work that only a miss would need.
+    pub fn contains(&self, stage: &str, key: &Key) -> bool {
+        self.entry_path(stage, key, "bin")
+            .is_some_and(|path| path.is_file())
+    }
+
     /// The explanation stored beside an entry (what went into its key, its figures), if readable.
     pub fn meta(&self, stage: &str, key: &Key) -> Option<serde_json::Value> {
         let path = self.entry_path(stage, key, "json")?;

@@ -97,7 +97,7 @@ pub struct DetailOpts {
 #[derive(Debug, Args, Clone)]
 pub struct MeshOpts {
     /// Octree depth near the surface: finest cell = longest side of the box / 2^depth
-    /// [default: 8 for a polynomial (global) model, 7 for a detail model].
+    /// [default: 7].
     #[arg(long)]
     pub depth: Option<u32>,
 }
