@@ -777,12 +777,13 @@ impl Evaluator {
         [0, 1, 2].map(|a| (p[a] - self.center[a]) / self.scale)
     }
 
-    /// Power tables of the three coordinates (see [`TABLE`]), `T ≥ degree + 3` long.
-    fn powers<const T: usize>(&self, q: [f64; 3]) -> [[f64; T]; 3] {
+    /// Power tables of the three coordinates (see [`TABLE`]) up to degree `n`, `T ≥ n + 3` long.
+    #[inline(always)]
+    fn powers<const T: usize>(n: usize, q: [f64; 3]) -> [[f64; T]; 3] {
         let mut t = [[0.0; T]; 3];
         for a in 0..3 {
             let mut v = 1.0;
-            for e in 0..=self.degree {
+            for e in 0..=n {
                 t[a][e + 2] = v;
                 v *= q[a];
             }
@@ -883,11 +884,12 @@ impl Evaluator {
     /// Power tables of the three coordinates with their first and second derivatives:
     /// `[t^e, e·t^(e−1), e(e−1)·t^(e−2)]` at index e for each axis, the three side by side so
     /// the inner loops read one row per exponent.
-    fn derivative_powers<const T: usize>(&self, q: [f64; 3]) -> [[[f64; 3]; T]; 3] {
-        let t = self.powers::<T>(q);
+    #[inline(always)]
+    fn derivative_powers<const T: usize>(n: usize, q: [f64; 3]) -> [[[f64; 3]; T]; 3] {
+        let t = Self::powers::<T>(n, q);
         let mut d = [[[0.0; 3]; T]; 3];
         for a in 0..3 {
-            for (e, row) in d[a].iter_mut().enumerate().take(self.degree + 1) {
+            for (e, row) in d[a].iter_mut().enumerate().take(n + 1) {
                 let ef = e as f64;
                 *row = [t[a][e + 2], ef * t[a][e + 1], ef * (ef - 1.0) * t[a][e]];
             }
@@ -907,24 +909,65 @@ impl Evaluator {
     }
 
     /// f, ∇f and, when `HESSIAN`, the Hessian (zero otherwise) at the normalized point `q`.
+    ///
+    /// Compiled for the baseline target and, on x86-64, for AVX2 too, picked at run time (one
+    /// cached check), and for each degree up to 8 with the loop bounds as constants. Every
+    /// version performs the same IEEE operations in the same order (Rust never contracts a
+    /// multiply and an add into an FMA, and without fast-math the compiler vectorizes only where
+    /// the order of every sum is kept), so they differ in speed, not in bits.
+    #[inline]
     fn derivatives<const HESSIAN: bool>(&self, q: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
-        // Tables sized to the degree: short ones are cheaper to clear and keep in cache.
-        match self.degree + 3 {
-            0..=SHORT_TABLE => self.derivatives_with::<SHORT_TABLE, HESSIAN>(q),
-            _ => self.derivatives_with::<TABLE, HESSIAN>(q),
+        #[cfg(target_arch = "x86_64")]
+        {
+            #[target_feature(enable = "avx2")]
+            fn avx2<const HESSIAN: bool>(
+                e: &Evaluator,
+                q: [f64; 3],
+            ) -> (f64, [f64; 3], [[f64; 3]; 3]) {
+                e.derivatives_by_degree::<HESSIAN>(q)
+            }
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: `avx2` needs only the AVX2 instructions, which this CPU has (checked
+                // just above).
+                return unsafe { avx2::<HESSIAN>(self, q) };
+            }
         }
+        self.derivatives_by_degree::<HESSIAN>(q)
     }
 
-    /// [`Self::derivatives`] with tables of length `T ≥ degree + 3`. The second-order sums are
-    /// compiled out when `HESSIAN` is false; f and ∇f are summed in the same order either way.
-    // i and j index three derivative tables each and size the columns: plain ranges read best.
-    #[allow(clippy::needless_range_loop)]
-    fn derivatives_with<const T: usize, const HESSIAN: bool>(
+    /// [`Self::derivatives`] with the degree as a constant where it is at most 8, and tables
+    /// sized to the degree (short ones are cheaper to clear and keep in cache).
+    #[inline(always)]
+    fn derivatives_by_degree<const HESSIAN: bool>(
         &self,
         q: [f64; 3],
     ) -> (f64, [f64; 3], [[f64; 3]; 3]) {
-        let [x, y, z] = self.derivative_powers::<T>(q);
-        let n = self.degree;
+        match self.degree {
+            1 => self.derivatives_with::<SHORT_TABLE, HESSIAN>(1, q),
+            2 => self.derivatives_with::<SHORT_TABLE, HESSIAN>(2, q),
+            3 => self.derivatives_with::<SHORT_TABLE, HESSIAN>(3, q),
+            4 => self.derivatives_with::<SHORT_TABLE, HESSIAN>(4, q),
+            5 => self.derivatives_with::<SHORT_TABLE, HESSIAN>(5, q),
+            6 => self.derivatives_with::<SHORT_TABLE, HESSIAN>(6, q),
+            7 => self.derivatives_with::<SHORT_TABLE, HESSIAN>(7, q),
+            8 => self.derivatives_with::<SHORT_TABLE, HESSIAN>(8, q),
+            n if n + 3 <= SHORT_TABLE => self.derivatives_with::<SHORT_TABLE, HESSIAN>(n, q),
+            n => self.derivatives_with::<TABLE, HESSIAN>(n, q),
+        }
+    }
+
+    /// [`Self::derivatives`] for degree `n` (= `self.degree`) with tables of length
+    /// `T ≥ n + 3`. The second-order sums are compiled out when `HESSIAN` is false; f and ∇f are
+    /// summed in the same order either way.
+    // i and j index three derivative tables each and size the columns: plain ranges read best.
+    #[allow(clippy::needless_range_loop)]
+    #[inline(always)]
+    fn derivatives_with<const T: usize, const HESSIAN: bool>(
+        &self,
+        n: usize,
+        q: [f64; 3],
+    ) -> (f64, [f64; 3], [[f64; 3]; 3]) {
+        let [x, y, z] = Self::derivative_powers::<T>(n, q);
         let mut columns = self.nested.as_slice();
         let (mut f, mut g, mut h) = (0.0, [0.0; 3], [[0.0; 3]; 3]);
         for i in 0..=n {

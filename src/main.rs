@@ -220,7 +220,7 @@ fn detail_params(opts: &cli::DetailOpts) -> Result<stablesurf::detail::DetailPar
 /// onto the zero set, so a finer mesh only flattens the facets between them: on the ten scans
 /// of ../shared/data a global (polynomial) model meshed at depth 8 has 4× the triangles of
 /// depth 7, the same topology (watertight, components, Euler characteristic) and a mean
-/// point-to-mesh distance within 2.6e-6 of the diagonal of depth 7's (README). A detail model
+/// point-to-mesh distance within 4.6e-6 of the diagonal of depth 7's (README). A detail model
 /// is meshed without the topology guard, whose gradient test the blend's loose gradient
 /// enclosure cannot pass (it would refine nearly everywhere).
 fn polygonize_params(

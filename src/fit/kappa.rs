@@ -178,24 +178,35 @@ pub(crate) fn select(
             chosen
         }
         super::KappaRule::Stable => {
-            // (a): positive here and at every larger grid value.
-            let mut candidates = Vec::new();
-            for i in (0..kappas.len()).rev() {
-                let t = std::time::Instant::now();
-                let g = solve_at(i);
-                trace(
-                    t,
-                    format_args!("solve kappa {:.1e} min {:.3e}", kappas[i], g.leading_min),
-                );
-                let ok = positive(&g);
-                grid[i] = Some(g);
-                if !ok {
-                    break;
-                }
-                candidates.push(i);
-            }
+            // (a): positive here and at every larger grid value. The walk is sequential; the
+            // data's pieces, which the checks of (c) need, are indexed beside it.
+            let (mut candidates, pieces) = rayon::join(
+                || {
+                    let mut candidates = Vec::new();
+                    for i in (0..kappas.len()).rev() {
+                        let t = std::time::Instant::now();
+                        let g = solve_at(i);
+                        trace(
+                            t,
+                            format_args!("solve kappa {:.1e} min {:.3e}", kappas[i], g.leading_min),
+                        );
+                        let ok = positive(&g);
+                        grid[i] = Some(g);
+                        if !ok {
+                            break;
+                        }
+                        candidates.push(i);
+                    }
+                    candidates
+                },
+                || {
+                    let t = std::time::Instant::now();
+                    let pieces = DataPieces::new(cloud, norm);
+                    trace(t, format_args!("data pieces"));
+                    pieces
+                },
+            );
             candidates.reverse();
-            let mut data: Option<Option<DataPieces>> = None;
             let mut chosen = None;
             for &i in &candidates {
                 let Some(fit_i) = grid[i].as_ref() else {
@@ -209,12 +220,7 @@ pub(crate) fn select(
                 let Some(radius) = poly.containment_radius_with(fit_i.leading_min) else {
                     continue;
                 };
-                if data.is_none() {
-                    let t = std::time::Instant::now();
-                    data = Some(DataPieces::new(cloud, norm));
-                    trace(t, format_args!("data pieces"));
-                }
-                let Some(Some(pieces)) = data.as_ref() else {
+                let Some(pieces) = pieces.as_ref() else {
                     warnings.push("kappa rule stable: the data could not be indexed, so the zero-set checks (c)/(d) were skipped".to_string());
                     chosen = Some(i);
                     break;
