@@ -123,6 +123,48 @@ fn usage_errors_are_exit_2() {
 }
 
 #[test]
+fn polynomial_slices_do_not_depend_on_the_mesh() {
+    // The exact slices of a global model are computed beside the meshing, from the model alone:
+    // two depths (two meshes, the fit reused) give byte-identical slice files, and a third run
+    // with the distance to the mesh gives different ones (so the comparison can fail).
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 400);
+    let cache = dir.path().join("cache");
+    let run = |depth: &str, method: &str, out: &str| {
+        let o = bin()
+            .arg("run")
+            .arg(&input)
+            .args(["-o", &dir.path().join(out).display().to_string()])
+            .args([
+                "--degree",
+                "4",
+                "--depth",
+                depth,
+                "--formats",
+                "exr,json",
+                "-q",
+            ])
+            .args(["--slice-count", "3", "--slice-resolution", "24"])
+            .args(["--slice-distance", method])
+            .arg("--cache-dir")
+            .arg(&cache)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", stderr_of(&o));
+        dir.path().join(out).join("slices")
+    };
+    let a = run("4", "exact", "a");
+    let b = run("6", "exact", "b");
+    let c = run("4", "mesh", "c");
+    for k in 0..3 {
+        let name = format!("slice_{k:03}.exr");
+        let bytes = fs::read(a.join(&name)).unwrap();
+        assert_eq!(bytes, fs::read(b.join(&name)).unwrap(), "{name}");
+        assert_ne!(bytes, fs::read(c.join(&name)).unwrap(), "{name}");
+    }
+}
+
+#[test]
 fn rerun_hits_cache_and_depth_change_reuses_the_fit() {
     let dir = tempfile::tempdir().unwrap();
     let input = sphere_xyz(dir.path(), 400);
