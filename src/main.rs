@@ -216,13 +216,13 @@ fn detail_params(opts: &cli::DetailOpts) -> Result<stablesurf::detail::DetailPar
     })
 }
 
-/// Meshing parameters for a model of `mode`: depth 7 by default ([`PolygonizeParams`]'s). Every mesh vertex is projected
-/// onto the zero set, so a finer mesh only flattens the facets between them: on the ten scans
-/// of ../shared/data a global (polynomial) model meshed at depth 8 has 4× the triangles of
-/// depth 7, the same topology (watertight, components, Euler characteristic) and a mean
-/// point-to-mesh distance within 4.6e-6 of the diagonal of depth 7's (README). A detail model
-/// is meshed without the topology guard, whose gradient test the blend's loose gradient
-/// enclosure cannot pass (it would refine nearly everywhere).
+/// Meshing parameters for a model of `mode`: depth 7 by default (`PolygonizeParams`'s). Every
+/// mesh vertex is projected onto the zero set, so a finer mesh only flattens the facets between
+/// them: on the ten scans of ../shared/data a global (polynomial) model meshed at depth 8 has 4×
+/// the triangles of depth 7, the same topology (watertight, components, Euler characteristic)
+/// and a mean point-to-mesh distance within 4.6e-6 of the diagonal of depth 7's (README). A
+/// detail model is meshed without the topology guard, whose gradient test the blend's loose
+/// gradient enclosure cannot pass (it would refine nearly everywhere).
 fn polygonize_params(
     opts: &cli::MeshOpts,
     mode: pipeline::Mode,
