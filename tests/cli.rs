@@ -122,6 +122,24 @@ fn usage_errors_are_exit_2() {
     );
 }
 
+/// `stablesurf run INPUT -o OUT --degree 4 --cache-dir CACHE` with the given flags; asserts
+/// that it succeeded.
+fn run_degree_4(input: &Path, out: &Path, cache: &Path, flags: &[&str]) -> std::process::Output {
+    let o = bin()
+        .arg("run")
+        .arg(input)
+        .arg("-o")
+        .arg(out)
+        .args(["--degree", "4"])
+        .args(flags)
+        .arg("--cache-dir")
+        .arg(cache)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr_of(&o));
+    o
+}
+
 #[test]
 fn polynomial_slices_do_not_depend_on_the_mesh() {
     // The exact slices of a global model are computed beside the meshing, from the model alone:
@@ -131,26 +149,24 @@ fn polynomial_slices_do_not_depend_on_the_mesh() {
     let input = sphere_xyz(dir.path(), 400);
     let cache = dir.path().join("cache");
     let run = |depth: &str, method: &str, out: &str| {
-        let o = bin()
-            .arg("run")
-            .arg(&input)
-            .args(["-o", &dir.path().join(out).display().to_string()])
-            .args([
-                "--degree",
-                "4",
+        run_degree_4(
+            &input,
+            &dir.path().join(out),
+            &cache,
+            &[
                 "--depth",
                 depth,
                 "--formats",
                 "exr,json",
                 "-q",
-            ])
-            .args(["--slice-count", "3", "--slice-resolution", "24"])
-            .args(["--slice-distance", method])
-            .arg("--cache-dir")
-            .arg(&cache)
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", stderr_of(&o));
+                "--slice-count",
+                "3",
+                "--slice-resolution",
+                "24",
+                "--slice-distance",
+                method,
+            ],
+        );
         dir.path().join(out).join("slices")
     };
     let a = run("4", "exact", "a");
@@ -170,24 +186,12 @@ fn rerun_hits_cache_and_depth_change_reuses_the_fit() {
     let input = sphere_xyz(dir.path(), 400);
     let cache = dir.path().join("cache");
     let run = |depth: &str, out: &str| {
-        let o = bin()
-            .arg("run")
-            .arg(&input)
-            .args(["-o", &dir.path().join(out).display().to_string()])
-            .args([
-                "--degree",
-                "4",
-                "--depth",
-                depth,
-                "--formats",
-                "ply,json",
-                "-v",
-            ])
-            .arg("--cache-dir")
-            .arg(&cache)
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", stderr_of(&o));
+        let o = run_degree_4(
+            &input,
+            &dir.path().join(out),
+            &cache,
+            &["--depth", depth, "--formats", "ply,json", "-v"],
+        );
         stderr_of(&o)
     };
     let first = run("5", "a");
