@@ -752,15 +752,16 @@ fn render_outputs(
         if !(want(OutputFormat::Exr) || want(OutputFormat::Png)) {
             return Ok(Vec::new());
         }
-        if let Some(early) = early {
-            return early;
+        // Computed beside the meshing, or here when that was skipped (an export entry found on
+        // disk that then failed to decode).
+        if let Some(slices) = early.or_else(|| model_slices(config, model, region)) {
+            return slices;
         }
-        Ok(match (model, config.slices.method) {
-            (_, crate::distance::DistanceMethod::Mesh) => {
+        Ok(match config.slices.method {
+            crate::distance::DistanceMethod::Mesh => {
                 crate::distance::slices_from_mesh(model.function(), mesh, region, &config.slices)?
             }
-            (Model::Global(m), _) => crate::distance::slices(&m.polynomial, region, &config.slices)?,
-            (Model::Detail(_), method) => {
+            method => {
                 return Err(PipelineError::Unsupported(format!(
                     "{} distance slices need a global (polynomial) model; use --slice-distance mesh in detail mode",
                     method.name()
