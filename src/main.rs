@@ -133,6 +133,12 @@ impl Observer for StderrObserver {
             );
         }
     }
+
+    fn warning(&mut self, message: &str) {
+        if self.verbosity != Verbosity::Quiet {
+            eprintln!("stablesurf: warning: {message}");
+        }
+    }
 }
 
 fn open_cache(opts: &cli::CacheOpts) -> Result<Cache> {

@@ -57,9 +57,6 @@ pub enum PipelineError {
     /// Computing the distance slices failed.
     #[error("distance slices failed")]
     Distance(#[from] crate::distance::DistanceError),
-    /// The cache could not be written.
-    #[error("cache failed")]
-    Cache(#[from] cache::CacheError),
     /// The scan file could not be read.
     #[error("cannot read {path}")]
     Read {
@@ -304,6 +301,9 @@ pub trait Observer {
     fn stage_started(&mut self, _stage: &'static str) {}
     /// A stage finished.
     fn stage_finished(&mut self, _record: &StageRecord) {}
+    /// Something the user should know that does not stop the run (a cache that could not be
+    /// written).
+    fn warning(&mut self, _message: &str) {}
 }
 
 /// An observer that ignores everything.
@@ -321,11 +321,32 @@ const EXPORT_VERSION: u32 = 2;
 
 struct Ctx<'a> {
     cache: &'a Cache,
+    /// The misses' entries, stored beside the next stages' work.
+    puts: cache::Puts,
     observer: &'a mut dyn Observer,
     stages: Vec<StageRecord>,
 }
 
-impl Ctx<'_> {
+impl<'a> Ctx<'a> {
+    fn new(cache: &'a Cache, observer: &'a mut dyn Observer) -> Self {
+        Ctx {
+            cache,
+            puts: cache.puts(),
+            observer,
+            stages: Vec::new(),
+        }
+    }
+
+    /// Waits for the cache writes. One that failed costs only the next run's time, so it is a
+    /// warning: the outputs are complete either way.
+    fn finish_puts(&mut self) {
+        for e in self.puts.finish() {
+            self.observer.warning(&format!(
+                "{e}; this run's results are complete but were not all cached"
+            ));
+        }
+    }
+
     /// Runs one cached stage: look up, else compute and store. `figures` summarizes the output
     /// for the report; on a hit the stored figures are reused.
     fn stage<T: Artifact>(
@@ -359,7 +380,7 @@ impl Ctx<'_> {
                     "seconds": start.elapsed().as_secs_f64(),
                     "figures": figures,
                 });
-                self.cache.put(stage, &key, &v, &meta)?;
+                self.puts.put(stage, &key, &v, &meta);
                 let lookup = if found.is_some() {
                     Lookup::Corrupt
                 } else {
@@ -502,12 +523,9 @@ pub fn fit_model(
     cache: &Cache,
     observer: &mut dyn Observer,
 ) -> Result<(Model, OrientedCloud, Vec<StageRecord>), PipelineError> {
-    let mut ctx = Ctx {
-        cache,
-        observer,
-        stages: Vec::new(),
-    };
+    let mut ctx = Ctx::new(cache, observer);
     let (_, oriented, model, _) = fit_stages(&mut ctx, source, config)?;
+    ctx.finish_puts();
     Ok((model, oriented, ctx.stages))
 }
 
@@ -535,11 +553,7 @@ pub fn run(
     observer: &mut dyn Observer,
 ) -> Result<RunReport, PipelineError> {
     let start = Instant::now();
-    let mut ctx = Ctx {
-        cache,
-        observer,
-        stages: Vec::new(),
-    };
+    let mut ctx = Ctx::new(cache, observer);
     let input_name = match source {
         ScanSource::Sample => SAMPLE_NAME.to_string(),
         ScanSource::File(p) => p.display().to_string(),
@@ -636,6 +650,8 @@ pub fn run(
 
     let t = Instant::now();
     let outputs = write_files(out_dir, &files)?;
+    // The write line covers the wait for the cache entries still being stored.
+    ctx.finish_puts();
     ctx.finish(
         "write",
         "none",

@@ -269,6 +269,34 @@ fn no_cache_writes_no_cache() {
 }
 
 #[test]
+fn unwritable_cache_is_one_warning_and_complete_outputs() {
+    // The cache is stored beside the run's work; a cache that cannot be written costs only the
+    // next run's time, so the run succeeds, says so once, and writes every output.
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 300);
+    let blocker = dir.path().join("not-a-dir");
+    fs::write(&blocker, b"").unwrap();
+    let out = bin()
+        .arg("run")
+        .arg(&input)
+        .arg("-o")
+        .arg(dir.path().join("out"))
+        .args(["--degree", "2", "--depth", "4", "--formats", "json,ply"])
+        .arg("--cache-dir")
+        .arg(blocker.join("cache"))
+        .output()
+        .unwrap();
+    let stderr = stderr_of(&out);
+    assert!(out.status.success(), "{stderr}");
+    let warnings: Vec<&str> = stderr.lines().filter(|l| l.contains("warning")).collect();
+    assert_eq!(warnings.len(), 1, "{stderr}");
+    assert!(warnings[0].contains("cannot write the cache"), "{stderr}");
+    for file in ["report.json", "model.json", "mesh.ply"] {
+        assert!(dir.path().join("out").join(file).is_file(), "{file}");
+    }
+}
+
+#[test]
 fn unwritable_output_is_exit_1_and_leaves_no_file() {
     let dir = tempfile::tempdir().unwrap();
     let input = sphere_xyz(dir.path(), 300);

@@ -17,6 +17,10 @@
 //! the key (for `-v`). Writes go to a unique temporary file in the same directory and are renamed
 //! into place, so a killed run or two concurrent runs never leave a torn entry. An entry that fails
 //! to decode or verify (see [`codec`]) is a miss and is rewritten; it is never an error.
+//!
+//! A run stores its entries through [`Puts`], on a background thread, while its next stages
+//! compute. A store that fails costs only the next run's time, so the pipeline reports it as a
+//! warning and the run's outputs are complete.
 
 pub mod codec;
 
@@ -219,6 +223,15 @@ impl Cache {
         write_atomic(&bin, &codec::encode(artifact))
     }
 
+    /// A writer that stores this cache's entries on a background thread (see [`Puts`]).
+    pub fn puts(&self) -> Puts {
+        Puts {
+            cache: self.clone(),
+            sender: None,
+            worker: None,
+        }
+    }
+
     /// Total size in bytes and number of entries per stage.
     pub fn usage(&self) -> Vec<(String, u64, u64)> {
         let mut out = Vec::new();
@@ -263,6 +276,90 @@ impl Cache {
                 source,
             }),
         }
+    }
+}
+
+/// One entry for the background writer: the explanation's path and bytes, then the artifact's.
+type Entry = [(PathBuf, Vec<u8>); 2];
+
+/// Cache writes that run beside the caller's work, as sccache stores a compile's result after it
+/// has answered: [`Puts::put`] encodes the entry (so it owns no borrowed data) and returns at
+/// once; a background thread writes the files, each atomically as [`Cache::put`] does, in the
+/// order they were put. The caller's next stage computes meanwhile, so a cold run does not wait
+/// for the disk between stages.
+///
+/// [`Puts::finish`] waits for every write and returns the errors. Dropping the writer waits
+/// too, so the entries of the stages that completed are stored even when a later stage fails.
+pub struct Puts {
+    cache: Cache,
+    sender: Option<std::sync::mpsc::Sender<Entry>>,
+    worker: Option<std::thread::JoinHandle<Vec<CacheError>>>,
+}
+
+impl Puts {
+    /// Queues an artifact and its explanation (`meta`, JSON) for storing; does nothing when the
+    /// cache is disabled. Errors come out of [`Puts::finish`].
+    pub fn put<T: Artifact>(
+        &mut self,
+        stage: &str,
+        key: &Key,
+        artifact: &T,
+        meta: &serde_json::Value,
+    ) {
+        let (Some(bin), Some(json)) = (
+            self.cache.entry_path(stage, key, "bin"),
+            self.cache.entry_path(stage, key, "json"),
+        ) else {
+            return;
+        };
+        let meta_bytes = serde_json::to_vec_pretty(meta).expect("json value serializes");
+        let entry = [(json, meta_bytes), (bin, codec::encode(artifact))];
+        let sender = self.sender.get_or_insert_with(|| {
+            let (sender, receiver) = std::sync::mpsc::channel::<Entry>();
+            self.worker = Some(std::thread::spawn(move || {
+                // After a failure the rest is dropped: the cause (a full disk, no permission)
+                // is the same for every entry, and one report says it.
+                let mut errors = Vec::new();
+                for entry in receiver {
+                    if errors.is_empty() {
+                        if let Some(e) = entry
+                            .into_iter()
+                            .find_map(|(path, bytes)| write_atomic(&path, &bytes).err())
+                        {
+                            errors.push(e);
+                        }
+                    }
+                }
+                errors
+            }));
+            sender
+        });
+        // The worker only stops once the sender is dropped, so the send cannot fail.
+        let _ = sender.send(entry);
+    }
+
+    /// Waits for every queued write; returns the error that stopped them, if any.
+    pub fn finish(&mut self) -> Vec<CacheError> {
+        self.sender = None;
+        match self.worker.take().map(std::thread::JoinHandle::join) {
+            Some(Ok(errors)) => errors,
+            Some(Err(_)) => vec![CacheError::Io {
+                path: self
+                    .cache
+                    .root
+                    .as_ref()
+                    .map(|r| r.display().to_string())
+                    .unwrap_or_default(),
+                source: std::io::Error::other("the cache writer stopped"),
+            }],
+            None => Vec::new(),
+        }
+    }
+}
+
+impl Drop for Puts {
+    fn drop(&mut self) {
+        self.finish();
     }
 }
 
@@ -360,6 +457,63 @@ mod tests {
         assert_eq!(cache.usage()[0].1, 1);
         cache.clear().unwrap();
         assert_eq!(cache.get::<PointCloud>("import", &key).1, Lookup::Miss);
+    }
+
+    #[test]
+    fn background_puts_land_by_finish_and_a_failure_is_reported_once() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = Cache::at(dir.path());
+        let clouds: Vec<(Key, PointCloud)> = (0..20)
+            .map(|i| {
+                let cloud = PointCloud {
+                    points: vec![[f64::from(i), 0.0, 0.0]],
+                    ..Default::default()
+                };
+                (Key::of_bytes(&[i as u8]), cloud)
+            })
+            .collect();
+        let mut puts = cache.puts();
+        for (key, cloud) in &clouds {
+            puts.put(
+                "import",
+                key,
+                cloud,
+                &serde_json::json!({"i": cloud.points[0][0]}),
+            );
+        }
+        assert!(puts.finish().is_empty());
+        for (key, cloud) in &clouds {
+            assert_eq!(
+                cache.get::<PointCloud>("import", key),
+                (Some(cloud.clone()), Lookup::Hit)
+            );
+            assert_eq!(
+                cache.meta("import", key).unwrap()["i"],
+                serde_json::json!(cloud.points[0][0])
+            );
+        }
+        // Dropping the writer also waits: the entry is there right after.
+        let key = Key::of_bytes(b"dropped");
+        {
+            let mut puts = cache.puts();
+            puts.put("fit", &key, &clouds[0].1, &serde_json::json!({}));
+        }
+        assert_eq!(cache.get::<PointCloud>("fit", &key).1, Lookup::Hit);
+
+        // A root below a file cannot be created: one error, whatever the number of entries.
+        let file = dir.path().join("file");
+        fs::write(&file, b"").unwrap();
+        let mut puts = Cache::at(file.join("cache")).puts();
+        for (key, cloud) in &clouds {
+            puts.put("import", key, cloud, &serde_json::json!({}));
+        }
+        let errors = puts.finish();
+        assert_eq!(errors.len(), 1);
+        assert!(errors[0].to_string().contains("cannot write the cache"));
+        // A disabled cache queues nothing and starts no thread.
+        let mut puts = Cache::disabled().puts();
+        puts.put("import", &key, &clouds[0].1, &serde_json::json!({}));
+        assert!(puts.worker.is_none() && puts.finish().is_empty());
     }
 
     #[test]
