@@ -357,8 +357,24 @@ impl<'a> Ctx<'a> {
         input_key: &Key,
         compute: impl FnOnce() -> Result<(T, serde_json::Value), PipelineError>,
     ) -> Result<(T, Key), PipelineError> {
-        self.observer.stage_started(stage);
-        let start = Instant::now();
+        self.stage_from(None, stage, version, params, input_key, compute)
+    }
+
+    /// [`Self::stage`] for a stage whose work began before this call, at `announced` (its start
+    /// already told to the observer): its time counts from there.
+    fn stage_from<T: Artifact>(
+        &mut self,
+        announced: Option<Instant>,
+        stage: &'static str,
+        version: u32,
+        params: &[u8],
+        input_key: &Key,
+        compute: impl FnOnce() -> Result<(T, serde_json::Value), PipelineError>,
+    ) -> Result<(T, Key), PipelineError> {
+        let start = announced.unwrap_or_else(|| {
+            self.observer.stage_started(stage);
+            Instant::now()
+        });
         let key = cache::stage_key(stage, version, params, input_key);
         let (found, lookup) = self.cache.get::<T>(stage, &key);
         // A hit needs its explanation too (the report's figures come from it).
@@ -563,11 +579,12 @@ pub fn run(
     let region = model.region();
     let polygonize_params = cache::params_bytes(&config.polygonize);
     let export_params = export_params_bytes(config);
-    // The distance slices of a polynomial model need the model only, not the mesh. When the
-    // export stage is going to run, they are computed beside the meshing, whose sequential
-    // parts would otherwise leave a core idle; the export stage then takes them as they are
-    // (the same values it would compute: they depend on the model, the region and the slice
-    // parameters alone).
+    // The export stage's work splits in two: the slice files of a polynomial model need the
+    // model only, everything else needs the mesh. When the export stage is going to run, the
+    // slice files are made beside the meshing and then beside the mesh's outputs, so both cores
+    // stay busy; the export stage then assembles the parts (the same bytes it would compute on
+    // its own: each part depends on the same inputs alone). Its line counts from the end of the
+    // meshing.
     let export_key = cache::stage_key(
         "export",
         EXPORT_VERSION,
@@ -579,12 +596,13 @@ pub fn run(
             &model_key,
         ),
     );
+    let export_runs = !cache.contains("export", &export_key);
     let mut early_slices = None;
-    let polygonized = rayon::in_place_scope(|scope| {
-        if !cache.contains("export", &export_key) {
-            scope.spawn(|_| early_slices = model_slices(config, &model, &region));
+    let (polygonized, mut early_parts, export_start) = rayon::in_place_scope(|scope| {
+        if export_runs {
+            scope.spawn(|_| early_slices = model_slice_files(config, &model, &region));
         }
-        ctx.stage(
+        let polygonized = ctx.stage(
             "polygonize",
             POLYGONIZE_VERSION,
             &polygonize_params,
@@ -598,46 +616,51 @@ pub fn run(
                 });
                 Ok((out.mesh, figures))
             },
-        )
+        );
+        let export_start = Instant::now();
+        let parts = match &polygonized {
+            Ok((mesh, _)) if export_runs => {
+                ctx.observer.stage_started("export");
+                Some(mesh_parts(config, &model, mesh.clone(), &cloud))
+            }
+            _ => None,
+        };
+        (polygonized, parts, export_start)
     });
-    let (mut mesh, mesh_key) = polygonized?;
+    let (mesh, mesh_key) = polygonized?;
 
     // Everything after meshing (component filter, checks, accuracy, the bytes of every output
     // file) is one more cached stage: a rerun with the same inputs only copies files out.
-    let (files, _) = ctx.stage("export", EXPORT_VERSION, &export_params, &mesh_key, || {
-        let data_diagonal = Aabb::from_points(&cloud.points).map_or(0.0, |b| b.diagonal());
-        let mut dropped = 0;
-        if config.keep == Keep::Data {
-            let (kept, n) =
-                mesh::drop_components_far_from(&mesh, &cloud.points, 0.02 * data_diagonal);
-            (mesh, dropped) = (kept, n);
-        }
-        // The checks, the accuracy and the output files are independent: run them at once.
-        let mesh = &mesh;
-        let ((report_mesh, accuracy), files) = rayon::join(
-            || {
-                rayon::join(
-                    || mesh::check(mesh),
-                    || {
-                        DistanceSummary::from_distances(
-                            &measure::point_to_mesh_distances(&cloud.points, mesh),
-                            data_diagonal,
-                        )
-                    },
-                )
-            },
-            || render_outputs(config, &model, mesh, &cloud, &region, early_slices),
-        );
-        let files = files?;
-        let figures = serde_json::json!({
-            "files": files.0.len(),
-            "bytes": files.0.iter().map(|f| f.1.len()).sum::<usize>(),
-            "dropped_components": dropped,
-            "mesh": report_mesh,
-            "accuracy": accuracy,
-        });
-        Ok((files, figures))
-    })?;
+    let announced = early_parts.is_some().then_some(export_start);
+    let (files, _) = ctx.stage_from(
+        announced,
+        "export",
+        EXPORT_VERSION,
+        &export_params,
+        &mesh_key,
+        || {
+            // Made above, or here when that was skipped (an export entry found on disk that then
+            // failed to decode).
+            let parts = match early_parts.take() {
+                Some(parts) => parts?,
+                None => mesh_parts(config, &model, mesh, &cloud)?,
+            };
+            let slice_files = match early_slices.take() {
+                Some(files) => files?,
+                None => slice_files(config, &model, &parts.mesh, &region)?,
+            };
+            let mut files = parts.files;
+            files.extend(slice_files);
+            let figures = serde_json::json!({
+                "files": files.len(),
+                "bytes": files.iter().map(|f| f.1.len()).sum::<usize>(),
+                "dropped_components": parts.dropped,
+                "mesh": parts.report,
+                "accuracy": parts.accuracy,
+            });
+            Ok((OutputFiles(files), figures))
+        },
+    )?;
     let figures = &ctx
         .stages
         .last()
@@ -723,68 +746,37 @@ fn write_files(out_dir: &Path, files: &OutputFiles) -> Result<Vec<String>, Pipel
     Ok(written)
 }
 
-/// The distance slices when they can be computed without the mesh (a polynomial model, a
-/// distance that is not the mesh's, and slices among the formats); `None` otherwise.
-fn model_slices(
-    config: &PipelineConfig,
-    model: &Model,
-    region: &Aabb,
-) -> Option<Result<Vec<crate::distance::Slice>, PipelineError>> {
-    let wanted = [OutputFormat::Exr, OutputFormat::Png]
-        .iter()
-        .any(|f| config.formats.contains(f));
-    match (model, config.slices.method) {
-        (Model::Global(m), method) if wanted && method != crate::distance::DistanceMethod::Mesh => {
-            Some(crate::distance::slices(&m.polynomial, region, &config.slices).map_err(Into::into))
-        }
-        _ => None,
-    }
+/// Output files as (name relative to the output directory, bytes).
+type Files = Vec<(String, Vec<u8>)>;
+
+/// What the export stage makes from the mesh: the mesh as kept (components far from the data
+/// dropped when asked), its checks, the accuracy figures and the mesh's output files.
+struct MeshParts {
+    mesh: TriangleMesh,
+    dropped: usize,
+    report: MeshReport,
+    accuracy: DistanceSummary,
+    files: Files,
 }
 
-/// Computes every output file's bytes in memory (nothing is written here). The independent
-/// parts (distance slices, model file, glTF, PLY with its vertex quality, preview) run
-/// concurrently, and the slice images are encoded in parallel; the files come out in a fixed
-/// order whatever the thread count. `early` holds the slices when [`model_slices`] has
-/// already computed them.
-fn render_outputs(
+/// The export stage's mesh part: the component filter, then the checks, the accuracy and the
+/// model, glTF, PLY (with its vertex quality) and preview files, all at once. The files come out
+/// in a fixed order whatever the thread count.
+fn mesh_parts(
     config: &PipelineConfig,
     model: &Model,
-    mesh: &TriangleMesh,
+    mut mesh: TriangleMesh,
     cloud: &PointCloud,
-    region: &Aabb,
-    early: Option<Result<Vec<crate::distance::Slice>, PipelineError>>,
-) -> Result<OutputFiles, PipelineError> {
-    use rayon::prelude::*;
-    type Files = Vec<(String, Vec<u8>)>;
+) -> Result<MeshParts, PipelineError> {
+    let data_diagonal = Aabb::from_points(&cloud.points).map_or(0.0, |b| b.diagonal());
+    let mut dropped = 0;
+    if config.keep == Keep::Data {
+        let (kept, n) = mesh::drop_components_far_from(&mesh, &cloud.points, 0.02 * data_diagonal);
+        (mesh, dropped) = (kept, n);
+    }
     let want = |f| config.formats.contains(&f);
     let one = |name: &str, bytes: Vec<u8>| -> Files { vec![(name.to_string(), bytes)] };
-    let encode =
-        |f: &dyn Fn(&mut Vec<u8>) -> Result<(), ExportError>| -> Result<Vec<u8>, PipelineError> {
-            let mut bytes = Vec::new();
-            f(&mut bytes)?;
-            Ok(bytes)
-        };
-    let slices = || -> Result<Vec<crate::distance::Slice>, PipelineError> {
-        if !(want(OutputFormat::Exr) || want(OutputFormat::Png)) {
-            return Ok(Vec::new());
-        }
-        // Computed beside the meshing, or here when that was skipped (an export entry found on
-        // disk that then failed to decode).
-        if let Some(slices) = early.or_else(|| model_slices(config, model, region)) {
-            return slices;
-        }
-        Ok(match config.slices.method {
-            crate::distance::DistanceMethod::Mesh => {
-                crate::distance::slices_from_mesh(model.function(), mesh, region, &config.slices)?
-            }
-            method => {
-                return Err(PipelineError::Unsupported(format!(
-                    "{} distance slices need a global (polynomial) model; use --slice-distance mesh in detail mode",
-                    method.name()
-                )))
-            }
-        })
-    };
+    let m = &mesh;
     let json = || -> Result<Files, PipelineError> {
         if !want(OutputFormat::Json) {
             return Ok(Vec::new());
@@ -798,7 +790,7 @@ fn render_outputs(
         }
         Ok(one(
             "mesh.glb",
-            encode(&|w| export::gltf::write_glb(mesh, w, &config.gltf))?,
+            encode(&|w| export::gltf::write_glb(m, w, &config.gltf))?,
         ))
     };
     let gltf = || -> Result<Files, PipelineError> {
@@ -807,40 +799,128 @@ fn render_outputs(
         }
         let mut bin = Vec::new();
         let mut json = Vec::new();
-        export::gltf::write_gltf(mesh, &mut json, &mut bin, "mesh.bin", &config.gltf)?;
+        export::gltf::write_gltf(m, &mut json, &mut bin, "mesh.bin", &config.gltf)?;
         Ok(vec![("mesh.bin".into(), bin), ("mesh.gltf".into(), json)])
     };
     let ply = || -> Result<Files, PipelineError> {
         if !want(OutputFormat::Ply) {
             return Ok(Vec::new());
         }
-        let quality = export::ply::nearest_point_distances(&mesh.positions, &cloud.points)?;
+        let quality = export::ply::nearest_point_distances(&m.positions, &cloud.points)?;
         let opts = export::ply::PlyOptions {
             quality: Some(&quality),
             ..Default::default()
         };
         Ok(one(
             "mesh.ply",
-            encode(&|w| export::ply::write(mesh, w, &opts))?,
+            encode(&|w| export::ply::write(m, w, &opts))?,
         ))
     };
     let preview = || -> Result<Files, PipelineError> {
         if !want(OutputFormat::Png) {
             return Ok(Vec::new());
         }
-        let image = crate::render::render(mesh, &crate::render::RenderParams::default());
+        let image = crate::render::render(m, &crate::render::RenderParams::default());
         Ok(one(
             "preview.png",
             encode(&|w| export::png::write_rgb(&image, w))?,
         ))
     };
-    // The slices take most of the time and are parallel inside; the rest fills the other thread.
-    let (slices, (json, ((glb, gltf), (ply, preview)))) = rayon::join(slices, || {
-        rayon::join(json, || {
-            rayon::join(|| rayon::join(glb, gltf), || rayon::join(ply, preview))
-        })
-    });
-    let slices = slices?;
+    let ((report, accuracy), (json, ((glb, gltf), (ply, preview)))) = rayon::join(
+        || {
+            rayon::join(
+                || mesh::check(m),
+                || {
+                    DistanceSummary::from_distances(
+                        &measure::point_to_mesh_distances(&cloud.points, m),
+                        data_diagonal,
+                    )
+                },
+            )
+        },
+        || {
+            rayon::join(json, || {
+                rayon::join(|| rayon::join(glb, gltf), || rayon::join(ply, preview))
+            })
+        },
+    );
+    let mut files = Vec::new();
+    for part in [json?, glb?, gltf?, ply?, preview?] {
+        files.extend(part);
+    }
+    Ok(MeshParts {
+        mesh,
+        dropped,
+        report,
+        accuracy,
+        files,
+    })
+}
+
+/// The bytes `f` writes.
+fn encode(f: &dyn Fn(&mut Vec<u8>) -> Result<(), ExportError>) -> Result<Vec<u8>, PipelineError> {
+    let mut bytes = Vec::new();
+    f(&mut bytes)?;
+    Ok(bytes)
+}
+
+/// The slice files when they can be made without the mesh (a polynomial model, a distance that
+/// is not the mesh's, and slices among the formats); `None` otherwise.
+fn model_slice_files(
+    config: &PipelineConfig,
+    model: &Model,
+    region: &Aabb,
+) -> Option<Result<Files, PipelineError>> {
+    let wanted = [OutputFormat::Exr, OutputFormat::Png]
+        .iter()
+        .any(|f| config.formats.contains(f));
+    match (model, config.slices.method) {
+        (Model::Global(m), method) if wanted && method != crate::distance::DistanceMethod::Mesh => {
+            Some(
+                crate::distance::slices(&m.polynomial, region, &config.slices)
+                    .map_err(Into::into)
+                    .and_then(|slices| slice_images(config, &slices)),
+            )
+        }
+        _ => None,
+    }
+}
+
+/// The slice files (OpenEXR and PNG, as the formats ask): from the model alone when it can
+/// ([`model_slice_files`]), else from the distance to `mesh`.
+fn slice_files(
+    config: &PipelineConfig,
+    model: &Model,
+    mesh: &TriangleMesh,
+    region: &Aabb,
+) -> Result<Files, PipelineError> {
+    if !(config.formats.contains(&OutputFormat::Exr) || config.formats.contains(&OutputFormat::Png))
+    {
+        return Ok(Vec::new());
+    }
+    if let Some(files) = model_slice_files(config, model, region) {
+        return files;
+    }
+    match config.slices.method {
+        crate::distance::DistanceMethod::Mesh => {
+            let slices =
+                crate::distance::slices_from_mesh(model.function(), mesh, region, &config.slices)?;
+            slice_images(config, &slices)
+        }
+        method => Err(PipelineError::Unsupported(format!(
+            "{} distance slices need a global (polynomial) model; use --slice-distance mesh in detail mode",
+            method.name()
+        ))),
+    }
+}
+
+/// Encodes the slices as the formats ask, in parallel; the files come out in slice order.
+fn slice_images(
+    config: &PipelineConfig,
+    slices: &[crate::distance::Slice],
+) -> Result<Files, PipelineError> {
+    use rayon::prelude::*;
+    let want = |f| config.formats.contains(&f);
     let images: Vec<Files> = slices
         .par_iter()
         .map(|slice| -> Result<Files, PipelineError> {
@@ -858,10 +938,5 @@ fn render_outputs(
             Ok(files)
         })
         .collect::<Result<_, _>>()?;
-    let mut files = Vec::new();
-    for part in [json?, glb?, gltf?, ply?, preview?] {
-        files.extend(part);
-    }
-    files.extend(images.into_iter().flatten());
-    Ok(OutputFiles(files))
+    Ok(images.into_iter().flatten().collect())
 }
