@@ -33,7 +33,9 @@
 //!   the nearest samples (k-d tree) start Newton's method on the closest-point conditions
 //!   x − p + λ∇f(x) = 0, f(x) = 0 (with the Hessian of f). The result is the distance from p to
 //!   a point x with |f(x)|/|∇f(x)| < 1e-10 (normalized units), so it is never below the true
-//!   distance; it equals the true distance to rounding (≈ 1e-12 relative) whenever one of the
+//!   distance; it equals the true distance far below the float32 output's precision (a short
+//!   final Newton step is replaced by a projection onto f = 0, see `NEWTON_PROJECT_STEP`)
+//!   whenever one of the
 //!   nearest samples lies in the Newton basin of the true closest point, which holds unless a
 //!   piece of the zero set is smaller than a seed cell (1/64 of the grown region) or the true
 //!   closest point lies outside the grown region. The sign is the sign of f(p). Along a row of
@@ -75,6 +77,15 @@ const ON_SURFACE_TOL: f64 = 1e-10;
 /// 1 + |x|∞) is the last one: the point after it is exact to about its square (≈ 1e-10), and
 /// the distance, second order in the tangential error, far more (f32 output keeps 6e-8).
 const NEWTON_FINAL_STEP: f64 = 1e-5;
+/// A Newton step of the closest-point search below this (normalized units, relative to
+/// 1 + |x|∞) is followed by one projection onto f = 0 along ∇f (updated to first order with the
+/// step's Hessian) instead of another Newton step. Such a step leaves an error of about its
+/// square, mostly along the normal, which the projection removes; the tangential rest changes
+/// the distance only to second order, and the point is checked on the surface as always. On the
+/// degree-8 bunny model's 16 × 128² slices this moved 656 of 262,144 values, by at most 5.1e-9
+/// input units (one float32 step; `cargo run --release --example slice_diff -- A B`), for 6%
+/// fewer instructions (valgrind's callgrind, `stablesurf -j 1 slices MODEL --resolution 48`).
+const NEWTON_PROJECT_STEP: f64 = 1e-3;
 
 /// The axis slices are perpendicular to.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -1104,6 +1115,22 @@ impl Evaluator {
                 let ft = self.value(xt);
                 if ft.abs() / gn < ON_SURFACE_TOL && xt.iter().all(|c| c.is_finite()) {
                     return Some(xt);
+                }
+            }
+            // A short step lands within about its square of the closest point, and that error
+            // is mostly along the normal; one projection along ∇f fixes it (the distance is
+            // second order in the tangential error that remains): two values of f instead of
+            // the Hessian at the new point and one more step. See NEWTON_PROJECT_STEP.
+            if size < NEWTON_PROJECT_STEP * scale {
+                let xt = [0, 1, 2].map(|a| x[a] + step[a]);
+                let ft = self.value(xt);
+                // ∇f at xt to first order, from the Hessian at x.
+                let gt = [0, 1, 2].map(|a| g[a] + (0..3).map(|b| h[a][b] * step[b]).sum::<f64>());
+                let gt2 = gt[0] * gt[0] + gt[1] * gt[1] + gt[2] * gt[2];
+                let xp = [0, 1, 2].map(|a| xt[a] - ft * gt[a] / gt2);
+                let fp = self.value(xp);
+                if fp.abs() / gn < ON_SURFACE_TOL && xp.iter().all(|c| c.is_finite()) {
+                    return Some(xp);
                 }
             }
             // Halve the step until the residual decreases.

@@ -1,0 +1,66 @@
+//! Compares two folders of distance slices (`slice_NNN.exr`, as `stablesurf slices` or `run`
+//! writes them) pixel by pixel: how many values differ, the largest absolute difference, and
+//! that difference relative to the largest |value| (about the region's size). Used to check
+//! that a change to the slice computation keeps the distances.
+//!
+//! ```text
+//! cargo run --release --example slice_diff -- DIR_A DIR_B
+//! ```
+
+use std::path::{Path, PathBuf};
+
+use exr::prelude::{read, FlatSamples, ReadChannels, ReadLayers};
+
+fn samples(path: &Path) -> Vec<f32> {
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    match &image.layer_data.channel_data.list[0].sample_data {
+        FlatSamples::F32(v) => v.clone(),
+        _ => panic!("{}: not float32 samples", path.display()),
+    }
+}
+
+fn exr_files(dir: &Path) -> Vec<PathBuf> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap_or_else(|e| panic!("{}: {e}", dir.display()))
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|x| x == "exr"))
+        .collect();
+    files.sort();
+    files
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let [a, b] = args.as_slice() else {
+        eprintln!("usage: slice_diff DIR_A DIR_B");
+        std::process::exit(2);
+    };
+    let (fa, fb) = (exr_files(Path::new(a)), exr_files(Path::new(b)));
+    assert_eq!(fa.len(), fb.len(), "different numbers of slices");
+    let (mut pixels, mut differ, mut max_abs, mut max_value) = (0usize, 0usize, 0f64, 0f64);
+    for (pa, pb) in fa.iter().zip(&fb) {
+        let (va, vb) = (samples(pa), samples(pb));
+        assert_eq!(va.len(), vb.len(), "{}: different sizes", pa.display());
+        for (x, y) in va.iter().zip(&vb) {
+            pixels += 1;
+            max_value = max_value.max(f64::from(x.abs()));
+            if x.to_bits() != y.to_bits() {
+                differ += 1;
+                max_abs = max_abs.max((f64::from(*x) - f64::from(*y)).abs());
+            }
+        }
+    }
+    println!(
+        "{} slices, {pixels} pixels: {differ} differ; largest difference {max_abs:.3e} ({:.3e} of the largest |value| {max_value:.3e})",
+        fa.len(),
+        max_abs / max_value.max(f64::MIN_POSITIVE)
+    );
+}
