@@ -34,11 +34,10 @@
 //!   x − p + λ∇f(x) = 0, f(x) = 0 (with the Hessian of f). The result is the distance from p to
 //!   a point x with |f(x)|/|∇f(x)| < 1e-10 (normalized units), so it is never below the true
 //!   distance; it equals the true distance far below the float32 output's precision (a short
-//!   final Newton step is replaced by a projection onto f = 0, see `NEWTON_PROJECT_STEP`)
-//!   whenever one of the
-//!   nearest samples lies in the Newton basin of the true closest point, which holds unless a
-//!   piece of the zero set is smaller than a seed cell (1/64 of the grown region) or the true
-//!   closest point lies outside the grown region. The sign is the sign of f(p). Along a row of
+//!   last Newton step gives way to a projection onto f = 0, see `NEWTON_PROJECT_STEP`)
+//!   whenever one of the nearest samples lies in the Newton basin of the true closest point,
+//!   which holds unless a piece of the zero set is smaller than a seed cell (1/64 of the grown
+//!   region) or the true closest point lies outside the grown region. The sign is the sign of f(p). Along a row of
 //!   a slice, Newton's method is first run from the previous pixel's closest point (an
 //!   excellent start one pixel away); that point then bounds and covers seeds like a refined
 //!   seed, so most pixels need only this warm solve. Cost: a few Hessian evaluations and one
