@@ -729,10 +729,14 @@ fn export_params_bytes(config: &PipelineConfig) -> Vec<u8> {
     }))
 }
 
-/// Writes each file atomically into `out_dir` (creating folders as needed).
+/// Threads that write the output files: each write waits mostly for the disk (the sync before
+/// the rename), so several overlap even on two cores.
+const WRITE_THREADS: usize = 8;
+
+/// Writes each file atomically into `out_dir` (creating folders as needed), several at once.
+/// Returns the names in the order of `files`; on failure, the first error in that order.
 fn write_files(out_dir: &Path, files: &OutputFiles) -> Result<Vec<String>, PipelineError> {
-    let mut written = Vec::new();
-    for (name, bytes) in &files.0 {
+    let write_one = |name: &str, bytes: &[u8]| -> Result<(), PipelineError> {
         let path = out_dir.join(name);
         if let Some(dir) = path.parent() {
             std::fs::create_dir_all(dir).map_err(|source| PipelineError::OutputDir {
@@ -741,7 +745,40 @@ fn write_files(out_dir: &Path, files: &OutputFiles) -> Result<Vec<String>, Pipel
             })?;
         }
         export::write_atomic(&path, |w| w.write_all(bytes).map_err(ExportError::Write))?;
-        written.push(name.clone());
+        Ok(())
+    };
+    let threads = WRITE_THREADS.min(files.0.len()).max(1);
+    let results: Vec<Vec<(usize, Result<(), PipelineError>)>> = std::thread::scope(|scope| {
+        let workers: Vec<_> = (0..threads)
+            .map(|t| {
+                let write_one = &write_one;
+                scope.spawn(move || {
+                    files
+                        .0
+                        .iter()
+                        .enumerate()
+                        .skip(t)
+                        .step_by(threads)
+                        .map(|(i, (name, bytes))| (i, write_one(name, bytes)))
+                        .collect()
+                })
+            })
+            .collect();
+        workers
+            .into_iter()
+            .map(|w| {
+                w.join()
+                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+            })
+            .collect()
+    });
+    let mut ordered: Vec<(usize, Result<(), PipelineError>)> =
+        results.into_iter().flatten().collect();
+    ordered.sort_by_key(|r| r.0);
+    let mut written = Vec::with_capacity(files.0.len());
+    for (i, result) in ordered {
+        result?;
+        written.push(files.0[i].0.clone());
     }
     Ok(written)
 }
