@@ -50,9 +50,17 @@ pub fn mesh_normals(
             edges.push((a.min(b), a.max(b), t as u32, a < b));
         }
     }
-    edges.sort_unstable();
-    // Manifold adjacency: (neighbour triangle, same direction along the shared edge).
-    let mut adjacency: Vec<Vec<(u32, bool)>> = vec![Vec::new(); tris.len()];
+    // The entries are distinct (a triangle has no two edges on the same pair of vertices), so
+    // any sort gives this one order.
+    edges.par_sort_unstable();
+    // Manifold adjacency: (neighbour triangle, same direction along the shared edge), at most
+    // one per edge of a triangle, in the order of the sorted edges.
+    let mut adjacency: Vec<([(u32, bool); 3], u8)> = vec![([(0, false); 3], 0); tris.len()];
+    let mut link = |t: u32, u: u32, same: bool| {
+        let (list, len) = &mut adjacency[t as usize];
+        list[usize::from(*len)] = (u, same);
+        *len += 1;
+    };
     let mut s = 0;
     while s < edges.len() {
         let mut e = s + 1;
@@ -62,8 +70,8 @@ pub fn mesh_normals(
         if e - s == 2 {
             let (x, y) = (edges[s], edges[s + 1]);
             let same = x.3 == y.3;
-            adjacency[x.2 as usize].push((y.2, same));
-            adjacency[y.2 as usize].push((x.2, same));
+            link(x.2, y.2, same);
+            link(y.2, x.2, same);
         }
         s = e;
     }
@@ -79,7 +87,8 @@ pub fn mesh_normals(
         patch[seed] = n_patches;
         queue.push_back(seed as u32);
         while let Some(t) = queue.pop_front() {
-            for &(u, same) in &adjacency[t as usize] {
+            let (list, len) = &adjacency[t as usize];
+            for &(u, same) in &list[..usize::from(*len)] {
                 // Consistent neighbours traverse the shared edge in opposite directions.
                 let want = flip[t as usize] ^ same;
                 if patch[u as usize] == u32::MAX {
