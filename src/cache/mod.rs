@@ -15,8 +15,9 @@
 //!
 //! Layout on disk: `<root>/<stage>/<k0k1>/<key>.bin` plus `<key>.json` describing what went into
 //! the key (for `-v`). Writes go to a unique temporary file in the same directory and are renamed
-//! into place, so a killed run or two concurrent runs never leave a torn entry. An entry that fails
-//! to decode or verify (see [`codec`]) is a miss and is rewritten; it is never an error.
+//! into place, so a killed run or two concurrent runs never leave a torn entry (no sync before
+//! the rename: an entry torn by a power loss fails its checksum and is a miss). An entry that
+//! fails to decode or verify (see [`codec`]) is a miss and is rewritten; it is never an error.
 //!
 //! A run stores its entries through [`Puts`], on a background thread, while its next stages
 //! compute. A store that fails costs only the next run's time, so the pipeline reports it as a
@@ -374,9 +375,10 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CacheError> {
     let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
     let tmp = dir.join(format!(".tmp-{}-{n}", std::process::id()));
     let result = (|| {
-        let mut f = fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
+        // No sync before the rename: a killed run leaves either the old entry or the whole new
+        // one (the rename is atomic), and an entry torn by a power loss fails its checksum
+        // and is a miss, so waiting for the disk here would buy nothing.
+        fs::File::create(&tmp)?.write_all(bytes)?;
         fs::rename(&tmp, path)
     })();
     if result.is_err() {
