@@ -661,8 +661,10 @@ fn sphere_extrema(form: &ImplicitPolynomial) -> SphereExtrema {
         .collect();
     let mut values = vec![0.0; dirs.len()];
     unit.eval_many(&dirs, &mut values);
-    let (min, argmin) = refine_extremum(&unit, &dirs, &values, 1.0);
-    let (max, argmax) = refine_extremum(&unit, &dirs, &values, -1.0);
+    let ((min, argmin), (max, argmax)) = rayon::join(
+        || refine_extremum(&unit, &dirs, &values, 1.0),
+        || refine_extremum(&unit, &dirs, &values, -1.0),
+    );
     SphereExtrema {
         min,
         argmin,
@@ -695,9 +697,14 @@ fn refine_extremum(
             }
         }
     }
+    // The starts are refined in parallel and compared in their order, as one loop would.
+    use rayon::prelude::*;
+    let refined: Vec<(f64, [f64; 3])> = starts
+        .par_iter()
+        .map(|&start| riemannian_newton(form, start, sign))
+        .collect();
     let mut best = (f64::INFINITY, [0.0, 0.0, 1.0]);
-    for start in starts {
-        let (v, u) = riemannian_newton(form, start, sign);
+    for (v, u) in refined {
         if v < best.0 {
             best = (v, u);
         }
