@@ -815,8 +815,49 @@ impl Evaluator {
 
     /// f at the normalized point `q`.
     fn value(&self, q: [f64; 3]) -> f64 {
-        let n = self.degree;
-        let zp = self.z_powers(q[2]);
+        #[cfg(target_arch = "x86_64")]
+        {
+            #[target_feature(enable = "avx2")]
+            fn avx2(e: &Evaluator, q: [f64; 3]) -> f64 {
+                e.value_by_degree(q)
+            }
+            if std::arch::is_x86_feature_detected!("avx2") {
+                // SAFETY: `avx2` needs only the AVX2 instructions, which this CPU has (checked
+                // just above).
+                return unsafe { avx2(self, q) };
+            }
+        }
+        self.value_by_degree(q)
+    }
+
+    /// [`Self::value`] with the degree as a constant where it is at most 8 and the power table
+    /// sized to the degree, as [`Self::derivatives_by_degree`]; the same operations in the same
+    /// order for every degree, so the same bits.
+    #[inline(always)]
+    fn value_by_degree(&self, q: [f64; 3]) -> f64 {
+        match self.degree {
+            1 => self.value_with::<SHORT_TABLE>(1, q),
+            2 => self.value_with::<SHORT_TABLE>(2, q),
+            3 => self.value_with::<SHORT_TABLE>(3, q),
+            4 => self.value_with::<SHORT_TABLE>(4, q),
+            5 => self.value_with::<SHORT_TABLE>(5, q),
+            6 => self.value_with::<SHORT_TABLE>(6, q),
+            7 => self.value_with::<SHORT_TABLE>(7, q),
+            8 => self.value_with::<SHORT_TABLE>(8, q),
+            n if n + 3 <= SHORT_TABLE => self.value_with::<SHORT_TABLE>(n, q),
+            n => self.value_with::<TABLE>(n, q),
+        }
+    }
+
+    /// f at `q` for degree `n` (= `self.degree`) with a power table of length `T > n`.
+    #[inline(always)]
+    fn value_with<const T: usize>(&self, n: usize, q: [f64; 3]) -> f64 {
+        let mut zp = [0.0; T];
+        let mut v = 1.0;
+        for p in zp.iter_mut().take(n + 1) {
+            *p = v;
+            v *= q[2];
+        }
         let mut columns = self.nested.as_slice();
         let (mut f, mut xi) = (0.0, 1.0);
         for i in 0..=n {
