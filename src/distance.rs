@@ -77,14 +77,19 @@ const ON_SURFACE_TOL: f64 = 1e-10;
 /// the distance, second order in the tangential error, far more (f32 output keeps 6e-8).
 const NEWTON_FINAL_STEP: f64 = 1e-5;
 /// A Newton step of the closest-point search below this (normalized units, relative to
-/// 1 + |x|∞) is followed by one projection onto f = 0 along ∇f (updated to first order with the
-/// step's Hessian) instead of another Newton step. Such a step leaves an error of about its
-/// square, mostly along the normal, which the projection removes; the tangential rest changes
-/// the distance only to second order, and the point is checked on the surface as always. On the
-/// degree-8 bunny model's 16 × 128² slices this moved 656 of 262,144 values, by at most 5.1e-9
-/// input units (one float32 step; `cargo run --release --example slice_diff -- A B`), for 6%
-/// fewer instructions (valgrind's callgrind, `stablesurf -j 1 slices MODEL --resolution 48`).
+/// 1 + |x|∞), and short enough for [`NEWTON_PROJECT_AREA`], is followed by one projection onto
+/// f = 0 along ∇f (updated to first order with the step's Hessian) instead of another Newton
+/// step. Such a step of length s leaves an error of about K·s² (K of order 10 on the models
+/// measured), mostly along the normal, which the projection removes; the tangential rest e
+/// changes the distance d by about e²/(2d), and the point is checked on the surface as always.
 const NEWTON_PROJECT_STEP: f64 = 1e-3;
+/// The projection of [`NEWTON_PROJECT_STEP`] is taken only when s² < this × d (normalized
+/// units): with K up to about 100 the distance then moves by less than 1e-8 of itself, below the
+/// float32 output's step, near the surface as far from it. On the degree-8 bunny model's
+/// 16 × 128² slices the shortcut with the step bound alone moved 656 of 262,144 values, by up to
+/// 175 float32 steps among those above 1e-3 of the largest (5.1e-9 input units at most); with
+/// this bound too, one value moved, by one step (`cargo run --release --example slice_diff`).
+const NEWTON_PROJECT_AREA: f64 = 1e-6;
 
 /// The axis slices are perpendicular to.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -1161,7 +1166,8 @@ impl Evaluator {
             // is mostly along the normal; one projection along ∇f fixes it (the distance is
             // second order in the tangential error that remains): two values of f instead of
             // the Hessian at the new point and one more step. See NEWTON_PROJECT_STEP.
-            if size < NEWTON_PROJECT_STEP * scale {
+            if size < NEWTON_PROJECT_STEP * scale && size * size < NEWTON_PROJECT_AREA * dist(q, x)
+            {
                 let xt = [0, 1, 2].map(|a| x[a] + step[a]);
                 let ft = self.value(xt);
                 // ∇f at xt to first order, from the Hessian at x.
