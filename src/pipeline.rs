@@ -597,9 +597,10 @@ pub fn run(
         ),
     );
     let export_runs = !cache.contains("export", &export_key);
+    let early_from_model = export_runs && slices_from_model(config, &model);
     let mut early_slices = None;
     let (polygonized, mut early_parts, export_start) = rayon::in_place_scope(|scope| {
-        if export_runs {
+        if early_from_model {
             scope.spawn(|_| early_slices = model_slice_files(config, &model, &region));
         }
         let polygonized = ctx.stage(
@@ -621,7 +622,15 @@ pub fn run(
         let parts = match &polygonized {
             Ok((mesh, _)) if export_runs => {
                 ctx.observer.stage_started("export");
-                Some(mesh_parts(config, &model, mesh.clone(), &cloud))
+                let with_slices = !early_from_model;
+                Some(mesh_parts(
+                    config,
+                    &model,
+                    mesh.clone(),
+                    &cloud,
+                    &region,
+                    with_slices,
+                ))
             }
             _ => None,
         };
@@ -643,11 +652,15 @@ pub fn run(
             // failed to decode).
             let parts = match early_parts.take() {
                 Some(parts) => parts?,
-                None => mesh_parts(config, &model, mesh, &cloud)?,
+                None => {
+                    let with_slices = early_slices.is_none();
+                    mesh_parts(config, &model, mesh, &cloud, &region, with_slices)?
+                }
             };
-            let slice_files = match early_slices.take() {
-                Some(files) => files?,
-                None => slice_files(config, &model, &parts.mesh, &region)?,
+            let slice_files = match (early_slices.take(), parts.slices) {
+                (Some(files), _) => files?,
+                (None, Some(files)) => files,
+                (None, None) => slice_files(config, &model, &parts.mesh, &region)?,
             };
             let mut files = parts.files;
             files.extend(slice_files);
@@ -787,23 +800,28 @@ fn write_files(out_dir: &Path, files: &OutputFiles) -> Result<Vec<String>, Pipel
 type Files = Vec<(String, Vec<u8>)>;
 
 /// What the export stage makes from the mesh: the mesh as kept (components far from the data
-/// dropped when asked), its checks, the accuracy figures and the mesh's output files.
+/// dropped when asked), its checks, the accuracy figures, the mesh's output files and, when
+/// asked, the slice files.
 struct MeshParts {
     mesh: TriangleMesh,
     dropped: usize,
     report: MeshReport,
     accuracy: DistanceSummary,
     files: Files,
+    slices: Option<Files>,
 }
 
-/// The export stage's mesh part: the component filter, then the checks, the accuracy and the
-/// model, glTF, PLY (with its vertex quality) and preview files, all at once. The files come out
-/// in a fixed order whatever the thread count.
+/// The export stage's mesh part: the component filter, then the checks, the accuracy, the
+/// model, glTF, PLY (with its vertex quality) and preview files and, `with_slices`, the slice
+/// files ([`slice_files`]: the distance to the kept mesh for a detail model), all at once. The
+/// files come out in a fixed order whatever the thread count.
 fn mesh_parts(
     config: &PipelineConfig,
     model: &Model,
     mut mesh: TriangleMesh,
     cloud: &PointCloud,
+    region: &Aabb,
+    with_slices: bool,
 ) -> Result<MeshParts, PipelineError> {
     let data_diagonal = Aabb::from_points(&cloud.points).map_or(0.0, |b| b.diagonal());
     let mut dropped = 0;
@@ -863,24 +881,29 @@ fn mesh_parts(
             encode(&|w| export::png::write_rgb(&image, w))?,
         ))
     };
-    let ((report, accuracy), (json, ((glb, gltf), (ply, preview)))) = rayon::join(
-        || {
+    let slices = || with_slices.then(|| slice_files(config, model, m, region));
+    let (slices, ((report, accuracy), (json, ((glb, gltf), (ply, preview))))) =
+        rayon::join(slices, || {
             rayon::join(
-                || mesh::check(m),
                 || {
-                    DistanceSummary::from_distances(
-                        &measure::point_to_mesh_distances(&cloud.points, m),
-                        data_diagonal,
+                    rayon::join(
+                        || mesh::check(m),
+                        || {
+                            DistanceSummary::from_distances(
+                                &measure::point_to_mesh_distances(&cloud.points, m),
+                                data_diagonal,
+                            )
+                        },
                     )
                 },
+                || {
+                    rayon::join(json, || {
+                        rayon::join(|| rayon::join(glb, gltf), || rayon::join(ply, preview))
+                    })
+                },
             )
-        },
-        || {
-            rayon::join(json, || {
-                rayon::join(|| rayon::join(glb, gltf), || rayon::join(ply, preview))
-            })
-        },
-    );
+        });
+    let slices = slices.transpose()?;
     let mut files = Vec::new();
     for part in [json?, glb?, gltf?, ply?, preview?] {
         files.extend(part);
@@ -891,6 +914,7 @@ fn mesh_parts(
         report,
         accuracy,
         files,
+        slices,
     })
 }
 
@@ -908,19 +932,24 @@ fn model_slice_files(
     model: &Model,
     region: &Aabb,
 ) -> Option<Result<Files, PipelineError>> {
+    match model {
+        Model::Global(m) if slices_from_model(config, model) => Some(
+            crate::distance::slices(&m.polynomial, region, &config.slices)
+                .map_err(Into::into)
+                .and_then(|slices| slice_images(config, &slices)),
+        ),
+        _ => None,
+    }
+}
+
+/// Whether [`model_slice_files`] makes the slice files (from the model alone).
+fn slices_from_model(config: &PipelineConfig, model: &Model) -> bool {
     let wanted = [OutputFormat::Exr, OutputFormat::Png]
         .iter()
         .any(|f| config.formats.contains(f));
-    match (model, config.slices.method) {
-        (Model::Global(m), method) if wanted && method != crate::distance::DistanceMethod::Mesh => {
-            Some(
-                crate::distance::slices(&m.polynomial, region, &config.slices)
-                    .map_err(Into::into)
-                    .and_then(|slices| slice_images(config, &slices)),
-            )
-        }
-        _ => None,
-    }
+    wanted
+        && matches!(model, Model::Global(_))
+        && config.slices.method != crate::distance::DistanceMethod::Mesh
 }
 
 /// The slice files (OpenEXR and PNG, as the formats ask): from the model alone when it can

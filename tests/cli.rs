@@ -218,8 +218,15 @@ fn rerun_hits_cache_and_depth_change_reuses_the_fit() {
     assert_eq!(cache_state(&deeper, "export"), "miss");
 
     // Corrupt the fit entry: it is detected, recomputed and rewritten.
-    let fit_dir = cache.join("fit");
-    let entry = fs::read_dir(&fit_dir)
+    corrupt_first_entry(&cache, "fit");
+    let repaired = run("5", "d");
+    assert_eq!(cache_state(&repaired, "fit"), "corrupt");
+    assert_eq!(cache_state(&run("5", "e"), "fit"), "hit");
+}
+
+/// Flips a byte in the middle of the first `.bin` entry of `stage` in the cache at `cache`.
+fn corrupt_first_entry(cache: &Path, stage: &str) {
+    let entry = fs::read_dir(cache.join(stage))
         .unwrap()
         .flat_map(|shard| fs::read_dir(shard.unwrap().path()).unwrap())
         .map(|e| e.unwrap().path())
@@ -229,9 +236,60 @@ fn rerun_hits_cache_and_depth_change_reuses_the_fit() {
     let mid = bytes.len() / 2;
     bytes[mid] ^= 0xff;
     fs::write(&entry, bytes).unwrap();
-    let repaired = run("5", "d");
-    assert_eq!(cache_state(&repaired, "fit"), "corrupt");
-    assert_eq!(cache_state(&run("5", "e"), "fit"), "hit");
+}
+
+#[test]
+fn corrupt_export_entry_is_rebuilt_into_the_same_files() {
+    // A corrupt export entry is found on disk, so the run does not start the export's parts
+    // beside the meshing; the export stage then makes them all itself, and every file comes
+    // out as from the cold run.
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 400);
+    let cache = dir.path().join("cache");
+    let run = |out: &str| {
+        let o = run_degree_4(
+            &input,
+            &dir.path().join(out),
+            &cache,
+            &[
+                "--depth",
+                "4",
+                "--formats",
+                "json,ply,glb,exr,png",
+                "--slice-count",
+                "2",
+                "--slice-resolution",
+                "16",
+                "-v",
+            ],
+        );
+        stderr_of(&o)
+    };
+    assert_eq!(cache_state(&run("a"), "export"), "miss");
+    corrupt_first_entry(&cache, "export");
+    let repaired = run("b");
+    assert_eq!(cache_state(&repaired, "polygonize"), "hit");
+    assert_eq!(cache_state(&repaired, "export"), "corrupt");
+    let files = |out: &str| -> Vec<(String, Vec<u8>)> {
+        let mut names = vec![
+            "model.json".to_string(),
+            "mesh.ply".into(),
+            "mesh.glb".into(),
+            "preview.png".into(),
+        ];
+        for k in 0..2 {
+            names.push(format!("slices/slice_{k:03}.exr"));
+            names.push(format!("slices/slice_{k:03}.png"));
+        }
+        names
+            .into_iter()
+            .map(|n| {
+                let bytes = fs::read(dir.path().join(out).join(&n)).unwrap();
+                (n, bytes)
+            })
+            .collect()
+    };
+    assert_eq!(files("a"), files("b"));
 }
 
 #[test]
