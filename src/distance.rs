@@ -37,13 +37,13 @@
 //!   last Newton step gives way to a projection onto f = 0, see `NEWTON_PROJECT_STEP`)
 //!   whenever one of the nearest samples lies in the Newton basin of the true closest point,
 //!   which holds unless a piece of the zero set is smaller than a seed cell (1/64 of the grown
-//!   region) or the true closest point lies outside the grown region. The sign is the sign of f(p). Along a row of
-//!   a slice, Newton's method is first run from the previous pixel's closest point (an
-//!   excellent start one pixel away); that point then bounds and covers seeds like a refined
-//!   seed, so most pixels need only this warm solve. Cost: a few Hessian evaluations and one
-//!   8-nearest-neighbour query per pixel, some 7× Taubin for a degree-8 model
-//!   (`cargo bench --bench export -- slices`). Two shortcuts leave every value unchanged (bit
-//!   for bit): the pixels of a row share two coordinates, so f's inner sums over them are
+//!   region) or the true closest point lies outside the grown region. The sign is the sign of
+//!   f(p). Along a row of a slice, Newton's method is first run from the previous pixel's
+//!   closest point (an excellent start one pixel away); that point then bounds and covers seeds
+//!   like a refined seed, so most pixels need only this warm solve. Cost: a few Hessian
+//!   evaluations and one 8-nearest-neighbour query per pixel, some 7× Taubin for a degree-8
+//!   model (`cargo bench --bench export -- slices`). Two shortcuts leave every value unchanged
+//!   (bit for bit): the pixels of a row share two coordinates, so f's inner sums over them are
 //!   computed once per row (and once per grid line for the seed grid), and the previous
 //!   pixel's 8 nearest seeds bound the 8-nearest distance of the next query, whose k-d tree
 //!   search then starts with that radius instead of best + cell.
