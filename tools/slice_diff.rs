@@ -10,21 +10,10 @@
 
 use std::path::{Path, PathBuf};
 
-use exr::prelude::{read, FlatSamples, ReadChannels, ReadLayers};
-
 fn samples(path: &Path) -> Vec<f32> {
-    let image = read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .from_file(path)
-        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    match &image.layer_data.channel_data.list[0].sample_data {
-        FlatSamples::F32(v) => v.clone(),
-        _ => panic!("{}: not float32 samples", path.display()),
-    }
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    stablesurf::export::exr::read_samples(&bytes)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
 fn exr_files(dir: &Path) -> Vec<PathBuf> {

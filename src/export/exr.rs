@@ -230,6 +230,36 @@ fn sort_header_attributes(bytes: &mut [u8]) -> Result<(), ExportError> {
     Ok(())
 }
 
+/// Reads back the distances of a slice file (any single-channel float32 OpenEXR image, as
+/// [`write_slice`] writes): the samples of its first channel, row by row from the top. For the
+/// tools and tests that compare slice stacks.
+///
+/// # Errors
+/// [`ExportError::Format`] when the bytes are not such an image.
+pub fn read_samples(bytes: &[u8]) -> Result<Vec<f32>, ExportError> {
+    use exr::prelude::{read, ReadChannels, ReadLayers};
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(Cursor::new(bytes))
+        .map_err(|e| ExportError::Format(format!("not a readable OpenEXR image: {e}")))?;
+    match image
+        .layer_data
+        .channel_data
+        .list
+        .first()
+        .map(|c| &c.sample_data)
+    {
+        Some(FlatSamples::F32(v)) => Ok(v.clone()),
+        _ => Err(ExportError::Format(
+            "the image's first channel is not float32".into(),
+        )),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use exr::prelude::{read, ReadChannels, ReadLayers, Vec2};
@@ -291,6 +321,17 @@ mod tests {
                 AttributeValue::Text(Text::from("x"))
             );
         }
+    }
+
+    #[test]
+    fn read_samples_gives_back_the_distances() {
+        let slice = sphere_slice(Axis::Y);
+        let bytes = encode(&slice, &ExrOptions::default()).unwrap();
+        assert_eq!(read_samples(&bytes).unwrap(), slice.data);
+        assert!(matches!(
+            read_samples(&bytes[..bytes.len() / 2]),
+            Err(ExportError::Format(_))
+        ));
     }
 
     #[test]
