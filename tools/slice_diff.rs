@@ -1,8 +1,8 @@
 //! Compares two folders of distance slices (`slice_NNN.exr`, as `stablesurf slices` or `run`
 //! writes them) pixel by pixel: how many values differ, by how many float32 steps at most
 //! (away from the surface), the largest absolute difference, and that difference relative to
-//! the largest |value| (about the region's size). Used to check
-//! that a change to the slice computation keeps the distances.
+//! the largest |value| (about the region's size). Used to check that a change to the slice
+//! computation keeps the distances.
 //!
 //! ```text
 //! cargo run --release --example slice_diff -- DIR_A DIR_B
@@ -35,21 +35,24 @@ fn main() {
     };
     let (fa, fb) = (exr_files(Path::new(a)), exr_files(Path::new(b)));
     assert_eq!(fa.len(), fb.len(), "different numbers of slices");
-    let (mut pixels, mut differ, mut max_abs, mut max_value) = (0usize, 0usize, 0f64, 0f64);
+    let mut stacks = Vec::with_capacity(fa.len());
+    for (pa, pb) in fa.iter().zip(&fb) {
+        let (va, vb) = (samples(pa), samples(pb));
+        assert_eq!(va.len(), vb.len(), "{}: different sizes", pa.display());
+        stacks.push((va, vb));
+    }
+    let max_value = stacks
+        .iter()
+        .flat_map(|(va, _)| va)
+        .fold(0f64, |m, v| m.max(f64::from(v.abs())));
+    let (mut pixels, mut differ, mut max_abs) = (0usize, 0usize, 0f64);
     // The largest difference in float32 steps (units in the last place) between values of one
     // sign, among values above 1e-3 of the largest |value| (nearer the surface a step is far
     // below the distances' own tolerance); a sign change counts as `u32::MAX`.
     let mut max_ulps = 0u32;
-    let largest = fa
-        .iter()
-        .flat_map(|p| samples(p))
-        .fold(0f64, |m, v| m.max(f64::from(v.abs())));
-    for (pa, pb) in fa.iter().zip(&fb) {
-        let (va, vb) = (samples(pa), samples(pb));
-        assert_eq!(va.len(), vb.len(), "{}: different sizes", pa.display());
-        for (x, y) in va.iter().zip(&vb) {
+    for (va, vb) in &stacks {
+        for (x, y) in va.iter().zip(vb) {
             pixels += 1;
-            max_value = max_value.max(f64::from(x.abs()));
             if x.to_bits() != y.to_bits() {
                 differ += 1;
                 max_abs = max_abs.max((f64::from(*x) - f64::from(*y)).abs());
@@ -58,7 +61,7 @@ fn main() {
                 } else {
                     u32::MAX
                 };
-                if f64::from(x.abs()) >= 1e-3 * largest {
+                if f64::from(x.abs()) >= 1e-3 * max_value {
                     max_ulps = max_ulps.max(ulps);
                 }
             }
