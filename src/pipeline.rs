@@ -942,12 +942,16 @@ fn model_slice_files(
     }
 }
 
+/// Whether the formats ask for slices (OpenEXR or their PNG previews).
+fn slices_wanted(config: &PipelineConfig) -> bool {
+    [OutputFormat::Exr, OutputFormat::Png]
+        .iter()
+        .any(|f| config.formats.contains(f))
+}
+
 /// Whether [`model_slice_files`] makes the slice files (from the model alone).
 fn slices_from_model(config: &PipelineConfig, model: &Model) -> bool {
-    let wanted = [OutputFormat::Exr, OutputFormat::Png]
-        .iter()
-        .any(|f| config.formats.contains(f));
-    wanted
+    slices_wanted(config)
         && matches!(model, Model::Global(_))
         && config.slices.method != crate::distance::DistanceMethod::Mesh
 }
@@ -960,8 +964,7 @@ fn slice_files(
     mesh: &TriangleMesh,
     region: &Aabb,
 ) -> Result<Files, PipelineError> {
-    if !(config.formats.contains(&OutputFormat::Exr) || config.formats.contains(&OutputFormat::Png))
-    {
+    if !slices_wanted(config) {
         return Ok(Vec::new());
     }
     if let Some(files) = model_slice_files(config, model, region) {
