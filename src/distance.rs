@@ -728,10 +728,20 @@ struct Evaluator {
     /// evaluated as Σ_i x^i Σ_j y^j Σ_k a_ijk z^k, with the derivatives carried along, which
     /// takes about a third of the multiplications of a term-by-term sum.
     nested: Vec<f64>,
+    /// The same coefficients for [`LANES`] consecutive i side by side, which the point kernels
+    /// read: for each group g (i = 4g … 4g + 3), for j = 0 ..= n − 4g, for k = 0 ..= n − 4g − j,
+    /// the entry holds a_(i,j,k) of each i, zero where i + j + k > n. Each lane computes the
+    /// column sums Σ_k a_ijk z^k of its own i in the nested form's order (the zeros come last
+    /// in a column, and a zero term adds nothing to a sum that starts at +0), four columns per
+    /// vector operation.
+    lanes: Vec<[f64; LANES]>,
     degree: usize,
     center: [f64; 3],
     scale: f64,
 }
+
+/// Values of i evaluated side by side by the point kernels ([`Evaluator::lanes`]).
+const LANES: usize = 4;
 
 /// Length of a power table: t^e is stored at e + 2, with two zeros in front so the derivative
 /// lookups t^(e−1), t^(e−2) need no branch.
@@ -780,8 +790,24 @@ impl Evaluator {
             let [i, j, k] = e.map(|x| x as usize);
             nested[column(i, j) + k] = a;
         }
+        let mut lanes = Vec::new();
+        for i0 in (0..=n).step_by(LANES) {
+            for j in 0..=n - i0 {
+                for k in 0..=n - i0 - j {
+                    lanes.push(std::array::from_fn(|l| {
+                        let i = i0 + l;
+                        if i + j + k <= n {
+                            nested[column(i, j) + k]
+                        } else {
+                            0.0
+                        }
+                    }));
+                }
+            }
+        }
         Ok(Evaluator {
             nested,
+            lanes,
             degree: poly.degree as usize,
             center: poly.center,
             scale: poly.scale,
@@ -854,28 +880,42 @@ impl Evaluator {
         }
     }
 
-    /// f at `q` for degree `n` (= `self.degree`) with a power table of length `T > n`.
+    /// f at `q` for degree `n` (= `self.degree`) with power tables of length `T > n`: the column
+    /// sums s_ij = Σ_k a_ijk z^k and the row sums fi = Σ_j y^j s_ij of four i at a time
+    /// ([`Evaluator::lanes`]), then f = Σ_i x^i fi, each sum in the nested form's order.
     #[inline(always)]
     fn value_with<const T: usize>(&self, n: usize, q: [f64; 3]) -> f64 {
         let mut zp = [0.0; T];
-        let mut v = 1.0;
-        for p in zp.iter_mut().take(n + 1) {
-            *p = v;
-            v *= q[2];
+        let mut yp = [0.0; T];
+        let (mut vz, mut vy) = (1.0, 1.0);
+        for e in 0..=n {
+            zp[e] = vz;
+            yp[e] = vy;
+            vz *= q[2];
+            vy *= q[1];
         }
-        let mut columns = self.nested.as_slice();
+        let mut rows = self.lanes.as_slice();
         let (mut f, mut xi) = (0.0, 1.0);
-        for i in 0..=n {
-            let (mut fi, mut yj) = (0.0, 1.0);
-            for j in 0..=n - i {
-                let (col, rest) = columns.split_at(n - i - j + 1);
-                columns = rest;
-                let s0 = column_sum(col, &zp);
-                fi += yj * s0;
-                yj *= q[1];
+        for i0 in (0..=n).step_by(LANES) {
+            // fi = Σ_j y^j Σ_k a_ijk z^k, one lane per i.
+            let mut fi = [0.0; LANES];
+            for (j, &yj) in yp.iter().enumerate().take(n - i0 + 1) {
+                let (col, rest) = rows.split_at(n - i0 - j + 1);
+                rows = rest;
+                let mut s0 = [0.0; LANES];
+                for (a, &zk) in col.iter().zip(&zp) {
+                    for l in 0..LANES {
+                        s0[l] += a[l] * zk;
+                    }
+                }
+                for l in 0..LANES {
+                    fi[l] += yj * s0[l];
+                }
             }
-            f += xi * fi;
-            xi *= q[0];
+            for &fi in fi.iter().take(n + 1 - i0) {
+                f += xi * fi;
+                xi *= q[0];
+            }
         }
         f
     }
@@ -1013,8 +1053,8 @@ impl Evaluator {
     }
 
     /// [`Self::derivatives`] for degree `n` (= `self.degree`) with tables of length
-    /// `T ≥ n + 3`. The second-order sums are compiled out when `HESSIAN` is false; f and ∇f are
-    /// summed in the same order either way.
+    /// `T ≥ n + 3`, four i at a time as [`Self::value_with`]. The second-order sums are compiled
+    /// out when `HESSIAN` is false; f and ∇f are summed in the same order either way.
     // i and j index three derivative tables each and size the columns: plain ranges read best.
     #[allow(clippy::needless_range_loop)]
     #[inline(always)]
@@ -1024,45 +1064,52 @@ impl Evaluator {
         q: [f64; 3],
     ) -> (f64, [f64; 3], [[f64; 3]; 3]) {
         let [x, y, z] = Self::derivative_powers::<T>(n, q);
-        let mut columns = self.nested.as_slice();
+        let mut rows = self.lanes.as_slice();
         let (mut f, mut g, mut h) = (0.0, [0.0; 3], [[0.0; 3]; 3]);
-        for i in 0..=n {
-            // t_ab = Σ_j y^(a)_j s^(b)_ij with s^(b)_ij = Σ_k a_ijk z^(b)_k.
-            let (mut t00, mut t10, mut t01) = (0.0, 0.0, 0.0);
-            let (mut t20, mut t02, mut t11) = (0.0, 0.0, 0.0);
-            for j in 0..=n - i {
-                let (col, rest) = columns.split_at(n - i - j + 1);
-                columns = rest;
-                let (mut s0, mut s1, mut s2) = (0.0, 0.0, 0.0);
-                for (&a, zk) in col.iter().zip(&z) {
-                    s0 += a * zk[0];
-                    s1 += a * zk[1];
-                    if HESSIAN {
-                        s2 += a * zk[2];
+        for i0 in (0..=n).step_by(LANES) {
+            // t_ab = Σ_j y^(a)_j s^(b)_ij with s^(b)_ij = Σ_k a_ijk z^(b)_k, one lane per i.
+            let zero = [0.0; LANES];
+            let (mut t00, mut t10, mut t01) = (zero, zero, zero);
+            let (mut t20, mut t02, mut t11) = (zero, zero, zero);
+            for j in 0..=n - i0 {
+                let (col, rest) = rows.split_at(n - i0 - j + 1);
+                rows = rest;
+                let (mut s0, mut s1, mut s2) = (zero, zero, zero);
+                for (a, zk) in col.iter().zip(&z) {
+                    for l in 0..LANES {
+                        s0[l] += a[l] * zk[0];
+                        s1[l] += a[l] * zk[1];
+                        if HESSIAN {
+                            s2[l] += a[l] * zk[2];
+                        }
                     }
                 }
                 let [y0, y1, y2] = y[j];
-                t00 += y0 * s0;
-                t10 += y1 * s0;
-                t01 += y0 * s1;
-                if HESSIAN {
-                    t20 += y2 * s0;
-                    t02 += y0 * s2;
-                    t11 += y1 * s1;
+                for l in 0..LANES {
+                    t00[l] += y0 * s0[l];
+                    t10[l] += y1 * s0[l];
+                    t01[l] += y0 * s1[l];
+                    if HESSIAN {
+                        t20[l] += y2 * s0[l];
+                        t02[l] += y0 * s2[l];
+                        t11[l] += y1 * s1[l];
+                    }
                 }
             }
-            let [x0, x1, x2] = x[i];
-            f += x0 * t00;
-            g[0] += x1 * t00;
-            g[1] += x0 * t10;
-            g[2] += x0 * t01;
-            if HESSIAN {
-                h[0][0] += x2 * t00;
-                h[1][1] += x0 * t20;
-                h[2][2] += x0 * t02;
-                h[0][1] += x1 * t10;
-                h[0][2] += x1 * t01;
-                h[1][2] += x0 * t11;
+            for l in 0..LANES.min(n + 1 - i0) {
+                let [x0, x1, x2] = x[i0 + l];
+                f += x0 * t00[l];
+                g[0] += x1 * t00[l];
+                g[1] += x0 * t10[l];
+                g[2] += x0 * t01[l];
+                if HESSIAN {
+                    h[0][0] += x2 * t00[l];
+                    h[1][1] += x0 * t20[l];
+                    h[2][2] += x0 * t02[l];
+                    h[0][1] += x1 * t10[l];
+                    h[0][2] += x1 * t01[l];
+                    h[1][2] += x0 * t11[l];
+                }
             }
         }
         (h[1][0], h[2][0], h[2][1]) = (h[0][1], h[0][2], h[1][2]);
@@ -1458,5 +1505,103 @@ mod tests {
         let a = one.install(|| slices(&t, &region, &params).unwrap());
         let b = slices(&t, &region, &params).unwrap();
         assert_eq!(a, b);
+    }
+
+    /// f, ∇f and the Hessian summed column by column in the nested order, one term at a time:
+    /// the definition the lane kernels must match bit for bit.
+    // The exponents index three tables each: plain ranges read best.
+    #[allow(clippy::needless_range_loop)]
+    fn nested_reference(e: &Evaluator, q: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
+        let n = e.degree;
+        let pw = |t: f64| -> Vec<[f64; 3]> {
+            let mut p = vec![0.0; n + 3];
+            let mut v = 1.0;
+            for e in 0..=n {
+                p[e + 2] = v;
+                v *= t;
+            }
+            (0..=n)
+                .map(|e| {
+                    let ef = e as f64;
+                    [p[e + 2], ef * p[e + 1], ef * (ef - 1.0) * p[e]]
+                })
+                .collect()
+        };
+        let (x, y, z) = (pw(q[0]), pw(q[1]), pw(q[2]));
+        let mut at = 0;
+        let (mut f, mut g, mut h) = (0.0, [0.0; 3], [[0.0; 3]; 3]);
+        for i in 0..=n {
+            let mut t = [0.0; 6];
+            for j in 0..=n - i {
+                let mut s = [0.0; 3];
+                for k in 0..=n - i - j {
+                    for b in 0..3 {
+                        s[b] += e.nested[at] * z[k][b];
+                    }
+                    at += 1;
+                }
+                t[0] += y[j][0] * s[0];
+                t[1] += y[j][1] * s[0];
+                t[2] += y[j][0] * s[1];
+                t[3] += y[j][2] * s[0];
+                t[4] += y[j][0] * s[2];
+                t[5] += y[j][1] * s[1];
+            }
+            let [x0, x1, x2] = x[i];
+            f += x0 * t[0];
+            g[0] += x1 * t[0];
+            g[1] += x0 * t[1];
+            g[2] += x0 * t[2];
+            h[0][0] += x2 * t[0];
+            h[1][1] += x0 * t[3];
+            h[2][2] += x0 * t[4];
+            h[0][1] += x1 * t[1];
+            h[0][2] += x1 * t[2];
+            h[1][2] += x0 * t[5];
+        }
+        (h[1][0], h[2][0], h[2][1]) = (h[0][1], h[0][2], h[1][2]);
+        (f, g, h)
+    }
+
+    #[test]
+    fn lane_kernels_match_the_nested_sums_bit_for_bit() {
+        let bits = |v: &[f64]| v.iter().map(|c| c.to_bits()).collect::<Vec<_>>();
+        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut next = move || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        // Degrees on both table sizes, some coefficients zero (as fits often have).
+        for degree in [1, 2, 3, 4, 5, 7, 8, 9, 10, 11, 13] {
+            let coefficients = (0..n_coefficients(degree))
+                .map(|l| if l % 5 == 3 { 0.0 } else { next() })
+                .collect();
+            let poly = ImplicitPolynomial {
+                degree,
+                coefficients,
+                center: [0.0; 3],
+                scale: 1.0,
+            };
+            let e = Evaluator::new(&poly).unwrap();
+            for _ in 0..20 {
+                let q = [1.7 * next(), 1.7 * next(), 1.7 * next()];
+                let (f, g, h) = e.hessian(q);
+                let (rf, rg, rh) = nested_reference(&e, q);
+                assert_eq!(bits(&[f]), bits(&[rf]), "degree {degree} at {q:?}");
+                assert_eq!(bits(&g), bits(&rg), "degree {degree} at {q:?}");
+                assert_eq!(bits(h.as_flattened()), bits(rh.as_flattened()));
+                let (gf, gg) = e.gradient(q);
+                assert_eq!(
+                    bits(&[gf, gg[0], gg[1], gg[2]]),
+                    bits(&[rf, rg[0], rg[1], rg[2]])
+                );
+                assert_eq!(e.value(q).to_bits(), rf.to_bits());
+                // The line sums (nested order) give the same value off the line's y.
+                let line = e.line([q[0], q[1] + 0.25, q[2]]);
+                assert_eq!(e.value_on_line(&line, q).to_bits(), rf.to_bits());
+            }
+        }
     }
 }
