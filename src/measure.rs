@@ -403,10 +403,10 @@ pub(crate) fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
 }
 
 /// Points a leaf of [`PointTree`] holds at most.
-const LEAF_POINTS: usize = 8;
+const LEAF_POINTS: usize = 16;
 
 /// A node of [`PointTree`]: a split (children at `index + 1` and `right`) or a leaf (`axis` =
-/// [`LEAF`], points `start..end` of the tree's reordered arrays).
+/// [`LEAF`], its points in block `start` of [`PointTree::blocks`]).
 #[derive(Clone, Copy, Debug)]
 struct KdNode {
     /// Tight bounding box of the node's points.
@@ -416,26 +416,66 @@ struct KdNode {
     axis: u32,
     right: u32,
     start: u32,
-    end: u32,
 }
 
 /// `KdNode::axis` of a leaf.
 const LEAF: u32 = 3;
 
+/// The points of one leaf, coordinate by coordinate, so that a query computes the distances to
+/// all of them at once (vector lanes); the unused slots hold +∞, whose distance is never below
+/// any bound.
+#[derive(Clone, Copy, Debug)]
+struct LeafBlock {
+    coords: [[f64; LEAF_POINTS]; 3],
+    /// Index of each point in the input slice.
+    items: [u32; LEAF_POINTS],
+}
+
+impl LeafBlock {
+    /// Squared distances from `q` to the block's points ([`Self::dist2_lanes`]) and the mask of
+    /// those below `bound` ([`Self::below`]).
+    #[inline(always)]
+    fn scan(&self, q: [f64; 3], bound: f64) -> ([f64; LEAF_POINTS], u32) {
+        let d = self.dist2_lanes(q);
+        (d, Self::below(&d, bound))
+    }
+
+    /// Squared distances from `q` to the block's points, each summed as [`dist2`] sums it.
+    #[inline(always)]
+    fn dist2_lanes(&self, q: [f64; 3]) -> [f64; LEAF_POINTS] {
+        let mut d = [0.0; LEAF_POINTS];
+        for (l, d) in d.iter_mut().enumerate() {
+            let dx = self.coords[0][l] - q[0];
+            let dy = self.coords[1][l] - q[1];
+            let dz = self.coords[2][l] - q[2];
+            *d = dx * dx + dy * dy + dz * dz;
+        }
+        d
+    }
+
+    /// Bit l set where `d[l] < bound`.
+    #[inline(always)]
+    fn below(d: &[f64; LEAF_POINTS], bound: f64) -> u32 {
+        let mut mask = 0;
+        for (l, &d) in d.iter().enumerate() {
+            mask |= u32::from(d < bound) << l;
+        }
+        mask
+    }
+}
+
 /// A k-d tree over 3D points for the nearest-point queries of this module and of
 /// [`crate::distance`]: median splits on the widest axis, leaves of up to [`LEAF_POINTS`]
-/// points stored contiguously, and queries that start from a radius (typically the distance of
-/// a point known to be near, the previous query's answer) so the search prunes from the start.
-/// Distances are squared Euclidean, summed as [`dist2`] does. Among points at exactly equal
-/// distance the one met first in the tree's order wins; the results are otherwise those of any
-/// exact nearest-neighbour search.
+/// points stored as one block each, and queries that start from a radius (typically the
+/// distance of a point known to be near, the previous query's answer) so the search prunes from
+/// the start. Distances are squared Euclidean, summed as [`dist2`] does. Among points at exactly
+/// equal distance the one met first in the tree's order wins; the results are otherwise those
+/// of any exact nearest-neighbour search.
 #[derive(Clone, Debug)]
 pub struct PointTree {
     nodes: Vec<KdNode>,
-    /// The points in leaf order.
-    points: Vec<[f64; 3]>,
-    /// Index of each of `points` in the input slice.
-    items: Vec<u32>,
+    /// The leaves' points, one block per leaf in tree order.
+    blocks: Vec<LeafBlock>,
 }
 
 impl PointTree {
@@ -451,12 +491,9 @@ impl PointTree {
             .map(|(i, &p)| (p, i as u32))
             .collect();
         let mut nodes = Vec::with_capacity(2 * points.len() / LEAF_POINTS + 1);
-        build_node(&mut entries, 0, &mut nodes);
-        Some(PointTree {
-            nodes,
-            points: entries.iter().map(|e| e.0).collect(),
-            items: entries.iter().map(|e| e.1).collect(),
-        })
+        let mut blocks = Vec::with_capacity(2 * points.len() / LEAF_POINTS + 1);
+        build_node(&mut entries, &mut nodes, &mut blocks);
+        Some(PointTree { nodes, blocks })
     }
 
     /// The point of `q`'s nearest neighbour and its squared distance, among the points closer
@@ -476,11 +513,14 @@ impl PointTree {
     fn search_one(&self, node: usize, q: [f64; 3], best: &mut (f64, u32)) {
         let n = &self.nodes[node];
         if n.axis == LEAF {
-            let range = n.start as usize..n.end as usize;
-            for (p, &item) in self.points[range.clone()].iter().zip(&self.items[range]) {
-                let d = dist2(q, *p);
-                if d < best.0 {
-                    *best = (d, item);
+            let block = &self.blocks[n.start as usize];
+            // The points in order, each against the best so far (which only falls).
+            let (d, mut mask) = block.scan(q, best.0);
+            while mask != 0 {
+                let l = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                if d[l] < best.0 {
+                    *best = (d[l], block.items[l]);
                 }
             }
             return;
@@ -525,9 +565,13 @@ impl PointTree {
         let k = out.len();
         let n = &self.nodes[node];
         if n.axis == LEAF {
-            let range = n.start as usize..n.end as usize;
-            for (p, &item) in self.points[range.clone()].iter().zip(&self.items[range]) {
-                let d = dist2(q, *p);
+            let block = &self.blocks[n.start as usize];
+            // The points in order, each against the bound of the moment (which only falls).
+            let (d, mut mask) = block.scan(q, if *len == k { out[k - 1].0 } else { radius2 });
+            while mask != 0 {
+                let l = mask.trailing_zeros() as usize;
+                mask &= mask - 1;
+                let d = d[l];
                 let bound = if *len == k { out[k - 1].0 } else { radius2 };
                 if d < bound {
                     // Insert in order; a tie goes after the points already held.
@@ -539,7 +583,7 @@ impl PointTree {
                         out[at] = out[at - 1];
                         at -= 1;
                     }
-                    out[at] = (d, item);
+                    out[at] = (d, block.items[l]);
                 }
             }
             return;
@@ -572,11 +616,14 @@ fn box_dist2(q: [f64; 3], n: &KdNode) -> f64 {
     gap(0).powi(2) + gap(1).powi(2) + gap(2).powi(2)
 }
 
-/// Builds the subtree over `entries` (points with their input indices, reordered in place),
-/// which start at position `start` of the tree's arrays, at the end of `nodes`.
-fn build_node(entries: &mut [([f64; 3], u32)], start: usize, nodes: &mut Vec<KdNode>) {
+/// Builds the subtree over `entries` (points with their input indices, reordered in place) at
+/// the end of `nodes`, and its leaves' blocks at the end of `blocks`.
+fn build_node(
+    entries: &mut [([f64; 3], u32)],
+    nodes: &mut Vec<KdNode>,
+    blocks: &mut Vec<LeafBlock>,
+) {
     let at = nodes.len();
-    let end = start + entries.len();
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
     for (p, _) in entries.iter() {
@@ -591,10 +638,20 @@ fn build_node(entries: &mut [([f64; 3], u32)], start: usize, nodes: &mut Vec<KdN
         split: 0.0,
         axis: LEAF,
         right: 0,
-        start: start as u32,
-        end: end as u32,
+        start: blocks.len() as u32,
     });
     if entries.len() <= LEAF_POINTS {
+        let mut block = LeafBlock {
+            coords: [[f64::INFINITY; LEAF_POINTS]; 3],
+            items: [u32::MAX; LEAF_POINTS],
+        };
+        for (l, (p, item)) in entries.iter().enumerate() {
+            for (coords, &c) in block.coords.iter_mut().zip(p) {
+                coords[l] = c;
+            }
+            block.items[l] = *item;
+        }
+        blocks.push(block);
         return;
     }
     let axis = (0..3)
@@ -604,9 +661,9 @@ fn build_node(entries: &mut [([f64; 3], u32)], start: usize, nodes: &mut Vec<KdN
     entries.select_nth_unstable_by(mid, |a, b| a.0[axis].total_cmp(&b.0[axis]));
     let split = entries[mid].0[axis];
     let (left, right) = entries.split_at_mut(mid);
-    build_node(left, start, nodes);
+    build_node(left, nodes, blocks);
     let right_at = nodes.len();
-    build_node(right, start + mid, nodes);
+    build_node(right, nodes, blocks);
     let node = &mut nodes[at];
     (node.split, node.axis, node.right) = (split, axis as u32, right_at as u32);
 }
