@@ -21,7 +21,7 @@
 //!
 //! The nearest-point queries (here and for the seeds of [`crate::distance`]) use
 //! [`PointTree`], a k-d tree (Friedman, Bentley and Finkel 1977) with median splits on the
-//! widest axis, leaves of 8 points and the tight bounding box of every node: a subtree is
+//! widest axis, leaves of 16 points and the tight bounding box of every node: a subtree is
 //! entered only when its box is closer than the best distance so far. The queries here lie a
 //! few sample spacings off the other set's surface (scan points vs. mesh vertices), where the
 //! ball around a query crosses many split planes but few tight boxes. On the bunny's export
