@@ -924,7 +924,15 @@ struct FaceForms {
     degree: usize,
     /// `forms[face][k][i * (degree + 1) + j]`, face = 2·axis + (σ < 0).
     forms: Vec<Vec<Vec<f64>>>,
+    /// The same forms for k ≥ 1 in groups of [`FORM_LANES`] side by side, which
+    /// [`FaceForms::lower_bounds`] reads: `groups[face][g][i * (top + 1) + j]` holds the
+    /// coefficient of u^i v^j of H_k, k = 1 + 4g + lane, for i + j ≤ top = 4 + 4g (zero where
+    /// i + j > k or k > degree).
+    groups: Vec<Vec<Vec<[f64; FORM_LANES]>>>,
 }
+
+/// Face forms processed side by side by [`FaceForms::lower_bounds`].
+const FORM_LANES: usize = 4;
 
 impl FaceForms {
     fn new(poly: &ImplicitPolynomial) -> FaceForms {
@@ -945,53 +953,101 @@ impl FaceForms {
                 }
             }
         }
-        FaceForms { degree: n, forms }
+        let groups = forms
+            .iter()
+            .map(|per_face| {
+                (1..=n)
+                    .step_by(FORM_LANES)
+                    .map(|k0| {
+                        let top = k0 + FORM_LANES - 1;
+                        let side_g = top + 1;
+                        let mut group = vec![[0.0; FORM_LANES]; side_g * side_g];
+                        for (lane, form) in per_face.iter().skip(k0).take(FORM_LANES).enumerate() {
+                            let k = k0 + lane;
+                            for i in 0..=k {
+                                for j in 0..=k - i {
+                                    group[i * side_g + j][lane] = form[i * side + j];
+                                }
+                            }
+                        }
+                        group
+                    })
+                    .collect()
+            })
+            .collect();
+        FaceForms {
+            degree: n,
+            forms,
+            groups,
+        }
     }
 
     /// Lower bounds of H_k, k = 0 … n, on the patch (u, v) ∈ [uc ± w] × [vc ± w] of `face`:
     /// the Taylor expansion at the patch centre, each non-constant term bounded by its absolute
     /// value at the half width (a centred form, exact for the constant term), less a rounding
     /// margin.
+    ///
+    /// The forms are shifted four at a time, one lane each ([`FaceForms::groups`]), with the
+    /// steps of the group's top degree: a form of lower degree k gets extra steps only where its
+    /// entries are zero (i + j > k), which add zero to a coefficient that is not −0 (it starts
+    /// at +0) and leave it bit for bit unchanged, so every bound is the one of the form's own
+    /// steps.
     fn lower_bounds(&self, face: usize, uc: f64, vc: f64, w: f64) -> Vec<f64> {
         let n = self.degree;
-        let side = n + 1;
         let mut out = Vec::with_capacity(n + 1);
-        let mut d = vec![0.0; side * side];
-        for (k, form) in self.forms[face].iter().enumerate() {
-            d.copy_from_slice(form);
+        // H_0 is a constant: no shift, nothing spread.
+        let h0 = self.forms[face][0][0];
+        out.push(h0 - 0.0 - 1e-12 * (h0.abs() + h0.abs()));
+        let mut d = Vec::new();
+        for (g, group) in self.groups[face].iter().enumerate() {
+            let k0 = 1 + g * FORM_LANES;
+            let top = k0 + FORM_LANES - 1;
+            let side = top + 1;
+            d.clear();
+            d.extend_from_slice(group);
             // Taylor shift in u (for each power j of v), then in v (for each power i of u).
-            for j in 0..=k {
-                let m = k - j;
+            for j in 0..=top {
+                let m = top - j;
                 for i in 0..m {
                     for t in (i..m).rev() {
-                        d[t * side + j] += uc * d[(t + 1) * side + j];
+                        let next = d[(t + 1) * side + j];
+                        for (a, b) in d[t * side + j].iter_mut().zip(next) {
+                            *a += uc * b;
+                        }
                     }
                 }
             }
-            for i in 0..=k {
-                let m = k - i;
+            for i in 0..=top {
+                let m = top - i;
                 for jj in 0..m {
                     for t in (jj..m).rev() {
-                        d[i * side + t] += vc * d[i * side + t + 1];
+                        let next = d[i * side + t + 1];
+                        for (a, b) in d[i * side + t].iter_mut().zip(next) {
+                            *a += vc * b;
+                        }
                     }
                 }
             }
-            let mut spread = 0.0;
-            let mut magnitude = d[0].abs();
+            let mut spread = [0.0; FORM_LANES];
+            let mut magnitude = d[0].map(f64::abs);
             let mut wi = 1.0;
-            for i in 0..=k {
+            for i in 0..=top {
                 let mut wij = wi;
-                for j in 0..=(k - i) {
-                    if i + j > 0 {
-                        let term = d[i * side + j].abs() * wij;
-                        spread += term;
+                for j in 0..=(top - i) {
+                    let entry = d[i * side + j];
+                    for lane in 0..FORM_LANES {
+                        if i + j > 0 {
+                            spread[lane] += entry[lane].abs() * wij;
+                        }
+                        magnitude[lane] += entry[lane].abs();
                     }
-                    magnitude += d[i * side + j].abs();
                     wij *= w;
                 }
                 wi *= w;
             }
-            out.push(d[0] - spread - 1e-12 * magnitude);
+            for lane in 0..FORM_LANES.min(n + 1 - k0) {
+                out.push(d[0][lane] - spread[lane] - 1e-12 * magnitude[lane]);
+            }
         }
         out
     }
