@@ -929,6 +929,8 @@ struct FaceForms {
     /// coefficient of u^i v^j of H_k, k = 1 + 4g + lane, for i + j ≤ top = 4 + 4g (zero where
     /// i + j > k or k > degree).
     groups: Vec<Vec<Vec<[f64; FORM_LANES]>>>,
+    /// [`bernstein_ratios`] of the degree.
+    bernstein: Vec<f64>,
 }
 
 /// Face forms processed side by side by [`FaceForms::lower_bounds`].
@@ -979,6 +981,7 @@ impl FaceForms {
             degree: n,
             forms,
             groups,
+            bernstein: bernstein_ratios(n),
         }
     }
 
@@ -1053,10 +1056,30 @@ impl FaceForms {
     }
 }
 
+/// The factors C(i, j) / C(n, j) (i, j ≤ n, row-major) that turn power-basis coefficients on
+/// [0, 1] into Bernstein ones, for [`positive_on_interval`].
+fn bernstein_ratios(n: usize) -> Vec<f64> {
+    let binom = |a: usize, b: usize| -> f64 {
+        let mut r = 1.0;
+        for t in 0..b {
+            r = r * (a - t) as f64 / (t + 1) as f64;
+        }
+        r
+    };
+    let mut ratios = vec![0.0; (n + 1) * (n + 1)];
+    for i in 0..=n {
+        for j in 0..=i {
+            ratios[i * (n + 1) + j] = binom(i, j) / binom(n, j);
+        }
+    }
+    ratios
+}
+
 /// Whether Σ_k c_k s^k > 0 for every s in [s0, s1] (0 < s0 < s1), by the Bernstein
 /// coefficients on that interval: all positive proves it (the polynomial is a convex
-/// combination of them); otherwise the answer is "not proved".
-fn positive_on_interval(c: &[f64], s0: f64, s1: f64) -> bool {
+/// combination of them); otherwise the answer is "not proved". `ratios` are
+/// [`bernstein_ratios`] of the degree `c.len() − 1`.
+fn positive_on_interval(c: &[f64], ratios: &[f64], s0: f64, s1: f64) -> bool {
     let n = c.len().saturating_sub(1);
     let mut g = c.to_vec();
     // Taylor shift by s0, then scale by h = s1 − s0: g(t) = Σ c_k (s0 + h t)^k.
@@ -1072,16 +1095,10 @@ fn positive_on_interval(c: &[f64], s0: f64, s1: f64) -> bool {
         hp *= h;
     }
     // Power basis on [0, 1] to Bernstein: b_i = Σ_{j ≤ i} C(i, j) / C(n, j) g_j.
-    let binom = |a: usize, b: usize| -> f64 {
-        let mut r = 1.0;
-        for t in 0..b {
-            r = r * (a - t) as f64 / (t + 1) as f64;
-        }
-        r
-    };
     let magnitude: f64 = g.iter().map(|v| v.abs()).sum();
     (0..=n).all(|i| {
-        let b: f64 = (0..=i).map(|j| binom(i, j) / binom(n, j) * g[j]).sum();
+        let row = &ratios[i * (n + 1)..=i * (n + 1) + i];
+        let b: f64 = row.iter().zip(&g).map(|(r, gj)| r * gj).sum();
         b.is_finite() && b > 1e-12 * magnitude
     })
 }
@@ -1166,7 +1183,7 @@ fn far_sign(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64) -> Shell {
             .par_iter()
             .map(|&(face, uc, vc, w, s0, s1)| {
                 let lower = forms.lower_bounds(face, uc, vc, w);
-                if positive_on_interval(&lower, s0, s1) {
+                if positive_on_interval(&lower, &forms.bernstein, s0, s1) {
                     by_bernstein.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                     return Verdict::Drop;
                 }
@@ -1294,7 +1311,7 @@ fn far_positive(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64, ratio: f64) -> 
             .flat_map_iter(|&(face, uc, vc, w, s0, s1)| {
                 let lower = forms.lower_bounds(face, uc, vc, w);
                 let mut children = Vec::new();
-                if positive_on_interval(&lower, s0, s1) {
+                if positive_on_interval(&lower, &forms.bernstein, s0, s1) {
                     return children;
                 }
                 let sm = (s0 * s1).sqrt();
@@ -1540,11 +1557,12 @@ mod tests {
         let plus = [4.1, -4.0, 1.0];
         let minus = [3.9, -4.0, 1.0];
         // (Bernstein coefficients prove positivity on a short enough interval only.)
-        assert!(positive_on_interval(&plus, 1.9, 2.1));
-        assert!(!positive_on_interval(&minus, 1.9, 2.1));
+        let ratios = bernstein_ratios(2);
+        assert!(positive_on_interval(&plus, &ratios, 1.9, 2.1));
+        assert!(!positive_on_interval(&minus, &ratios, 1.9, 2.1));
         // Away from its roots (2 ± 0.316) the second one is positive, and is proved so.
-        assert!(positive_on_interval(&minus, 2.5, 4.0));
-        assert!(positive_on_interval(&minus, 0.5, 1.5));
+        assert!(positive_on_interval(&minus, &ratios, 2.5, 4.0));
+        assert!(positive_on_interval(&minus, &ratios, 0.5, 1.5));
     }
 
     #[test]
