@@ -42,11 +42,12 @@
 //!   closest points (extrapolated along the row: an excellent start); the point it finds then
 //!   bounds and covers seeds like a refined seed, so most pixels need only this warm solve.
 //!   Cost: about one Hessian evaluation, two values of f and one 8-nearest-neighbour query per
-//!   pixel, some 7× Taubin for a degree-8 model (`cargo bench --bench export -- slices`). Two shortcuts leave every value unchanged
-//!   (bit for bit): the pixels of a row share two coordinates, so f's inner sums over them are
-//!   computed once per row (and once per grid line for the seed grid), and the previous
-//!   pixel's 8 nearest seeds bound the 8-nearest distance of the next query, whose k-d tree
-//!   search then starts with that radius instead of best + cell.
+//!   pixel, some 7× Taubin for a degree-8 model (`cargo bench --bench export -- slices`). Two
+//!   shortcuts leave every value unchanged (bit for bit): the pixels of a row share two
+//!   coordinates, so f's inner sums over them are computed once per row (and once per grid
+//!   line for the seed grid), and the previous pixel's 8 nearest seeds bound the 8-nearest
+//!   distance of the next query, whose k-d tree search then starts with that radius instead of
+//!   best + cell.
 //!
 //! Invariants: values are finite; the output depends only on the inputs (rayon over fixed rows,
 //! each row computed sequentially from its first pixel), whatever the thread count.
