@@ -237,14 +237,7 @@ fn sort_header_attributes(bytes: &mut [u8]) -> Result<(), ExportError> {
 /// # Errors
 /// [`ExportError::Format`] when the bytes are not such an image.
 pub fn read_samples(bytes: &[u8]) -> Result<Vec<f32>, ExportError> {
-    use exr::prelude::{read, ReadChannels, ReadLayers};
-    let image = read()
-        .no_deep_data()
-        .largest_resolution_level()
-        .all_channels()
-        .first_valid_layer()
-        .all_attributes()
-        .from_buffered(Cursor::new(bytes))
+    let image = read_image(bytes)
         .map_err(|e| ExportError::Format(format!("not a readable OpenEXR image: {e}")))?;
     match image
         .layer_data
@@ -260,9 +253,26 @@ pub fn read_samples(bytes: &[u8]) -> Result<Vec<f32>, ExportError> {
     }
 }
 
+/// The first valid layer of an OpenEXR image with all its channels and attributes, read with
+/// the `exr` crate (for [`read_samples`] and the tests).
+fn read_image(
+    bytes: &[u8],
+) -> exr::error::Result<
+    exr::prelude::Image<exr::prelude::Layer<exr::prelude::AnyChannels<FlatSamples>>>,
+> {
+    use exr::prelude::{read, ReadChannels, ReadLayers};
+    read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(Cursor::new(bytes))
+}
+
 #[cfg(test)]
 mod tests {
-    use exr::prelude::{read, ReadChannels, ReadLayers, Vec2};
+    use exr::prelude::Vec2;
 
     use super::*;
     use crate::cloud::Aabb;
@@ -297,14 +307,7 @@ mod tests {
         for compression in [ExrCompression::Zip, ExrCompression::Piz] {
             let mut bytes = Vec::new();
             write_slice(&slice, &ExrOptions { compression }, &mut bytes).unwrap();
-            let image = read()
-                .no_deep_data()
-                .largest_resolution_level()
-                .all_channels()
-                .first_valid_layer()
-                .all_attributes()
-                .from_buffered(Cursor::new(&bytes))
-                .unwrap();
+            let image = read_image(&bytes).unwrap();
             let layer = &image.layer_data;
             assert_eq!(layer.size, Vec2(20, 20));
             assert_eq!(layer.channel_data.list.len(), 1);
