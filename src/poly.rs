@@ -259,12 +259,14 @@ impl ImplicitPolynomial {
         let mut f = 0.0;
         let mut g = [0.0; 3];
         let mut h = [[0.0; 3]; 3];
-        for (l, &a) in self.coefficients.iter().enumerate() {
+        // The monomials in coefficient order (degree r, then s = j + k, then k: the exponents
+        // [r − s, s − k, k], as [`exponent_of`] numbers them), walked alongside the coefficients.
+        let exps = (0..=n).flat_map(|r| (0..=r).flat_map(move |s| (0..=s).map(move |k| (r, s, k))));
+        for (&a, (r, s, k)) in self.coefficients.iter().zip(exps) {
             if a == 0.0 {
                 continue;
             }
-            let Some(e) = exponent_of(l, n) else { break };
-            let (i, j, k) = (e[0] as usize, e[1] as usize, e[2] as usize);
+            let (i, j) = (r - s, s - k);
             let dx = [deriv(&px, i, 0), deriv(&px, i, 1), deriv(&px, i, 2)];
             let dy = [deriv(&py, j, 0), deriv(&py, j, 1), deriv(&py, j, 2)];
             let dz = [deriv(&pz, k, 0), deriv(&pz, k, 1), deriv(&pz, k, 2)];

@@ -699,6 +699,18 @@ fn zero_set_check(
                 t,
                 format_args!("  far_positive 4..R, far_sign {shell:?}: beyond {beyond}"),
             );
+            // f < 0 at a point p of the shell while f > 0 on the inner box's faces: the
+            // region {f < 0} around p cannot reach into the inner box, so the zero set bounding
+            // it lies outside the box and is a component besides those (c) would count there,
+            // or (c) fails: both ways a check fails, and no mesh is needed (on the bunny this
+            // rejects the small κ values that the large box's mesh would).
+            if shell == Shell::Negative && far_sign(poly, INNER_BOX, INNER_BOX) == Shell::Positive {
+                trace(
+                    t,
+                    format_args!("  inner faces positive: a component outside"),
+                );
+                return (false, None);
+            }
             let (fails, used) = large_box_fails(Some(beyond));
             large_box_done = true;
             if fails {
@@ -1075,7 +1087,7 @@ fn bernstein_ratios(n: usize) -> Vec<f64> {
     ratios
 }
 
-/// Whether Σ_k c_k s^k > 0 for every s in [s0, s1] (0 < s0 < s1), by the Bernstein
+/// Whether Σ_k c_k s^k > 0 for every s in [s0, s1] (0 < s0 ≤ s1), by the Bernstein
 /// coefficients on that interval: all positive proves it (the polynomial is a convex
 /// combination of them); otherwise the answer is "not proved". `ratios` are
 /// [`bernstein_ratios`] of the degree `c.len() − 1`.
@@ -1134,10 +1146,15 @@ fn level_outcome(verdicts: &[Verdict], last_level: bool) -> Option<Shell> {
 type Frustum = (usize, f64, f64, f64, f64, f64);
 
 /// The starting frustums of the shell s_lo ≤ |p̂|∞ ≤ s_hi: each whole face of the cube, its
-/// radial range cut where s doubles.
+/// radial range cut where s doubles (a flat frustum per face when s_lo = s_hi: the surface of
+/// the cube |p̂|∞ = s_lo).
 fn whole_faces(s_lo: f64, s_hi: f64) -> Vec<Frustum> {
     let mut cells = Vec::new();
     for face in 0..6 {
+        if s_hi == s_lo {
+            cells.push((face, 0.0, 0.0, 1.0, s_lo, s_lo));
+            continue;
+        }
         let mut s0 = s_lo;
         while s0 < s_hi {
             let s1 = (2.0 * s0).min(s_hi);
@@ -1149,7 +1166,8 @@ fn whole_faces(s_lo: f64, s_hi: f64) -> Vec<Frustum> {
 }
 
 /// The sign of f (normalized coordinates) on the points whose box norm |p|∞ lies in
-/// [s_lo, s_hi] (0 < s_lo): each point is p = s·q with q on a face of the cube |q|∞ = 1, and
+/// [s_lo, s_hi] (0 < s_lo; s_lo = s_hi gives the cube's surface, whose frustums are flat and
+/// split across only; an empty range is positive): each point is p = s·q with q on a face of the cube |q|∞ = 1, and
 /// f(s·q) = Σ_k s^k H_k(q), so lower bounds of each H_k on a patch of a face give a
 /// polynomial in s below f on the whole frustum (patch × [s0, s1]), which is positive when its
 /// Bernstein coefficients are. Frustums not proved positive are split (the patch in four, the
@@ -1163,7 +1181,7 @@ fn far_sign(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64) -> Shell {
     if !(s_lo > 0.0 && s_hi.is_finite()) {
         return Shell::Unknown;
     }
-    if s_hi <= s_lo {
+    if s_hi < s_lo {
         return Shell::Positive;
     }
     if poly.coefficients.iter().any(|c| !c.is_finite()) {
@@ -1491,6 +1509,40 @@ mod tests {
         // An empty range is trivially positive; a non-finite one is not decided.
         assert_eq!(far_sign(&poly, 4.0, 3.0), Shell::Positive);
         assert_eq!(far_sign(&poly, 4.0, f64::INFINITY), Shell::Unknown);
+    }
+
+    #[test]
+    fn cube_surface_sign_and_the_component_outside_the_inner_box() {
+        // The unit sphere and a sphere of radius 0.5 centred at (2.5, 0, 0): f > 0 on the
+        // surface |p|∞ = 1.6 (between them), f < 0 on the surface |p|∞ = 2.5 (inside the
+        // second), and on |p|∞ = 1 the first sphere crosses the faces.
+        let poly = two_spheres([0.0; 3], 1.0, [2.5, 0.0, 0.0], 0.5);
+        assert_eq!(far_sign(&poly, INNER_BOX, INNER_BOX), Shell::Positive);
+        assert_eq!(far_sign(&poly, 2.5, 2.5), Shell::Negative);
+        assert_ne!(far_sign(&poly, 1.0, 1.0), Shell::Positive);
+        // R > 4, f > 0 beyond 4, and f < 0 in the shell 1.6 … 4 with positive inner faces:
+        // the check fails before any mesh (no mesher reported). The data, the unit sphere,
+        // is one piece.
+        let radius = poly.containment_radius().unwrap_or(f64::INFINITY);
+        let cloud = crate::fit::study::sample(
+            crate::fit::study::Shape::Sphere,
+            crate::fit::study::Variant::Clean,
+            3000,
+            1,
+        );
+        let norm = Normalization {
+            center: [0.0; 3],
+            scale: 1.0,
+        };
+        let pieces = DataPieces::new(&cloud, &norm).expect("indexed");
+        assert_eq!(pieces.n_pieces, 1);
+        assert!(radius > OUTER_BOX && radius.is_finite(), "radius {radius}");
+        assert!(far_positive(&poly, OUTER_BOX, radius, FAR_POSITIVE_RATIO));
+        assert_eq!(zero_set_check(&poly, radius, &pieces), (false, None));
+        // The meshes agree: [−R, R]³ holds two components, one more than the data's pieces.
+        let (outer, _) = coarse_zero_set_culled(&poly, radius, Some(OUTER_BOX));
+        assert_eq!(outer.components.len(), 2);
+        assert!(!outer.touches_box);
     }
 
     /// The mesh of `poly` in [−half, half]³ with and without the far cells skipped.
