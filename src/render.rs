@@ -9,10 +9,13 @@
 //! barycentric edge functions and a depth buffer; each pixel is shaded once, after the depth
 //! pass, for its nearest triangle (the first drawn among equal depths), with the interpolated
 //! vertex normal (two-sided, so an open mesh seen from inside is still readable) under a key
-//! light and a dim fill light, over a light grey background. Deterministic: no threads, no
-//! randomness.
+//! light and a dim fill light, over a light grey background. Deterministic: the image is cut
+//! into bands of [`BAND_ROWS`] rows rasterized side by side (rayon), each seeing the triangles
+//! that reach it in index order, so every pixel sees the same triangles in the same order
+//! whatever the thread count; no randomness.
 
 use image::{Rgb, RgbImage};
+use rayon::prelude::*;
 
 use crate::mesh::TriangleMesh;
 use crate::vec3::{cross, dot, norm};
@@ -79,6 +82,9 @@ impl Default for RenderParams {
     }
 }
 
+/// Rows per band of the parallel rasterization.
+const BAND_ROWS: u32 = 16;
+
 fn normalize(v: [f64; 3]) -> [f64; 3] {
     let n = norm(v);
     if n > 0.0 {
@@ -118,8 +124,7 @@ pub fn render(mesh: &TriangleMesh, params: &RenderParams) -> RgbImage {
             dot(d, towards_camera),
         ]
     };
-    let screen: Vec<[f64; 3]> = mesh.positions.iter().map(|&p| project(p)).collect();
-    let mut depth = vec![f64::NEG_INFINITY; (size * size) as usize];
+    let screen: Vec<[f64; 3]> = mesh.positions.par_iter().map(|&p| project(p)).collect();
     let key = normalize([0.4, 0.6, 1.0]);
     let fill = normalize([-0.6, -0.2, 0.4]);
     let light = |n: [f64; 3]| {
@@ -128,10 +133,6 @@ pub fn render(mesh: &TriangleMesh, params: &RenderParams) -> RgbImage {
         let ns = if ns[2] < 0.0 { ns.map(|c| -c) } else { ns };
         0.18 + 0.72 * dot(ns, key).max(0.0) + 0.22 * dot(ns, fill).max(0.0)
     };
-    // Depth pass: the nearest triangle of each pixel (the first drawn among equal depths).
-    // Shading only the winners, afterwards, gives the same colours as shading every pixel a
-    // nearer triangle overwrites: the barycentric weights are recomputed by the same formula.
-    let mut winner = vec![u32::MAX; (size * size) as usize];
     let corners = |tri: &[u32; 3]| {
         let [a, b, c] = tri.map(|i| screen[i as usize]);
         let area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
@@ -142,54 +143,96 @@ pub fn render(mesh: &TriangleMesh, params: &RenderParams) -> RgbImage {
         let w1 = ((c[0] - px) * (a[1] - py) - (c[1] - py) * (a[0] - px)) / area;
         (w0, w1, 1.0 - w0 - w1)
     };
-    for (ti, tri) in mesh.triangles.iter().enumerate() {
-        let ([a, b, c], area) = corners(tri);
-        if area.abs() < 1e-12 {
-            continue;
-        }
-        let x0 = a[0].min(b[0]).min(c[0]).floor().max(0.0) as u32;
-        let x1 = (a[0].max(b[0]).max(c[0]).ceil() as i64).clamp(0, i64::from(size) - 1) as u32;
-        let y0 = a[1].min(b[1]).min(c[1]).floor().max(0.0) as u32;
-        let y1 = (a[1].max(b[1]).max(c[1]).ceil() as i64).clamp(0, i64::from(size) - 1) as u32;
-        for y in y0..=y1 {
-            for x in x0..=x1 {
-                let (px, py) = (f64::from(x) + 0.5, f64::from(y) + 0.5);
-                let (w0, w1, w2) = weights([a, b, c], area, px, py);
-                if w0 < 0.0 || w1 < 0.0 || w2 < 0.0 {
-                    continue;
-                }
-                let z = w0 * a[2] + w1 * b[2] + w2 * c[2];
-                let idx = (y * size + x) as usize;
-                if z <= depth[idx] {
-                    continue;
-                }
-                depth[idx] = z;
-                winner[idx] = ti as u32;
+    // Each drawable triangle's pixel rectangle, then the triangles of each band in index order.
+    let rects: Vec<Option<[u32; 4]>> = mesh
+        .triangles
+        .par_iter()
+        .map(|tri| {
+            let ([a, b, c], area) = corners(tri);
+            if area.abs() < 1e-12 {
+                return None;
+            }
+            let x0 = a[0].min(b[0]).min(c[0]).floor().max(0.0) as u32;
+            let x1 = (a[0].max(b[0]).max(c[0]).ceil() as i64).clamp(0, i64::from(size) - 1) as u32;
+            let y0 = a[1].min(b[1]).min(c[1]).floor().max(0.0) as u32;
+            let y1 = (a[1].max(b[1]).max(c[1]).ceil() as i64).clamp(0, i64::from(size) - 1) as u32;
+            Some([x0, x1, y0, y1])
+        })
+        .collect();
+    let mut bands: Vec<Vec<u32>> = vec![Vec::new(); size.div_ceil(BAND_ROWS) as usize];
+    for (ti, rect) in rects.iter().enumerate() {
+        if let Some([_, _, y0, y1]) = *rect {
+            for band in &mut bands[(y0 / BAND_ROWS) as usize..=(y1 / BAND_ROWS) as usize] {
+                band.push(ti as u32);
             }
         }
     }
-    for (idx, &ti) in winner.iter().enumerate() {
-        let Some(tri) = mesh.triangles.get(ti as usize) else {
-            continue;
-        };
-        let (x, y) = (idx as u32 % size, idx as u32 / size);
-        let (abc, area) = corners(tri);
-        let (w0, w1, w2) = weights(abc, area, f64::from(x) + 0.5, f64::from(y) + 0.5);
-        let normals = tri.map(|i| {
-            mesh.normals
-                .get(i as usize)
-                .copied()
-                .unwrap_or([0.0, 0.0, 1.0])
+    // Depth pass: the nearest triangle of each pixel (the first drawn among equal depths).
+    // Shading only the winners, afterwards, gives the same colours as shading every pixel a
+    // nearer triangle overwrites: the barycentric weights are recomputed by the same formula.
+    let band_pixels = (BAND_ROWS * size) as usize;
+    let mut winner = vec![u32::MAX; (size * size) as usize];
+    winner
+        .par_chunks_mut(band_pixels)
+        .zip(&bands)
+        .enumerate()
+        .for_each(|(band, (winner, triangles))| {
+            let first_row = band as u32 * BAND_ROWS;
+            let last_row = first_row + (winner.len() / size as usize) as u32 - 1;
+            let mut depth = vec![f64::NEG_INFINITY; winner.len()];
+            for &ti in triangles {
+                let tri = &mesh.triangles[ti as usize];
+                let Some([x0, x1, y0, y1]) = rects[ti as usize] else {
+                    continue;
+                };
+                let ([a, b, c], area) = corners(tri);
+                for y in y0.max(first_row)..=y1.min(last_row) {
+                    for x in x0..=x1 {
+                        let (px, py) = (f64::from(x) + 0.5, f64::from(y) + 0.5);
+                        let (w0, w1, w2) = weights([a, b, c], area, px, py);
+                        if w0 < 0.0 || w1 < 0.0 || w2 < 0.0 {
+                            continue;
+                        }
+                        let z = w0 * a[2] + w1 * b[2] + w2 * c[2];
+                        let idx = ((y - first_row) * size + x) as usize;
+                        if z <= depth[idx] {
+                            continue;
+                        }
+                        depth[idx] = z;
+                        winner[idx] = ti;
+                    }
+                }
+            }
         });
-        let n = normalize(
-            [0, 1, 2].map(|k| w0 * normals[0][k] + w1 * normals[1][k] + w2 * normals[2][k]),
-        );
-        let shade = light(n);
-        let rgb = params
-            .color
-            .map(|c| ((c * shade).clamp(0.0, 1.0).powf(1.0 / 2.2) * 255.0).round() as u8);
-        img.put_pixel(x, y, Rgb(rgb));
-    }
+    let row_bytes = 3 * size as usize;
+    let pixels: &mut [u8] = &mut img;
+    pixels
+        .par_chunks_mut(row_bytes)
+        .zip(winner.par_chunks(size as usize))
+        .enumerate()
+        .for_each(|(y, (row, winners))| {
+            for (x, &ti) in winners.iter().enumerate() {
+                let Some(tri) = mesh.triangles.get(ti as usize) else {
+                    continue;
+                };
+                let (abc, area) = corners(tri);
+                let (w0, w1, w2) = weights(abc, area, x as f64 + 0.5, y as f64 + 0.5);
+                let normals = tri.map(|i| {
+                    mesh.normals
+                        .get(i as usize)
+                        .copied()
+                        .unwrap_or([0.0, 0.0, 1.0])
+                });
+                let n = normalize(
+                    [0, 1, 2].map(|k| w0 * normals[0][k] + w1 * normals[1][k] + w2 * normals[2][k]),
+                );
+                let shade = light(n);
+                let rgb = params
+                    .color
+                    .map(|c| ((c * shade).clamp(0.0, 1.0).powf(1.0 / 2.2) * 255.0).round() as u8);
+                row[3 * x..3 * x + 3].copy_from_slice(&rgb);
+            }
+        });
     img
 }
 

@@ -182,8 +182,11 @@ fn encode(slice: &Slice, opts: &ExrOptions) -> Result<Vec<u8>, ExportError> {
     let layer = Layer::new((r, r), attributes, encoding, channels);
     let image = Image::from_layer(layer);
     let mut bytes = Vec::new();
+    // One thread: the slices are encoded side by side already, and the crate's parallel mode
+    // builds a thread pool per file.
     image
         .write()
+        .non_parallel()
         .to_buffered(Cursor::new(&mut bytes))
         .map_err(|e| ExportError::Format(format!("cannot encode OpenEXR: {e}")))?;
     sort_header_attributes(&mut bytes)?;
