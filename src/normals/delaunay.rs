@@ -281,10 +281,10 @@ pub(crate) fn check_spans_3d(points: &[[f64; 3]]) -> Result<(), NormalsError> {
 
 fn count_distinct(points: &[[f64; 3]]) -> usize {
     let mut keys: Vec<[u64; 3]> = points
-        .iter()
+        .par_iter()
         .map(|p| p.map(|c| (c + 0.0).to_bits()))
         .collect();
-    keys.sort_unstable();
+    keys.par_sort_unstable();
     keys.dedup();
     keys.len()
 }

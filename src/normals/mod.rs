@@ -47,6 +47,8 @@ pub mod pca;
 
 use std::str::FromStr;
 
+use rayon::prelude::*;
+
 use crate::cloud::{OrientedCloud, PointCloud};
 
 /// Errors of the normals stage.
@@ -349,7 +351,8 @@ impl Dedup {
         // `+ 0.0` turns -0.0 into 0.0 so that both compare equal, as they do as numbers.
         let key = |i: u32| points[i as usize].map(|c| (c + 0.0).to_bits());
         let mut order: Vec<u32> = (0..points.len() as u32).collect();
-        order.sort_unstable_by_key(|&i| (key(i), i));
+        // The keys (bits, index) are distinct, so any sort gives this one order.
+        order.par_sort_unstable_by_key(|&i| (key(i), i));
         let mut first_of = vec![0u32; points.len()];
         let mut start = 0;
         while start < order.len() {
