@@ -156,6 +156,10 @@ pub fn render(mesh: &TriangleMesh, params: &RenderParams) -> RgbImage {
             let x1 = (a[0].max(b[0]).max(c[0]).ceil() as i64).clamp(0, i64::from(size) - 1) as u32;
             let y0 = a[1].min(b[1]).min(c[1]).floor().max(0.0) as u32;
             let y1 = (a[1].max(b[1]).max(c[1]).ceil() as i64).clamp(0, i64::from(size) - 1) as u32;
+            // Off the picture (it draws nothing), so it belongs to no band.
+            if x0 > x1 || y0 > y1 {
+                return None;
+            }
             Some([x0, x1, y0, y1])
         })
         .collect();

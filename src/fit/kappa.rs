@@ -1167,10 +1167,10 @@ fn whole_faces(s_lo: f64, s_hi: f64) -> Vec<Frustum> {
 
 /// The sign of f (normalized coordinates) on the points whose box norm |p|∞ lies in
 /// [s_lo, s_hi] (0 < s_lo; s_lo = s_hi gives the cube's surface, whose frustums are flat and
-/// split across only; an empty range is positive): each point is p = s·q with q on a face of the cube |q|∞ = 1, and
-/// f(s·q) = Σ_k s^k H_k(q), so lower bounds of each H_k on a patch of a face give a
-/// polynomial in s below f on the whole frustum (patch × [s0, s1]), which is positive when its
-/// Bernstein coefficients are. Frustums not proved positive are split (the patch in four, the
+/// split across only; an empty range is positive): each point is p = s·q with q on a face of
+/// the cube |q|∞ = 1, and f(s·q) = Σ_k s^k H_k(q), so lower bounds of each H_k on a patch of a
+/// face give a polynomial in s below f on the whole frustum (patch × [s0, s1]), which is
+/// positive when its Bernstein coefficients are. Frustums not proved positive are split (the patch in four, the
 /// radial interval in two, geometrically) level by level, and the first frustum whose centre
 /// has f < 0 stops the search. The patches are exact in s, which is why this proves f > 0 far
 /// from the data where the box enclosures of [`shell_sign`] cannot (f grows like sⁿ there, and
