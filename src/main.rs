@@ -695,23 +695,45 @@ fn cmd_cache(args: cli::CacheArgs) -> Result<()> {
     let cache = Cache::at(&dir);
     match args.action {
         cli::CacheAction::Info => {
+            // Refuses a folder that is not a stablesurf cache (exit 1, saying why).
+            let usage = cache.usage()?;
             let mut out = std::io::stdout().lock();
             writeln!(out, "cache directory: {}", dir.display())?;
-            let usage = cache.usage();
             if usage.is_empty() {
-                writeln!(out, "(empty)")?;
+                writeln!(out, "(no entries)")?;
             }
-            for (stage, entries, bytes) in usage {
+            for u in usage {
                 writeln!(
                     out,
-                    "{stage:<12} {entries:>6} entries {:>12.1} KiB",
-                    bytes as f64 / 1024.0
+                    "{:<12} {:>6} entries {:>12.1} KiB",
+                    u.stage,
+                    u.entries,
+                    u.bytes as f64 / 1024.0
                 )?;
             }
         }
         cli::CacheAction::Clear => {
-            cache.clear()?;
-            eprintln!("stablesurf: cleared {}", dir.display());
+            let done = cache.clear()?;
+            eprintln!(
+                "stablesurf: cleared {} entries ({:.1} KiB) from {}",
+                done.entries,
+                done.bytes as f64 / 1024.0,
+                dir.display()
+            );
+            if !done.foreign.is_empty() {
+                let shown: Vec<String> = done
+                    .foreign
+                    .iter()
+                    .take(5)
+                    .map(|p| p.display().to_string())
+                    .collect();
+                eprintln!(
+                    "stablesurf: left {} item(s) that the cache did not make: {}{}",
+                    done.foreign.len(),
+                    shown.join(", "),
+                    if done.foreign.len() > 5 { ", …" } else { "" }
+                );
+            }
         }
     }
     Ok(())

@@ -5,17 +5,16 @@
 //! Output: files in the output directory and a [`RunReport`].
 //!
 //! Each stage's key chains the key of its input artifact (see [`crate::cache`]), so changing
-//! only the meshing depth reuses import, normals and fit. Every output is computed before the
-//! first file is written, and each file is written atomically, so a failed or killed run leaves
-//! no partial output file.
+//! only the meshing depth reuses import, normals and fit. The output folder is checked before
+//! any work, every output is computed before the first file is written, and the files move into
+//! place as one set ([`crate::outputs`]), so a failed or killed run leaves the folder as it was.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use serde::Serialize;
 
-use crate::cache::{self, Artifact, Cache, Key, Lookup, OutputFiles};
+use crate::cache::{self, Artifact, Cache, Key, OutputFiles};
 use crate::cloud::{Aabb, OrientedCloud, PointCloud};
 use crate::detail::{self, DetailParams, MpuModel};
 use crate::export::{self, ExportError};
@@ -24,6 +23,7 @@ use crate::import;
 use crate::measure::{self, DistanceSummary};
 use crate::mesh::{self, MeshReport, TriangleMesh};
 use crate::normals::{self, NormalsParams};
+use crate::outputs::OutputSet;
 use crate::poly::ImplicitModel;
 use crate::polygonize::{self, ImplicitFunction, PolygonizeParams};
 
@@ -66,18 +66,15 @@ pub enum PipelineError {
         #[source]
         source: std::io::Error,
     },
-    /// The output directory could not be created.
-    #[error("cannot create the output directory {path}")]
-    OutputDir {
-        /// The directory.
-        path: String,
-        /// The cause.
-        #[source]
-        source: std::io::Error,
-    },
     /// The requested mode is not available.
     #[error("{0}")]
     Unsupported(String),
+    /// The output files could not be written (the message names the path and what to do).
+    #[error(transparent)]
+    Output(#[from] crate::outputs::OutputError),
+    /// The cache folder is not one the cache may use.
+    #[error(transparent)]
+    Cache(#[from] cache::CacheError),
 }
 
 /// Which model the pipeline fits.
@@ -320,7 +317,8 @@ const POLYGONIZE_VERSION: u32 = 2;
 const EXPORT_VERSION: u32 = 2;
 
 struct Ctx<'a> {
-    cache: &'a Cache,
+    /// The run's cache: the one asked for, or a disabled one when it cannot be written.
+    cache: Cache,
     /// The misses' entries, stored beside the next stages' work.
     puts: cache::Puts,
     observer: &'a mut dyn Observer,
@@ -328,13 +326,23 @@ struct Ctx<'a> {
 }
 
 impl<'a> Ctx<'a> {
-    fn new(cache: &'a Cache, observer: &'a mut dyn Observer) -> Self {
-        Ctx {
-            cache,
+    /// Readies the cache: a folder that is not a stablesurf cache is an error; one that cannot
+    /// be created or written is a warning, and the run goes on without it.
+    fn new(cache: &Cache, observer: &'a mut dyn Observer) -> Result<Self, PipelineError> {
+        let cache = match cache.prepare() {
+            Ok(()) => cache.clone(),
+            Err(e @ cache::CacheError::NotACache { .. }) => return Err(e.into()),
+            Err(e) => {
+                observer.warning(&format!("{e}; this run is not cached"));
+                Cache::disabled()
+            }
+        };
+        Ok(Ctx {
             puts: cache.puts(),
+            cache,
             observer,
             stages: Vec::new(),
-        }
+        })
     }
 
     /// Waits for the cache writes. One that failed costs only the next run's time, so it is a
@@ -376,16 +384,11 @@ impl<'a> Ctx<'a> {
             Instant::now()
         });
         let key = cache::stage_key(stage, version, params, input_key);
-        let (found, lookup) = self.cache.get::<T>(stage, &key);
-        // A hit needs its explanation too (the report's figures come from it).
-        let meta = found.as_ref().and_then(|_| self.cache.meta(stage, &key));
-        let (value, figures, lookup) = match (found, meta) {
-            (Some(v), Some(meta)) => (
-                v,
-                meta.get("figures").cloned().unwrap_or_default(),
-                Lookup::Hit,
-            ),
-            (found, _) => {
+        let (found, lookup) = self.cache.get::<T>(stage, version, &key);
+        let (value, figures, lookup) = match found {
+            // The figures are stored inside the entry, under its checksum.
+            Some((v, meta)) => (v, meta.get("figures").cloned().unwrap_or_default(), lookup),
+            None => {
                 let (v, figures) = compute()?;
                 let meta = serde_json::json!({
                     "stage": stage,
@@ -396,12 +399,7 @@ impl<'a> Ctx<'a> {
                     "seconds": start.elapsed().as_secs_f64(),
                     "figures": figures,
                 });
-                self.puts.put(stage, &key, &v, &meta);
-                let lookup = if found.is_some() {
-                    Lookup::Corrupt
-                } else {
-                    lookup
-                };
+                self.puts.put(stage, version, &key, &v, &meta);
                 (v, figures, lookup)
             }
         };
@@ -539,7 +537,7 @@ pub fn fit_model(
     cache: &Cache,
     observer: &mut dyn Observer,
 ) -> Result<(Model, OrientedCloud, Vec<StageRecord>), PipelineError> {
-    let mut ctx = Ctx::new(cache, observer);
+    let mut ctx = Ctx::new(cache, observer)?;
     let (_, oriented, model, _) = fit_stages(&mut ctx, source, config)?;
     ctx.finish_puts();
     Ok((model, oriented, ctx.stages))
@@ -569,7 +567,10 @@ pub fn run(
     observer: &mut dyn Observer,
 ) -> Result<RunReport, PipelineError> {
     let start = Instant::now();
-    let mut ctx = Ctx::new(cache, observer);
+    // The output folder is checked (and a killed run's debris there cleared) before any work.
+    let mut outputs = OutputSet::begin(out_dir)?;
+    let mut ctx = Ctx::new(cache, observer)?;
+    let cache = &ctx.cache.clone();
     let input_name = match source {
         ScanSource::Sample => SAMPLE_NAME.to_string(),
         ScanSource::File(p) => p.display().to_string(),
@@ -684,8 +685,10 @@ pub fn run(
     let accuracy: DistanceSummary =
         serde_json::from_value(figures["accuracy"].clone()).unwrap_or_default();
 
+    // Every file is staged, then all move into place together (see [`crate::outputs`]): the
+    // folder holds either this run's complete set or what it held before.
     let t = Instant::now();
-    let outputs = write_files(out_dir, &files)?;
+    outputs.stage(&files.0)?;
     // The write line covers the wait for the cache entries still being stored.
     ctx.finish_puts();
     ctx.finish(
@@ -693,8 +696,13 @@ pub fn run(
         "none",
         t,
         None,
-        serde_json::json!({ "files": outputs.len() }),
+        serde_json::json!({ "files": files.0.len() }),
     );
+    let mut names: Vec<String> = files.0.iter().map(|f| f.0.clone()).collect();
+    let write_report = config.formats.contains(&OutputFormat::Json);
+    if write_report {
+        names.push("report.json".into());
+    }
 
     let mut report = RunReport {
         input: input_name,
@@ -711,18 +719,16 @@ pub fn run(
         },
         mesh: report_mesh,
         accuracy,
-        outputs,
+        outputs: names,
         seconds: 0.0,
     };
     report.seconds = start.elapsed().as_secs_f64();
-    if config.formats.contains(&OutputFormat::Json) {
-        let path = out_dir.join("report.json");
-        export::write_atomic(&path, |w| {
-            serde_json::to_writer_pretty(&mut *w, &report)
-                .map_err(|e| ExportError::Format(e.to_string()))
-        })?;
-        report.outputs.push("report.json".into());
+    if write_report {
+        let bytes =
+            serde_json::to_vec_pretty(&report).map_err(|e| ExportError::Format(e.to_string()))?;
+        outputs.stage(&[("report.json".to_string(), bytes)])?;
     }
+    outputs.commit()?;
     Ok(report)
 }
 
@@ -740,60 +746,6 @@ fn export_params_bytes(config: &PipelineConfig) -> Vec<u8> {
             "method": config.slices.method.name(),
         },
     }))
-}
-
-/// Threads that write the output files: each write waits mostly for the disk (the sync before
-/// the rename), so several overlap even on two cores.
-const WRITE_THREADS: usize = 8;
-
-/// Writes each file atomically into `out_dir` (creating folders as needed), several at once.
-/// Returns the names in the order of `files`; on failure, the first error in that order.
-fn write_files(out_dir: &Path, files: &OutputFiles) -> Result<Vec<String>, PipelineError> {
-    let write_one = |name: &str, bytes: &[u8]| -> Result<(), PipelineError> {
-        let path = out_dir.join(name);
-        if let Some(dir) = path.parent() {
-            std::fs::create_dir_all(dir).map_err(|source| PipelineError::OutputDir {
-                path: dir.display().to_string(),
-                source,
-            })?;
-        }
-        export::write_atomic(&path, |w| w.write_all(bytes).map_err(ExportError::Write))?;
-        Ok(())
-    };
-    let threads = WRITE_THREADS.min(files.0.len()).max(1);
-    let results: Vec<Vec<(usize, Result<(), PipelineError>)>> = std::thread::scope(|scope| {
-        let workers: Vec<_> = (0..threads)
-            .map(|t| {
-                let write_one = &write_one;
-                scope.spawn(move || {
-                    files
-                        .0
-                        .iter()
-                        .enumerate()
-                        .skip(t)
-                        .step_by(threads)
-                        .map(|(i, (name, bytes))| (i, write_one(name, bytes)))
-                        .collect()
-                })
-            })
-            .collect();
-        workers
-            .into_iter()
-            .map(|w| {
-                w.join()
-                    .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
-            })
-            .collect()
-    });
-    let mut ordered: Vec<(usize, Result<(), PipelineError>)> =
-        results.into_iter().flatten().collect();
-    ordered.sort_by_key(|r| r.0);
-    let mut written = Vec::with_capacity(files.0.len());
-    for (i, result) in ordered {
-        result?;
-        written.push(files.0[i].0.clone());
-    }
-    Ok(written)
 }
 
 /// Output files as (name relative to the output directory, bytes).

@@ -1,21 +1,26 @@
 //! Compact binary encoding of the artifacts stored in the cache.
 //!
-//! Input: an artifact. Output: bytes, and back. Layout of one entry:
+//! Input: an artifact and the identity of its entry. Output: bytes, and back. Layout of one entry:
 //!
 //! ```text
 //! "SSCA" | u32 cache format version | u32 artifact kind | u32 artifact format version
+//!        | 32-byte key | u32 stage version | u64 length + stage name
+//!        | u64 length + meta (JSON: what went into the key, the stage's figures)
 //!        | u64 payload length | payload | 32-byte blake3 of everything before it
 //! ```
 //!
 //! Numbers are little-endian; `f64` values are stored bit-exactly, so a decoded artifact equals
-//! the encoded one. Any mismatch (magic, versions, length, checksum, trailing bytes) makes
-//! [`decode`] return `None`, which the cache treats as a miss.
+//! the encoded one. An entry proves its identity: the key, stage and versions it was stored
+//! under sit inside the checksummed bytes, so a file copied or renamed onto another key's path
+//! is refused, and so is one whose figures were edited. Any mismatch (magic, versions, identity,
+//! length, checksum, trailing bytes) makes [`decode_entry`] return `None`, which the cache
+//! treats as a miss.
 
 use crate::cloud::{OrientedCloud, PointCloud};
 use crate::mesh::TriangleMesh;
 use crate::poly::ImplicitModel;
 
-use super::CACHE_FORMAT_VERSION;
+use super::{Key, CACHE_FORMAT_VERSION};
 
 const MAGIC: &[u8; 4] = b"SSCA";
 
@@ -31,15 +36,44 @@ pub trait Artifact: Sized {
     fn decode_payload(r: &mut Reader<'_>) -> Option<Self>;
 }
 
-/// Encodes an artifact as a self-checking cache entry.
-pub fn encode<T: Artifact>(artifact: &T) -> Vec<u8> {
+/// What an entry is stored under: checked on every read.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct EntryId {
+    /// The full key.
+    pub key: Key,
+    /// The stage that made the artifact.
+    pub stage: String,
+    /// That stage's version.
+    pub stage_version: u32,
+}
+
+/// A decoded entry: its identity, its explanation and figures (JSON), and the artifact.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Entry<T> {
+    /// What the entry says it was stored under.
+    pub id: EntryId,
+    /// The explanation stored with it (what went into the key, the stage's figures).
+    pub meta: serde_json::Value,
+    /// The artifact.
+    pub value: T,
+}
+
+/// Encodes an artifact with its identity and explanation as a self-checking cache entry.
+pub fn encode<T: Artifact>(artifact: &T, id: &EntryId, meta: &serde_json::Value) -> Vec<u8> {
     let mut payload = Vec::new();
     artifact.encode_payload(&mut payload);
-    let mut out = Vec::with_capacity(payload.len() + 60);
+    let meta = serde_json::to_vec(meta).expect("json value serializes");
+    let mut out = Vec::with_capacity(payload.len() + meta.len() + 128);
     out.extend_from_slice(MAGIC);
     out.extend_from_slice(&CACHE_FORMAT_VERSION.to_le_bytes());
     out.extend_from_slice(&T::KIND.to_le_bytes());
     out.extend_from_slice(&T::VERSION.to_le_bytes());
+    out.extend_from_slice(&id.key.0);
+    out.extend_from_slice(&id.stage_version.to_le_bytes());
+    for field in [id.stage.as_bytes(), &meta] {
+        out.extend_from_slice(&(field.len() as u64).to_le_bytes());
+        out.extend_from_slice(field);
+    }
     out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
     out.extend_from_slice(&payload);
     let digest = blake3::hash(&out);
@@ -48,7 +82,8 @@ pub fn encode<T: Artifact>(artifact: &T) -> Vec<u8> {
 }
 
 /// Decodes a cache entry; `None` when it is corrupt, truncated or of another version or type.
-pub fn decode<T: Artifact>(bytes: &[u8]) -> Option<T> {
+/// The identity is returned, not checked: [`decode_as`] checks it.
+pub fn decode_entry<T: Artifact>(bytes: &[u8]) -> Option<Entry<T>> {
     let body_len = bytes.len().checked_sub(32)?;
     let (body, digest) = bytes.split_at(body_len);
     if blake3::hash(body).as_bytes() != digest {
@@ -62,12 +97,34 @@ pub fn decode<T: Artifact>(bytes: &[u8]) -> Option<T> {
     {
         return None;
     }
+    let key = Key(r.take(32)?.try_into().ok()?);
+    let stage_version = r.u32()?;
+    let stage = std::str::from_utf8(r.bytes()?).ok()?.to_string();
+    let meta = serde_json::from_slice(r.bytes()?).ok()?;
     let len = usize::try_from(r.u64()?).ok()?;
     if r.bytes.len() != len {
         return None;
     }
     let value = T::decode_payload(&mut r)?;
-    r.bytes.is_empty().then_some(value)
+    r.bytes.is_empty().then_some(Entry {
+        id: EntryId {
+            key,
+            stage,
+            stage_version,
+        },
+        meta,
+        value,
+    })
+}
+
+/// Decodes a cache entry that must have been stored as `id`; `None` otherwise.
+pub fn decode_as<T: Artifact>(bytes: &[u8], id: &EntryId) -> Option<Entry<T>> {
+    decode_entry(bytes).filter(|e| &e.id == id)
+}
+
+/// The artifact of a cache entry, whatever it was stored under (for tools that read a cache).
+pub fn decode<T: Artifact>(bytes: &[u8]) -> Option<T> {
+    decode_entry(bytes).map(|e| e.value)
 }
 
 /// A cursor over payload bytes.
@@ -282,10 +339,29 @@ mod tests {
         }
     }
 
+    fn id(stage: &str) -> EntryId {
+        EntryId {
+            key: Key::of_bytes(stage.as_bytes()),
+            stage: stage.into(),
+            stage_version: 3,
+        }
+    }
+
+    fn encode<T: Artifact>(artifact: &T) -> Vec<u8> {
+        super::encode(
+            artifact,
+            &id("import"),
+            &serde_json::json!({"figures": {"n": 2}}),
+        )
+    }
+
     #[test]
     fn round_trip_is_exact() {
         let c = cloud();
-        assert_eq!(decode::<PointCloud>(&encode(&c)), Some(c));
+        assert_eq!(decode::<PointCloud>(&encode(&c)), Some(c.clone()));
+        let entry = decode_as::<PointCloud>(&encode(&c), &id("import")).unwrap();
+        assert_eq!(entry.meta["figures"]["n"], 2);
+        assert_eq!(entry.value, c);
         let m = TriangleMesh {
             positions: vec![[0.1, 0.2, 0.3]],
             normals: vec![[0.0, 1.0, 0.0]],
@@ -320,6 +396,23 @@ mod tests {
             ("slices/b.exr".into(), vec![]),
         ]);
         assert_eq!(decode::<OutputFiles>(&encode(&files)), Some(files));
+    }
+
+    #[test]
+    fn an_entry_stored_under_another_identity_is_refused() {
+        let bytes = encode(&cloud());
+        assert!(decode_as::<PointCloud>(&bytes, &id("import")).is_some());
+        assert!(decode_as::<PointCloud>(&bytes, &id("normals")).is_none());
+        let other_key = EntryId {
+            key: Key::of_bytes(b"another"),
+            ..id("import")
+        };
+        assert!(decode_as::<PointCloud>(&bytes, &other_key).is_none());
+        let other_version = EntryId {
+            stage_version: 4,
+            ..id("import")
+        };
+        assert!(decode_as::<PointCloud>(&bytes, &other_version).is_none());
     }
 
     #[test]

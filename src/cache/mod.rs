@@ -13,11 +13,20 @@
 //! mtime); every later stage's input key is the key of the artifact it consumes, so keys chain.
 //! Params are canonicalized as JSON of the `…Params` struct (fields in declaration order).
 //!
-//! Layout on disk: `<root>/<stage>/<k0k1>/<key>.bin` plus `<key>.json` describing what went into
-//! the key (for `-v`). Writes go to a unique temporary file in the same directory and are renamed
-//! into place, so a killed run or two concurrent runs never leave a torn entry (no sync before
-//! the rename: an entry torn by a power loss fails its checksum and is a miss). An entry that
-//! fails to decode or verify (see [`codec`]) is a miss and is rewritten; it is never an error.
+//! Layout on disk: `<root>/CACHEDIR.TAG` (the marker, written when the cache creates the
+//! folder) and `<root>/<stage>/<k0k1>/<key>.bin`. Each entry holds, inside its checksummed bytes,
+//! the key, stage and versions it was stored under and the stage's figures (see [`codec`]), so an
+//! entry answers only for its own key. Writes go to a unique temporary file
+//! (`.tmp-<pid>-<n>`) in the same directory and are renamed into place, so a killed run or two
+//! concurrent runs never leave a torn entry (no sync before the rename: an entry torn by a power
+//! loss fails its checksum and is a miss). An entry that fails to decode or verify is a miss and
+//! is rewritten; it is never an error. Temporaries of processes that are gone are removed by the
+//! next lookup in their folder and by `cache info` / `cache clear`.
+//!
+//! The cache owns only what it made: it works in a folder that carries its marker, or that it
+//! creates (or finds empty) and marks; any other folder is refused with [`CacheError::NotACache`].
+//! [`Cache::clear`] removes only names it makes (entries, its temporaries, then the folders
+//! they leave empty), never follows a link, and leaves everything else where it is.
 //!
 //! A run stores its entries through [`Puts`], on a background thread, while its next stages
 //! compute. A store that fails costs only the next run's time, so the pipeline reports it as a
@@ -35,7 +44,17 @@ pub use codec::{Artifact, OutputFiles};
 
 /// Version of the cache as a whole (entry envelope and key recipe). If you change either,
 /// bump it: every key changes and old entries are simply never read again.
-pub const CACHE_FORMAT_VERSION: u32 = 1;
+pub const CACHE_FORMAT_VERSION: u32 = 2;
+
+/// The stage folders a cache holds; nothing else under the root is the cache's.
+pub const STAGES: &[&str] = &["import", "normals", "fit", "detail", "polygonize", "export"];
+
+/// The marker file of a cache root (the cache directory tag convention, which backup tools
+/// honour), and its first line.
+const MARKER: &str = "CACHEDIR.TAG";
+const MARKER_SIGNATURE: &str = "Signature: 8a477f597d28d172789f06886806bc55";
+/// The line that says the tag is stablesurf's (other tools write the same signature).
+const MARKER_OWNER: &str = "# This folder is a stablesurf cache";
 
 /// Errors of the cache that the caller must see (reads never fail: a bad entry is a miss).
 #[derive(Debug, thiserror::Error)]
@@ -47,6 +66,15 @@ pub enum CacheError {
         path: String,
         /// The cause.
         source: std::io::Error,
+    },
+    /// The folder is not a stablesurf cache, so the cache will neither write into it nor
+    /// remove anything from it.
+    #[error("{path} is not a stablesurf cache: {why}; pass --cache-dir a new or empty folder (stablesurf never writes into or clears a folder it did not create)")]
+    NotACache {
+        /// The folder.
+        path: String,
+        /// What was found there instead.
+        why: String,
     },
 }
 
@@ -123,7 +151,8 @@ pub enum Lookup {
     Hit,
     /// Not present (or the cache is disabled).
     Miss,
-    /// Present but corrupt or of another version: recomputed and rewritten.
+    /// Present but corrupt, of another version or stored under another key: recomputed and
+    /// rewritten.
     Corrupt,
 }
 
@@ -144,10 +173,156 @@ pub struct Cache {
     root: Option<PathBuf>,
 }
 
+/// One stage's share of a cache ([`Cache::usage`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct StageUsage {
+    /// The stage.
+    pub stage: String,
+    /// Its entries.
+    pub entries: u64,
+    /// Their bytes.
+    pub bytes: u64,
+}
+
+/// What [`Cache::clear`] did.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Cleared {
+    /// Entries removed.
+    pub entries: u64,
+    /// Their bytes.
+    pub bytes: u64,
+    /// Temporaries of ended processes removed.
+    pub debris: u64,
+    /// Paths under the root that are not the cache's, left where they are.
+    pub foreign: Vec<PathBuf>,
+}
+
 static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
 
+/// The temporary-file prefix of the cache's atomic writes (`.tmp-<pid>-<n>`).
+const TMP_PREFIX: &str = ".tmp-";
+
+/// Whether `name` is an entry's file name: 64 lower-case hex digits and `.bin` (or the `.json`
+/// that caches of format 1 kept beside it).
+fn is_entry_name(name: &str) -> bool {
+    let Some((stem, ext)) = name.split_once('.') else {
+        return false;
+    };
+    stem.len() == 64
+        && stem
+            .bytes()
+            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+        && (ext == "bin" || ext == "json")
+}
+
+fn is_shard_name(name: &str) -> bool {
+    name.len() == 2
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+}
+
+/// The process id in a name of the cache's temporaries, when it is one.
+fn tmp_pid(name: &str) -> Option<u32> {
+    let pid = crate::files::pid_after(name, TMP_PREFIX)?;
+    let rest = &name[TMP_PREFIX.len() + pid.to_string().len()..];
+    let n = rest.strip_prefix('-')?;
+    (!n.is_empty() && n.bytes().all(|b| b.is_ascii_digit())).then_some(pid)
+}
+
+/// A directory's entries as (name, path, metadata without following links); none when it
+/// cannot be read.
+fn listing(dir: &Path) -> Vec<(String, PathBuf, fs::Metadata)> {
+    let mut out: Vec<_> = fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| {
+            let path = e.path();
+            let meta = fs::symlink_metadata(&path).ok()?;
+            Some((e.file_name().to_string_lossy().into_owned(), path, meta))
+        })
+        .collect();
+    out.sort_by(|a, b| a.0.cmp(&b.0));
+    out
+}
+
+/// Removes the cache's temporaries of ended processes in one shard folder; returns how many.
+fn sweep_shard(shard: &Path) -> u64 {
+    let mut removed = 0;
+    for (name, path, meta) in listing(shard) {
+        if meta.is_file()
+            && tmp_pid(&name).is_some_and(|pid| crate::files::process_is_gone(pid, &path))
+            && fs::remove_file(&path).is_ok()
+        {
+            removed += 1;
+        }
+    }
+    removed
+}
+
+/// What a folder is, as a cache root.
+enum RootState {
+    /// Not there: the cache creates and marks it.
+    Absent,
+    /// Carries the marker.
+    Marked,
+    /// Empty, or a cache of format 1 (stage folders of entries only, from before the marker):
+    /// the cache marks it and uses it.
+    Adoptable,
+    /// Anything else: refused.
+    Foreign(String),
+}
+
+fn root_state(root: &Path) -> RootState {
+    let meta = match fs::symlink_metadata(root) {
+        // Not there, or not reachable (a file stands on its path): creating it will fail with
+        // the IO error that says why.
+        Err(_) => return RootState::Absent,
+        Ok(m) => m,
+    };
+    // A link to a folder is followed for the root itself (a user may keep the cache on
+    // another disk), never below it.
+    let is_dir = meta.is_dir() || (meta.is_symlink() && root.is_dir());
+    if !is_dir {
+        return RootState::Foreign("it is a file, not a folder".into());
+    }
+    if let Ok(text) = fs::read_to_string(root.join(MARKER)) {
+        let mut lines = text.lines();
+        if lines.next() == Some(MARKER_SIGNATURE) && lines.any(|l| l.starts_with(MARKER_OWNER)) {
+            return RootState::Marked;
+        }
+        return RootState::Foreign(format!("its {MARKER} belongs to another program"));
+    }
+    let items = listing(root);
+    if items.is_empty() {
+        return RootState::Adoptable;
+    }
+    // A cache of format 1: every item a stage folder of shard folders of entries.
+    let legacy = items.iter().all(|(name, path, meta)| {
+        meta.is_dir()
+            && STAGES.contains(&name.as_str())
+            && listing(path).iter().all(|(shard, path, meta)| {
+                meta.is_dir()
+                    && is_shard_name(shard)
+                    && listing(path).iter().all(|(file, _, meta)| {
+                        meta.is_file() && (is_entry_name(file) || tmp_pid(file).is_some())
+                    })
+            })
+    });
+    if legacy {
+        return RootState::Adoptable;
+    }
+    let shown: Vec<&str> = items.iter().take(3).map(|i| i.0.as_str()).collect();
+    RootState::Foreign(format!(
+        "it holds other things ({}{}) and no {MARKER} of stablesurf",
+        shown.join(", "),
+        if items.len() > 3 { ", …" } else { "" }
+    ))
+}
+
 impl Cache {
-    /// A cache rooted at `root` (created on first write).
+    /// A cache rooted at `root` (created and marked by [`Cache::prepare`] or the first write).
     pub fn at(root: impl Into<PathBuf>) -> Cache {
         Cache {
             root: Some(root.into()),
@@ -164,27 +339,95 @@ impl Cache {
         self.root.as_deref()
     }
 
-    fn entry_path(&self, stage: &str, key: &Key, ext: &str) -> Option<PathBuf> {
+    /// Makes the root ready for use: creates and marks it when it is absent, marks it when it
+    /// is empty (or a cache of format 1), accepts it when it carries the marker.
+    ///
+    /// # Errors
+    /// [`CacheError::NotACache`] for any other folder (or a file);
+    /// [`CacheError::Io`] when it cannot be created or marked.
+    pub fn prepare(&self) -> Result<(), CacheError> {
+        let Some(root) = &self.root else {
+            return Ok(());
+        };
+        let io = |source| CacheError::Io {
+            path: root.display().to_string(),
+            source,
+        };
+        match root_state(root) {
+            RootState::Marked => Ok(()),
+            RootState::Foreign(why) => Err(CacheError::NotACache {
+                path: root.display().to_string(),
+                why,
+            }),
+            RootState::Absent | RootState::Adoptable => {
+                fs::create_dir_all(root).map_err(io)?;
+                let marker = format!(
+                    "{MARKER_SIGNATURE}\n{MARKER_OWNER} (format {CACHE_FORMAT_VERSION}): `stablesurf cache clear` removes\n# only the entries it made here. Backup tools that honour cache directory tags skip it.\n"
+                );
+                write_atomic(&root.join(MARKER), marker.as_bytes())
+            }
+        }
+    }
+
+    /// The root, when it is a marked cache (for `info` and `clear`).
+    fn marked_root(&self) -> Result<Option<&Path>, CacheError> {
+        let Some(root) = &self.root else {
+            return Ok(None);
+        };
+        match root_state(root) {
+            RootState::Marked => Ok(Some(root)),
+            RootState::Absent => Err(CacheError::NotACache {
+                path: root.display().to_string(),
+                why: "the folder does not exist".into(),
+            }),
+            RootState::Adoptable => Err(CacheError::NotACache {
+                path: root.display().to_string(),
+                why: format!("it has no {MARKER} (a run marks the folder when it makes the cache)"),
+            }),
+            RootState::Foreign(why) => Err(CacheError::NotACache {
+                path: root.display().to_string(),
+                why,
+            }),
+        }
+    }
+
+    fn entry_path(&self, stage: &str, key: &Key) -> Option<PathBuf> {
         let hex = key.hex();
         Some(
             self.root
                 .as_ref()?
                 .join(stage)
                 .join(&hex[..2])
-                .join(format!("{hex}.{ext}")),
+                .join(format!("{hex}.bin")),
         )
     }
 
-    /// Looks an artifact up. Never fails: unreadable or corrupt entries are misses.
-    pub fn get<T: Artifact>(&self, stage: &str, key: &Key) -> (Option<T>, Lookup) {
-        let Some(path) = self.entry_path(stage, key, "bin") else {
+    /// Looks an artifact up under the identity it must have been stored with. Never fails:
+    /// unreadable, corrupt or foreign entries are misses. Returns the artifact and the
+    /// explanation stored with it.
+    pub fn get<T: Artifact>(
+        &self,
+        stage: &str,
+        stage_version: u32,
+        key: &Key,
+    ) -> (Option<(T, serde_json::Value)>, Lookup) {
+        let Some(path) = self.entry_path(stage, key) else {
             return (None, Lookup::Miss);
         };
+        if let Some(shard) = path.parent() {
+            sweep_shard(shard);
+        }
+        let id = codec::EntryId {
+            key: *key,
+            stage: stage.to_string(),
+            stage_version,
+        };
         match fs::read(&path) {
-            Ok(bytes) => match codec::decode::<T>(&bytes) {
-                Some(v) => (Some(v), Lookup::Hit),
+            Ok(bytes) => match codec::decode_as::<T>(&bytes, &id) {
+                Some(entry) => (Some((entry.value, entry.meta)), Lookup::Hit),
                 None => (None, Lookup::Corrupt),
             },
+            Err(_) if path.exists() => (None, Lookup::Corrupt),
             Err(_) => (None, Lookup::Miss),
         }
     }
@@ -192,36 +435,30 @@ impl Cache {
     /// Whether an entry for `key` is on disk (not decoded: a corrupt entry still counts). Lets a
     /// caller skip work that only a miss would need.
     pub fn contains(&self, stage: &str, key: &Key) -> bool {
-        self.entry_path(stage, key, "bin")
+        self.entry_path(stage, key)
             .is_some_and(|path| path.is_file())
     }
 
-    /// The explanation stored beside an entry (what went into its key, its figures), if readable.
-    pub fn meta(&self, stage: &str, key: &Key) -> Option<serde_json::Value> {
-        let path = self.entry_path(stage, key, "json")?;
-        serde_json::from_slice(&fs::read(path).ok()?).ok()
-    }
-
-    /// Stores an artifact and its explanation (`meta`, JSON) atomically.
+    /// Stores an artifact with its identity and explanation (`meta`, JSON) atomically.
     ///
     /// # Errors
     /// The directory cannot be created or written.
     pub fn put<T: Artifact>(
         &self,
         stage: &str,
+        stage_version: u32,
         key: &Key,
         artifact: &T,
         meta: &serde_json::Value,
     ) -> Result<(), CacheError> {
-        let (Some(bin), Some(json)) = (
-            self.entry_path(stage, key, "bin"),
-            self.entry_path(stage, key, "json"),
-        ) else {
+        let Some(path) = self.entry_path(stage, key) else {
             return Ok(());
         };
-        let meta_bytes = serde_json::to_vec_pretty(meta).expect("json value serializes");
-        write_atomic(&json, &meta_bytes)?;
-        write_atomic(&bin, &codec::encode(artifact))
+        self.prepare()?;
+        write_entry(
+            &path,
+            &encode_entry(stage, stage_version, key, artifact, meta),
+        )
     }
 
     /// A writer that stores this cache's entries on a background thread (see [`Puts`]).
@@ -233,55 +470,118 @@ impl Cache {
         }
     }
 
-    /// Total size in bytes and number of entries per stage.
-    pub fn usage(&self) -> Vec<(String, u64, u64)> {
+    /// Entries and bytes per stage (stages without entries left out). Temporaries of ended
+    /// processes are removed on the way and counted in nothing.
+    ///
+    /// # Errors
+    /// [`CacheError::NotACache`] when the folder is not a marked cache.
+    pub fn usage(&self) -> Result<Vec<StageUsage>, CacheError> {
         let mut out = Vec::new();
-        let Some(root) = &self.root else { return out };
-        let Ok(stages) = fs::read_dir(root) else {
-            return out;
+        let Some(root) = self.marked_root()? else {
+            return Ok(out);
         };
-        let mut names: Vec<_> = stages.flatten().filter(|e| e.path().is_dir()).collect();
-        names.sort_by_key(|e| e.file_name());
-        for stage in names {
+        for stage in STAGES {
             let (mut bytes, mut entries) = (0, 0);
-            for shard in fs::read_dir(stage.path()).into_iter().flatten().flatten() {
-                for f in fs::read_dir(shard.path()).into_iter().flatten().flatten() {
-                    if let Ok(m) = f.metadata() {
-                        bytes += m.len();
-                        entries += u64::from(f.path().extension().is_some_and(|e| e == "bin"));
+            let stage_dir = root.join(stage);
+            if !fs::symlink_metadata(&stage_dir).is_ok_and(|m| m.is_dir()) {
+                continue;
+            }
+            for (_, shard, meta) in listing(&stage_dir) {
+                if !meta.is_dir() {
+                    continue;
+                }
+                sweep_shard(&shard);
+                for (name, _, meta) in listing(&shard) {
+                    if meta.is_file() && name.ends_with(".bin") && is_entry_name(&name) {
+                        bytes += meta.len();
+                        entries += 1;
                     }
                 }
             }
-            out.push((
-                stage.file_name().to_string_lossy().into_owned(),
-                entries,
-                bytes,
-            ));
+            if entries > 0 {
+                out.push(StageUsage {
+                    stage: stage.to_string(),
+                    entries,
+                    bytes,
+                });
+            }
         }
-        out
+        Ok(out)
     }
 
-    /// Removes every entry.
+    /// Removes every entry and the temporaries of ended processes, then the stage and shard
+    /// folders they leave empty. The root and its marker stay; anything else found under the
+    /// root is left where it is and listed in [`Cleared::foreign`]. Links are never followed.
     ///
     /// # Errors
-    /// A file could not be removed.
-    pub fn clear(&self) -> Result<(), CacheError> {
-        let Some(root) = &self.root else {
-            return Ok(());
+    /// [`CacheError::NotACache`] when the folder is not a marked cache; [`CacheError::Io`]
+    /// when an entry cannot be removed.
+    pub fn clear(&self) -> Result<Cleared, CacheError> {
+        let mut done = Cleared::default();
+        let Some(root) = self.marked_root()? else {
+            return Ok(done);
         };
-        match fs::remove_dir_all(root) {
-            Ok(()) => Ok(()),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
-            Err(source) => Err(CacheError::Io {
-                path: root.display().to_string(),
-                source,
-            }),
+        let io = |path: &Path| {
+            let path = path.display().to_string();
+            move |source| CacheError::Io { path, source }
+        };
+        for (name, path, meta) in listing(root) {
+            if name == MARKER || (meta.is_dir() && STAGES.contains(&name.as_str())) {
+                continue;
+            }
+            if let Some(pid) = tmp_pid(&name).filter(|_| meta.is_file()) {
+                if crate::files::process_is_gone(pid, &path) && fs::remove_file(&path).is_ok() {
+                    done.debris += 1;
+                }
+                continue;
+            }
+            done.foreign.push(path);
         }
+        for stage in STAGES {
+            let stage_dir = root.join(stage);
+            if !fs::symlink_metadata(&stage_dir).is_ok_and(|m| m.is_dir()) {
+                continue;
+            }
+            for (shard_name, shard, meta) in listing(&stage_dir) {
+                if !(meta.is_dir() && is_shard_name(&shard_name)) {
+                    done.foreign.push(shard);
+                    continue;
+                }
+                done.debris += sweep_shard(&shard);
+                for (name, path, meta) in listing(&shard) {
+                    if meta.is_file() && is_entry_name(&name) {
+                        fs::remove_file(&path).map_err(io(&path))?;
+                        done.bytes += meta.len();
+                        done.entries += u64::from(name.ends_with(".bin"));
+                    } else if !(meta.is_file() && tmp_pid(&name).is_some()) {
+                        // A live run's temporary is its own; anything else is not the cache's.
+                        done.foreign.push(path);
+                    }
+                }
+                // Fails, harmlessly, when something is left in it.
+                let _ = fs::remove_dir(&shard);
+            }
+            let _ = fs::remove_dir(&stage_dir);
+        }
+        Ok(done)
     }
 }
 
-/// One entry for the background writer: the explanation's path and bytes, then the artifact's.
-type Entry = [(PathBuf, Vec<u8>); 2];
+/// An entry's bytes: the artifact, its identity and its explanation.
+fn encode_entry<T: Artifact>(
+    stage: &str,
+    stage_version: u32,
+    key: &Key,
+    artifact: &T,
+    meta: &serde_json::Value,
+) -> Vec<u8> {
+    let id = codec::EntryId {
+        key: *key,
+        stage: stage.to_string(),
+        stage_version,
+    };
+    codec::encode(artifact, &id, meta)
+}
 
 /// Cache writes that run beside the caller's work, as sccache stores a compile's result after it
 /// has answered: [`Puts::put`] encodes the entry (so it owns no borrowed data) and returns at
@@ -293,40 +593,41 @@ type Entry = [(PathBuf, Vec<u8>); 2];
 /// too, so the entries of the stages that completed are stored even when a later stage fails.
 pub struct Puts {
     cache: Cache,
-    sender: Option<std::sync::mpsc::Sender<Entry>>,
+    sender: Option<std::sync::mpsc::Sender<(PathBuf, Vec<u8>)>>,
     worker: Option<std::thread::JoinHandle<Vec<CacheError>>>,
 }
 
 impl Puts {
-    /// Queues an artifact and its explanation (`meta`, JSON) for storing; does nothing when the
-    /// cache is disabled. Errors come out of [`Puts::finish`].
+    /// Queues an artifact with its identity and explanation (`meta`, JSON) for storing; does
+    /// nothing when the cache is disabled. Errors come out of [`Puts::finish`].
     pub fn put<T: Artifact>(
         &mut self,
         stage: &str,
+        stage_version: u32,
         key: &Key,
         artifact: &T,
         meta: &serde_json::Value,
     ) {
-        let (Some(bin), Some(json)) = (
-            self.cache.entry_path(stage, key, "bin"),
-            self.cache.entry_path(stage, key, "json"),
-        ) else {
+        let Some(path) = self.cache.entry_path(stage, key) else {
             return;
         };
-        let meta_bytes = serde_json::to_vec_pretty(meta).expect("json value serializes");
-        let entry = [(json, meta_bytes), (bin, codec::encode(artifact))];
+        let entry = (
+            path,
+            encode_entry(stage, stage_version, key, artifact, meta),
+        );
+        let cache = self.cache.clone();
         let sender = self.sender.get_or_insert_with(|| {
-            let (sender, receiver) = std::sync::mpsc::channel::<Entry>();
+            let (sender, receiver) = std::sync::mpsc::channel::<(PathBuf, Vec<u8>)>();
             self.worker = Some(std::thread::spawn(move || {
                 // After a failure the rest is dropped: the cause (a full disk, no permission)
                 // is the same for every entry, and one report says it.
                 let mut errors = Vec::new();
-                for entry in receiver {
+                if let Err(e) = cache.prepare() {
+                    errors.push(e);
+                }
+                for (path, bytes) in receiver {
                     if errors.is_empty() {
-                        if let Some(e) = entry
-                            .into_iter()
-                            .find_map(|(path, bytes)| write_atomic(&path, &bytes).err())
-                        {
+                        if let Err(e) = write_entry(&path, &bytes) {
                             errors.push(e);
                         }
                     }
@@ -364,6 +665,21 @@ impl Drop for Puts {
     }
 }
 
+/// Writes an entry. A folder standing at the entry's path (which no run makes) is removed
+/// first when it is empty, so the entry can be stored; a non-empty one is reported.
+fn write_entry(path: &Path, bytes: &[u8]) -> Result<(), CacheError> {
+    if fs::symlink_metadata(path).is_ok_and(|m| m.is_dir()) {
+        fs::remove_dir(path).map_err(|source| CacheError::Io {
+            path: path.display().to_string(),
+            source: std::io::Error::new(
+                source.kind(),
+                format!("a folder stands where this cache entry belongs ({source}); remove it"),
+            ),
+        })?;
+    }
+    write_atomic(path, bytes)
+}
+
 /// Writes `bytes` to `path` through a unique temporary file in the same directory.
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CacheError> {
     let err = |source| CacheError::Io {
@@ -373,7 +689,7 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CacheError> {
     let dir = path.parent().expect("entry paths have a parent");
     fs::create_dir_all(dir).map_err(err)?;
     let n = TMP_COUNTER.fetch_add(1, Ordering::Relaxed);
-    let tmp = dir.join(format!(".tmp-{}-{n}", std::process::id()));
+    let tmp = dir.join(format!("{TMP_PREFIX}{}-{n}", std::process::id()));
     let result = (|| {
         // No sync before the rename: a killed run leaves either the old entry or the whole new
         // one (the rename is atomic), and an entry torn by a power loss fails its checksum
@@ -433,32 +749,45 @@ mod tests {
             points: vec![[1.0, 2.0, 3.0]],
             ..Default::default()
         };
-        assert_eq!(cache.get::<PointCloud>("import", &key).1, Lookup::Miss);
+        assert_eq!(cache.get::<PointCloud>("import", 1, &key).1, Lookup::Miss);
         cache
             .put(
                 "import",
+                1,
                 &key,
                 &cloud,
                 &serde_json::json!({"stage": "import"}),
             )
             .unwrap();
         assert_eq!(
-            cache.get::<PointCloud>("import", &key),
-            (Some(cloud.clone()), Lookup::Hit)
+            cache.get::<PointCloud>("import", 1, &key),
+            (
+                Some((cloud.clone(), serde_json::json!({"stage": "import"}))),
+                Lookup::Hit
+            )
         );
-        let path = cache.entry_path("import", &key, "bin").unwrap();
+        let path = cache.entry_path("import", &key).unwrap();
         let mut bytes = fs::read(&path).unwrap();
         let mid = bytes.len() / 2;
         bytes[mid] ^= 1;
         fs::write(&path, bytes).unwrap();
-        assert_eq!(cache.get::<PointCloud>("import", &key).1, Lookup::Corrupt);
+        assert_eq!(
+            cache.get::<PointCloud>("import", 1, &key).1,
+            Lookup::Corrupt
+        );
         cache
-            .put("import", &key, &cloud, &serde_json::json!({}))
+            .put("import", 1, &key, &cloud, &serde_json::json!({}))
             .unwrap();
-        assert_eq!(cache.get::<PointCloud>("import", &key).1, Lookup::Hit);
-        assert_eq!(cache.usage()[0].1, 1);
-        cache.clear().unwrap();
-        assert_eq!(cache.get::<PointCloud>("import", &key).1, Lookup::Miss);
+        assert_eq!(cache.get::<PointCloud>("import", 1, &key).1, Lookup::Hit);
+        // Another stage version under the same key: not this entry.
+        assert_eq!(
+            cache.get::<PointCloud>("import", 2, &key).1,
+            Lookup::Corrupt
+        );
+        assert_eq!(cache.usage().unwrap()[0].entries, 1);
+        let cleared = cache.clear().unwrap();
+        assert_eq!((cleared.entries, cleared.foreign.len()), (1, 0));
+        assert_eq!(cache.get::<PointCloud>("import", 1, &key).1, Lookup::Miss);
     }
 
     #[test]
@@ -478,6 +807,7 @@ mod tests {
         for (key, cloud) in &clouds {
             puts.put(
                 "import",
+                1,
                 key,
                 cloud,
                 &serde_json::json!({"i": cloud.points[0][0]}),
@@ -486,35 +816,34 @@ mod tests {
         assert!(puts.finish().is_empty());
         for (key, cloud) in &clouds {
             assert_eq!(
-                cache.get::<PointCloud>("import", key),
-                (Some(cloud.clone()), Lookup::Hit)
-            );
-            assert_eq!(
-                cache.meta("import", key).unwrap()["i"],
-                serde_json::json!(cloud.points[0][0])
+                cache.get::<PointCloud>("import", 1, key),
+                (
+                    Some((cloud.clone(), serde_json::json!({"i": cloud.points[0][0]}))),
+                    Lookup::Hit
+                )
             );
         }
         // Dropping the writer also waits: the entry is there right after.
         let key = Key::of_bytes(b"dropped");
         {
             let mut puts = cache.puts();
-            puts.put("fit", &key, &clouds[0].1, &serde_json::json!({}));
+            puts.put("fit", 1, &key, &clouds[0].1, &serde_json::json!({}));
         }
-        assert_eq!(cache.get::<PointCloud>("fit", &key).1, Lookup::Hit);
+        assert_eq!(cache.get::<PointCloud>("fit", 1, &key).1, Lookup::Hit);
 
         // A root below a file cannot be created: one error, whatever the number of entries.
         let file = dir.path().join("file");
         fs::write(&file, b"").unwrap();
         let mut puts = Cache::at(file.join("cache")).puts();
         for (key, cloud) in &clouds {
-            puts.put("import", key, cloud, &serde_json::json!({}));
+            puts.put("import", 1, key, cloud, &serde_json::json!({}));
         }
         let errors = puts.finish();
         assert_eq!(errors.len(), 1);
         assert!(errors[0].to_string().contains("cannot write the cache"));
         // A disabled cache queues nothing and starts no thread.
         let mut puts = Cache::disabled().puts();
-        puts.put("import", &key, &clouds[0].1, &serde_json::json!({}));
+        puts.put("import", 1, &key, &clouds[0].1, &serde_json::json!({}));
         assert!(puts.worker.is_none() && puts.finish().is_empty());
     }
 
@@ -525,11 +854,171 @@ mod tests {
         cache
             .put(
                 "import",
+                1,
                 &key,
                 &PointCloud::default(),
                 &serde_json::json!({}),
             )
             .unwrap();
-        assert_eq!(cache.get::<PointCloud>("import", &key).1, Lookup::Miss);
+        assert_eq!(cache.get::<PointCloud>("import", 1, &key).1, Lookup::Miss);
+    }
+
+    fn cloud_entry(cache: &Cache, n: u8) -> (Key, PathBuf) {
+        let key = Key::of_bytes(&[n]);
+        let cloud = PointCloud {
+            points: vec![[f64::from(n), 0.0, 0.0]],
+            ..Default::default()
+        };
+        cache
+            .put("import", 1, &key, &cloud, &serde_json::json!({}))
+            .unwrap();
+        (key, cache.entry_path("import", &key).unwrap())
+    }
+
+    #[test]
+    fn a_folder_the_cache_did_not_make_is_refused_and_left_alone() {
+        let dir = tempfile::tempdir().unwrap();
+        // A user's folder: never used, never cleared.
+        let user = dir.path().join("v");
+        fs::create_dir_all(user.join("my_project")).unwrap();
+        fs::write(user.join("my_project/notes.txt"), b"mine").unwrap();
+        let cache = Cache::at(&user);
+        for err in [
+            cache.prepare().unwrap_err(),
+            cache.clear().unwrap_err(),
+            cache.usage().unwrap_err(),
+        ] {
+            let msg = err.to_string();
+            assert!(
+                msg.contains("is not a stablesurf cache") && msg.contains("my_project"),
+                "{msg}"
+            );
+        }
+        assert_eq!(
+            fs::read(user.join("my_project/notes.txt")).unwrap(),
+            b"mine"
+        );
+        // A folder that does not exist, and a file, are no caches to clear or list.
+        let missing = Cache::at(dir.path().join("missing"));
+        assert!(missing
+            .clear()
+            .unwrap_err()
+            .to_string()
+            .contains("does not exist"));
+        assert!(!dir.path().join("missing").exists());
+        fs::write(dir.path().join("file"), b"x").unwrap();
+        let file = Cache::at(dir.path().join("file"));
+        assert!(file.usage().unwrap_err().to_string().contains("is a file"));
+        assert!(file.prepare().is_err());
+        // Another program's cache directory tag is not ours either.
+        let other = dir.path().join("other");
+        fs::create_dir(&other).unwrap();
+        fs::write(
+            other.join(MARKER),
+            format!("{MARKER_SIGNATURE}\n# made by cargo\n"),
+        )
+        .unwrap();
+        assert!(Cache::at(&other)
+            .clear()
+            .unwrap_err()
+            .to_string()
+            .contains("another program"));
+        assert!(other.join(MARKER).exists());
+    }
+
+    #[test]
+    fn clear_removes_only_what_the_cache_made() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path().join("cache");
+        let cache = Cache::at(&root);
+        let (_, entry) = cloud_entry(&cache, 1);
+        cloud_entry(&cache, 2);
+        // Things the cache did not make, at every level, and a link out of the cache.
+        let outside = dir.path().join("outside");
+        fs::create_dir(&outside).unwrap();
+        fs::write(outside.join("keep.txt"), b"keep").unwrap();
+        fs::write(root.join("README"), b"user").unwrap();
+        fs::write(root.join("import").join("notes"), b"user").unwrap();
+        let shard = entry.parent().unwrap().to_path_buf();
+        fs::write(shard.join("mine.bin"), b"user").unwrap();
+        #[cfg(unix)]
+        std::os::unix::fs::symlink(&outside, root.join("fit")).unwrap();
+        // Debris of an ended process, and a temporary of this (live) one.
+        let dead = shard.join(format!("{TMP_PREFIX}{}-0", u32::MAX - 7));
+        let live = shard.join(format!("{TMP_PREFIX}{}-9", std::process::id()));
+        fs::write(&dead, b"torn").unwrap();
+        fs::write(&live, b"in progress").unwrap();
+
+        let cleared = cache.clear().unwrap();
+        assert_eq!(cleared.entries, 2);
+        assert!(!entry.exists());
+        for kept in [
+            outside.join("keep.txt"),
+            root.join("README"),
+            root.join("import/notes"),
+            shard.join("mine.bin"),
+            live.clone(),
+            root.join(MARKER),
+        ] {
+            assert!(kept.exists(), "{} removed", kept.display());
+        }
+        if cfg!(target_os = "linux") {
+            assert!(!dead.exists());
+            assert_eq!(cleared.debris, 1);
+        }
+        assert!(cleared.foreign.contains(&root.join("README")));
+        assert!(cleared.foreign.contains(&shard.join("mine.bin")));
+        // The cache still works after a clear.
+        cloud_entry(&cache, 3);
+        assert_eq!(cache.usage().unwrap()[0].entries, 1);
+    }
+
+    #[test]
+    fn an_empty_folder_or_a_format_1_cache_is_adopted() {
+        let dir = tempfile::tempdir().unwrap();
+        let empty = dir.path().join("empty");
+        fs::create_dir(&empty).unwrap();
+        Cache::at(&empty).prepare().unwrap();
+        assert!(empty.join(MARKER).is_file());
+        let old = dir.path().join("old");
+        let shard = old.join("fit").join("ab");
+        fs::create_dir_all(&shard).unwrap();
+        let name = format!("ab{}", "0".repeat(62));
+        fs::write(shard.join(format!("{name}.bin")), b"x").unwrap();
+        fs::write(shard.join(format!("{name}.json")), b"{}").unwrap();
+        Cache::at(&old).prepare().unwrap();
+        assert_eq!(Cache::at(&old).clear().unwrap().entries, 1);
+        assert!(!old.join("fit").exists());
+    }
+
+    #[test]
+    fn a_folder_at_an_entry_path_is_replaced_by_the_entry() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = Cache::at(dir.path().join("c"));
+        let (key, entry) = cloud_entry(&cache, 1);
+        fs::remove_file(&entry).unwrap();
+        fs::create_dir(&entry).unwrap();
+        assert_eq!(
+            cache.get::<PointCloud>("import", 1, &key).1,
+            Lookup::Corrupt
+        );
+        cloud_entry(&cache, 1);
+        assert_eq!(cache.get::<PointCloud>("import", 1, &key).1, Lookup::Hit);
+    }
+
+    #[test]
+    fn a_lookup_removes_the_debris_of_ended_processes_in_its_folder() {
+        let dir = tempfile::tempdir().unwrap();
+        let cache = Cache::at(dir.path().join("c"));
+        let (key, entry) = cloud_entry(&cache, 1);
+        let dead = entry
+            .parent()
+            .unwrap()
+            .join(format!("{TMP_PREFIX}{}-3", u32::MAX - 7));
+        fs::write(&dead, b"torn").unwrap();
+        assert_eq!(cache.get::<PointCloud>("import", 1, &key).1, Lookup::Hit);
+        if cfg!(target_os = "linux") {
+            assert!(!dead.exists());
+        }
     }
 }

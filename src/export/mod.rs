@@ -31,12 +31,14 @@ use std::path::Path;
 #[derive(Debug, thiserror::Error)]
 pub enum ExportError {
     /// Writing failed.
-    #[error("cannot write {path}: {source}")]
+    #[error("cannot write {path}: {source}; {hint}")]
     Io {
         /// The file.
         path: String,
         /// The cause.
         source: std::io::Error,
+        /// What to do about it.
+        hint: &'static str,
     },
     /// A writer failed for a format-specific reason.
     #[error("{0}")]
@@ -87,7 +89,8 @@ pub fn write_atomic<F>(path: &Path, write: F) -> Result<(), ExportError>
 where
     F: FnOnce(&mut BufWriter<&mut File>) -> Result<(), ExportError>,
 {
-    let io_err = |source| ExportError::Io {
+    let io_err = |source: std::io::Error| ExportError::Io {
+        hint: crate::files::io_hint(&source),
         path: path.display().to_string(),
         source,
     };
@@ -99,6 +102,7 @@ where
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
+    remove_stale_temporaries(dir, |name| name == file_name);
     let tmp_path = dir.join(format!(".{file_name}.tmp{}", std::process::id()));
     let result = (|| {
         let mut file = File::create(&tmp_path).map_err(io_err)?;
@@ -114,4 +118,33 @@ where
         let _ = std::fs::remove_file(&tmp_path);
     }
     result
+}
+
+/// Removes the temporaries `.NAME.tmp<pid>` that [`write_atomic`] left in `dir` for the names
+/// `NAME` that `names` accepts, when the process `pid` is gone (a killed run's debris). Never
+/// fails: what cannot be read or removed stays.
+pub(crate) fn remove_stale_temporaries(dir: &Path, names: impl Fn(&str) -> bool) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let Some((file, pid)) = name
+            .strip_prefix('.')
+            .and_then(|rest| rest.rsplit_once(".tmp"))
+        else {
+            continue;
+        };
+        let path = entry.path();
+        if names(file)
+            && !pid.is_empty()
+            && pid.bytes().all(|b| b.is_ascii_digit())
+            && pid
+                .parse()
+                .is_ok_and(|pid| crate::files::process_is_gone(pid, &path))
+            && std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_file())
+        {
+            let _ = std::fs::remove_file(&path);
+        }
+    }
 }
