@@ -930,3 +930,79 @@ fn help_prints_every_range() {
     }
     assert!(help("render").contains("[range: 16 to 8192]"));
 }
+
+/// An OBJ file of 300 sphere points (centre (1, 2, 3), radius 2, coordinates on a 1/1024 grid)
+/// and 500 faces over 1,500 more vertices whose corners coincide (even faces) or lie on one line
+/// (odd faces; exact in binary, so exactly collinear).
+fn degenerate_faces_obj(dir: &Path) -> PathBuf {
+    let n = 300;
+    let grid = |x: f64| (x * 1024.0).round() / 1024.0;
+    let mut sphere = Vec::new();
+    for i in 0..n {
+        let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+        let r = (1.0 - z * z).sqrt();
+        let t = 2.399_963_229_728_653 * i as f64;
+        sphere.push([
+            grid(1.0 + 2.0 * r * t.cos()),
+            grid(2.0 + 2.0 * r * t.sin()),
+            grid(3.0 + 2.0 * z),
+        ]);
+    }
+    let mut text = String::new();
+    for p in &sphere {
+        text += &format!("v {} {} {}\n", p[0], p[1], p[2]);
+    }
+    for f in 0..500 {
+        let p = sphere[f % n];
+        let step = if f % 2 == 0 { 0.0 } else { 1.0 / 64.0 };
+        for k in 0..3 {
+            let s = k as f64 * step;
+            text += &format!("v {} {} {}\n", p[0] + s, p[1] + 2.0 * s, p[2] + 3.0 * s);
+        }
+    }
+    for f in 0..500 {
+        let v = n + 3 * f + 1;
+        text += &format!("f {} {} {}\n", v, v + 1, v + 2);
+    }
+    let path = dir.join("degenerate.obj");
+    fs::write(&path, text).unwrap();
+    path
+}
+
+#[test]
+fn auto_normals_on_degenerate_faces_use_the_crust() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = degenerate_faces_obj(dir.path());
+    let info = bin().args(["info", "--json"]).arg(&input).output().unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    assert_eq!(v["triangles"], 500);
+
+    let out = bin()
+        .arg("normals")
+        .arg(&input)
+        .arg("-o")
+        .arg(dir.path().join("n.ply"))
+        .output()
+        .unwrap();
+    let err = stderr_of(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("all 500 faces are degenerate") && err.contains("normals from the crust"),
+        "{err}"
+    );
+    assert!(err.contains("oriented normals from crust"), "{err}");
+
+    let out = bin()
+        .arg("normals")
+        .arg(&input)
+        .args(["--normals", "mesh", "-o"])
+        .arg(dir.path().join("m.ply"))
+        .output()
+        .unwrap();
+    let err = stderr_of(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("all 500 faces of the input are degenerate") && !err.contains("no faces"),
+        "{err}"
+    );
+}
