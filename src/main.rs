@@ -60,11 +60,13 @@ fn main() -> ExitCode {
 }
 
 fn real_main(cli: Cli) -> Result<()> {
+    // Every numeric flag was checked against its range (`cli::THREADS`, `cli::DEGREE`, …)
+    // while the command line was parsed: out of range is clap's usage error, before any work.
     if let Some(n) = cli.threads {
         rayon::ThreadPoolBuilder::new()
-            .num_threads(n.max(1))
+            .num_threads(n)
             .build_global()
-            .context("setting up the thread pool")?;
+            .with_context(|| format!("setting up the thread pool of -j {n}"))?;
     }
     let verbosity = if cli.quiet {
         Verbosity::Quiet
@@ -172,18 +174,7 @@ fn fit_params(opts: &cli::FitOpts) -> Result<fit::FitParams> {
     let kappa = fit::Kappa::from_str(&opts.kappa).map_err(|e| usage(format!("--kappa: {e}")))?;
     let kappa_rule = fit::KappaRule::from_str(&opts.kappa_rule)
         .map_err(|e| usage(format!("--kappa-rule: {e}")))?;
-    if !(opts.epsilon.is_finite() && opts.epsilon > 0.0) {
-        return Err(usage(format!(
-            "--epsilon must be a positive number, got {}",
-            opts.epsilon
-        )));
-    }
-    if !(1..=20).contains(&opts.degree) {
-        return Err(usage(format!(
-            "--degree must be between 1 and 20, got {}",
-            opts.degree
-        )));
-    }
+    // --degree, --kappa and --epsilon are within cli::DEGREE, cli::KAPPA and cli::EPSILON.
     if opts.degree % 2 == 1 && kappa == fit::Kappa::Auto && method == fit::FitMethod::ThreeLrr {
         return Err(usage(format!(
             "--degree {} is odd: automatic κ needs an even degree (an odd-degree zero set is never bounded); use an even degree or give --kappa a number",
@@ -200,19 +191,9 @@ fn fit_params(opts: &cli::FitOpts) -> Result<fit::FitParams> {
     })
 }
 
+/// Detail-fit parameters (`--local-degree` and `--tolerance` are within cli::LOCAL_DEGREE and
+/// cli::TOLERANCE).
 fn detail_params(opts: &cli::DetailOpts) -> Result<stablesurf::detail::DetailParams> {
-    if !(2..=4).contains(&opts.local_degree) {
-        return Err(usage(format!(
-            "--local-degree must be 2, 3 or 4, got {}",
-            opts.local_degree
-        )));
-    }
-    if !(opts.tolerance.is_finite() && opts.tolerance > 0.0 && opts.tolerance < 0.5) {
-        return Err(usage(format!(
-            "--tolerance must be a fraction of the diagonal in (0, 0.5), got {}",
-            opts.tolerance
-        )));
-    }
     let defaults = stablesurf::detail::DetailParams::default();
     Ok(stablesurf::detail::DetailParams {
         degree: opts.local_degree,
@@ -238,11 +219,7 @@ fn polygonize_params(
         pipeline::Mode::Global => (opts.depth.unwrap_or(defaults.depth), defaults.guard_levels),
         pipeline::Mode::Detail => (opts.depth.unwrap_or(defaults.depth), 0),
     };
-    if !(1..=12).contains(&depth) {
-        return Err(usage(format!(
-            "--depth must be between 1 and 12, got {depth}"
-        )));
-    }
+    // `--depth` is within cli::DEPTH; the default is the library's.
     Ok(polygonize::PolygonizeParams {
         depth,
         guard_levels,
@@ -566,11 +543,8 @@ fn slice_params(
     resolution: usize,
     distance: cli::DistanceArg,
 ) -> Result<stablesurf::distance::SliceParams> {
-    if count == 0 || !(2..=16384).contains(&resolution) {
-        return Err(usage(format!(
-            "the slice count must be at least 1 (got {count}) and the resolution between 2 and 16384 (got {resolution})"
-        )));
-    }
+    // The count and resolution are within cli::COUNT/SLICE_COUNT and cli::RESOLUTION/
+    // SLICE_RESOLUTION.
     Ok(stablesurf::distance::SliceParams {
         axis: match axis {
             cli::AxisArg::X => stablesurf::distance::Axis::X,
@@ -742,12 +716,7 @@ fn cmd_cache(args: cli::CacheArgs) -> Result<()> {
 fn cmd_render(args: cli::RenderArgs) -> Result<()> {
     let view = stablesurf::render::View::from_str(&args.view)
         .map_err(|e| usage(format!("--view: {e}")))?;
-    if !(16..=8192).contains(&args.size) {
-        return Err(usage(format!(
-            "--size must be between 16 and 8192, got {}",
-            args.size
-        )));
-    }
+    // `--size` is within cli::SIZE.
     let cloud = read_cloud(&args.mesh)?;
     if cloud.triangles.is_empty() {
         return Err(anyhow!(

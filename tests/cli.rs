@@ -624,3 +624,385 @@ fn detail_mode_runs_end_to_end_and_its_model_file_works_everywhere() {
     assert!(fit.status.success(), "{}", stderr_of(&fit));
     assert!(fs::read(&fitted).unwrap().starts_with(b"stablesurf.mpu"));
 }
+
+/// Runs `stablesurf ARGS` and asserts a usage error (exit 2) whose stderr holds every one of
+/// `needles`; returns stderr.
+fn assert_usage_error(args: &[&str], needles: &[&str]) -> String {
+    // In an empty directory, so that relative outputs land there if a check is missing.
+    let cwd = tempfile::tempdir().unwrap();
+    let out = bin().current_dir(cwd.path()).args(args).output().unwrap();
+    let err = stderr_of(&out);
+    assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+    for n in needles {
+        assert!(err.contains(n), "{args:?}: expected {n:?} in: {err}");
+    }
+    // Not clap's "to pass '-1' as a value, use '-- -1'" tip: negative values are values.
+    assert!(!err.contains("-- -"), "{args:?}: {err}");
+    err
+}
+
+#[test]
+fn thread_count_out_of_range_is_a_usage_error() {
+    // `-j 100000` used to try to spawn 100,000 threads and fail with "Resource temporarily
+    // unavailable (os error 11)".
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 100);
+    let input = input.to_str().unwrap();
+    for j in ["100000", "257", "0", "-1"] {
+        assert_usage_error(&["-j", j, "info", input], &["-j", "1 to 256"]);
+    }
+    let ok = bin().args(["-j", "2", "info", input]).output().unwrap();
+    assert!(ok.status.success(), "{}", stderr_of(&ok));
+}
+
+#[test]
+fn negative_values_are_values_and_out_of_range() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.ply");
+    let missing = missing.to_str().unwrap();
+    let out = dir.path().join("out");
+    let out = out.to_str().unwrap();
+    for kappa in [&["--kappa", "-1"][..], &["--kappa=-1"]] {
+        let mut args = vec!["run", missing, "-o", out];
+        args.extend_from_slice(kappa);
+        assert_usage_error(&args, &["--kappa", "auto or a number from 0 to 1000", "-1"]);
+    }
+    assert_usage_error(
+        &["run", missing, "-o", out, "--depth", "-1"],
+        &["--depth", "1 to 12"],
+    );
+    assert_usage_error(
+        &["mesh", missing, "-o", "x.ply", "--depth", "-1"],
+        &["--depth", "1 to 12"],
+    );
+    assert_usage_error(
+        &["run", missing, "-o", out, "--epsilon", "-0.05"],
+        &["--epsilon", "1e-4 to 0.5"],
+    );
+}
+
+#[test]
+fn degree_range_in_help_is_the_one_checked() {
+    let help = bin().args(["run", "--help"]).output().unwrap();
+    let help = String::from_utf8_lossy(&help.stdout).into_owned();
+    assert!(
+        help.contains("Polynomial degree, even for automatic κ [range: 2 to 14]"),
+        "{help}"
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.ply");
+    let missing = missing.to_str().unwrap();
+    // `--degree 20` used to be accepted (and ran for minutes); `--degree 1` too.
+    for d in ["1", "15", "20"] {
+        assert_usage_error(
+            &[
+                "fit", missing, "-o", "m.json", "--degree", d, "--kappa", "1e-3",
+            ],
+            &["--degree", "2 to 14"],
+        );
+    }
+    // In range, the command goes on to read the (missing) file: exit 1.
+    let o = bin()
+        .current_dir(dir.path())
+        .args(["fit", missing, "-o", "m.json", "--degree", "14"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1), "{}", stderr_of(&o));
+}
+
+#[test]
+fn huge_kappa_and_epsilon_name_their_flag() {
+    // They used to reach the fit and fail there, blaming outliers or a singular system.
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 400);
+    let input = input.to_str().unwrap();
+    assert_usage_error(
+        &["fit", input, "-o", "m.json", "--kappa", "1e308"],
+        &["--kappa", "0 to 1000", "1e308"],
+    );
+    assert_usage_error(
+        &["fit", input, "-o", "m.json", "--epsilon", "1e308"],
+        &["--epsilon", "1e-4 to 0.5", "1e308"],
+    );
+    assert_usage_error(
+        &["fit", input, "-o", "m.json", "--kappa", "nan"],
+        &["--kappa", "0 to 1000"],
+    );
+}
+
+#[test]
+fn every_numeric_flag_is_checked_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    // Missing files: a flag that passed its check would go on to fail reading them (exit 1).
+    let scan = dir.path().join("missing.ply");
+    let scan = scan.to_str().unwrap();
+    let model = dir.path().join("missing.json");
+    let model = model.to_str().unwrap();
+    let cases: &[(&[&str], &str, &str)] = &[
+        (
+            &["run", scan, "-o", "o", "--degree", "16"],
+            "--degree",
+            "2 to 14",
+        ),
+        (
+            &["run", scan, "-o", "o", "--degree", "2.5"],
+            "--degree",
+            "2 to 14",
+        ),
+        (
+            &["run", scan, "-o", "o", "--kappa", "1e4"],
+            "--kappa",
+            "0 to 1000",
+        ),
+        (
+            &["run", scan, "-o", "o", "--epsilon", "0"],
+            "--epsilon",
+            "1e-4 to 0.5",
+        ),
+        (
+            &["run", scan, "-o", "o", "--epsilon", "0.6"],
+            "--epsilon",
+            "1e-4 to 0.5",
+        ),
+        (
+            &["run", scan, "-o", "o", "--epsilon", "inf"],
+            "--epsilon",
+            "1e-4 to 0.5",
+        ),
+        (
+            &["run", scan, "-o", "o", "--tolerance", "0"],
+            "--tolerance",
+            "1e-6 to 0.5",
+        ),
+        (
+            &["run", scan, "-o", "o", "--tolerance", "1e-7"],
+            "--tolerance",
+            "1e-6 to 0.5",
+        ),
+        (
+            &["fit", scan, "-o", "m", "--tolerance", "0.75"],
+            "--tolerance",
+            "1e-6 to 0.5",
+        ),
+        (
+            &["run", scan, "-o", "o", "--local-degree", "5"],
+            "--local-degree",
+            "2 to 4",
+        ),
+        (
+            &["fit", scan, "-o", "m", "--local-degree", "1"],
+            "--local-degree",
+            "2 to 4",
+        ),
+        (
+            &["run", scan, "-o", "o", "--depth", "13"],
+            "--depth",
+            "1 to 12",
+        ),
+        (
+            &["run", scan, "-o", "o", "--depth", "0"],
+            "--depth",
+            "1 to 12",
+        ),
+        (
+            &["mesh", model, "-o", "x.ply", "--depth", "13"],
+            "--depth",
+            "1 to 12",
+        ),
+        (
+            &["slices", model, "-o", "d", "--depth", "0"],
+            "--depth",
+            "1 to 12",
+        ),
+        (
+            &["run", scan, "-o", "o", "--slice-count", "0"],
+            "--slice-count",
+            "1 to 1024",
+        ),
+        (
+            &["run", scan, "-o", "o", "--slice-count", "5000"],
+            "--slice-count",
+            "1 to 1024",
+        ),
+        (
+            &["run", scan, "-o", "o", "--slice-resolution", "1"],
+            "--slice-resolution",
+            "2 to 4096",
+        ),
+        (
+            &["run", scan, "-o", "o", "--slice-resolution", "16384"],
+            "--slice-resolution",
+            "2 to 4096",
+        ),
+        (
+            &["slices", model, "-o", "d", "--count", "0"],
+            "--count",
+            "1 to 1024",
+        ),
+        (
+            &["slices", model, "-o", "d", "--count", "-3"],
+            "--count",
+            "1 to 1024",
+        ),
+        (
+            &["slices", model, "-o", "d", "--resolution", "8192"],
+            "--resolution",
+            "2 to 4096",
+        ),
+        (
+            &["render", scan, "-o", "p.png", "--size", "8"],
+            "--size",
+            "16 to 8192",
+        ),
+        (
+            &["render", scan, "-o", "p.png", "--size", "-800"],
+            "--size",
+            "16 to 8192",
+        ),
+        (
+            &["mesh", model, "-o", "x.ply", "--bounds", "0,0,0,1e308,1,1"],
+            "--bounds",
+            "-1e15 to 1e15",
+        ),
+        (
+            &["slices", model, "-o", "d", "--bounds", "-1e16,0,0,1,1,1"],
+            "--bounds",
+            "-1e15 to 1e15",
+        ),
+        (
+            &["mesh", model, "-o", "x.ply", "--bounds", "0,0,0,0,1,1"],
+            "--bounds",
+            "min below its max",
+        ),
+    ];
+    for (args, flag, range) in cases {
+        assert_usage_error(args, &[flag, range]);
+    }
+}
+
+#[test]
+fn help_prints_every_range() {
+    let help = |sub: &str| {
+        let o = bin().args([sub, "--help"]).output().unwrap();
+        assert!(o.status.success());
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let run = help("run");
+    for range in [
+        "[range: 2 to 14]",
+        "[range: 0 to 1000]",
+        "[range: 1e-4 to 0.5]",
+        "[range: 2 to 4]",
+        "[range: 1e-6 to 0.5]",
+        "[range: 1 to 12]",
+        "[range: 1 to 1024]",
+        "[range: 2 to 4096]",
+        "[range: 1 to 256]",
+    ] {
+        assert!(run.contains(range), "run --help lacks {range}:\n{run}");
+    }
+    let fit = help("fit");
+    for range in [
+        "[range: 2 to 14]",
+        "[range: 0 to 1000]",
+        "[range: 1e-4 to 0.5]",
+        "[range: 2 to 4]",
+        "[range: 1e-6 to 0.5]",
+    ] {
+        assert!(fit.contains(range), "fit --help lacks {range}:\n{fit}");
+    }
+    let mesh = help("mesh");
+    assert!(
+        mesh.contains("[range: 1 to 12]") && mesh.contains("-1e15 to 1e15"),
+        "{mesh}"
+    );
+    let slices = help("slices");
+    for range in [
+        "[range: 1 to 12]",
+        "[range: 1 to 1024]",
+        "[range: 2 to 4096]",
+        "-1e15 to 1e15",
+    ] {
+        assert!(
+            slices.contains(range),
+            "slices --help lacks {range}:\n{slices}"
+        );
+    }
+    assert!(help("render").contains("[range: 16 to 8192]"));
+}
+
+/// An OBJ file of 300 sphere points (centre (1, 2, 3), radius 2, coordinates on a 1/1024 grid)
+/// and 500 faces over 1,500 more vertices whose corners coincide (even faces) or lie on one line
+/// (odd faces; exact in binary, so exactly collinear).
+fn degenerate_faces_obj(dir: &Path) -> PathBuf {
+    let n = 300;
+    let grid = |x: f64| (x * 1024.0).round() / 1024.0;
+    let mut sphere = Vec::new();
+    for i in 0..n {
+        let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+        let r = (1.0 - z * z).sqrt();
+        let t = 2.399_963_229_728_653 * i as f64;
+        sphere.push([
+            grid(1.0 + 2.0 * r * t.cos()),
+            grid(2.0 + 2.0 * r * t.sin()),
+            grid(3.0 + 2.0 * z),
+        ]);
+    }
+    let mut text = String::new();
+    for p in &sphere {
+        text += &format!("v {} {} {}\n", p[0], p[1], p[2]);
+    }
+    for f in 0..500 {
+        let p = sphere[f % n];
+        let step = if f % 2 == 0 { 0.0 } else { 1.0 / 64.0 };
+        for k in 0..3 {
+            let s = k as f64 * step;
+            text += &format!("v {} {} {}\n", p[0] + s, p[1] + 2.0 * s, p[2] + 3.0 * s);
+        }
+    }
+    for f in 0..500 {
+        let v = n + 3 * f + 1;
+        text += &format!("f {} {} {}\n", v, v + 1, v + 2);
+    }
+    let path = dir.join("degenerate.obj");
+    fs::write(&path, text).unwrap();
+    path
+}
+
+#[test]
+fn auto_normals_on_degenerate_faces_use_the_crust() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = degenerate_faces_obj(dir.path());
+    let info = bin().args(["info", "--json"]).arg(&input).output().unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    assert_eq!(v["triangles"], 500);
+
+    let out = bin()
+        .arg("normals")
+        .arg(&input)
+        .arg("-o")
+        .arg(dir.path().join("n.ply"))
+        .output()
+        .unwrap();
+    let err = stderr_of(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("all 500 faces are degenerate") && err.contains("normals from the crust"),
+        "{err}"
+    );
+    assert!(err.contains("oriented normals from crust"), "{err}");
+
+    let out = bin()
+        .arg("normals")
+        .arg(&input)
+        .args(["--normals", "mesh", "-o"])
+        .arg(dir.path().join("m.ply"))
+        .output()
+        .unwrap();
+    let err = stderr_of(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("all 500 faces of the input are degenerate") && !err.contains("no faces"),
+        "{err}"
+    );
+}

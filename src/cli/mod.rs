@@ -3,10 +3,156 @@
 //!
 //! Input: `std::env::args`. Output: a [`Command`] holding stage `…Params` and paths, which
 //! `main.rs` hands to the library.
+//!
+//! Every numeric flag has a [`Range`] constant below. Its value parser checks the value against
+//! that constant while clap parses the command line (before any work; a value out of range is a
+//! usage error, exit code 2, naming the flag and the range), and its help text prints the range
+//! from the same constant, so the two cannot disagree. Negative numbers are taken as values
+//! (`--kappa -1` means `--kappa=-1`) and then rejected by the range, not by clap's "use `-- -1`"
+//! tip.
 
 use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
+
+/// The values a numeric flag accepts, both ends included.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Range {
+    /// The flag as the user types it, for messages (`--degree`).
+    pub flag: &'static str,
+    /// Smallest accepted value.
+    pub min: f64,
+    /// Largest accepted value.
+    pub max: f64,
+    /// Whether only whole numbers are accepted.
+    pub integer: bool,
+}
+
+impl Range {
+    const fn int(flag: &'static str, min: u32, max: u32) -> Range {
+        Range {
+            flag,
+            min: min as f64,
+            max: max as f64,
+            integer: true,
+        }
+    }
+
+    const fn float(flag: &'static str, min: f64, max: f64) -> Range {
+        Range {
+            flag,
+            min,
+            max,
+            integer: false,
+        }
+    }
+
+    /// The range as the help and the errors print it: `2 to 14`, `1e-4 to 0.5`.
+    pub fn describe(&self) -> String {
+        format!("{} to {}", number(self.min), number(self.max))
+    }
+
+    /// A flag's help: `what` followed by `[range: …]` (clap adds `[default: …]` after it).
+    pub fn help(&self, what: &str) -> String {
+        format!("{what} [range: {}]", self.describe())
+    }
+
+    fn error(&self, text: &str) -> String {
+        let kind = if self.integer {
+            "a whole number"
+        } else {
+            "a number"
+        };
+        format!(
+            "{} takes {kind} from {}, got '{text}'",
+            self.flag,
+            self.describe()
+        )
+    }
+
+    /// `text` as a number within the range.
+    fn check_f64(&self, text: &str) -> Result<f64, String> {
+        let t = text.trim();
+        let value = if self.integer {
+            t.parse::<i64>().ok().map(|v| v as f64)
+        } else {
+            t.parse::<f64>().ok()
+        };
+        match value {
+            Some(v) if v >= self.min && v <= self.max => Ok(v),
+            _ => Err(self.error(text)),
+        }
+    }
+
+    /// A clap value parser for a whole-number flag of type `T`.
+    fn whole<T: TryFrom<i64> + Clone + Send + Sync + 'static>(
+        self,
+    ) -> impl Fn(&str) -> Result<T, String> + Clone + Send + Sync + 'static {
+        move |text: &str| {
+            let v = self.check_f64(text)?;
+            T::try_from(v as i64).map_err(|_| self.error(text))
+        }
+    }
+
+    /// A clap value parser for a real-number flag.
+    fn real(self) -> impl Fn(&str) -> Result<f64, String> + Clone + Send + Sync + 'static {
+        move |text: &str| self.check_f64(text)
+    }
+}
+
+/// `x` as the help prints it: whole numbers plainly, very small or large ones as `1e-4`.
+fn number(x: f64) -> String {
+    if x != 0.0 && (x.abs() < 1e-3 || x.abs() >= 1e6) {
+        format!("{x:e}")
+    } else {
+        format!("{x}")
+    }
+}
+
+/// `-j`: worker threads. Results do not depend on the count, so more threads than cores only
+/// add switching; 256 is far above any machine this runs on and far below the per-user
+/// process limits (`-j 100000` used to fail while spawning threads).
+pub const THREADS: Range = Range::int("-j/--threads", 1, 256);
+/// `--degree`: 2 (a quadric) to 14. The fitter accepts 1 to `fit::MAX_DEGREE` (20), but degree
+/// 1 is a plane (it bounds nothing), and past 14 (680 coefficients) the monomial basis is badly
+/// conditioned and a fit takes minutes (degree 20 took 159 s on one scan).
+pub const DEGREE: Range = Range::int("--degree", 2, 14);
+/// `--kappa` when a number: κ weighs the ridge term κD against MᵀM (D is scaled like MᵀM's
+/// diagonal, so κ = 1 already weighs them alike). Automatic κ searches 0 and 1e-8 … 1; 1000
+/// leaves three decades above that, and values near 1e308 overflowed κD.
+pub const KAPPA: Range = Range::float("--kappa", 0.0, 1e3);
+/// `--epsilon`: the 3L layer offset in normalized units (the data's mean distance to its
+/// centroid is 1; the paper uses 0.01 to 0.05). Below 1e-4 the three layers coincide in double
+/// precision; at 0.5 the layers are half the shape's radius apart.
+pub const EPSILON: Range = Range::float("--epsilon", 1e-4, 0.5);
+/// `--local-degree`: the detail fit's local polynomials.
+pub const LOCAL_DEGREE: Range = Range::int("--local-degree", 2, 4);
+/// `--tolerance`: a fraction of the bounding-box diagonal; at 0.5 no cell ever splits, and the
+/// split depth is capped by the detail fit's `max_depth` however small it is.
+pub const TOLERANCE: Range = Range::float("--tolerance", 1e-6, 0.5);
+/// `--depth` (run, mesh, slices): octree depth near the surface; each level has about 4× the
+/// triangles of the one before, so 12 is already ~4^5 times the default 7.
+pub const DEPTH: Range = Range::int("--depth", 1, 12);
+/// `slices --count`: slices across the box.
+pub const COUNT: Range = Range::int("--count", 1, 1024);
+/// `run --slice-count`: the same range as `slices --count`.
+pub const SLICE_COUNT: Range = Range {
+    flag: "--slice-count",
+    ..COUNT
+};
+/// `slices --resolution`: pixels per side of a slice. 4096² is 16.8 million pixels (64 MiB of
+/// float32) per slice.
+pub const RESOLUTION: Range = Range::int("--resolution", 2, 4096);
+/// `run --slice-resolution`: the same range as `slices --resolution`.
+pub const SLICE_RESOLUTION: Range = Range {
+    flag: "--slice-resolution",
+    ..RESOLUTION
+};
+/// `render --size`: image width and height in pixels.
+pub const SIZE: Range = Range::int("--size", 16, 8192);
+/// `--bounds`: largest magnitude of a coordinate; beyond it the box's diagonal and the octree's
+/// cell sizes lose meaning in double precision (1e308 overflowed).
+pub const BOUNDS_MAX_ABS: f64 = 1e15;
 
 /// stablesurf: stable algebraic surfaces from 3D scans (Sahin & Unel 2008).
 ///
@@ -26,7 +172,9 @@ pub struct Cli {
     #[arg(short, long, global = true, action = clap::ArgAction::Count)]
     pub verbose: u8,
     /// Worker threads (default: all cores). Results do not depend on it.
-    #[arg(short = 'j', long, global = true, value_name = "N")]
+    #[arg(short = 'j', long, global = true, value_name = "N",
+          help = THREADS.help("Worker threads (default: all cores). Results do not depend on it"),
+          allow_negative_numbers = true, value_parser = THREADS.whole::<usize>())]
     pub threads: Option<usize>,
 }
 
@@ -64,17 +212,23 @@ pub struct NormalsOpts {
 /// Options of the fit stage.
 #[derive(Debug, Args, Clone)]
 pub struct FitOpts {
-    /// Polynomial degree (even for automatic κ; 2 to 14).
-    #[arg(long, default_value_t = 8)]
+    /// Polynomial degree (even for automatic κ).
+    #[arg(long, default_value_t = 8, value_name = "N",
+          help = DEGREE.help("Polynomial degree, even for automatic κ"),
+          allow_negative_numbers = true, value_parser = DEGREE.whole::<u32>())]
     pub degree: u32,
-    /// Ridge weight κ: `auto` or a number ≥ 0.
-    #[arg(long, default_value = "auto")]
+    /// Ridge weight κ: `auto` or a number.
+    #[arg(long, default_value = "auto",
+          help = KAPPA.help("Ridge weight κ: auto, or a number"),
+          allow_negative_numbers = true, value_parser = parse_kappa)]
     pub kappa: String,
     /// Rule for automatic κ: `stable` (default, checks the zero set) or `paper` (section 6.3).
     #[arg(long, value_name = "RULE", default_value = "stable")]
     pub kappa_rule: String,
     /// Layer offset ε in normalized units (paper: 0.01 to 0.05).
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = 0.05, value_name = "E",
+          help = EPSILON.help("Layer offset ε in normalized units (paper: 0.01 to 0.05)"),
+          allow_negative_numbers = true, value_parser = EPSILON.real())]
     pub epsilon: f64,
     /// Fitting method: 3lrr (3L + ridge regression), 3l (κ = 0) or ls (plain least squares).
     #[arg(long, default_value = "3lrr")]
@@ -84,12 +238,16 @@ pub struct FitOpts {
 /// Options of the detail fit (`--mode detail`).
 #[derive(Debug, Args, Clone)]
 pub struct DetailOpts {
-    /// Degree of the local fits in detail mode: 2, 3 or 4.
-    #[arg(long, default_value_t = 2)]
+    /// Degree of the local fits in detail mode.
+    #[arg(long, default_value_t = 2, value_name = "N",
+          help = LOCAL_DEGREE.help("Degree of the local fits in detail mode"),
+          allow_negative_numbers = true, value_parser = LOCAL_DEGREE.whole::<u32>())]
     pub local_degree: u32,
     /// Detail mode: split a cell while its fit is farther than this from its points (fraction
     /// of the bounding-box diagonal).
-    #[arg(long, default_value_t = 2e-3)]
+    #[arg(long, default_value_t = 2e-3, value_name = "T",
+          help = TOLERANCE.help("Detail mode: split a cell while its fit is farther than this from its points, as a fraction of the bounding-box diagonal"),
+          allow_negative_numbers = true, value_parser = TOLERANCE.real())]
     pub tolerance: f64,
 }
 
@@ -98,7 +256,9 @@ pub struct DetailOpts {
 pub struct MeshOpts {
     /// Octree depth near the surface: finest cell = longest side of the box / 2^depth
     /// [default: 7].
-    #[arg(long)]
+    #[arg(long, value_name = "D",
+          help = depth_help(),
+          allow_negative_numbers = true, value_parser = DEPTH.whole::<u32>())]
     pub depth: Option<u32>,
 }
 
@@ -225,7 +385,8 @@ pub struct MeshArgs {
     #[arg(short, long, value_name = "OUT")]
     pub output: PathBuf,
     /// Meshing region in input coordinates: xmin,ymin,zmin,xmax,ymax,zmax (overrides the model's box).
-    #[arg(long, value_name = "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX", allow_hyphen_values = true, value_parser = parse_bounds)]
+    #[arg(long, value_name = "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX", allow_hyphen_values = true, value_parser = parse_bounds,
+          help = bounds_help("Meshing region in input coordinates (overrides the model's box)"))]
     pub bounds: Option<[f64; 6]>,
     /// Write a text PLY instead of binary.
     #[arg(long)]
@@ -264,10 +425,14 @@ pub enum DistanceArg {
 #[derive(Debug, Args, Clone)]
 pub struct SliceOpts {
     /// Number of distance slices across the box (along z).
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = 16, value_name = "K",
+          help = SLICE_COUNT.help("Number of distance slices across the box (along z)"),
+          allow_negative_numbers = true, value_parser = SLICE_COUNT.whole::<usize>())]
     pub slice_count: usize,
     /// Pixels per side of each distance slice (`stablesurf slices` makes finer ones).
-    #[arg(long, default_value_t = 128)]
+    #[arg(long, default_value_t = 128, value_name = "R",
+          help = SLICE_RESOLUTION.help("Pixels per side of each distance slice (`stablesurf slices` makes finer ones)"),
+          allow_negative_numbers = true, value_parser = SLICE_RESOLUTION.whole::<usize>())]
     pub slice_resolution: usize,
     /// Distance method of the slices [default: exact for --mode global, mesh for --mode detail].
     #[arg(long, value_enum)]
@@ -286,16 +451,21 @@ pub struct SlicesArgs {
     #[arg(long, value_enum, default_value_t = AxisArg::Z)]
     pub axis: AxisArg,
     /// Number of slices across the model's box.
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = 16, value_name = "K",
+          help = COUNT.help("Number of slices across the model's box"),
+          allow_negative_numbers = true, value_parser = COUNT.whole::<usize>())]
     pub count: usize,
     /// Pixels per side of each slice.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 256, value_name = "R",
+          help = RESOLUTION.help("Pixels per side of each slice"),
+          allow_negative_numbers = true, value_parser = RESOLUTION.whole::<usize>())]
     pub resolution: usize,
     /// Distance method [default: exact for model.json, mesh for model.mpu].
     #[arg(long, value_enum)]
     pub distance: Option<DistanceArg>,
     /// Region in input coordinates: xmin,ymin,zmin,xmax,ymax,zmax (overrides the model's box).
-    #[arg(long, value_name = "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX", allow_hyphen_values = true, value_parser = parse_bounds)]
+    #[arg(long, value_name = "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX", allow_hyphen_values = true, value_parser = parse_bounds,
+          help = bounds_help("Region in input coordinates (overrides the model's box)"))]
     pub bounds: Option<[f64; 6]>,
     #[command(flatten)]
     #[allow(missing_docs)]
@@ -311,7 +481,9 @@ pub struct RenderArgs {
     #[arg(short, long, value_name = "PREVIEW.png")]
     pub output: PathBuf,
     /// Image width and height in pixels.
-    #[arg(long, default_value_t = 800)]
+    #[arg(long, default_value_t = 800, value_name = "PIXELS",
+          help = SIZE.help("Image width and height in pixels"),
+          allow_negative_numbers = true, value_parser = SIZE.whole::<u32>())]
     pub size: u32,
     /// Camera direction: iso, front, top or side.
     #[arg(long, default_value = "iso")]
@@ -364,10 +536,51 @@ fn parse_bounds(text: &str) -> Result<[f64; 6], String> {
             v.len()
         )
     })?;
-    if v.iter().any(|c| !c.is_finite()) || (0..3).any(|a| v[a] >= v[a + 3]) {
-        return Err("each min must be a finite number below its max".into());
+    let within = |c: &f64| c.is_finite() && c.abs() <= BOUNDS_MAX_ABS;
+    if !v.iter().all(within) || (0..3).any(|a| v[a] >= v[a + 3]) {
+        return Err(format!(
+            "--bounds takes six numbers xmin,ymin,zmin,xmax,ymax,zmax, each from {} to {} and each min below its max, got '{text}'",
+            number(-BOUNDS_MAX_ABS),
+            number(BOUNDS_MAX_ABS)
+        ));
     }
     Ok(v)
+}
+
+/// The help of `--depth`, whose default is the library's (`PolygonizeParams::default().depth`).
+fn depth_help() -> String {
+    format!(
+        "{} [default: {}]",
+        DEPTH
+            .help("Octree depth near the surface: finest cell = longest side of the box / 2^depth"),
+        stablesurf::polygonize::PolygonizeParams::default().depth
+    )
+}
+
+/// The help of `--bounds`, with its limits.
+fn bounds_help(what: &str) -> String {
+    format!(
+        "{what}: xmin,ymin,zmin,xmax,ymax,zmax, each min below its max [range: {} to {}]",
+        number(-BOUNDS_MAX_ABS),
+        number(BOUNDS_MAX_ABS)
+    )
+}
+
+/// `--kappa`: `auto` (any case) or a number in [`KAPPA`]. The text is kept as typed; `main.rs`
+/// turns it into a `fit::Kappa`.
+fn parse_kappa(text: &str) -> Result<String, String> {
+    if text.trim().eq_ignore_ascii_case("auto") {
+        return Ok(text.trim().to_string());
+    }
+    KAPPA
+        .check_f64(text)
+        .map(|_| text.trim().to_string())
+        .map_err(|_| {
+            format!(
+                "--kappa takes auto or a number from {}, got '{text}'",
+                KAPPA.describe()
+            )
+        })
 }
 
 #[cfg(test)]
@@ -511,6 +724,65 @@ mod tests {
             panic!()
         };
         assert_eq!(n.mesh, Some(PathBuf::from("c.ply")));
+    }
+
+    /// Each ranged flag's help prints its constant's range, and its parser takes both ends and
+    /// refuses the values just outside them.
+    #[test]
+    fn ranged_flags_print_and_check_the_same_constant() {
+        use clap::CommandFactory;
+        let cli = Cli::command();
+        let cases: [(&str, &str, Range); 13] = [
+            ("run", "threads", THREADS),
+            ("run", "degree", DEGREE),
+            ("run", "kappa", KAPPA),
+            ("run", "epsilon", EPSILON),
+            ("run", "local_degree", LOCAL_DEGREE),
+            ("run", "tolerance", TOLERANCE),
+            ("run", "depth", DEPTH),
+            ("run", "slice_count", SLICE_COUNT),
+            ("run", "slice_resolution", SLICE_RESOLUTION),
+            ("slices", "count", COUNT),
+            ("slices", "resolution", RESOLUTION),
+            ("slices", "depth", DEPTH),
+            ("render", "size", SIZE),
+        ];
+        for (sub, id, range) in cases {
+            let cmd = cli.find_subcommand(sub).unwrap();
+            let arg = cmd
+                .get_arguments()
+                .chain(cli.get_arguments())
+                .find(|a| a.get_id() == id)
+                .unwrap_or_else(|| panic!("{sub} {id}"));
+            let help = arg.get_help().unwrap().to_string();
+            assert!(
+                help.contains(&format!("[range: {}]", range.describe())),
+                "{help}"
+            );
+            let flag = format!("--{}", id.replace('_', "-"));
+            let accepts = |v: f64| {
+                let text = format!("{v}");
+                Cli::try_parse_from(["stablesurf", sub, "x", "-o", "y", &flag, &text]).is_ok()
+            };
+            assert!(accepts(range.min) && accepts(range.max), "{flag}");
+            let step = if range.integer { 1.0 } else { range.max * 1e-9 };
+            assert!(!accepts(range.max + step), "{flag}");
+            if range.min > 0.0 {
+                let below = if range.integer {
+                    range.min - 1.0
+                } else {
+                    range.min * (1.0 - 1e-9)
+                };
+                assert!(!accepts(below), "{flag}");
+            }
+        }
+        assert!(
+            Cli::try_parse_from(["stablesurf", "fit", "x", "-o", "y", "--kappa", "-1e-300"])
+                .is_err()
+        );
+        assert!(
+            Cli::try_parse_from(["stablesurf", "fit", "x", "-o", "y", "--kappa", "AUTO"]).is_ok()
+        );
     }
 
     #[test]

@@ -94,6 +94,13 @@ pub enum NormalsError {
     /// `--normals mesh` on a file without faces.
     #[error("the input has no faces; choose another normal source (crust or pca)")]
     NoMeshFaces,
+    /// `--normals mesh` on a file whose faces all have zero area (corners that coincide or lie
+    /// on one line).
+    #[error("all {n_faces} faces of the input are degenerate (their corners coincide or lie on one line), so they give no normals; choose another normal source (crust or pca)")]
+    DegenerateFaces {
+        /// Faces in the input.
+        n_faces: usize,
+    },
     /// A triangle refers to a point that does not exist.
     #[error("triangle {index} refers to a point index out of range; fix the file or choose another normal source")]
     BadTriangle {
@@ -108,8 +115,9 @@ pub enum NormalsError {
 /// Where the normals come from.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum NormalSource {
-    /// `input` when the file has normals, else `mesh` when it has faces, else `crust`
-    /// (falling back to `pca` with a warning where the crust fails).
+    /// `input` when the file has normals, else `mesh` when it has faces (not all degenerate),
+    /// else `crust` (with a warning when the faces were all degenerate; falling back to `pca`
+    /// with a warning where the crust fails).
     #[default]
     Auto,
     /// Crust (Voronoi/Delaunay) triangulation, paper section 5.
@@ -211,7 +219,8 @@ pub struct Normals {
 ///
 /// # Errors
 /// Fewer than 5 distinct points, a non-finite coordinate, all points on a line or in a plane,
-/// or a source that the input cannot serve (`input` without normals, `mesh` without faces).
+/// or a source that the input cannot serve (`input` without normals, `mesh` without faces or
+/// with degenerate faces only).
 ///
 /// ```
 /// use stablesurf::normals::{estimate_normals, NormalSource, NormalsParams};
@@ -261,9 +270,10 @@ pub fn estimate_normals(
         });
     }
     delaunay::check_spans_3d(&cloud.points)?;
-    let source = match params.source {
+    let has_input_normals = cloud.normals.as_ref().is_some_and(|n| !n.is_empty());
+    let mut source = match params.source {
         NormalSource::Auto => {
-            if cloud.normals.as_ref().is_some_and(|n| !n.is_empty()) {
+            if has_input_normals {
                 NormalSource::Input
             } else if !cloud.triangles.is_empty() {
                 NormalSource::Mesh
@@ -274,8 +284,29 @@ pub fn estimate_normals(
         s => s,
     };
     let dedup = Dedup::new(&cloud.points);
+    let mut warnings = Vec::new();
+    // The faces, remapped to the distinct points, when they are the source. Faces whose
+    // corners all coincide or lie on one line give no normal: if every face is such, `auto`
+    // turns to the crust and `mesh` says so.
+    let mut faces = Vec::new();
+    if source == NormalSource::Mesh {
+        faces = dedup.remap_triangles(&cloud.triangles)?;
+        if !faces.is_empty() && !faces.iter().any(|t| has_area(&dedup.unique, t)) {
+            if params.source != NormalSource::Auto {
+                return Err(NormalsError::DegenerateFaces {
+                    n_faces: faces.len(),
+                });
+            }
+            warnings.push(format!(
+                "all {} faces are degenerate (their corners coincide or lie on one line); normals from the crust instead",
+                faces.len()
+            ));
+            source = NormalSource::Crust;
+        }
+    }
     let mut out = Normals {
         source_used: source,
+        warnings,
         ..Default::default()
     };
     let unique_normals = match source {
@@ -302,8 +333,7 @@ pub fn estimate_normals(
         }
         NormalSource::Pca => pca::pca_normals(&dedup.unique, params),
         NormalSource::Mesh => {
-            let tris = dedup.remap_triangles(&cloud.triangles)?;
-            let (normals, warnings) = faces::mesh_normals(&dedup.unique, &tris, params)?;
+            let (normals, warnings) = faces::mesh_normals(&dedup.unique, &faces, params)?;
             out.warnings.extend(warnings);
             normals
         }
@@ -334,6 +364,15 @@ pub fn estimate_normals(
             .collect(),
     };
     Ok(out)
+}
+
+/// Whether triangle `t` (indices into `points`) has an area: its corners are distinct and not on
+/// one line (the sine of its angle at the first corner above 1e-12, so that corners that are
+/// collinear up to rounding count as collinear).
+fn has_area(points: &[[f64; 3]], t: &[u32; 3]) -> bool {
+    let [a, b, c] = t.map(|v| points[v as usize]);
+    let (u, w) = (vec3::sub(&b, &a), vec3::sub(&c, &a));
+    vec3::norm(&vec3::cross(&u, &w)) > 1e-12 * vec3::norm(&u) * vec3::norm(&w)
 }
 
 /// The distinct points of a cloud, in order of first occurrence.
@@ -458,6 +497,77 @@ mod tests {
             assert_eq!(s.as_str().parse::<NormalSource>().unwrap(), s);
         }
         assert!("poles".parse::<NormalSource>().is_err());
+    }
+
+    /// 200 points of the unit sphere (a Fibonacci spiral), then for each of `n` faces three
+    /// more points whose corners coincide (even faces) or lie on one line (odd faces), with the
+    /// faces over them.
+    fn sphere_with_degenerate_faces(n: usize) -> PointCloud {
+        let m = 200;
+        let mut points: Vec<[f64; 3]> = (0..m)
+            .map(|i| {
+                let z = 1.0 - (2.0 * i as f64 + 1.0) / m as f64;
+                let r = (1.0 - z * z).sqrt();
+                let a = i as f64 * 2.399_963_229_728_653;
+                [r * a.cos(), r * a.sin(), z]
+            })
+            .collect();
+        let mut triangles = Vec::new();
+        for f in 0..n {
+            let p = points[f % m];
+            let step = if f % 2 == 0 { 0.0 } else { 1.0 / 64.0 };
+            let base = points.len() as u32;
+            for k in 0..3 {
+                let t = k as f64 * step;
+                points.push([p[0] + t, p[1] + 2.0 * t, p[2] + 3.0 * t]);
+            }
+            triangles.push([base, base + 1, base + 2]);
+        }
+        PointCloud {
+            points,
+            triangles,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn auto_turns_to_the_crust_when_every_face_is_degenerate() {
+        let cloud = sphere_with_degenerate_faces(500);
+        let out = estimate_normals(&cloud, &NormalsParams::default()).unwrap();
+        assert_eq!(out.source_used, NormalSource::Crust);
+        assert!(
+            out.warnings[0].contains("all 500 faces are degenerate")
+                && out.warnings[0].contains("crust"),
+            "{:?}",
+            out.warnings
+        );
+        // The sphere's own points get outward normals.
+        for (p, n) in out.cloud.points.iter().zip(&out.cloud.normals).take(200) {
+            assert!(vec3::dot(p, n) > 0.5, "{p:?} {n:?}");
+        }
+    }
+
+    #[test]
+    fn mesh_source_names_degenerate_faces() {
+        let cloud = sphere_with_degenerate_faces(500);
+        let params = NormalsParams {
+            source: NormalSource::Mesh,
+            ..Default::default()
+        };
+        let err = estimate_normals(&cloud, &params).unwrap_err();
+        assert!(
+            matches!(err, NormalsError::DegenerateFaces { n_faces: 500 }),
+            "{err}"
+        );
+        assert!(err.to_string().contains("degenerate"), "{err}");
+    }
+
+    #[test]
+    fn one_face_with_area_keeps_the_mesh_source() {
+        let mut cloud = sphere_with_degenerate_faces(10);
+        cloud.triangles.push([0, 1, 2]);
+        let out = estimate_normals(&cloud, &NormalsParams::default()).unwrap();
+        assert_eq!(out.source_used, NormalSource::Mesh);
     }
 
     #[test]
