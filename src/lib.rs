@@ -22,6 +22,7 @@ pub mod import;
 pub mod measure;
 pub mod mesh;
 pub mod normals;
+pub mod outliers;
 pub mod pipeline;
 pub mod poly;
 pub mod polygonize;
