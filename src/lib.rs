@@ -23,6 +23,7 @@ pub mod import;
 pub mod measure;
 pub mod mesh;
 pub mod normals;
+pub mod outliers;
 pub mod outputs;
 pub mod pipeline;
 pub mod poly;
