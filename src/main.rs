@@ -159,6 +159,13 @@ fn open_cache(opts: &cli::CacheOpts) -> Result<Cache> {
     }
 }
 
+fn outlier_params(keep: bool) -> stablesurf::outliers::OutlierParams {
+    stablesurf::outliers::OutlierParams {
+        keep,
+        ..Default::default()
+    }
+}
+
 fn normals_params(opts: &cli::NormalsOpts) -> Result<normals::NormalsParams> {
     let source = normals::NormalSource::from_str(&opts.source)
         .map_err(|e| usage(format!("--normals: {e}")))?;
@@ -271,6 +278,7 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
     }
     let config = PipelineConfig {
         mode,
+        outliers: outlier_params(args.keep_outliers),
         normals: normals_params(&args.normals)?,
         fit: fit_params(&args.fit)?,
         detail: detail_params(&args.detail)?,
@@ -408,6 +416,7 @@ fn cmd_normals(args: cli::NormalsArgs, verbosity: Verbosity) -> Result<()> {
 fn cmd_fit(args: cli::FitArgs, verbosity: Verbosity) -> Result<()> {
     let config = PipelineConfig {
         mode: parse_mode(&args.mode)?,
+        outliers: outlier_params(args.keep_outliers),
         normals: normals_params(&args.normals)?,
         fit: fit_params(&args.fit)?,
         detail: detail_params(&args.detail)?,

@@ -23,6 +23,7 @@ use crate::import;
 use crate::measure::{self, DistanceSummary};
 use crate::mesh::{self, MeshReport, TriangleMesh};
 use crate::normals::{self, NormalsParams};
+use crate::outliers::{self, OutlierParams};
 use crate::outputs::OutputSet;
 use crate::poly::ImplicitModel;
 use crate::polygonize::{self, ImplicitFunction, PolygonizeParams};
@@ -195,6 +196,8 @@ impl std::str::FromStr for OutputFormat {
 pub struct PipelineConfig {
     /// Global or detail model.
     pub mode: Mode,
+    /// Which points are left out as outliers before the normals ([`outliers`]).
+    pub outliers: OutlierParams,
     /// Normals stage parameters.
     pub normals: NormalsParams,
     /// Fit stage parameters (global mode).
@@ -228,6 +231,7 @@ impl Default for PipelineConfig {
     fn default() -> Self {
         PipelineConfig {
             mode: Mode::Global,
+            outliers: OutlierParams::default(),
             normals: NormalsParams::default(),
             fit: FitParams::default(),
             detail: DetailParams::default(),
@@ -288,6 +292,8 @@ pub struct RunReport {
     pub accuracy: DistanceSummary,
     /// Files written, relative to the output directory.
     pub outputs: Vec<String>,
+    /// Every warning the run printed.
+    pub warnings: Vec<String>,
     /// Total wall time in seconds.
     pub seconds: f64,
 }
@@ -311,6 +317,9 @@ impl Observer for Silent {}
 // params (algorithm, defaults, artifact layout), bump its version so old cache entries are not
 // reused.
 const IMPORT_VERSION: u32 = 1;
+/// The outlier filter is not cached (it is a linear pass), but its output's key chains
+/// through it when it leaves points out.
+const OUTLIERS_VERSION: u32 = 1;
 const NORMALS_VERSION: u32 = 3;
 const FIT_VERSION: u32 = 2;
 const POLYGONIZE_VERSION: u32 = 2;
@@ -323,33 +332,47 @@ struct Ctx<'a> {
     puts: cache::Puts,
     observer: &'a mut dyn Observer,
     stages: Vec<StageRecord>,
+    /// Every warning told to the observer, for the report.
+    warnings: Vec<String>,
 }
 
 impl<'a> Ctx<'a> {
     /// Readies the cache: a folder that is not a stablesurf cache is an error; one that cannot
     /// be created or written is a warning, and the run goes on without it.
     fn new(cache: &Cache, observer: &'a mut dyn Observer) -> Result<Self, PipelineError> {
+        let mut warnings = Vec::new();
         let cache = match cache.prepare() {
             Ok(()) => cache.clone(),
             Err(e @ cache::CacheError::NotACache { .. }) => return Err(e.into()),
             Err(e) => {
-                observer.warning(&format!("{e}; this run is not cached"));
+                warnings.push(format!("{e}; this run is not cached"));
                 Cache::disabled()
             }
         };
-        Ok(Ctx {
+        let mut ctx = Ctx {
             puts: cache.puts(),
             cache,
             observer,
             stages: Vec::new(),
-        })
+            warnings: Vec::new(),
+        };
+        for w in warnings {
+            ctx.warn(w);
+        }
+        Ok(ctx)
+    }
+
+    /// Tells the observer a warning and keeps it for the report.
+    fn warn(&mut self, message: String) {
+        self.observer.warning(&message);
+        self.warnings.push(message);
     }
 
     /// Waits for the cache writes. One that failed costs only the next run's time, so it is a
     /// warning: the outputs are complete either way.
     fn finish_puts(&mut self) {
         for e in self.puts.finish() {
-            self.observer.warning(&format!(
+            self.warn(format!(
                 "{e}; this run's results are complete but were not all cached"
             ));
         }
@@ -469,6 +492,7 @@ fn fit_stages(
         },
     )?;
     drop(bytes);
+    let (cloud, cloud_key) = without_outliers(ctx, cloud, cloud_key, &config.outliers);
     let (oriented, oriented_key) = ctx.stage(
         "normals",
         NORMALS_VERSION,
@@ -525,6 +549,49 @@ fn fit_stages(
         }
     };
     Ok((cloud, oriented, model, model_key))
+}
+
+/// The cloud without the points far outside the bulk of the data ([`outliers`]), and its key;
+/// the cloud as it is when none is left out. Left-out points are a warning with their count.
+fn without_outliers(
+    ctx: &mut Ctx<'_>,
+    cloud: PointCloud,
+    key: Key,
+    params: &OutlierParams,
+) -> (PointCloud, Key) {
+    let split = outliers::remove_outliers(&cloud, params);
+    if split.removed == 0 {
+        drop(split);
+        return (cloud, key);
+    }
+    let far = split.bulk_radius.map_or(String::new(), |r| {
+        format!(
+            " (beyond {:.3e} from the median centre, {} times the radius that holds {}% of the points, and apart from them)",
+            params.far_factor * r,
+            params.far_factor,
+            100.0 * params.bulk_quantile
+        )
+    });
+    let faces = if split.removed_faces > 0 {
+        format!(" and the {} faces that use them", split.removed_faces)
+    } else {
+        String::new()
+    };
+    ctx.warn(format!(
+        "left out {} of {} points far outside the bulk of the data{far}{faces}; pass --keep-outliers to keep them",
+        split.removed,
+        cloud.points.len(),
+    ));
+    let params_bytes = cache::params_bytes(&serde_json::json!({
+        "bulk_quantile": params.bulk_quantile,
+        "far_factor": params.far_factor,
+        "gap_factor": params.gap_factor,
+    }));
+    let kept = split.cloud.into_owned();
+    (
+        kept,
+        cache::stage_key("outliers", OUTLIERS_VERSION, &params_bytes, &key),
+    )
 }
 
 /// Fits a model (import, normals, fit through the cache) without meshing: `stablesurf fit`.
@@ -720,6 +787,7 @@ pub fn run(
         mesh: report_mesh,
         accuracy,
         outputs: names,
+        warnings: ctx.warnings,
         seconds: 0.0,
     };
     report.seconds = start.elapsed().as_secs_f64();

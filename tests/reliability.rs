@@ -530,3 +530,47 @@ fn a_run_killed_at_any_write_step_is_made_whole_by_the_next_run() {
         );
     }
 }
+
+/// One point at (1e30, 1e30, 1e30) beside a 500-point sphere: the sphere is meshed as if the
+/// point were not there, and the run says it left it out.
+#[test]
+fn one_far_outlier_is_left_out_with_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 500, "1e30 1e30 1e30 0 0 1\n");
+    let out = dir.path().join("out");
+    let done = bin()
+        .arg("run")
+        .arg(&input)
+        .arg("-o")
+        .arg(&out)
+        .args(["--mode", "global", "--degree", "4", "--depth", "5"])
+        .args(["--formats", "ply,json", "--no-cache"])
+        .output()
+        .unwrap();
+    assert!(done.status.success(), "{}", stderr_of(&done));
+    let err = stderr_of(&done);
+    assert!(
+        err.contains("warning: left out 1 of 501 points") && err.contains("--keep-outliers"),
+        "{err}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_slice(&fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["mesh"]["components"], 1, "{report}");
+    assert_eq!(report["mesh"]["watertight"], true, "{report}");
+    assert!(
+        report["mesh"]["vertices"].as_u64().unwrap() > 500,
+        "{report}"
+    );
+    // The sphere's diagonal is 4√3; the mesh lies within 1% of it from every point.
+    assert!(
+        report["accuracy"]["max_relative"].as_f64().unwrap() < 0.01,
+        "{report}"
+    );
+    assert!(
+        report["warnings"][0]
+            .as_str()
+            .unwrap()
+            .contains("left out 1 of 501 points"),
+        "{report}"
+    );
+}

@@ -311,6 +311,9 @@ pub struct RunArgs {
     /// Which zero-set components to keep: all, or data (drop pieces with no data point near).
     #[arg(long, value_enum, default_value_t = KeepArg::All)]
     pub keep: KeepArg,
+    /// Keep points far outside the bulk of the data (left out by default, with a warning).
+    #[arg(long)]
+    pub keep_outliers: bool,
     /// Print the stage summary as JSON on stdout.
     #[arg(long)]
     pub json: bool,
@@ -365,6 +368,9 @@ pub struct FitArgs {
     /// stablesurf.mpu file.
     #[arg(long, default_value = "global")]
     pub mode: String,
+    /// Keep points far outside the bulk of the data (left out by default, with a warning).
+    #[arg(long)]
+    pub keep_outliers: bool,
     #[command(flatten)]
     #[allow(missing_docs)]
     pub normals: NormalsOpts,
