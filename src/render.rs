@@ -17,32 +17,43 @@
 use image::{Rgb, RgbImage};
 use rayon::prelude::*;
 
+pub use crate::export::gltf::UpAxis;
 use crate::mesh::TriangleMesh;
 use crate::vec3::{cross, dot, norm};
 
-/// Which direction the camera looks from.
+/// Which direction the camera looks from, relative to the model's up axis
+/// ([`RenderParams::up`]): the front is where +z faces for a y-up model (glTF's convention),
+/// where −y faces for a z-up one.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum View {
-    /// From the front-right-top diagonal (+x, −y... see [`View::direction`]).
+    /// From the front-right, a little above.
     #[default]
     Iso,
-    /// From −y towards +y (z up).
+    /// From the front, up pointing up.
     Front,
-    /// From +z down.
+    /// From above, the front at the bottom of the picture.
     Top,
-    /// From +x towards −x (z up).
+    /// From the right (+x), up pointing up.
     Side,
 }
 
 impl View {
-    /// Unit vector from the scene towards the camera, and the screen's up vector.
-    pub fn direction(self) -> ([f64; 3], [f64; 3]) {
-        match self {
-            View::Iso => (normalize([1.0, -1.2, 0.9]), [0.0, 0.0, 1.0]),
-            View::Front => ([0.0, -1.0, 0.0], [0.0, 0.0, 1.0]),
-            View::Top => ([0.0, 0.0, 1.0], [0.0, 1.0, 0.0]),
-            View::Side => ([1.0, 0.0, 0.0], [0.0, 0.0, 1.0]),
-        }
+    /// Unit vector from the scene towards the camera, and the screen's up vector, for a model
+    /// whose up axis is `up`.
+    pub fn direction(self, up: UpAxis) -> ([f64; 3], [f64; 3]) {
+        // In a y-up frame (x right, y up, z towards the front), then turned into the model's.
+        let (towards, screen_up) = match self {
+            View::Iso => (normalize([1.0, 0.9, 1.2]), [0.0, 1.0, 0.0]),
+            View::Front => ([0.0, 0.0, 1.0], [0.0, 1.0, 0.0]),
+            View::Top => ([0.0, 1.0, 0.0], [0.0, 0.0, -1.0]),
+            View::Side => ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
+        };
+        let to_model = |v: [f64; 3]| match up {
+            UpAxis::Y => v,
+            // y-up (x, y, z) is z-up (x, −z, y).
+            UpAxis::Z => [v[0], -v[2], v[1]],
+        };
+        (to_model(towards), to_model(screen_up))
     }
 }
 
@@ -68,6 +79,8 @@ pub struct RenderParams {
     pub size: u32,
     /// Camera direction.
     pub view: View,
+    /// The model's up axis: up in the picture (default y, as glTF).
+    pub up: UpAxis,
     /// Surface colour (linear 0–1 RGB).
     pub color: [f64; 3],
 }
@@ -77,6 +90,7 @@ impl Default for RenderParams {
         RenderParams {
             size: 800,
             view: View::Iso,
+            up: UpAxis::Y,
             color: [0.62, 0.70, 0.82],
         }
     }
@@ -108,7 +122,7 @@ pub fn render(mesh: &TriangleMesh, params: &RenderParams) -> RgbImage {
     let Some(bounds) = crate::cloud::Aabb::from_points(&mesh.positions) else {
         return img;
     };
-    let (towards_camera, up_hint) = params.view.direction();
+    let (towards_camera, up_hint) = params.view.direction(params.up);
     // Screen basis: right, up, and depth towards the camera.
     let right = normalize(cross(up_hint, towards_camera));
     let up = cross(towards_camera, right);
