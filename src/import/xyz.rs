@@ -80,8 +80,8 @@ pub(crate) fn read(
                 ImportError::NoPointFound {
                     path: path.to_owned(),
                     detail: format!(
-                        "line {line_number}: {message}, and no line before it holds a point; \
-                         the first non-blank line is {}",
+                        "the first non-blank line is {}, no line before line {line_number} \
+                         holds a point, and line {line_number} fails: {message}",
                         first_line_quoted(bytes).unwrap_or_default()
                     ),
                 }
