@@ -1,6 +1,9 @@
 //! Integration tests of the `import` stage: the shared test scans import with the counts their
 //! SOURCES.md lists, hand-made bad files give the right error, mutated and truncated files never
-//! panic any reader, and small files written in every encoding read back exactly.
+//! panic any reader, and small files written in every encoding read back exactly. The `reject_*`
+//! tests are the reproducers of files the readers once accepted although their bytes contradict
+//! their header or grammar (see "Believe the bytes" in src/import/mod.rs); the broader seeded
+//! byte-mutation fuzz of every reader is tests/fuzz_readers.rs.
 
 use std::path::Path;
 
@@ -341,7 +344,7 @@ const ODD_POINTS: [[i16; 3]; 5] = [
 ];
 
 fn odd_faces() -> Vec<Vec<i16>> {
-    vec![vec![0, 1, 2], vec![1, 2, 3, 4], vec![4, 3]]
+    vec![vec![0, 1, 2], vec![1, 2, 3, 4]]
 }
 
 /// Every small valid file with the name it is read under.
@@ -416,7 +419,7 @@ fn ply_written_by_ply_rs_bw_reads_back_in_every_encoding() {
             Some(vec![[0.0, -1.0, 0.25]; 5]),
             "{format}"
         );
-        // The quad is fanned; the two-corner face adds nothing.
+        // The quad is fanned.
         assert_eq!(
             scan.cloud.triangles,
             vec![[0, 1, 2], [1, 2, 3], [1, 3, 4]],
@@ -545,10 +548,12 @@ fn wrong_header_counts() {
     let text = String::from_utf8_lossy(&ply).into_owned();
     assert!(text.contains("element range_grid 3"));
     let fewer = replace_bytes(&ply, b"element range_grid 3", b"element range_grid 2");
-    assert!(matches!(
-        err(&fewer, "count.ply"),
-        ImportError::HeaderCountMismatch { .. }
-    ));
+    let e = err(&fewer, "count.ply");
+    assert!(
+        matches!(&e, ImportError::BadBinary { element, .. } if element == "range_grid"),
+        "{e}"
+    );
+    assert!(e.to_string().contains("`element range_grid 3`"), "{e}");
     let more = replace_bytes(&ply, b"element vertex 5", b"element vertex 9");
     err(&more, "count.ply");
     let mut stl = square_stl();
@@ -594,15 +599,24 @@ fn face_indices_out_of_range() {
     let faces = vec![vec![0, 1, 2], vec![1, 2, 3, 5]];
     for encoding in [Encoding::BinaryLittleEndian, Encoding::BinaryBigEndian] {
         let ply = odd_ply(encoding, &ODD_POINTS, &faces);
-        assert!(matches!(
-            err(&ply, "range.ply"),
-            ImportError::IndexOutOfRange {
-                face: 1,
-                index: 5,
-                n_points: 5,
+        // Binary: the entry and its byte offset in the file (after the header, five 27-byte
+        // vertices and the 10-byte first face).
+        let header_end = ply.windows(11).position(|w| w == b"end_header\n").unwrap() + 11;
+        let e = err(&ply, "range.ply");
+        match &e {
+            ImportError::BadBinary {
+                element,
+                entry: 1,
+                offset,
+                message,
                 ..
+            } => {
+                assert_eq!(element, "face");
+                assert_eq!(*offset as usize, header_end + 5 * 27 + 10, "{e}");
+                assert!(message.contains("refers to vertex 5"), "{e}");
             }
-        ));
+            other => panic!("{other}"),
+        }
     }
     let obj = OBJ.replace("f 1/1/1 2/1/1 3/1/1 4/1/1", "f 1 2 3\nf 1 3 5");
     let e = err(obj.as_bytes(), "range.obj");
@@ -665,14 +679,13 @@ fn files_without_points() {
         err(ply.as_bytes(), "none.ply"),
         ImportError::NoPoints { .. }
     ));
-    assert!(matches!(
-        err(b"# only a comment\n", "none.xyz"),
-        ImportError::NoPoints { .. }
-    ));
-    assert!(matches!(
-        err(b"o empty\n", "none.obj"),
-        ImportError::NoPoints { .. }
-    ));
+    // A text file without a point says what it holds instead.
+    let e = err(b"# only a comment\n", "none.xyz");
+    assert!(matches!(e, ImportError::NoPointFound { .. }), "{e}");
+    assert!(e.to_string().contains("line 1: `# only a comment`"), "{e}");
+    let e = err(b"o empty\n", "none.obj");
+    assert!(matches!(e, ImportError::NoPointFound { .. }), "{e}");
+    assert!(e.to_string().contains("line 1: `o empty`"), "{e}");
 }
 
 #[test]
@@ -706,6 +719,355 @@ fn malformed_lines_name_the_line() {
         err(no_z.as_bytes(), "noz.ply"),
         ImportError::BadLayout { .. }
     ));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Reproducers: files whose bytes contradict their header or grammar, once accepted
+
+/// A binary little-endian PLY of `n` float vertices on a spiral and `faces` uchar/int triangles
+/// `(i, i+1, i+2)`, with the header declaring `declared` vertices. Returns the bytes and the
+/// offset of the body.
+fn spiral_ply(n: usize, faces: usize, declared: usize) -> (Vec<u8>, usize) {
+    let mut bytes = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment generated\nelement vertex {declared}\n\
+         property float x\nproperty float y\nproperty float z\nelement face {faces}\n\
+         property list uchar int vertex_indices\nend_header\n"
+    )
+    .into_bytes();
+    let body = bytes.len();
+    for i in 0..n {
+        let t = i as f32 * 0.1;
+        for c in [t.cos(), t.sin(), t] {
+            bytes.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for j in 0..faces as i32 {
+        bytes.push(3);
+        for v in [j, j + 1, j + 2] {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    (bytes, body)
+}
+
+#[test]
+fn reject_binary_ply_whose_vertex_count_overruns_into_the_faces() {
+    let (good, body) = spiral_ply(162, 160, 162);
+    assert_eq!(
+        import_bytes(&good, Path::new("ok.ply"))
+            .unwrap()
+            .points
+            .len(),
+        162
+    );
+    // The header says 163 over a body of 162: the 163rd vertex is the first face's count and
+    // indices, and the faces are then read one byte out of place. The byte counts happen to add
+    // up (the out-of-place first face has 0 corners), so this used to import 163 points.
+    let (bad, _) = spiral_ply(162, 160, 163);
+    let e = err(&bad, "overrun.ply");
+    match &e {
+        ImportError::BadBinary {
+            element,
+            entry: 0,
+            offset,
+            message,
+            ..
+        } => {
+            assert_eq!(element, "face");
+            assert_eq!(*offset as usize, body + 163 * 12, "{e}");
+            assert!(message.contains("0 corner"), "{e}");
+            assert!(
+                message.contains("`element vertex 162` instead of 163"),
+                "{e}"
+            );
+        }
+        other => panic!("{other}"),
+    }
+    assert!(read_scan_bytes(&bad, Path::new("overrun.ply")).is_err());
+    // One vertex too few: the faces start inside the last vertex; also an error.
+    let (fewer, _) = spiral_ply(162, 160, 161);
+    let e = err(&fewer, "under.ply");
+    assert!(
+        e.to_string()
+            .contains("`element vertex 162` instead of 161"),
+        "{e}"
+    );
+}
+
+#[test]
+fn reject_binary_ply_body_shorter_or_longer_than_its_counts() {
+    let (good, body) = spiral_ply(20, 10, 20);
+    let end = good.len();
+    // Shorter: cut inside face 9 (each face is 13 bytes).
+    let e = err(&good[..end - 5], "short.ply");
+    match &e {
+        ImportError::Truncated { detail, .. } => {
+            assert!(detail.contains("`face` entry 9"), "{e}");
+            assert!(
+                detail.contains(&format!("starting at byte {}", end - 13)),
+                "{e}"
+            );
+            assert!(detail.contains(&format!("at byte {}", end - 5)), "{e}");
+        }
+        other => panic!("{other}"),
+    }
+    // Longer: a stray byte, a trailing newline, a whole extra face.
+    for extra in [
+        &b"\x00"[..],
+        b"\n",
+        b"\r\n",
+        &[3, 0, 0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0],
+    ] {
+        let mut longer = good.clone();
+        longer.extend_from_slice(extra);
+        let e = err(&longer, "long.ply");
+        match &e {
+            ImportError::BadBinary {
+                element, offset, ..
+            } => {
+                assert_eq!(element, "face", "{e}");
+                assert_eq!(*offset as usize, end, "{e}");
+            }
+            other => panic!("{extra:?}: {other}"),
+        }
+    }
+    // With a fixed-size last element, the extra bytes are counted in its entries.
+    let points_only = {
+        let mut b = b"ply\nformat binary_big_endian 1.0\nelement vertex 2\nproperty float x\n\
+              property float y\nproperty float z\nend_header\n"
+            .to_vec();
+        b.extend_from_slice(&[0; 36]);
+        b
+    };
+    let e = err(&points_only, "three.ply");
+    assert!(
+        matches!(
+            e,
+            ImportError::HeaderCountMismatch {
+                declared: 2,
+                found: 3,
+                ..
+            }
+        ),
+        "{e}"
+    );
+    let text = e.to_string();
+    assert!(text.contains("`vertex` entries"), "{text}");
+    assert!(
+        text.contains(&format!("ends at byte {}", points_only.len() - 12)),
+        "{text}"
+    );
+    let _ = body;
+}
+
+#[test]
+fn reject_binary_ply_from_real_data_with_a_wrong_vertex_count() {
+    let Some(dir) = data_dir() else { return };
+    let duck = std::fs::read(dir.join("duck.ply")).unwrap();
+    for (to, fixed) in [
+        (&b"element vertex 2109"[..], "2108"),
+        (b"element vertex 2107", "2108"),
+    ] {
+        let bad = replace_bytes(&duck, b"element vertex 2108", to);
+        let e = err(&bad, "duck.ply");
+        let text = e.to_string();
+        assert!(
+            text.contains(&format!("`element vertex {fixed}`")),
+            "{text}"
+        );
+    }
+}
+
+#[test]
+fn reject_text_files_in_which_no_point_parses() {
+    let nul = vec![0u8; 4096];
+    let mut nul_late = b"# header\n".to_vec();
+    nul_late.extend_from_slice(&[0; 100]);
+    let cases: [(&[u8], &str); 5] = [
+        (
+            b"hello world\nthis is not a scan\n",
+            "line 1: `hello world`",
+        ),
+        (b"\n\n  \n", "only blank lines"),
+        (&nul, "every byte is 0"),
+        (&nul_late, "NUL bytes (the first at byte 9"),
+        (b"%PDF-1.4 binary \xff\n", "not text"),
+    ];
+    for name in ["a.xyz", "a.txt", "a.pts", "a.csv", "a.obj"] {
+        for (bytes, needle) in cases {
+            let e = match read_scan_bytes(bytes, Path::new(name)) {
+                Ok(scan) => panic!(
+                    "{name} {needle}: read as {} points",
+                    scan.cloud.points.len()
+                ),
+                Err(e) => e,
+            };
+            let text = e.to_string();
+            assert!(text.starts_with(name), "{text}");
+            assert!(text.contains(needle), "{name}: {text}");
+            let _ = err(bytes, name);
+        }
+    }
+    // The .xyz reader also says when the only line was read as column names or a count.
+    let e = read_scan_bytes(b"x,y,z\n", Path::new("a.csv")).unwrap_err();
+    assert!(e.to_string().contains("read as column names"), "{e}");
+    let e = read_scan_bytes(b"0\n", Path::new("a.pts")).unwrap_err();
+    assert!(e.to_string().contains("states 0 points"), "{e}");
+    // A .xyz file of 0 characters (bytes `0`): one number, a point count of 0.
+    let e = read_scan_bytes(b"0000000000", Path::new("a.xyz")).unwrap_err();
+    assert!(matches!(e, ImportError::NoPointFound { .. }), "{e}");
+}
+
+#[test]
+fn reject_obj_normal_index_out_of_range() {
+    let obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//5 3//1\n";
+    let e = err(obj.as_bytes(), "vn.obj");
+    match &e {
+        ImportError::Malformed {
+            line: 5, message, ..
+        } => {
+            assert!(message.contains("normal index 5"), "{e}");
+            assert!(message.contains("1 `vn` line"), "{e}");
+        }
+        other => panic!("{other}"),
+    }
+    // A texture index past the `vt` lines, and a normal index defined later, are the same.
+    let obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/2 2/1 3/1\n";
+    assert!(matches!(
+        err(obj.as_bytes(), "vt.obj"),
+        ImportError::Malformed { line: 5, .. }
+    ));
+    let obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1//1 2//1 3//1\nvn 0 0 1\n";
+    assert!(import_bytes(obj.as_bytes(), Path::new("later.obj"))
+        .unwrap()
+        .normals
+        .is_some());
+}
+
+#[test]
+fn reject_obj_corner_with_too_many_slash_fields() {
+    let obj = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\n\nf 1/1/1 2/1/1 1/2/3/4\n";
+    let e = err(obj.as_bytes(), "slash.obj");
+    match &e {
+        ImportError::Malformed {
+            line: 7, message, ..
+        } => {
+            assert!(message.contains("`1/2/3/4` has 4"), "{e}")
+        }
+        other => panic!("{other}"),
+    }
+}
+
+#[test]
+fn reject_ply_faces_with_fewer_than_three_corners() {
+    // No file in ../shared/data has one (checked), so the reader need not skip them.
+    for (faces, corners) in [
+        (vec![vec![0, 1, 2], vec![4, 3]], 2),
+        (vec![vec![0, 1, 2], vec![]], 0),
+    ] {
+        for encoding in [
+            Encoding::Ascii,
+            Encoding::BinaryLittleEndian,
+            Encoding::BinaryBigEndian,
+        ] {
+            let ply = odd_ply(encoding, &ODD_POINTS, &faces);
+            let e = err(&ply, "short.ply");
+            let text = e.to_string();
+            assert!(
+                text.contains(&format!("face 1 has {corners} corner")),
+                "{text}"
+            );
+            match e {
+                ImportError::Malformed { line, .. } => assert_eq!(line, 22, "{text}"),
+                ImportError::BadBinary { entry: 1, .. } => {}
+                other => panic!("{other}"),
+            }
+        }
+    }
+}
+
+#[test]
+fn reject_ascii_stl_facet_with_four_vertices() {
+    let quad = STL_ASCII.replacen("  vertex 1 1 0\n", "  vertex 1 1 0\n  vertex 0 1 0\n", 1);
+    let e = err(quad.as_bytes(), "quad.stl");
+    match &e {
+        ImportError::Malformed {
+            line: 7, message, ..
+        } => {
+            assert!(message.contains("fourth `vertex`"), "{e}")
+        }
+        other => panic!("{other}"),
+    }
+}
+
+#[test]
+fn reject_ascii_stl_content_after_endsolid() {
+    // The second facet after an early `endsolid`, with no `solid` line of its own.
+    let early = STL_ASCII.replacen("endfacet\nfacet", "endfacet\nendsolid sq\nfacet", 1);
+    let e = err(early.as_bytes(), "early.stl");
+    match &e {
+        ImportError::Malformed {
+            line: 10, message, ..
+        } => {
+            assert!(message.contains("after the `endsolid` of line 9"), "{e}")
+        }
+        other => panic!("{other}"),
+    }
+    // Trailing text after the last `endsolid` too.
+    let junk = format!("{STL_ASCII}garbage\n");
+    assert!(matches!(
+        err(junk.as_bytes(), "junk.stl"),
+        ImportError::Malformed { line: 17, .. }
+    ));
+    // A second solid is legitimate (multi-solid ascii STL), and blank lines after the end too.
+    let two = STL_ASCII.replacen(
+        "endfacet\nfacet",
+        "endfacet\nendsolid sq\n\nsolid second\nfacet",
+        1,
+    ) + "\n\n";
+    let cloud = import_bytes(two.as_bytes(), Path::new("two.stl")).unwrap();
+    assert_eq!(cloud.points, SQUARE.to_vec());
+    assert_eq!(cloud.triangles, vec![[0, 1, 2], [0, 2, 3]]);
+}
+
+#[test]
+fn pts_extra_columns_are_named_in_the_notices() {
+    let pts = b"2\n0 0 0 10 255 0 0\n1 0 0 12 0 255 0\n";
+    let scan = read_scan_bytes(pts, Path::new("scan.pts")).unwrap();
+    assert_eq!(scan.cloud.points.len(), 2);
+    assert!(scan.cloud.normals.is_none());
+    let expected = "columns 4 to 7 of each line (intensity, r, g, b in the .pts layout) are not \
+                    read: the cloud keeps x y z only";
+    assert_eq!(scan.notices, [expected]);
+    let info = scan_info(&scan);
+    assert_eq!(info.notices, [expected]);
+    let json = serde_json::to_value(&info).unwrap();
+    assert_eq!(json["notices"][0], expected);
+    // Column names, when the file has them, name the columns.
+    let csv = b"x,y,z,intensity,quality\n0,0,0,1,2\n";
+    let scan = read_scan_bytes(csv, Path::new("scan.csv")).unwrap();
+    assert_eq!(
+        scan.notices,
+        [
+            "columns 4 to 5 of each line (intensity, quality) are not read: the cloud keeps x y z \
+          only"
+        ]
+    );
+    // Six columns in an .xyz stay normals, without a notice.
+    let scan = read_scan_bytes(XYZ.as_bytes(), Path::new("n.xyz")).unwrap();
+    assert!(scan.cloud.normals.is_some());
+    assert!(scan.notices.is_empty());
+    // The PLY reader names what it skips as well; a file it keeps whole has no notice.
+    let scan = read_scan_bytes(PLY_ASCII.as_bytes(), Path::new("a.ply")).unwrap();
+    assert_eq!(
+        scan.notices,
+        [
+            "vertex properties not read: confidence; the cloud keeps x y z and nx ny nz",
+            "elements not read: extra (1 entries)"
+        ]
+    );
+    let scan = read_scan_bytes(STL_ASCII.as_bytes(), Path::new("a.stl")).unwrap();
+    assert!(scan.notices.is_empty());
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -26,8 +26,24 @@
 //!
 //! Every reader is hand-written over the byte slice, so each error can name the line, face or
 //! point at fault, and malformed input is an [`ImportError`], never a panic. Polygons are
-//! fan-triangulated: (v0, v1, v2), (v0, v2, v3), …; PLY faces with fewer than three corners are
-//! skipped (some writers emit them), an OBJ `f` with fewer than three corners is an error.
+//! fan-triangulated: (v0, v1, v2), (v0, v2, v3), …; a face with fewer than three corners is an
+//! error in every format (no file in the shared test data has one, and in a binary PLY a face of
+//! 0 corners is the usual sign that the vertex count is wrong and the face bytes are read out of
+//! place).
+//!
+//! # Believe the bytes, not the header
+//!
+//! A reader accepts a file only when its bytes and its declarations agree: a binary PLY body must
+//! be exactly as long as the header's counts make it (no byte short, no byte over, not even a
+//! trailing newline, since the format has no terminator), an ascii STL facet has exactly three
+//! corners and nothing but another `solid` follows an `endsolid`, an OBJ corner has at most
+//! three slash fields and its texture and normal indices exist, and a text file in which no point
+//! parses is an [`ImportError::NoPointFound`] that says what the file looks like (NUL bytes, or
+//! its first non-blank line), not an empty cloud.
+//!
+//! What a reader reads but does not keep is named in [`Scan::notices`] (for example the
+//! intensity and colour columns of a 7-column .pts file, or a PLY's `confidence` property), and
+//! `stablesurf info` prints them from [`ScanInfo::notices`].
 
 mod obj;
 mod ply;
@@ -159,6 +175,29 @@ pub enum ImportError {
         /// The file.
         path: String,
     },
+    /// A text file (XYZ or OBJ) in which no point parses: it is probably not the format its
+    /// extension says.
+    #[error("{path}: no point found: {detail}")]
+    NoPointFound {
+        /// The file.
+        path: String,
+        /// What the file looks like and what to change.
+        detail: String,
+    },
+    /// A binary PLY body that does not fit the layout its header declares.
+    #[error("{path}: byte {offset} of the file (`{element}` entry {entry}): {message}")]
+    BadBinary {
+        /// The file.
+        path: String,
+        /// The element being read.
+        element: String,
+        /// 0-based entry of that element.
+        entry: u64,
+        /// Byte offset in the file (header included) where the entry starts.
+        offset: u64,
+        /// What is wrong and what to change.
+        message: String,
+    },
     /// The normals do not match the points one to one.
     #[error(
         "{path}: the file has {normals} normals for {points} points; give one normal per point \
@@ -227,6 +266,10 @@ pub struct Scan {
     pub format: ScanFormat,
     /// What the file holds.
     pub cloud: PointCloud,
+    /// What the reader read but did not keep, one sentence each (e.g. "columns 4 to 7 of each
+    /// line (intensity, r, g, b in the .pts layout) are not read: the cloud keeps x y z").
+    /// Empty when the cloud holds everything the file does. A caller should print them.
+    pub notices: Vec<String>,
 }
 
 /// What `stablesurf info` prints about a scan.
@@ -248,6 +291,8 @@ pub struct ScanInfo {
     pub duplicate_points: usize,
     /// Number of points with a NaN or infinite coordinate.
     pub nan_points: usize,
+    /// What the reader read but did not keep (see [`Scan::notices`]).
+    pub notices: Vec<String>,
 }
 
 /// `:LINE` after a path when the line is known.
@@ -333,14 +378,19 @@ pub fn read_scan_bytes_as(
 
 /// Runs the reader of `detected` on the bytes.
 fn read_detected(bytes: &[u8], name: &str, detected: Detected) -> Result<Scan, ImportError> {
+    let mut notices = Vec::new();
     let (format, cloud) = match detected {
-        Detected::Ply => ply::read(bytes, name)?,
+        Detected::Ply => ply::read(bytes, name, &mut notices)?,
         Detected::StlBinary => (ScanFormat::StlBinary, stl::read_binary(bytes, name)?),
         Detected::StlAscii => (ScanFormat::StlAscii, stl::read_ascii(bytes, name)?),
-        Detected::Obj => (ScanFormat::Obj, obj::read(bytes, name)?),
-        Detected::Xyz => (ScanFormat::Xyz, xyz::read(bytes, name)?),
+        Detected::Obj => (ScanFormat::Obj, obj::read(bytes, name, &mut notices)?),
+        Detected::Xyz => (ScanFormat::Xyz, xyz::read(bytes, name, &mut notices)?),
     };
-    Ok(Scan { format, cloud })
+    Ok(Scan {
+        format,
+        cloud,
+        notices,
+    })
 }
 
 /// Parses and validates scan bytes (finite coordinates, at least one point, indices in range,
@@ -359,9 +409,26 @@ fn read_detected(bytes: &[u8], name: &str, detected: Detected) -> Result<Scan, I
 /// Those of [`read_scan_bytes`], plus [`ImportError::NoPoints`], [`ImportError::NonFinite`],
 /// [`ImportError::IndexOutOfRange`] and [`ImportError::NormalCountMismatch`].
 pub fn import_bytes(bytes: &[u8], path: &Path) -> Result<PointCloud, ImportError> {
+    Ok(import_scan_bytes(bytes, path)?.cloud)
+}
+
+/// [`import_bytes`] that keeps the format and the reader's [`Scan::notices`], for callers that
+/// print what the file held but the cloud does not.
+///
+/// ```
+/// use std::path::Path;
+/// use stablesurf::import::import_scan_bytes;
+/// let scan = import_scan_bytes(b"1\n0 0 0 7 255 0 0\n", Path::new("a.pts")).unwrap();
+/// assert_eq!(scan.cloud.points.len(), 1);
+/// assert!(scan.notices[0].contains("intensity, r, g, b"), "{:?}", scan.notices);
+/// ```
+///
+/// # Errors
+/// As [`import_bytes`].
+pub fn import_scan_bytes(bytes: &[u8], path: &Path) -> Result<Scan, ImportError> {
     let scan = read_scan_bytes(bytes, path)?;
     validate(&scan.cloud, &display_path(path))?;
-    Ok(scan.cloud)
+    Ok(scan)
 }
 
 /// Checks the invariants of a validated [`PointCloud`] (see the module docs).
@@ -446,6 +513,7 @@ pub fn scan_info(scan: &Scan) -> ScanInfo {
         bbox_max: bbox.map_or([f64::NAN; 3], |b| b.max),
         duplicate_points,
         nan_points,
+        notices: scan.notices.clone(),
     }
 }
 
@@ -576,6 +644,38 @@ impl<'a> Lines<'a> {
             }),
         })
     }
+}
+
+/// The error for a text file holding a NUL byte (`what` names the format), or `None`.
+/// No text format has NUL bytes; a file with one is binary or zero-filled.
+pub(crate) fn nul_byte(bytes: &[u8], path: &str, what: &str) -> Option<ImportError> {
+    let at = bytes.iter().position(|&b| b == 0)?;
+    let line = 1 + bytes[..at].iter().filter(|&&b| b == b'\n').count();
+    let all = bytes.iter().all(|&b| b == 0);
+    Some(ImportError::Malformed {
+        path: path.to_owned(),
+        line,
+        message: format!(
+            "the file holds NUL bytes (the first at byte {at}{}): it looks binary, not {what} \
+             text; give the scan in its own format, with that format's extension",
+            if all { "; every byte is 0" } else { "" }
+        ),
+    })
+}
+
+/// The first non-blank line of a text file (comments included) and its number, shortened to
+/// 60 characters, as errors quote it: `` line 3: `hello world` ``.
+pub(crate) fn first_line_quoted(bytes: &[u8]) -> Option<String> {
+    let mut lines = Lines::new(bytes, 1);
+    while let Some(Ok((number, text))) = lines.next_line("") {
+        let text = text.trim();
+        if !text.is_empty() {
+            let short: String = text.chars().take(60).collect();
+            let more = if short.len() < text.len() { "…" } else { "" };
+            return Some(format!("line {number}: `{short}{more}`"));
+        }
+    }
+    None
 }
 
 /// Parses one coordinate token (accepts `nan`, `inf`, `1.`, `.5`, exponents).

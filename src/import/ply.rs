@@ -5,7 +5,18 @@
 //! x/y/z (any numeric type, converted to f64), its nx/ny/nz when all three are present, and the
 //! `face` element's `vertex_indices` (or `vertex_index`) lists of any integer type,
 //! fan-triangulated. Every other element and property is skipped, for example the `range_grid`
-//! element of Stanford's raw range scans or per-vertex `confidence` and `intensity`.
+//! element of Stanford's raw range scans or per-vertex `confidence` and `intensity`, and named in
+//! the scan's notices. A face with fewer than three corners is an error.
+//!
+//! Binary bodies are believed, not the header: after every element is read exactly as declared,
+//! the bytes consumed must equal the body's length. A body that ends early is a
+//! [`ImportError::Truncated`] naming the element, the entry and its byte offset in the file;
+//! bytes left over (even a lone trailing newline: the binary format has no terminator) are an
+//! error giving the offset where the declared data ends. A vertex count that is too large reads
+//! face bytes as a vertex and then the faces out of place, which shows as a face of 0–2 corners,
+//! an index out of range or a length mismatch ([`ImportError::BadBinary`], with the byte offset).
+//! On any such error the reader tries each element's count ±1..3 and, when one reads the whole
+//! body without error, the message says which (`element vertex 162` instead of 163).
 //!
 //! The format (Turk, *The PLY Polygon File Format*, 1994; the Paul Bourke mirror is the usual
 //! reference) is a text header, `ply` / `format …` / `element NAME COUNT` / `property TYPE NAME`
@@ -134,8 +145,12 @@ struct Header {
     body_line: usize,
 }
 
-/// Reads a PLY file.
-pub(crate) fn read(bytes: &[u8], path: &str) -> Result<(ScanFormat, PointCloud), ImportError> {
+/// Reads a PLY file; the vertex properties and elements it skips are named in `notices`.
+pub(crate) fn read(
+    bytes: &[u8],
+    path: &str,
+    notices: &mut Vec<String>,
+) -> Result<(ScanFormat, PointCloud), ImportError> {
     let header = read_header(bytes, path)?;
     let plan = Plan::new(&header, path)?;
     let body = bytes.get(header.body_start..).unwrap_or(&[]);
@@ -153,7 +168,47 @@ pub(crate) fn read(bytes: &[u8], path: &str) -> Result<(ScanFormat, PointCloud),
             read_binary::<true>(body, &header, &plan, path)?,
         ),
     };
+    notices.extend(skipped(&header, &plan));
     Ok((format, cloud))
+}
+
+/// Notices naming the vertex properties and the elements the cloud does not keep.
+fn skipped(header: &Header, plan: &Plan) -> Vec<String> {
+    let mut notices = Vec::new();
+    let vertex = &header.elements[plan.vertex];
+    let kept: Vec<usize> = plan
+        .coords
+        .iter()
+        .chain(plan.normals.iter().flatten())
+        .copied()
+        .collect();
+    let names: Vec<&str> = (0..vertex.properties.len())
+        .filter(|p| !kept.contains(p))
+        .map(|p| vertex.properties[p].name.as_str())
+        .collect();
+    if !names.is_empty() {
+        notices.push(format!(
+            "vertex properties not read: {}; the cloud keeps x y z{}",
+            names.join(", "),
+            if plan.normals.is_some() {
+                " and nx ny nz"
+            } else {
+                ""
+            }
+        ));
+    }
+    let face = plan.face.map(|(f, _)| f);
+    let elements: Vec<String> = (0..header.elements.len())
+        .filter(|&e| e != plan.vertex && Some(e) != face && header.elements[e].count > 0)
+        .map(|e| {
+            let element = &header.elements[e];
+            format!("{} ({} entries)", element.name, element.count)
+        })
+        .collect();
+    if !elements.is_empty() {
+        notices.push(format!("elements not read: {}", elements.join(", ")));
+    }
+    notices
 }
 
 /// Parses the header lines up to and including `end_header`.
@@ -486,7 +541,143 @@ struct Wanted<'a> {
     list: Option<usize>,
 }
 
+/// Reads a binary body. On an error, when the body reads without error with one element count
+/// changed by up to 3, the error says so: that is what a wrong count in the header looks like
+/// (a vertex count one too large reads a face's bytes as a vertex and the faces out of place).
 fn read_binary<const BIG: bool>(
+    body: &[u8],
+    header: &Header,
+    plan: &Plan,
+    path: &str,
+) -> Result<PointCloud, ImportError> {
+    let error = match read_binary_body::<BIG>(body, header, plan, path) {
+        Ok(cloud) => return Ok(cloud),
+        Err(error) => error,
+    };
+    let Some(hint) = count_hint::<BIG>(body, header, plan) else {
+        return Err(error);
+    };
+    Err(match error {
+        ImportError::Truncated { path, detail } => ImportError::Truncated {
+            path,
+            detail: format!("{detail}; {hint}"),
+        },
+        ImportError::BadBinary {
+            path,
+            element,
+            entry,
+            offset,
+            message,
+        } => ImportError::BadBinary {
+            path,
+            element,
+            entry,
+            offset,
+            message: format!("{message}; {hint}"),
+        },
+        ImportError::HeaderCountMismatch {
+            path,
+            what,
+            declared,
+            found,
+        } => ImportError::HeaderCountMismatch {
+            path,
+            what: format!("{what} ({hint})"),
+            declared,
+            found,
+        },
+        other => other,
+    })
+}
+
+/// Bodies larger than this get no [`count_hint`] (each try reads the whole body again).
+const HINT_MAX_BYTES: usize = 32 << 20;
+
+/// `the body reads without error with `element NAME N` instead of M: fix that count in the
+/// header` when changing one element's count by up to 3 makes the whole body read.
+fn count_hint<const BIG: bool>(body: &[u8], header: &Header, plan: &Plan) -> Option<String> {
+    if body.len() > HINT_MAX_BYTES {
+        return None;
+    }
+    for e in 0..header.elements.len() {
+        for delta in [-1i64, 1, -2, 2, -3, 3] {
+            let count = header.elements[e].count;
+            let Some(new) = count.checked_add_signed(delta) else {
+                continue;
+            };
+            let mut changed = Header {
+                encoding: header.encoding,
+                elements: header.elements.clone(),
+                body_start: header.body_start,
+                body_line: header.body_line,
+            };
+            changed.elements[e].count = new;
+            if read_binary_body::<BIG>(body, &changed, plan, "").is_ok() {
+                return Some(format!(
+                    "the body reads without error with `element {} {new}` instead of {count}: \
+                     fix that count in the header",
+                    header.elements[e].name
+                ));
+            }
+        }
+    }
+    None
+}
+
+/// The error for a face of a binary body that refers to a vertex the header does not declare.
+fn bad_index(
+    path: &str,
+    header: &Header,
+    element: &Element,
+    face: u64,
+    index: i64,
+    pos: usize,
+) -> ImportError {
+    let n = header.elements[header_vertex(header)].count;
+    ImportError::BadBinary {
+        path: path.to_owned(),
+        element: element.name.clone(),
+        entry: face,
+        offset: (header.body_start + pos) as u64,
+        message: format!(
+            "face {face} refers to vertex {index}, but the header declares {n} vertices \
+             (0-based indices 0..{n}); fix or remove that face"
+        ),
+    }
+}
+
+/// Index of the `vertex` element (`Plan::new` has checked that there is one).
+fn header_vertex(header: &Header) -> usize {
+    header
+        .elements
+        .iter()
+        .position(|e| e.name == "vertex")
+        .unwrap_or(0)
+}
+
+/// The error for a face of fewer than three corners in a binary body.
+fn short_face(
+    path: &str,
+    header: &Header,
+    element: &Element,
+    face: u64,
+    corners: usize,
+    pos: usize,
+) -> ImportError {
+    ImportError::BadBinary {
+        path: path.to_owned(),
+        element: element.name.clone(),
+        entry: face,
+        offset: (header.body_start + pos) as u64,
+        message: format!(
+            "face {face} has {corners} corner(s) and a face needs at least three; remove the \
+             face (or, if the counts in the header are wrong, the faces are read from the \
+             wrong bytes: fix the counts)"
+        ),
+    }
+}
+
+fn read_binary_body<const BIG: bool>(
     body: &[u8],
     header: &Header,
     plan: &Plan,
@@ -499,11 +690,15 @@ fn read_binary<const BIG: bool>(
     let mut triangles = Vec::new();
     for (e, element) in header.elements.iter().enumerate() {
         let remaining = body.len() - pos;
-        let truncated = |entry: u64| ImportError::Truncated {
+        let truncated = |entry: u64, at: usize| ImportError::Truncated {
             path: path.to_owned(),
             detail: format!(
-                "the body ends in `{}` entry {entry} of the {} the header declares",
-                element.name, element.count
+                "the body ends at byte {} of the file, inside `{}` entry {entry} (starting at \
+                 byte {}) of the {} the header declares",
+                header.body_start + body.len(),
+                element.name,
+                header.body_start + at,
+                element.count
             ),
         };
         let stride = element.fixed_stride();
@@ -512,7 +707,10 @@ fn read_binary<const BIG: bool>(
                 .ok()
                 .and_then(|n| n.checked_mul(stride))
                 .filter(|&size| size <= remaining)
-                .ok_or_else(|| truncated(remaining.checked_div(stride).unwrap_or(0) as u64))?;
+                .ok_or_else(|| {
+                    let whole = remaining.checked_div(stride).unwrap_or(0);
+                    truncated(whole as u64, pos + whole * stride)
+                })?;
             let records = &body[pos..pos + size];
             pos += size;
             if e == plan.vertex && stride > 0 {
@@ -538,9 +736,14 @@ fn read_binary<const BIG: bool>(
                     n_vertices,
                     &mut triangles,
                 )
-                .map_err(|entry| match entry {
-                    FaceError::Truncated(entry) => truncated(entry),
-                    FaceError::Index { face, index } => index_error(index, face, n_vertices, path),
+                .map_err(|error| match error {
+                    FaceError::Truncated { face, at } => truncated(face, at),
+                    FaceError::Index { face, index, at } => {
+                        bad_index(path, header, element, face, index, at)
+                    }
+                    FaceError::Short { face, corners, at } => {
+                        short_face(path, header, element, face, corners, at)
+                    }
                 })?;
                 continue;
             }
@@ -565,41 +768,68 @@ fn read_binary<const BIG: bool>(
             points.reserve(capped_capacity(element.count, remaining));
         }
         for entry in 0..element.count {
+            let start = pos;
             pos = walk_entry::<BIG>(body, pos, element, &wanted, &mut values, &mut polygon)
-                .ok_or_else(|| truncated(entry))?;
+                .ok_or_else(|| truncated(entry, start))?;
             if e == plan.vertex {
                 points.push([values[0], values[1], values[2]]);
                 if let Some(n) = normals.as_mut() {
                     n.push([values[3], values[4], values[5]]);
                 }
             } else if list.is_some() {
+                if polygon.len() < 3 {
+                    return Err(short_face(
+                        path,
+                        header,
+                        element,
+                        entry,
+                        polygon.len(),
+                        start,
+                    ));
+                }
                 polygon_u32.clear();
                 for &v in &polygon {
-                    polygon_u32.push(to_index(v, entry, n_vertices, path)?);
+                    match u32::try_from(v) {
+                        Ok(i) if u64::from(i) < n_vertices => polygon_u32.push(i),
+                        _ => return Err(bad_index(path, header, element, entry, v, start)),
+                    }
                 }
                 push_fan(&mut triangles, &polygon_u32);
             }
         }
     }
     if pos < body.len() {
-        // More bytes than the header accounts for: a count is too small. Say how many bytes
-        // remain, in the units of the last element when it has a fixed size.
+        // More bytes than the header accounts for: a count is too small (or bytes were
+        // appended; the format has no terminator, so even a trailing newline is an error). Say
+        // where, and how many bytes remain, in the units of the last element when it has a
+        // fixed size.
         let last = header.elements.last();
         let extra = body.len() - pos;
+        let at = header.body_start + pos;
         return Err(match last.and_then(|l| l.fixed_stride().map(|s| (l, s))) {
             Some((last, stride)) if stride > 0 && extra.is_multiple_of(stride) => {
                 ImportError::HeaderCountMismatch {
                     path: path.to_owned(),
-                    what: format!("`{}` entries", last.name),
+                    what: format!(
+                        "`{}` entries (the last one ends at byte {at} of the file and {extra} \
+                         more bytes follow)",
+                        last.name
+                    ),
                     declared: last.count,
-                    found: last.count + (extra / stride) as u64,
+                    found: last.count.saturating_add((extra / stride) as u64),
                 }
             }
-            _ => ImportError::HeaderCountMismatch {
+            _ => ImportError::BadBinary {
                 path: path.to_owned(),
-                what: "bytes of element data".to_owned(),
-                declared: pos as u64,
-                found: body.len() as u64,
+                element: last.map_or(String::new(), |l| l.name.clone()),
+                entry: last.map_or(0, |l| l.count),
+                offset: at as u64,
+                message: format!(
+                    "{extra} bytes follow the last entry the header declares (the body is {} \
+                     bytes, the header's counts account for {pos}); fix the counts in the \
+                     header or remove the extra bytes",
+                    body.len()
+                ),
             },
         });
     }
@@ -612,10 +842,17 @@ fn read_binary<const BIG: bool>(
 
 /// Why [`read_face_lists`] stopped.
 enum FaceError {
-    /// The body ended in this face entry (or its list length was negative).
-    Truncated(u64),
-    /// This face has an index outside `0..n_vertices`.
-    Index { face: u64, index: i64 },
+    /// The body ended in this face entry, which starts at body byte `at` (or its list length
+    /// was negative).
+    Truncated { face: u64, at: usize },
+    /// This face, at body byte `at`, has an index outside `0..n_vertices`.
+    Index { face: u64, index: i64, at: usize },
+    /// This face, at body byte `at`, has fewer than three corners.
+    Short {
+        face: u64,
+        corners: usize,
+        at: usize,
+    },
 }
 
 /// The fast path for a face element whose only property is its index list. Returns the position
@@ -636,25 +873,39 @@ fn read_face_lists<const BIG: bool>(
     ));
     let mut polygon: Vec<u32> = Vec::new();
     for face in 0..n_faces {
-        let n = body
+        let at = pos;
+        let truncated = FaceError::Truncated { face, at };
+        let Some(n) = body
             .get(pos..)
             .and_then(|b| scalar_i64::<BIG>(b, count_ty))
             .and_then(|n| usize::try_from(n).ok())
-            .ok_or(FaceError::Truncated(face))?;
+        else {
+            return Err(truncated);
+        };
         pos += count_size;
-        let items = n
+        let Some(items) = n
             .checked_mul(item_size)
             .and_then(|size| body.get(pos..pos.checked_add(size)?))
-            .ok_or(FaceError::Truncated(face))?;
+        else {
+            return Err(truncated);
+        };
+        if n < 3 {
+            return Err(FaceError::Short {
+                face,
+                corners: n,
+                at,
+            });
+        }
         pos += items.len();
         if n == 3 {
             // Triangles, the common case, skip the polygon buffer.
             let mut triangle = [0u32; 3];
             for (slot, chunk) in triangle.iter_mut().zip(items.chunks_exact(item_size)) {
-                let index = scalar_i64::<BIG>(chunk, item_ty).ok_or(FaceError::Truncated(face))?;
+                let index =
+                    scalar_i64::<BIG>(chunk, item_ty).ok_or(FaceError::Truncated { face, at })?;
                 *slot = match u32::try_from(index) {
                     Ok(i) if u64::from(i) < n_vertices => i,
-                    _ => return Err(FaceError::Index { face, index }),
+                    _ => return Err(FaceError::Index { face, index, at }),
                 };
             }
             triangles.push(triangle);
@@ -662,10 +913,11 @@ fn read_face_lists<const BIG: bool>(
         }
         polygon.clear();
         for chunk in items.chunks_exact(item_size) {
-            let index = scalar_i64::<BIG>(chunk, item_ty).ok_or(FaceError::Truncated(face))?;
+            let index =
+                scalar_i64::<BIG>(chunk, item_ty).ok_or(FaceError::Truncated { face, at })?;
             match u32::try_from(index) {
                 Ok(i) if u64::from(i) < n_vertices => polygon.push(i),
-                _ => return Err(FaceError::Index { face, index }),
+                _ => return Err(FaceError::Index { face, index, at }),
             }
         }
         push_fan(triangles, &polygon);
@@ -784,7 +1036,11 @@ fn read_ascii(
 /// When the body's non-empty lines differ from the total the header declares, the error that
 /// says so.
 fn count_mismatch(body: &[u8], header: &Header, path: &str) -> Option<ImportError> {
-    let declared: u64 = header.elements.iter().map(|e| e.count).sum();
+    // Saturating: a header may declare counts whose sum overflows a u64.
+    let declared = header
+        .elements
+        .iter()
+        .fold(0u64, |sum, e| sum.saturating_add(e.count));
     let found = body
         .split(|&b| b == b'\n')
         .filter(|l| l.iter().any(|b| !b.is_ascii_whitespace()))
@@ -1097,6 +1353,13 @@ fn read_block(
                         ))
                     })?;
                     if layout.face_list == Some(p) {
+                        if n < 3 {
+                            return Err(malformed(format!(
+                                "face {entry} has {n} corner(s) and a face needs at least three; \
+                                 remove that line and lower the `{}` count in the header",
+                                element.name
+                            )));
+                        }
                         polygon.clear();
                         for _ in 0..n {
                             let token = next("list item")?;
@@ -1259,7 +1522,7 @@ mod tests {
     use super::*;
 
     fn read_str(s: &str) -> Result<(ScanFormat, PointCloud), ImportError> {
-        read(s.as_bytes(), "t.ply")
+        read(s.as_bytes(), "t.ply", &mut Vec::new())
     }
 
     const SQUARE: &str = "ply\nformat ascii 1.0\ncomment c\nelement vertex 4\n\
@@ -1346,13 +1609,16 @@ mod tests {
         for i in [1u32, 0, 1] {
             bytes.extend_from_slice(&i.to_be_bytes());
         }
-        let (format, cloud) = read(&bytes, "t.ply").unwrap();
+        let (format, cloud) = read(&bytes, "t.ply", &mut Vec::new()).unwrap();
         assert_eq!(format, ScanFormat::PlyBinaryBe);
         assert_eq!(cloud.points, vec![[-3.0, 7.0, 0.25], [4.0, 9.0, -1.5]]);
         assert_eq!(cloud.triangles, vec![[1, 0, 1]]);
         // Cut anywhere: an error, never a panic.
         for cut in 0..bytes.len() {
-            assert!(read(&bytes[..cut], "t.ply").is_err(), "cut {cut}");
+            assert!(
+                read(&bytes[..cut], "t.ply", &mut Vec::new()).is_err(),
+                "cut {cut}"
+            );
         }
     }
 
@@ -1466,7 +1732,7 @@ mod tests {
             .unwrap()
             + 12;
         bytes[at] = 0xff;
-        match read(&bytes, "t.ply") {
+        match read(&bytes, "t.ply", &mut Vec::new()) {
             Err(ImportError::Malformed { line, message, .. }) => {
                 assert_eq!(line, big_ascii_line(header_lines, 15_000));
                 assert!(message.contains("utf-8"), "{message}");

@@ -11,6 +11,13 @@
 //! three `vertex x y z` / `endloop` / `endfacet`, and `endsolid`; several solids may follow one
 //! another. Welding keys are the coordinate bits with -0.0 folded onto 0.0.
 //!
+//! The ascii reader checks that grammar line by line: a facet has exactly three `vertex` lines
+//! (STL facets are triangles; a fourth corner is an error naming its line, not a fan), each
+//! keyword comes where the grammar puts it, and after an `endsolid` only blank lines or the
+//! `solid` line of a further solid may follow (multi-solid files are legitimate; anything else
+//! after `endsolid`, such as facets of a solid whose `solid` line is missing, is an error naming
+//! the line).
+//!
 //! Hand-written rather than `stl_io`: the reader is short, works on the byte slice the other
 //! readers take, and names the facet or line at fault in its errors.
 
@@ -142,43 +149,60 @@ pub(crate) fn read_binary(bytes: &[u8], path: &str) -> Result<PointCloud, Import
     })
 }
 
-/// Reads an ascii STL. Facets with more than three `vertex` lines are fan-triangulated.
+/// Where the ascii reader is in the STL grammar.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum State {
+    /// Before the first `solid` or after an `endsolid`.
+    Outside,
+    /// Inside `solid`, between facets.
+    Solid,
+    /// After `facet normal …`, before `outer loop`.
+    Facet,
+    /// Inside `outer loop`, with this many `vertex` lines so far.
+    Loop(usize),
+    /// After `endloop`, before `endfacet`.
+    LoopDone,
+}
+
+/// Reads an ascii STL: each facet one triangle, checked against the grammar in the module docs.
 pub(crate) fn read_ascii(bytes: &[u8], path: &str) -> Result<PointCloud, ImportError> {
     let mut lines = Lines::new(bytes, 1);
     let mut welder = Welder::default();
     let mut triangles = Vec::new();
-    let mut polygon: Vec<u32> = Vec::new();
-    let mut in_loop = false;
+    let mut triangle = [0u32; 3];
+    let mut state = State::Outside;
     let mut last_line = 0;
-    let mut open_solid = false;
+    // The line of the last `endsolid`, to name it when something other than `solid` follows.
+    let mut endsolid_line: Option<usize> = None;
     while let Some(line) = lines.next_line(path) {
         let (line_number, text) = line?;
-        last_line = line_number;
         let malformed = |message: String| ImportError::Malformed {
             path: path.to_owned(),
             line: line_number,
             message,
         };
         let mut tokens = text.split_ascii_whitespace();
-        match tokens.next() {
-            None => {}
-            Some("solid") => open_solid = true,
-            Some("endsolid") => open_solid = false,
-            // The facet normal is ignored: it is per facet, not per point.
-            Some("facet") if in_loop => {
-                return Err(malformed("`facet` inside an open `outer loop`".into()))
+        let Some(keyword) = tokens.next() else {
+            continue;
+        };
+        last_line = line_number;
+        let expected = match state {
+            State::Outside => "`solid NAME`",
+            State::Solid => "`facet normal nx ny nz` or `endsolid`",
+            State::Facet => "`outer loop`",
+            State::Loop(n) if n < 3 => "`vertex x y z`",
+            State::Loop(_) => "`endloop` (a facet has exactly three vertices)",
+            State::LoopDone => "`endfacet`",
+        };
+        state = match (state, keyword) {
+            (State::Outside, "solid") => State::Solid,
+            (State::Solid, "facet") => State::Facet,
+            (State::Solid, "endsolid") => {
+                endsolid_line = Some(line_number);
+                State::Outside
             }
-            Some("facet") => {}
-            Some("outer") => {
-                polygon.clear();
-                in_loop = true;
-            }
-            Some("vertex") => {
-                if !in_loop {
-                    return Err(malformed(
-                        "`vertex` outside `outer loop` … `endloop`".into(),
-                    ));
-                }
+            (State::Facet, "outer") if tokens.next() == Some("loop") => State::Loop(0),
+            (State::Loop(n), "vertex") if n < 3 => {
                 let mut p = [0.0; 3];
                 for c in &mut p {
                     let token = tokens
@@ -187,36 +211,53 @@ pub(crate) fn read_ascii(bytes: &[u8], path: &str) -> Result<PointCloud, ImportE
                     *c = parse_f64(token)
                         .ok_or_else(|| malformed(format!("`{token}` is not a number")))?;
                 }
-                polygon.push(welder.weld(p).ok_or_else(|| too_many(path))?);
+                triangle[n] = welder.weld(p).ok_or_else(|| too_many(path))?;
+                State::Loop(n + 1)
             }
-            Some("endloop") => {
-                if polygon.len() < 3 {
-                    return Err(malformed(format!(
-                        "a facet needs three `vertex` lines, this one has {}",
-                        polygon.len()
-                    )));
-                }
-                crate::import::push_fan(&mut triangles, &polygon);
-                in_loop = false;
+            (State::Loop(3), "endloop") => {
+                triangles.push(triangle);
+                State::LoopDone
             }
-            Some("endfacet") => {}
-            Some(other) => {
+            (State::Loop(n), "endloop") => {
                 return Err(malformed(format!(
-                    "unexpected `{other}`; an ascii stl holds solid, facet, outer loop, vertex, \
-                     endloop, endfacet and endsolid lines"
+                    "a facet needs three `vertex` lines, this one has {n}; give each facet \
+                     exactly three corners"
                 )))
             }
-        }
+            (State::Loop(_), "vertex") => {
+                return Err(malformed(
+                    "a fourth `vertex` line in one facet; stl facets are triangles: split the \
+                     polygon into facets of three corners"
+                        .into(),
+                ))
+            }
+            (State::LoopDone, "endfacet") => State::Solid,
+            (State::Outside, other) => {
+                let after = match endsolid_line {
+                    Some(l) => format!("after the `endsolid` of line {l}"),
+                    None => "before any `solid` line".to_owned(),
+                };
+                return Err(malformed(format!(
+                    "`{other}` {after}; only another solid (`solid NAME` … `endsolid`) may \
+                     follow, so remove the line or add the missing `solid` line"
+                )));
+            }
+            (_, other) => {
+                return Err(malformed(format!(
+                    "unexpected `{other}` where the ascii stl grammar expects {expected}"
+                )))
+            }
+        };
     }
-    if in_loop || open_solid {
+    if state != State::Outside || endsolid_line.is_none() {
         return Err(ImportError::Truncated {
             path: path.to_owned(),
             detail: format!(
-                "the text ends on line {last_line} inside {}",
-                if in_loop {
-                    "a facet"
-                } else {
-                    "a solid (no `endsolid`)"
+                "the text ends on line {last_line} {}",
+                match state {
+                    State::Outside => "before any `solid` line",
+                    State::Solid => "inside a solid (no `endsolid`)",
+                    _ => "inside a facet",
                 }
             ),
         });

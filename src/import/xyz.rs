@@ -9,13 +9,28 @@
 //! which must then match), and a first line of column names such as `x,y,z` (csv). Lines with
 //! other column counts (4, 5, 7 or more: intensity, colour) keep x, y, z and ignore the rest,
 //! but every line must have the same number of columns, because a change in mid-file means a
-//! corrupt or concatenated file.
+//! corrupt or concatenated file. [`PointCloud`] has no place for intensity or colour, so the
+//! ignored columns are named in a notice (with the names the column names line gives, else the
+//! Leica .pts names `intensity r g b` for 4 and 7 columns), which `stablesurf info` prints.
+//! Six columns are read as normals whatever the extension, as before.
+//!
+//! A file in which no point parses is an error that says what the file looks like (NUL bytes,
+//! or its first non-blank line), never an empty cloud: text garbage, a zero-filled file or a
+//! binary file with a .xyz name would otherwise import as "0 points" without a word.
 
 use crate::cloud::PointCloud;
-use crate::import::{parse_f64, ImportError, Lines};
+use crate::import::{first_line_quoted, nul_byte, parse_f64, ImportError, Lines};
 
-/// Reads an XYZ point list.
-pub(crate) fn read(bytes: &[u8], path: &str) -> Result<PointCloud, ImportError> {
+/// Reads an XYZ point list; what it reads but does not keep goes to `notices`.
+pub(crate) fn read(
+    bytes: &[u8],
+    path: &str,
+    notices: &mut Vec<String>,
+) -> Result<PointCloud, ImportError> {
+    if let Some(e) = nul_byte(bytes, path, "point list") {
+        return Err(e);
+    }
+    let mut column_names: Option<(usize, String)> = None;
     let mut lines = Lines::new(bytes, 1);
     let mut points = Vec::new();
     let mut normals = Vec::new();
@@ -48,6 +63,7 @@ pub(crate) fn read(bytes: &[u8], path: &str) -> Result<PointCloud, ImportError> 
         if is_first {
             if bad_token.is_some() && values.is_empty() {
                 // Column names (csv header).
+                column_names = Some((line_number, text.trim().to_owned()));
                 continue;
             }
             if let ([count], None) = (values.as_slice(), bad_token) {
@@ -57,10 +73,25 @@ pub(crate) fn read(bytes: &[u8], path: &str) -> Result<PointCloud, ImportError> 
                 }
             }
         }
-        let malformed = |message: String| ImportError::Malformed {
-            path: path.to_owned(),
-            line: line_number,
-            message,
+        // Before any point, a bad line says more about the file than about the line.
+        let no_point_yet = points.is_empty();
+        let malformed = |message: String| {
+            if no_point_yet {
+                ImportError::NoPointFound {
+                    path: path.to_owned(),
+                    detail: format!(
+                        "the first non-blank line is {}, no line before line {line_number} \
+                         holds a point, and line {line_number} fails: {message}",
+                        first_line_quoted(bytes).unwrap_or_default()
+                    ),
+                }
+            } else {
+                ImportError::Malformed {
+                    path: path.to_owned(),
+                    line: line_number,
+                    message,
+                }
+            }
         };
         if let Some(token) = bad_token {
             return Err(malformed(format!(
@@ -88,6 +119,36 @@ pub(crate) fn read(bytes: &[u8], path: &str) -> Result<PointCloud, ImportError> 
             normals.push([values[3], values[4], values[5]]);
         }
     }
+    if points.is_empty() {
+        let detail = match (&column_names, stated_count) {
+            (Some((line, names)), _) => format!(
+                "line {line} (`{}`) was read as column names and no line of numbers follows; \
+                 a point list needs lines of x y z [nx ny nz] (this file may be in another \
+                 format: check its extension)",
+                names.chars().take(60).collect::<String>()
+            ),
+            (None, Some((declared, line))) => format!(
+                "line {line} states {declared} points and no point line follows; a point list \
+                 needs lines of x y z [nx ny nz]"
+            ),
+            (None, None) => match first_line_quoted(bytes) {
+                Some(first) => format!(
+                    "no line of three numbers; the first non-blank line is {first}; a point \
+                     list needs lines of x y z [nx ny nz]"
+                ),
+                None => "the file holds only blank lines; a point list needs lines of x y z \
+                         [nx ny nz]"
+                    .to_owned(),
+            },
+        };
+        return Err(ImportError::NoPointFound {
+            path: path.to_owned(),
+            detail,
+        });
+    }
+    if let Some((n, _)) = columns.filter(|&(n, _)| n != 3 && n != 6) {
+        notices.push(ignored_columns(n, column_names.as_ref(), path));
+    }
     if let Some((declared, line)) = stated_count {
         if declared != points.len() as u64 {
             return Err(ImportError::HeaderCountMismatch {
@@ -106,6 +167,34 @@ pub(crate) fn read(bytes: &[u8], path: &str) -> Result<PointCloud, ImportError> 
     })
 }
 
+/// The notice for the columns after x y z that an `n`-column file has and the cloud does not
+/// keep: their names from the column names line, else the .pts names for 4 and 7 columns.
+fn ignored_columns(n: usize, names: Option<&(usize, String)>, path: &str) -> String {
+    let from_names: Option<Vec<&str>> = names.and_then(|(_, line)| {
+        let words: Vec<&str> = line
+            .split(|c: char| c.is_ascii_whitespace() || c == ',')
+            .filter(|t| !t.is_empty())
+            .collect();
+        (words.len() == n).then(|| words[3..].to_vec())
+    });
+    let pts = path.to_ascii_lowercase().ends_with(".pts");
+    let which = if n == 4 {
+        "column 4 of each line".to_owned()
+    } else {
+        format!("columns 4 to {n} of each line")
+    };
+    let named = match (from_names, n) {
+        (Some(words), _) => format!(" ({})", words.join(", ")),
+        (None, 4) if pts => " (intensity in the .pts layout)".to_owned(),
+        (None, 7) if pts => " (intensity, r, g, b in the .pts layout)".to_owned(),
+        (None, 4) => " (often intensity)".to_owned(),
+        (None, 7) => " (often intensity, r, g, b)".to_owned(),
+        _ => String::new(),
+    };
+    let verb = if n == 4 { "is" } else { "are" };
+    format!("{which}{named} {verb} not read: the cloud keeps x y z only")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -113,7 +202,7 @@ mod tests {
     #[test]
     fn separators_comments_and_normals() {
         let text = "# scan\n1 2 3 0 0 1\n4,5,6,0,1,0 # end\n\t7\t8\t9\t1\t0\t0\n\n";
-        let cloud = read(text.as_bytes(), "t.xyz").unwrap();
+        let cloud = read(text.as_bytes(), "t.xyz", &mut Vec::new()).unwrap();
         assert_eq!(
             cloud.points,
             vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]]
@@ -123,13 +212,24 @@ mod tests {
 
     #[test]
     fn preambles() {
-        let cloud = read(b"x,y,z\n1,2,3\n", "t.csv").unwrap();
+        let cloud = read(b"x,y,z\n1,2,3\n", "t.csv", &mut Vec::new()).unwrap();
         assert_eq!(cloud.points.len(), 1);
-        let cloud = read(b"2\n1 2 3 10 255 0 0\n4 5 6 11 0 255 0\n", "t.pts").unwrap();
+        let mut notices = Vec::new();
+        let cloud = read(
+            b"2\n1 2 3 10 255 0 0\n4 5 6 11 0 255 0\n",
+            "t.pts",
+            &mut notices,
+        )
+        .unwrap();
         assert_eq!(cloud.points.len(), 2);
         assert!(cloud.normals.is_none());
+        assert_eq!(
+            notices,
+            ["columns 4 to 7 of each line (intensity, r, g, b in the .pts layout) are not read: \
+              the cloud keeps x y z only"]
+        );
         assert!(matches!(
-            read(b"3\n1 2 3\n", "t.pts"),
+            read(b"3\n1 2 3\n", "t.pts", &mut Vec::new()),
             Err(ImportError::HeaderCountMismatch {
                 declared: 3,
                 found: 1,
@@ -145,7 +245,7 @@ mod tests {
             ("1 2 3\n1 2 x\n", 2),
             ("1 2 3\n\n1 2 3 4\n", 3),
         ] {
-            match read(text.as_bytes(), "t.xyz") {
+            match read(text.as_bytes(), "t.xyz", &mut Vec::new()) {
                 Err(ImportError::Malformed { line: l, .. }) => assert_eq!(l, line, "{text}"),
                 other => panic!("{text}: {other:?}"),
             }
