@@ -141,6 +141,12 @@ impl Observer for StderrObserver {
             eprintln!("stablesurf: warning: {message}");
         }
     }
+
+    fn note(&mut self, message: &str) {
+        if self.verbosity != Verbosity::Quiet {
+            eprintln!("stablesurf: note: {message}");
+        }
+    }
 }
 
 fn open_cache(opts: &cli::CacheOpts) -> Result<Cache> {
@@ -737,6 +743,7 @@ fn cmd_render(args: cli::RenderArgs) -> Result<()> {
     let params = stablesurf::render::RenderParams {
         size: args.size,
         view,
+        up: gltf_options(args.up).up,
         ..Default::default()
     };
     let image = stablesurf::render::render(&mesh, &params);

@@ -307,6 +307,8 @@ pub trait Observer {
     /// Something the user should know that does not stop the run (a cache that could not be
     /// written).
     fn warning(&mut self, _message: &str) {}
+    /// Something worth knowing that is no fault (columns of the scan that are not read).
+    fn note(&mut self, _message: &str) {}
 }
 
 /// An observer that ignores everything.
@@ -323,7 +325,7 @@ const OUTLIERS_VERSION: u32 = 1;
 const NORMALS_VERSION: u32 = 3;
 const FIT_VERSION: u32 = 2;
 const POLYGONIZE_VERSION: u32 = 2;
-const EXPORT_VERSION: u32 = 2;
+const EXPORT_VERSION: u32 = 3;
 
 struct Ctx<'a> {
     /// The run's cache: the one asked for, or a disabled one when it cannot be written.
@@ -482,16 +484,31 @@ fn fit_stages(
         b"",
         &Key::of_bytes(&bytes),
         || {
-            let cloud = import::import_bytes(&bytes, &path)?;
+            let scan = import::import_scan_bytes(&bytes, &path)?;
             let figures = serde_json::json!({
-                "points": cloud.points.len(),
-                "triangles": cloud.triangles.len(),
-                "has_normals": cloud.normals.is_some(),
+                "points": scan.cloud.points.len(),
+                "triangles": scan.cloud.triangles.len(),
+                "has_normals": scan.cloud.normals.is_some(),
+                "notices": scan.notices,
             });
-            Ok((cloud, figures))
+            Ok((scan.cloud, figures))
         },
     )?;
     drop(bytes);
+    // What the reader did not read (extra columns, other elements), on a hit too.
+    if let Some(notices) = ctx
+        .stages
+        .last()
+        .and_then(|s| s.figures["notices"].as_array())
+    {
+        let notices: Vec<String> = notices
+            .iter()
+            .filter_map(|n| n.as_str().map(str::to_string))
+            .collect();
+        for n in notices {
+            ctx.observer.note(&format!("{}: {n}", path.display()));
+        }
+    }
     let (cloud, cloud_key) = without_outliers(ctx, cloud, cloud_key, &config.outliers);
     let (oriented, oriented_key) = ctx.stage(
         "normals",
@@ -895,7 +912,11 @@ fn mesh_parts(
         if !want(OutputFormat::Png) {
             return Ok(Vec::new());
         }
-        let image = crate::render::render(m, &crate::render::RenderParams::default());
+        let params = crate::render::RenderParams {
+            up: config.gltf.up,
+            ..Default::default()
+        };
+        let image = crate::render::render(m, &params);
         Ok(one(
             "preview.png",
             encode(&|w| export::png::write_rgb(&image, w))?,

@@ -362,4 +362,76 @@ mod tests {
             "{covered} vs {expected}"
         );
     }
+
+    /// A square pyramid, its base at the bottom of its up axis and its tip at the top.
+    fn pyramid(up: UpAxis) -> TriangleMesh {
+        // y-up: base square in y = 0, tip at y = 2; turned for z-up.
+        let turn = |p: [f64; 3]| match up {
+            UpAxis::Y => p,
+            UpAxis::Z => [p[0], -p[2], p[1]],
+        };
+        let positions: Vec<[f64; 3]> = [
+            [-1.0, 0.0, -1.0],
+            [1.0, 0.0, -1.0],
+            [1.0, 0.0, 1.0],
+            [-1.0, 0.0, 1.0],
+            [0.0, 2.0, 0.0],
+        ]
+        .map(turn)
+        .to_vec();
+        let centre = turn([0.0, 0.5, 0.0]);
+        let normals = positions
+            .iter()
+            .map(|p| normalize([0, 1, 2].map(|a| p[a] - centre[a])))
+            .collect();
+        TriangleMesh {
+            positions,
+            normals,
+            triangles: vec![
+                [0, 1, 2],
+                [0, 2, 3],
+                [0, 4, 1],
+                [1, 4, 2],
+                [2, 4, 3],
+                [3, 4, 0],
+            ],
+        }
+    }
+
+    /// Rows of the image with any surface pixel: (first, last, widest).
+    fn rows(img: &RgbImage) -> (u32, u32, u32) {
+        let background = *img.get_pixel(0, 0);
+        let widths: Vec<u32> = (0..img.height())
+            .map(|y| {
+                (0..img.width())
+                    .filter(|&x| *img.get_pixel(x, y) != background)
+                    .count() as u32
+            })
+            .collect();
+        let first = widths.iter().position(|&w| w > 0).unwrap() as u32;
+        let last = widths.iter().rposition(|&w| w > 0).unwrap() as u32;
+        let widest = (0..widths.len()).max_by_key(|&y| widths[y]).unwrap() as u32;
+        (first, last, widest)
+    }
+
+    #[test]
+    fn every_view_shows_the_model_upright_for_its_up_axis() {
+        for up in [UpAxis::Y, UpAxis::Z] {
+            for view in [View::Iso, View::Front, View::Side] {
+                let params = RenderParams {
+                    size: 64,
+                    view,
+                    up,
+                    ..Default::default()
+                };
+                let img = render(&pyramid(up), &params);
+                let (first, last, widest) = rows(&img);
+                // The base is at the bottom of the picture, the tip at the top.
+                assert!(
+                    widest > (first + last) / 2,
+                    "{up:?} {view:?}: widest row {widest} of {first}..{last}"
+                );
+            }
+        }
+    }
 }

@@ -494,6 +494,9 @@ pub struct RenderArgs {
     /// Camera direction: iso, front, top or side.
     #[arg(long, default_value = "iso")]
     pub view: String,
+    /// The model's up axis (up in the picture).
+    #[arg(long, value_enum, default_value_t = UpArg::Y)]
+    pub up: UpArg,
 }
 
 /// `stablesurf info`.
