@@ -364,6 +364,21 @@ impl<'a> Ctx<'a> {
         Ok(ctx)
     }
 
+    /// Tells the warnings in the last stage's figures (`"warnings"`), on a hit as on a miss.
+    fn warn_figures(&mut self) {
+        let warnings: Vec<String> = self
+            .stages
+            .last()
+            .and_then(|s| s.figures["warnings"].as_array())
+            .into_iter()
+            .flatten()
+            .filter_map(|w| w.as_str().map(str::to_string))
+            .collect();
+        for w in warnings {
+            self.warn(w);
+        }
+    }
+
     /// Tells the observer a warning and keeps it for the report.
     fn warn(&mut self, message: String) {
         self.observer.warning(&message);
@@ -524,6 +539,7 @@ fn fit_stages(
             Ok((normals.cloud, figures))
         },
     )?;
+    ctx.warn_figures();
     let (model, model_key) = match config.mode {
         Mode::Global => {
             let (model, key) = ctx.stage(
@@ -541,6 +557,10 @@ fn fit_stages(
                     Ok((model, figures))
                 },
             )?;
+            // The fit's warnings (a κ that fell back, an unbounded zero set) are the model's.
+            for w in model.diagnostics.iter().flat_map(|d| d.warnings.clone()) {
+                ctx.warn(w);
+            }
             (Model::Global(model), key)
         }
         Mode::Detail => {

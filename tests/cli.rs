@@ -346,7 +346,11 @@ fn unwritable_cache_is_one_warning_and_complete_outputs() {
         .unwrap();
     let stderr = stderr_of(&out);
     assert!(out.status.success(), "{stderr}");
-    let warnings: Vec<&str> = stderr.lines().filter(|l| l.contains("warning")).collect();
+    // One warning about the cache (the fit may warn of its own choices too).
+    let warnings: Vec<&str> = stderr
+        .lines()
+        .filter(|l| l.contains("warning") && l.contains("cache"))
+        .collect();
     assert_eq!(warnings.len(), 1, "{stderr}");
     assert!(warnings[0].contains("cannot write the cache"), "{stderr}");
     for file in ["report.json", "model.json", "mesh.ply"] {
@@ -1005,4 +1009,49 @@ fn auto_normals_on_degenerate_faces_use_the_crust() {
         err.contains("all 500 faces of the input are degenerate") && !err.contains("no faces"),
         "{err}"
     );
+}
+
+/// Every warning of the run (the fit's own, such as a κ that fell back, included) is printed
+/// on stderr and listed in report.json.
+#[test]
+fn every_warning_in_the_report_is_printed() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 300);
+    let out = dir.path().join("out");
+    let done = bin()
+        .arg("run")
+        .arg(&input)
+        .arg("-o")
+        .arg(&out)
+        .args(["--mode", "global", "--degree", "4", "--depth", "5"])
+        .args(["--formats", "json", "--no-cache"])
+        .output()
+        .unwrap();
+    assert!(done.status.success(), "{}", stderr_of(&done));
+    let stderr = stderr_of(&done);
+    let report: serde_json::Value =
+        serde_json::from_slice(&fs::read(out.join("report.json")).unwrap()).unwrap();
+    let listed: Vec<&str> = report["warnings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|w| w.as_str().unwrap())
+        .collect();
+    let fit_warnings = report["fit"]["diagnostics"]["warnings"].as_array().unwrap();
+    assert!(
+        !fit_warnings.is_empty(),
+        "this case's κ falls back: {report}"
+    );
+    for w in fit_warnings {
+        assert!(
+            listed.contains(&w.as_str().unwrap()),
+            "{w} not in {listed:?}"
+        );
+    }
+    for w in &listed {
+        assert!(
+            stderr.contains(&format!("warning: {w}")),
+            "{w} not printed:\n{stderr}"
+        );
+    }
 }
