@@ -788,6 +788,15 @@ pub fn run(
         serde_json::from_value(figures["mesh"].clone()).unwrap_or_default();
     let accuracy: DistanceSummary =
         serde_json::from_value(figures["accuracy"].clone()).unwrap_or_default();
+    // A polynomial's zero set that runs out of the meshing box is open there: not a bounded
+    // surface in this mesh, whatever the fit certified.
+    let clipped = matches!(model, Model::Global(_)) && report_mesh.boundary_edges > 0;
+    if clipped {
+        ctx.warn(format!(
+            "the zero set is clipped by the meshing box: the mesh is open along {} boundary edges, so it is not a bounded surface here; try another --degree or --kappa, or --mode detail",
+            report_mesh.boundary_edges
+        ));
+    }
 
     // Every file is staged, then all move into place together (see [`crate::outputs`]): the
     // folder holds either this run's complete set or what it held before.
@@ -818,6 +827,12 @@ pub fn run(
                     "params".into(),
                     serde_json::to_value(&config.detail).unwrap_or_default(),
                 );
+            }
+            if clipped {
+                fit["clipped"] = true.into();
+                if let Some(d) = fit["diagnostics"].as_object_mut() {
+                    d.insert("bounded".into(), false.into());
+                }
             }
             fit
         },

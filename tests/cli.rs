@@ -1055,3 +1055,43 @@ fn every_warning_in_the_report_is_printed() {
         );
     }
 }
+
+/// A zero set that leaves the meshing box (a plane fitted to a flat patch) is reported as
+/// clipped and not bounded, on stderr and in report.json.
+#[test]
+fn a_clipped_zero_set_is_not_reported_bounded() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut text = String::new();
+    for i in 0..20 {
+        for j in 0..20 {
+            let (x, y) = (f64::from(i) / 19.0, f64::from(j) / 19.0);
+            let z = 0.05 * (x * x + y * y);
+            text += &format!("{x} {y} {z} 0 0 1\n");
+        }
+    }
+    let input = dir.path().join("patch.xyz");
+    fs::write(&input, text).unwrap();
+    let out = dir.path().join("out");
+    let done = bin()
+        .arg("run")
+        .arg(&input)
+        .arg("-o")
+        .arg(&out)
+        .args([
+            "--mode", "global", "--degree", "2", "--kappa", "0", "--depth", "5",
+        ])
+        .args(["--formats", "json", "--no-cache"])
+        .output()
+        .unwrap();
+    assert!(done.status.success(), "{}", stderr_of(&done));
+    let stderr = stderr_of(&done);
+    assert!(stderr.contains("clipped by the meshing box"), "{stderr}");
+    let report: serde_json::Value =
+        serde_json::from_slice(&fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert!(
+        report["mesh"]["boundary_edges"].as_u64().unwrap() > 0,
+        "{report}"
+    );
+    assert_eq!(report["fit"]["clipped"], true);
+    assert_eq!(report["fit"]["diagnostics"]["bounded"], false);
+}
