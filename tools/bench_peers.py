@@ -6,7 +6,7 @@ synthetic inputs, then calls this script in tools/validate/.venv).
 
 Per input (synthetic shapes with exact normals, the bunny, the duck, a 1M-point torus), four
 reconstructions, each in its own child process:
-  - stablesurf global:  stablesurf run INPUT -o DIR --no-cache -q --formats ply,json
+  - stablesurf global:  stablesurf run INPUT -o DIR --no-cache -q --formats ply,json --mode global
   - stablesurf detail:  the same with --mode detail (recorded as "failed" while it does not exist)
   - Open3D:             TriangleMesh.create_from_point_cloud_poisson(depth=8), raw output
   - pymeshlab:          generate_surface_reconstruction_screened_poisson(depth=8), raw output
@@ -287,9 +287,8 @@ def main():
             if method.startswith("stablesurf"):
                 mode = method.split()[1]
                 out_dir = work / name / f"stablesurf-{mode}"
-                cmd = [a.bin, "run", str(path), "-o", str(out_dir), "--no-cache", "-q", "--formats", "ply,json"]
-                if mode == "detail":
-                    cmd += ["--mode", "detail"]
+                cmd = [a.bin, "run", str(path), "-o", str(out_dir), "--no-cache", "-q", "--formats", "ply,json",
+                       "--mode", mode]
                 mesh = out_dir / "mesh.ply"
                 env = ours_env
             else:
@@ -355,7 +354,7 @@ def write_doc(a, rows, baseline, total):
         "**What runs.** Every input file carries oriented normals, so all methods get the same points and "
         "normals: the synthetic shapes (20,000 points, and a 1,000,000-point torus) have exact normals; the "
         "bunny and the duck carry the normals `stablesurf normals` computes. *stablesurf global* is "
-        "`stablesurf run INPUT -o DIR --no-cache -q --formats ply,json` (one degree-8 polynomial, automatic "
+        "`stablesurf run INPUT -o DIR --no-cache -q --formats ply,json --mode global` (one degree-8 polynomial, automatic "
         "κ, octree depth 8, and its own accuracy report); *stablesurf detail* adds `--mode detail`. "
         "*Open3D* is `create_from_point_cloud_poisson(depth=8)`, *pymeshlab* is "
         "`generate_surface_reconstruction_screened_poisson(depth=8)`, both raw (no density trimming), "

@@ -29,7 +29,7 @@ with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, f)
         t = time.time()
         p = subprocess.run([binary, "run", os.path.join(data, f), "-o", out, "--no-cache", "-q",
-                            "--formats", "json"] + args, capture_output=True, text=True)
+                            "--mode", "global", "--formats", "json"] + args, capture_output=True, text=True)
         secs = time.time() - t
         if p.returncode != 0:
             msg = p.stderr.strip().splitlines()[-1] if p.stderr.strip() else "failed"
