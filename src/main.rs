@@ -266,7 +266,7 @@ fn parse_mode(mode: &str) -> Result<pipeline::Mode> {
 }
 
 fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
-    let mode = parse_mode(&args.mode)?;
+    let mode = parse_mode(args.mode())?;
     let formats = args
         .formats
         .iter()
@@ -330,9 +330,14 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
             ),
         };
         eprintln!(
-            "stablesurf: run {input} -> {} (mode {}, normals {}, {model}, depth {}, slices {} x {}^2 {}, cache {})",
+            "stablesurf: run {input} -> {} (mode {}{}, normals {}, {model}, depth {}, slices {} x {}^2 {}, cache {})",
             args.output.display(),
-            args.mode,
+            args.mode(),
+            if args.mode_given() {
+                ""
+            } else {
+                " by default; --mode global fits one polynomial"
+            },
             args.normals.source,
             config.polygonize.depth,
             config.slices.count,

@@ -130,7 +130,7 @@ fn run_degree_4(input: &Path, out: &Path, cache: &Path, flags: &[&str]) -> std::
         .arg(input)
         .arg("-o")
         .arg(out)
-        .args(["--degree", "4"])
+        .args(["--mode", "global", "--degree", "4"])
         .args(flags)
         .arg("--cache-dir")
         .arg(cache)
@@ -302,6 +302,8 @@ fn no_cache_writes_no_cache() {
         .args(["-o"])
         .arg(dir.path().join("out"))
         .args([
+            "--mode",
+            "global",
             "--degree",
             "2",
             "--depth",
@@ -339,7 +341,16 @@ fn unwritable_cache_is_one_warning_and_complete_outputs() {
         .arg(&input)
         .arg("-o")
         .arg(dir.path().join("out"))
-        .args(["--degree", "2", "--depth", "4", "--formats", "json,ply"])
+        .args([
+            "--mode",
+            "global",
+            "--degree",
+            "2",
+            "--depth",
+            "4",
+            "--formats",
+            "json,ply",
+        ])
         .arg("--cache-dir")
         .arg(blocker.join("cache"))
         .output()
@@ -370,7 +381,7 @@ fn unwritable_output_is_exit_1_and_leaves_no_file() {
         .arg(&input)
         .arg("-o")
         .arg(blocker.join("model.json"))
-        .args(["--degree", "2"])
+        .args(["--mode", "global", "--degree", "2"])
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(1));
@@ -396,6 +407,8 @@ fn json_goes_to_stdout_only() {
         .arg("-o")
         .arg(dir.path().join("out"))
         .args([
+            "--mode",
+            "global",
             "--degree",
             "2",
             "--depth",
@@ -424,6 +437,8 @@ fn killed_runs_leave_no_partial_output_and_no_corrupt_cache() {
         let mut a: Vec<std::ffi::OsString> = vec!["run".into(), input.clone().into(), "-o".into()];
         a.push(out.into());
         for s in [
+            "--mode",
+            "global",
             "--degree",
             "4",
             "--depth",
@@ -494,7 +509,16 @@ fn concurrent_runs_share_a_cache_safely() {
             .arg(&input)
             .arg("-o")
             .arg(dir.path().join(out))
-            .args(["--degree", "4", "--depth", "6", "--formats", "ply,json"])
+            .args([
+                "--mode",
+                "global",
+                "--degree",
+                "4",
+                "--depth",
+                "6",
+                "--formats",
+                "ply,json",
+            ])
             .arg(if verbose { "-v" } else { "-q" })
             .arg("--cache-dir")
             .arg(&cache)
@@ -1094,4 +1118,41 @@ fn a_clipped_zero_set_is_not_reported_bounded() {
     );
     assert_eq!(report["fit"]["clipped"], true);
     assert_eq!(report["fit"]["diagnostics"]["bounded"], false);
+}
+
+/// `run` fits the detail model unless told otherwise, and says so; `--mode global` gives the
+/// one polynomial.
+#[test]
+fn run_defaults_to_detail_mode_and_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 400);
+    let out = dir.path().join("out");
+    let done = bin()
+        .arg("run")
+        .arg(&input)
+        .arg("-o")
+        .arg(&out)
+        .args(["--formats", "json", "--no-cache", "--depth", "5"])
+        .output()
+        .unwrap();
+    assert!(done.status.success(), "{}", stderr_of(&done));
+    let stderr = stderr_of(&done);
+    assert!(stderr.contains("mode detail by default"), "{stderr}");
+    assert!(out.join("model.mpu").is_file() && !out.join("model.json").exists());
+    let report: serde_json::Value =
+        serde_json::from_slice(&fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["fit"]["mode"], "detail");
+    let global = dir.path().join("global");
+    let done = bin()
+        .arg("run")
+        .arg(&input)
+        .arg("-o")
+        .arg(&global)
+        .args(["--mode", "global", "--degree", "4", "--depth", "5"])
+        .args(["--formats", "json", "--no-cache"])
+        .output()
+        .unwrap();
+    assert!(done.status.success(), "{}", stderr_of(&done));
+    assert!(!stderr_of(&done).contains("by default"));
+    assert!(global.join("model.json").is_file());
 }

@@ -299,9 +299,10 @@ pub struct RunArgs {
     /// Output directory (created if missing).
     #[arg(short, long, value_name = "OUT_DIR")]
     pub output: PathBuf,
-    /// global: one polynomial (the paper's compact descriptor); detail: local fits blended.
-    #[arg(long, default_value = "global")]
-    pub mode: String,
+    /// detail (the default): local fits blended, a mesh close to the scan; global: one
+    /// polynomial, the paper's compact descriptor of the coarse shape.
+    #[arg(long, value_name = "MODE")]
+    pub mode: Option<String>,
     /// Outputs to write, comma-separated: glb, gltf, ply, exr, png, json.
     #[arg(long, value_delimiter = ',', default_value = "glb,ply,exr,png,json")]
     pub formats: Vec<String>,
@@ -335,6 +336,18 @@ pub struct RunArgs {
     #[command(flatten)]
     #[allow(missing_docs)]
     pub cache: CacheOpts,
+}
+
+impl RunArgs {
+    /// The mode asked for, or the default (detail).
+    pub fn mode(&self) -> &str {
+        self.mode.as_deref().unwrap_or("detail")
+    }
+
+    /// Whether `--mode` was given.
+    pub fn mode_given(&self) -> bool {
+        self.mode.is_some()
+    }
 }
 
 /// `stablesurf normals`.
