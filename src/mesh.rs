@@ -509,7 +509,7 @@ fn ray_in_corner(drop: usize, v: &[f64; 3], a: &[f64; 3], c: &[f64; 3], d: &[f64
 /// ```
 /// use stablesurf::mesh::triangles_intersect;
 /// let p = [[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 0.0],
-///          [0.5, 0.5, -1.0], [0.5, 0.5, 1.0], [3.0, 3.0, 0.0]];
+///          [0.5, 0.5, -1.0], [0.5, 0.5, 1.0], [-3.0, -3.0, 0.0]];
 /// assert!(triangles_intersect([0, 1, 2], [3, 4, 5], &p));
 /// assert!(!triangles_intersect([0, 1, 2], [0, 4, 5], &p));
 /// ```

@@ -50,15 +50,15 @@
 //! 5. **Crossings**: the Newton steps leave the lattice edge (by up to a few cells where ∇f
 //!    turns, as in thin parts and the blended local fits of `--mode detail`) and can push a
 //!    triangle through a neighbouring one (111–118 crossing triangles on the shared bunny in
-//!    `--mode detail` at depth 7 and 8 before this step), while the marching-tetrahedra mesh with
-//!    its vertices on their edges has none (it is
-//!    embedded by construction: each triangle lies in its own tetrahedron), nor has it after
-//!    the collapses on the positions they were judged on (on the bunny). So the triangles that cross another are
-//!    found with the exact test of [`crate::mesh::intersecting_triangles`], their vertices are
-//!    put back at the root of f on their own lattice edge, and the pairs around the moved
-//!    vertices are tested again; a crossing that remains (a collapse judged on the linearly
-//!    interpolated positions) sends its vertices to that linear position. Few vertices move
-//!    (about 150 of 250 000 on the bunny at depth 8), all still on their edges.
+//!    `--mode detail` at depth 7 and 8 before this step). The marching-tetrahedra mesh with its
+//!    vertices on their edges has none (it is embedded by construction: each triangle lies in
+//!    its own tetrahedron), nor had the collapsed mesh on the positions the collapses were
+//!    judged on (on the bunny). So the triangles that cross another are found with the exact
+//!    test of [`crate::mesh::intersecting_triangles`], their vertices are put back at the root
+//!    of f on their own lattice edge, and the pairs around the moved vertices are tested again;
+//!    a crossing that remains (a collapse judged on the linearly interpolated positions) sends
+//!    its vertices to that linear position. Few vertices move (about 160 of 250 000 on the
+//!    bunny at depth 8), all still on their edges.
 //!
 //! Determinism: the octree visits children in a fixed order and concatenates their results;
 //! leaves and edges are processed in fixed-size chunks collected in order; the simplification
