@@ -7,7 +7,9 @@
 //! Checks ([`check`] → [`MeshReport`]): an edge used by one triangle is a boundary edge, by three
 //! or more a non-manifold edge; a vertex whose triangles form more than one fan (joined through
 //! shared edges) is a non-manifold vertex; the orientation is consistent when every interior edge
-//! is traversed once in each direction; χ = V − E + F. [`component_labels`] labels connected
+//! is traversed once in each direction; χ = V − E + F; a triangle that meets another away from
+//! their shared vertices and edges is self-intersecting ([`self_intersecting_faces`], exact
+//! predicates over a uniform grid). [`component_labels`] labels connected
 //! components (union–find over triangle edges), and [`drop_components_far_from`] removes the
 //! components that no data point comes near (`--keep data`).
 
@@ -58,6 +60,11 @@ pub struct MeshReport {
     /// The mesh has triangles, no boundary edge, no non-manifold edge or vertex and no
     /// degenerate face: a closed 2-manifold.
     pub watertight: bool,
+    /// Triangles that intersect another triangle of the mesh other than at the vertices and
+    /// edges they share ([`self_intersecting_faces`]); 0 for an embedded surface. Not part of
+    /// `watertight`. Reports written before this field read as 0.
+    #[serde(default)]
+    pub self_intersecting_faces: usize,
 }
 
 /// Valid triangles (indices in range and distinct).
@@ -288,6 +295,7 @@ pub fn check(mesh: &TriangleMesh) -> MeshReport {
             && non_manifold_edges == 0
             && non_manifold_vertices == 0
             && degenerate_faces == 0,
+        self_intersecting_faces: self_intersecting_faces(mesh),
     }
 }
 
@@ -381,4 +389,656 @@ pub fn drop_components_far_from(
     }
     let dropped = keep.iter().filter(|&&k| !k).count();
     (out, dropped)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Self-intersections.
+
+/// Exact orientation of `d` against the plane of `a, b, c` (Shewchuk's adaptive predicate behind
+/// a semi-static filter, [`crate::normals::delaunay::orient3d`]; its sign is exact).
+#[inline(always)]
+fn orient3d(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], d: &[f64; 3]) -> f64 {
+    crate::normals::delaunay::orient3d(a, b, c, d)
+}
+
+/// The sign of a number as −1, 0 or 1.
+#[inline]
+fn sign(x: f64) -> i8 {
+    if x > 0.0 {
+        1
+    } else if x < 0.0 {
+        -1
+    } else {
+        0
+    }
+}
+
+/// Exact 2-D orientation of `a, b, c` projected along axis `drop` (the coordinate left out).
+#[inline]
+fn orient2d(drop: usize, a: &[f64; 3], b: &[f64; 3], c: &[f64; 3]) -> i8 {
+    let (i, j) = ((drop + 1) % 3, (drop + 2) % 3);
+    let p = |q: &[f64; 3]| robust::Coord { x: q[i], y: q[j] };
+    sign(robust::orient2d(p(a), p(b), p(c)))
+}
+
+/// An axis along which the triangle `a, b, c` projects to a non-degenerate triangle (the one
+/// with the largest projected area), or `None` when the three points are collinear (exactly).
+fn projection_axis(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3]) -> Option<usize> {
+    let mut best = None;
+    let mut best_area = 0.0;
+    for drop in 0..3 {
+        let (i, j) = ((drop + 1) % 3, (drop + 2) % 3);
+        let p = |q: &[f64; 3]| robust::Coord { x: q[i], y: q[j] };
+        let area = robust::orient2d(p(a), p(b), p(c)).abs();
+        if area > best_area {
+            best_area = area;
+            best = Some(drop);
+        }
+    }
+    best
+}
+
+/// Whether the closed segments `pq` and `rs`, coplanar and projected along `drop`, meet.
+fn segments_meet_2d(drop: usize, p: &[f64; 3], q: &[f64; 3], r: &[f64; 3], s: &[f64; 3]) -> bool {
+    let (o1, o2) = (orient2d(drop, p, q, r), orient2d(drop, p, q, s));
+    let (o3, o4) = (orient2d(drop, r, s, p), orient2d(drop, r, s, q));
+    if o1 == 0 && o2 == 0 {
+        // Collinear: the projected intervals overlap on some axis of the projection plane (a
+        // collinear pair of non-point segments overlaps exactly when it does along both axes).
+        let (i, j) = ((drop + 1) % 3, (drop + 2) % 3);
+        return [i, j]
+            .iter()
+            .all(|&a| p[a].min(q[a]) <= r[a].max(s[a]) && r[a].min(s[a]) <= p[a].max(q[a]));
+    }
+    o1 * o2 <= 0 && o3 * o4 <= 0
+}
+
+/// Whether the point `p`, in the plane of the triangle `t` (projected along `drop`), lies in the
+/// closed triangle.
+fn point_in_triangle_2d(drop: usize, p: &[f64; 3], t: [&[f64; 3]; 3]) -> bool {
+    let o = [
+        orient2d(drop, t[0], t[1], p),
+        orient2d(drop, t[1], t[2], p),
+        orient2d(drop, t[2], t[0], p),
+    ];
+    !(o.contains(&1) && o.contains(&-1))
+}
+
+/// Whether the closed segment `pq` meets the closed, non-degenerate triangle `t` whose
+/// projection axis is `drop`.
+fn segment_meets_triangle(p: &[f64; 3], q: &[f64; 3], t: [&[f64; 3]; 3], drop: usize) -> bool {
+    let op = sign(orient3d(t[0], t[1], t[2], p));
+    let oq = sign(orient3d(t[0], t[1], t[2], q));
+    if op * oq > 0 {
+        return false;
+    }
+    if op == 0 && oq == 0 {
+        // In the triangle's plane.
+        return point_in_triangle_2d(drop, p, t)
+            || point_in_triangle_2d(drop, q, t)
+            || (0..3).any(|k| segments_meet_2d(drop, p, q, t[k], t[(k + 1) % 3]));
+    }
+    // The segment crosses the plane at one point: inside the closed triangle when the line pq
+    // passes on no two strictly different sides of its edges.
+    let s = [
+        sign(orient3d(p, q, t[0], t[1])),
+        sign(orient3d(p, q, t[1], t[2])),
+        sign(orient3d(p, q, t[2], t[0])),
+    ];
+    !(s.contains(&1) && s.contains(&-1))
+}
+
+/// Whether the ray from `v` through `a` (both in the plane of the triangle `v, c, d`, projected
+/// along `drop`) enters the closed triangle beyond `v`: the direction lies in its corner at `v`.
+fn ray_in_corner(drop: usize, v: &[f64; 3], a: &[f64; 3], c: &[f64; 3], d: &[f64; 3]) -> bool {
+    let s = orient2d(drop, v, c, d);
+    orient2d(drop, v, c, a) * s >= 0 && orient2d(drop, v, a, d) * s >= 0 && a != v
+}
+
+/// Whether the triangles `s` and `t` (vertex indices into `positions`) intersect anywhere other
+/// than at the vertices and edges they share by index, decided exactly (Shewchuk's `orient3d`
+/// and `orient2d` from the `robust` crate, so every sign is exact in f64).
+///
+/// What counts: with no shared vertex, any common point (touching included); with one shared
+/// vertex, any common point other than it (an edge of one meeting the other away from it, or
+/// the two overlapping in a common plane); with a shared edge, only a coplanar fold (the third
+/// vertices strictly on the same side of the edge), since two triangles in different planes
+/// through an edge meet only on it; with all three shared (a duplicate face), always. A
+/// zero-area triangle (exactly collinear corners) or one with a repeated index is never counted.
+///
+/// ```
+/// use stablesurf::mesh::triangles_intersect;
+/// let p = [[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 0.0],
+///          [0.5, 0.5, -1.0], [0.5, 0.5, 1.0], [-3.0, -3.0, 0.0]];
+/// assert!(triangles_intersect([0, 1, 2], [3, 4, 5], &p));
+/// assert!(!triangles_intersect([0, 1, 2], [0, 4, 5], &p));
+/// ```
+pub fn triangles_intersect(s: [u32; 3], t: [u32; 3], positions: &[[f64; 3]]) -> bool {
+    let n = positions.len() as u32;
+    if s.iter().chain(&t).any(|&i| i >= n) {
+        return false;
+    }
+    let axis = |t: [u32; 3]| {
+        let p = t.map(|i| &positions[i as usize]);
+        if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
+            None
+        } else {
+            projection_axis(p[0], p[1], p[2])
+        }
+    };
+    match (axis(s), axis(t)) {
+        (Some(ds), Some(dt)) => intersect_with_axes(s, t, ds, dt, positions),
+        _ => false,
+    }
+}
+
+/// [`triangles_intersect`] for two non-degenerate triangles with indices in range and their
+/// projection axes.
+fn intersect_with_axes(
+    s: [u32; 3],
+    t: [u32; 3],
+    ds: usize,
+    dt: usize,
+    positions: &[[f64; 3]],
+) -> bool {
+    let ps = s.map(|i| &positions[i as usize]);
+    let pt = t.map(|i| &positions[i as usize]);
+    // Shared vertices: slot in s → slot in t.
+    let mut shared: [(usize, usize); 3] = [(0, 0); 3];
+    let mut k = 0;
+    for (i, &a) in s.iter().enumerate() {
+        if let Some(j) = t.iter().position(|&b| b == a) {
+            shared[k] = (i, j);
+            k += 1;
+        }
+    }
+    let side =
+        |plane: [&[f64; 3]; 3], q: &[f64; 3]| sign(orient3d(plane[0], plane[1], plane[2], q));
+    match k {
+        0 => {
+            // Quick rejection: one triangle strictly on one side of the other's plane.
+            let side_t = pt.map(|q| side(ps, q));
+            if side_t[0] * side_t[1] > 0 && side_t[1] * side_t[2] > 0 {
+                return false;
+            }
+            let side_s = ps.map(|q| side(pt, q));
+            if side_s[0] * side_s[1] > 0 && side_s[1] * side_s[2] > 0 {
+                return false;
+            }
+            // Two closed triangles meet exactly when an edge of one meets the other.
+            (0..3).any(|e| segment_meets_triangle(ps[e], ps[(e + 1) % 3], pt, dt))
+                || (0..3).any(|e| segment_meets_triangle(pt[e], pt[(e + 1) % 3], ps, ds))
+        }
+        1 => {
+            let (i, j) = shared[0];
+            let (i1, i2, j1, j2) = ((i + 1) % 3, (i + 2) % 3, (j + 1) % 3, (j + 2) % 3);
+            let (a, b) = (ps[i1], ps[i2]);
+            let (c, d) = (pt[j1], pt[j2]);
+            let v = ps[i];
+            // The other two corners of one triangle strictly on one side of the other's plane:
+            // it meets that plane only at v.
+            let (sc, sd) = (side(ps, c), side(ps, d));
+            if sc * sd > 0 {
+                return false;
+            }
+            let (sa, sb) = (side(pt, a), side(pt, b));
+            if sa * sb > 0 {
+                return false;
+            }
+            // A common point other than v ends the intersection (a convex set holding v) on an
+            // edge of one triangle: the edge opposite v (which does not hold v), or an edge
+            // through v lying in the other's plane and pointing into its corner at v.
+            segment_meets_triangle(a, b, pt, dt)
+                || segment_meets_triangle(c, d, ps, ds)
+                || (sa == 0 && ray_in_corner(dt, v, a, c, d))
+                || (sb == 0 && ray_in_corner(dt, v, b, c, d))
+                || (sc == 0 && ray_in_corner(ds, v, c, a, b))
+                || (sd == 0 && ray_in_corner(ds, v, d, a, b))
+        }
+        2 => {
+            // The corners not on the shared edge.
+            let i = (0..3).find(|&i| !t.contains(&s[i])).unwrap_or(0);
+            let j = (0..3).find(|&j| !s.contains(&t[j])).unwrap_or(0);
+            if side(ps, pt[j]) != 0 {
+                return false;
+            }
+            let (u, w) = (ps[(i + 1) % 3], ps[(i + 2) % 3]);
+            let o1 = orient2d(ds, u, w, ps[i]);
+            let o2 = orient2d(ds, u, w, pt[j]);
+            o1 * o2 > 0
+        }
+        _ => true,
+    }
+}
+
+/// Number of triangles of `mesh` that intersect another of its triangles other than at the
+/// vertices and edges they share (see [`triangles_intersect`] for what counts exactly).
+///
+/// Broad phase: the triangles' bounding boxes in a uniform grid of cubes about twice the mean
+/// box size, sorted by cube (in parallel); each pair of triangles whose boxes overlap is tested
+/// once, in the cube holding the lowest corner of the boxes' overlap. The count is an integer
+/// computed from exact predicates, so it is the same for any number of threads.
+///
+/// ```
+/// use stablesurf::mesh::{self_intersecting_faces, TriangleMesh};
+/// let mesh = TriangleMesh {
+///     positions: vec![[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 0.0],
+///                     [0.5, 0.5, -1.0], [0.5, 0.5, 1.0], [3.0, 3.0, 0.0]],
+///     normals: vec![[0.0, 0.0, 1.0]; 6],
+///     triangles: vec![[0, 1, 2], [3, 4, 5]],
+/// };
+/// assert_eq!(self_intersecting_faces(&mesh), 2);
+/// ```
+pub fn self_intersecting_faces(mesh: &TriangleMesh) -> usize {
+    intersecting_triangles(mesh).iter().filter(|&&x| x).count()
+}
+
+/// One flag per triangle of `mesh`: whether it intersects another (see
+/// [`self_intersecting_faces`]).
+pub fn intersecting_triangles(mesh: &TriangleMesh) -> Vec<bool> {
+    intersecting_triangles_among(mesh, None)
+}
+
+/// [`intersecting_triangles`] testing only the pairs with at least one triangle `t` such that
+/// `active[t]` (all pairs when `active` is `None`); the other triangles' flags come from those
+/// pairs alone.
+pub fn intersecting_triangles_among(mesh: &TriangleMesh, active: Option<&[bool]>) -> Vec<bool> {
+    use rayon::prelude::*;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    let positions = &mesh.positions;
+    let n = positions.len();
+    let tris = &mesh.triangles;
+    let usable = |t: &[u32; 3]| {
+        t.iter()
+            .all(|&i| (i as usize) < n && positions[i as usize].iter().all(|c| c.is_finite()))
+    };
+    // (box, projection axis) of each non-degenerate triangle.
+    let boxes: Vec<Option<([f64; 3], [f64; 3])>> = tris
+        .par_iter()
+        .map(|t| {
+            if !usable(t) || t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
+                return None;
+            }
+            let mut lo = positions[t[0] as usize];
+            let mut hi = lo;
+            for &i in &t[1..] {
+                let p = positions[i as usize];
+                for a in 0..3 {
+                    lo[a] = lo[a].min(p[a]);
+                    hi[a] = hi[a].max(p[a]);
+                }
+            }
+            Some((lo, hi))
+        })
+        .collect();
+    let axes: Vec<u8> = tris
+        .par_iter()
+        .zip(&boxes)
+        .map(|(t, b)| {
+            b.and_then(|_| {
+                let p = t.map(|i| &positions[i as usize]);
+                projection_axis(p[0], p[1], p[2])
+            })
+            .map_or(u8::MAX, |a| a as u8)
+        })
+        .collect();
+    let is_active = |t: u32| {
+        axes[t as usize] != u8::MAX && active.is_none_or(|a| a.get(t as usize) == Some(&true))
+    };
+    let flags: Vec<AtomicBool> = (0..tris.len()).map(|_| AtomicBool::new(false)).collect();
+    let present: Vec<&([f64; 3], [f64; 3])> = boxes.iter().flatten().collect();
+    if present.len() < 2 {
+        return vec![false; tris.len()];
+    }
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    let mut size = 0.0;
+    for (l, h) in &present {
+        for a in 0..3 {
+            lo[a] = lo[a].min(l[a]);
+            hi[a] = hi[a].max(h[a]);
+            size += h[a] - l[a];
+        }
+    }
+    let mean = size / (3.0 * present.len() as f64);
+    let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+    // Cubes of about twice the mean box size, at most 2^20 per axis.
+    let cell = (1.5 * mean)
+        .max(extent / f64::from(1u32 << 20))
+        .max(f64::MIN_POSITIVE);
+    let cube = |x: f64, a: usize| (((x - lo[a]) / cell).floor().max(0.0) as u64).min((1 << 20) - 1);
+    let key = |c: [u64; 3]| (c[0] << 40) | (c[1] << 20) | c[2];
+    // (cube, triangle) for every cube a box overlaps.
+    let mut entries: Vec<(u64, u32)> = boxes
+        .par_iter()
+        .enumerate()
+        .flat_map_iter(|(ti, b)| {
+            let mut out = Vec::new();
+            if axes[ti] == u8::MAX {
+                return out;
+            }
+            if let Some((l, h)) = b {
+                let cl = [0, 1, 2].map(|a| cube(l[a], a));
+                let ch = [0, 1, 2].map(|a| cube(h[a], a));
+                for x in cl[0]..=ch[0] {
+                    for y in cl[1]..=ch[1] {
+                        for z in cl[2]..=ch[2] {
+                            out.push((key([x, y, z]), ti as u32));
+                        }
+                    }
+                }
+            }
+            out
+        })
+        .collect();
+    entries.par_sort_unstable();
+    // Group starts.
+    let mut starts: Vec<usize> = (0..entries.len())
+        .into_par_iter()
+        .filter(|&i| i == 0 || entries[i].0 != entries[i - 1].0)
+        .collect();
+    starts.push(entries.len());
+    starts.par_windows(2).for_each(|w| {
+        let group = &entries[w[0]..w[1]];
+        if active.is_some() && !group.iter().any(|&(_, t)| is_active(t)) {
+            return;
+        }
+        let here = group[0].0;
+        for (x, &(_, i)) in group.iter().enumerate() {
+            let (li, hi_) = boxes[i as usize].expect("boxed");
+            let active_i = is_active(i);
+            for &(_, j) in &group[x + 1..] {
+                if !active_i && !is_active(j) {
+                    continue;
+                }
+                let (lj, hj) = boxes[j as usize].expect("boxed");
+                if (0..3).any(|a| li[a] > hj[a] || lj[a] > hi_[a]) {
+                    continue;
+                }
+                // Test the pair only in the cube holding the overlap's lowest corner.
+                let corner = [0, 1, 2].map(|a| cube(li[a].max(lj[a]), a));
+                if key(corner) != here {
+                    continue;
+                }
+                let (ti, tj) = (tris[i as usize], tris[j as usize]);
+                let (ai, aj) = (axes[i as usize] as usize, axes[j as usize] as usize);
+                if intersect_with_axes(ti, tj, ai, aj, positions) {
+                    flags[i as usize].store(true, Ordering::Relaxed);
+                    flags[j as usize].store(true, Ordering::Relaxed);
+                }
+            }
+        }
+    });
+    flags.into_iter().map(AtomicBool::into_inner).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn mesh(positions: Vec<[f64; 3]>, triangles: Vec<[u32; 3]>) -> TriangleMesh {
+        let normals = vec![[0.0, 0.0, 1.0]; positions.len()];
+        TriangleMesh {
+            positions,
+            normals,
+            triangles,
+        }
+    }
+
+    /// A closed latitude–longitude sphere, wound outwards.
+    fn sphere(center: [f64; 3], radius: f64, rings: u32, sectors: u32) -> TriangleMesh {
+        let mut positions = vec![[center[0], center[1], center[2] + radius]];
+        for r in 1..rings {
+            let theta = std::f64::consts::PI * f64::from(r) / f64::from(rings);
+            for s in 0..sectors {
+                let phi = 2.0 * std::f64::consts::PI * f64::from(s) / f64::from(sectors);
+                positions.push([
+                    center[0] + radius * theta.sin() * phi.cos(),
+                    center[1] + radius * theta.sin() * phi.sin(),
+                    center[2] + radius * theta.cos(),
+                ]);
+            }
+        }
+        positions.push([center[0], center[1], center[2] - radius]);
+        let south = positions.len() as u32 - 1;
+        let at = |r: u32, s: u32| 1 + (r - 1) * sectors + s % sectors;
+        let mut triangles = Vec::new();
+        for s in 0..sectors {
+            triangles.push([0, at(1, s), at(1, s + 1)]);
+            triangles.push([south, at(rings - 1, s + 1), at(rings - 1, s)]);
+        }
+        for r in 1..rings - 1 {
+            for s in 0..sectors {
+                triangles.push([at(r, s), at(r + 1, s), at(r + 1, s + 1)]);
+                triangles.push([at(r, s), at(r + 1, s + 1), at(r, s + 1)]);
+            }
+        }
+        mesh(positions, triangles)
+    }
+
+    fn merge(a: &TriangleMesh, b: &TriangleMesh) -> TriangleMesh {
+        let mut out = a.clone();
+        let offset = a.positions.len() as u32;
+        out.positions.extend(&b.positions);
+        out.normals.extend(&b.normals);
+        out.triangles
+            .extend(b.triangles.iter().map(|t| t.map(|i| i + offset)));
+        out
+    }
+
+    #[test]
+    fn two_crossing_triangles_count_two() {
+        let m = mesh(
+            vec![
+                [0.0, 0.0, 0.0],
+                [2.0, 0.0, 0.0],
+                [0.0, 2.0, 0.0],
+                [0.5, 0.5, -1.0],
+                [0.5, 0.5, 1.0],
+                [3.0, 3.0, 0.0],
+            ],
+            vec![[0, 1, 2], [3, 4, 5]],
+        );
+        assert_eq!(self_intersecting_faces(&m), 2);
+        assert_eq!(check(&m).self_intersecting_faces, 2);
+        // Moved apart: 0; touching at a corner (no shared index): counted.
+        let mut apart = m.clone();
+        apart.positions[3] = [5.0, 5.0, -1.0];
+        apart.positions[4] = [5.0, 5.0, 1.0];
+        assert_eq!(self_intersecting_faces(&apart), 0);
+        let mut touching = m.clone();
+        touching.positions[3] = [2.0, 0.0, 0.0];
+        touching.positions[4] = [3.0, 0.0, 1.0];
+        touching.positions[5] = [3.0, 0.0, -1.0];
+        assert_eq!(self_intersecting_faces(&touching), 2);
+    }
+
+    #[test]
+    fn closed_meshes_count_zero() {
+        let tetra = mesh(
+            vec![
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0],
+                [0.0, 0.0, 1.0],
+            ],
+            vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+        );
+        assert_eq!(check(&tetra).self_intersecting_faces, 0);
+        let corners: Vec<[f64; 3]> = (0..8)
+            .map(|i| {
+                [
+                    f64::from(i & 1),
+                    f64::from((i >> 1) & 1),
+                    f64::from((i >> 2) & 1),
+                ]
+            })
+            .collect();
+        let cube = mesh(
+            corners,
+            vec![
+                [0, 2, 1],
+                [1, 2, 3],
+                [4, 5, 6],
+                [5, 7, 6],
+                [0, 1, 4],
+                [1, 5, 4],
+                [2, 6, 3],
+                [3, 6, 7],
+                [0, 4, 2],
+                [2, 4, 6],
+                [1, 3, 5],
+                [3, 7, 5],
+            ],
+        );
+        let r = check(&cube);
+        assert!(r.watertight);
+        assert_eq!(r.self_intersecting_faces, 0);
+        let ball = sphere([0.1, -0.2, 0.3], 1.3, 24, 48);
+        let r = check(&ball);
+        assert!(r.watertight);
+        assert_eq!(r.self_intersecting_faces, 0);
+    }
+
+    #[test]
+    fn interpenetrating_spheres_count_only_along_the_intersection() {
+        let a = sphere([0.0, 0.0, 0.0], 1.0, 20, 40);
+        let b = sphere([1.2, 0.1, 0.05], 1.0, 20, 40);
+        let both = merge(&a, &b);
+        let flags = intersecting_triangles(&both);
+        let count = flags.iter().filter(|&&f| f).count();
+        assert!(count > 0);
+        // Every flagged triangle has corners on both sides of (near) the other sphere.
+        let edge = 0.2;
+        for (ti, t) in both.triangles.iter().enumerate() {
+            if !flags[ti] {
+                continue;
+            }
+            let other = if ti < a.triangles.len() {
+                [1.2, 0.1, 0.05]
+            } else {
+                [0.0, 0.0, 0.0]
+            };
+            let d = t.map(|i| {
+                let p = both.positions[i as usize];
+                (0..3)
+                    .map(|k| (p[k] - other[k]).powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+            });
+            let near = d.iter().any(|&x| (x - 1.0).abs() < edge);
+            assert!(
+                near,
+                "triangle {ti} flagged far from the intersection: {d:?}"
+            );
+        }
+        // The same count on one thread and on several.
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(|| intersecting_triangles(&both));
+        let three = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .unwrap()
+            .install(|| intersecting_triangles(&both));
+        assert_eq!(one, flags);
+        assert_eq!(three, flags);
+        // Apart: none.
+        let c = sphere([2.5, 0.0, 0.0], 1.0, 20, 40);
+        assert_eq!(self_intersecting_faces(&merge(&a, &c)), 0);
+    }
+
+    #[test]
+    fn shared_edge_counts_only_a_coplanar_fold() {
+        let p = vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.3, 1.0, 0.0],
+            [0.6, 0.8, 0.0],
+            [0.5, -1.0, 0.0],
+            [0.5, 1.0, 0.5],
+        ];
+        // Folded back onto each other in one plane.
+        assert_eq!(
+            self_intersecting_faces(&mesh(p.clone(), vec![[0, 1, 2], [1, 0, 3]])),
+            2
+        );
+        // Flat, opposite sides: fine; bent along the edge: fine.
+        assert_eq!(
+            self_intersecting_faces(&mesh(p.clone(), vec![[0, 1, 2], [1, 0, 4]])),
+            0
+        );
+        assert_eq!(
+            self_intersecting_faces(&mesh(p.clone(), vec![[0, 1, 2], [1, 0, 5]])),
+            0
+        );
+        // A duplicated face.
+        assert_eq!(
+            self_intersecting_faces(&mesh(p, vec![[0, 1, 2], [2, 1, 0]])),
+            2
+        );
+    }
+
+    #[test]
+    fn shared_vertex_counts_only_beyond_it() {
+        let p = vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [-1.0, 0.0, 0.5],
+            [0.0, -1.0, 0.5],
+            [1.0, 1.0, -0.5],
+            [1.0, 1.0, 0.5],
+            [0.5, 0.2, 0.0],
+            [0.2, 0.5, 0.0],
+        ];
+        // Touching only at the shared vertex (other triangle away, or standing on it).
+        assert_eq!(
+            self_intersecting_faces(&mesh(p.clone(), vec![[0, 1, 2], [0, 3, 4]])),
+            0
+        );
+        // Piercing through the first triangle from the shared corner.
+        assert_eq!(
+            self_intersecting_faces(&mesh(p.clone(), vec![[0, 1, 2], [0, 5, 6]])),
+            2
+        );
+        // Coplanar, overlapping inside the corner.
+        assert_eq!(
+            self_intersecting_faces(&mesh(p.clone(), vec![[0, 1, 2], [0, 7, 8]])),
+            2
+        );
+        // Coplanar, only the corner point in common.
+        let q = vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [-1.0, 0.0, 0.0],
+            [0.0, -1.0, 0.0],
+        ];
+        assert_eq!(
+            self_intersecting_faces(&mesh(q.clone(), vec![[0, 1, 2], [0, 3, 4]])),
+            0
+        );
+        // Coplanar, sharing a direction along an edge: overlap along a segment counts.
+        let mut r = q;
+        r[3] = [0.5, 0.0, 0.0];
+        r[4] = [0.5, -1.0, 0.0];
+        assert_eq!(
+            self_intersecting_faces(&mesh(r, vec![[0, 1, 2], [0, 3, 4]])),
+            2
+        );
+    }
+
+    #[test]
+    fn old_reports_parse_without_the_field() {
+        let mut value = serde_json::to_value(MeshReport::default()).unwrap();
+        value
+            .as_object_mut()
+            .unwrap()
+            .remove("self_intersecting_faces");
+        let r: MeshReport = serde_json::from_value(value).unwrap();
+        assert_eq!(r.self_intersecting_faces, 0);
+    }
 }

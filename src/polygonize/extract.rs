@@ -638,49 +638,13 @@ pub(crate) fn place_vertex<F: ImplicitFunction + ?Sized>(
             ..vertex
         };
     }
-    x = if f_pos == 0.0 {
-        pos
-    } else {
-        // Illinois regula falsi on s ∈ [0, 1]: g(s0) < 0 ≤ g(s1).
-        let (mut s0, mut g0, mut s1, mut g1) = (0.0, f_neg, 1.0, f_pos);
-        let mut last_side = 0;
-        let mut s = 0.5;
-        for _ in 0..64 {
-            s = if g1 > g0 {
-                (s0 * g1 - s1 * g0) / (g1 - g0)
-            } else {
-                0.5 * (s0 + s1)
-            };
-            if !(s > s0 && s < s1) {
-                s = 0.5 * (s0 + s1);
-            }
-            let g = function.value(at(s));
-            evaluations += 1;
-            let slope = (g1 - g0) / ((s1 - s0) * length);
-            if g == 0.0 || (slope > 0.0 && g.abs() / slope < 0.1 * tolerance) {
-                break;
-            }
-            if g < 0.0 {
-                s0 = s;
-                g0 = g;
-                if last_side == -1 {
-                    g1 *= 0.5;
-                }
-                last_side = -1;
-            } else {
-                s1 = s;
-                g1 = g;
-                if last_side == 1 {
-                    g0 *= 0.5;
-                }
-                last_side = 1;
-            }
-            if (s1 - s0) * length < 0.1 * tolerance {
-                break;
-            }
-        }
-        at(s)
-    };
+    x = edge_root(
+        function,
+        (neg, f_neg),
+        (pos, f_pos),
+        tolerance,
+        &mut evaluations,
+    );
     // Newton steps along the gradient, each at most one edge length.
     let (mut value, mut gradient) = function.value_gradient(x);
     evaluations += 1;
@@ -716,6 +680,150 @@ pub(crate) fn place_vertex<F: ImplicitFunction + ?Sized>(
         normal,
         residual,
         evaluations,
+    }
+}
+
+/// The root of f on the lattice edge from `neg` (f = `f_neg` < 0) to `pos` (f = `f_pos` ≥ 0),
+/// by Illinois regula falsi to `tolerance`; adds the values it spends to `evaluations`.
+fn edge_root<F: ImplicitFunction + ?Sized>(
+    function: &F,
+    (neg, f_neg): ([f64; 3], f64),
+    (pos, f_pos): ([f64; 3], f64),
+    tolerance: f64,
+    evaluations: &mut u64,
+) -> [f64; 3] {
+    if f_pos == 0.0 {
+        return pos;
+    }
+    let direction = [0, 1, 2].map(|k| pos[k] - neg[k]);
+    let length = norm(direction);
+    let at = |s: f64| [0, 1, 2].map(|k| neg[k] + s * direction[k]);
+    // Illinois regula falsi on s ∈ [0, 1]: g(s0) < 0 ≤ g(s1).
+    let (mut s0, mut g0, mut s1, mut g1) = (0.0, f_neg, 1.0, f_pos);
+    let mut last_side = 0;
+    let mut s = 0.5;
+    for _ in 0..64 {
+        s = if g1 > g0 {
+            (s0 * g1 - s1 * g0) / (g1 - g0)
+        } else {
+            0.5 * (s0 + s1)
+        };
+        if !(s > s0 && s < s1) {
+            s = 0.5 * (s0 + s1);
+        }
+        let g = function.value(at(s));
+        *evaluations += 1;
+        let slope = (g1 - g0) / ((s1 - s0) * length);
+        if g == 0.0 || (slope > 0.0 && g.abs() / slope < 0.1 * tolerance) {
+            break;
+        }
+        if g < 0.0 {
+            s0 = s;
+            g0 = g;
+            if last_side == -1 {
+                g1 *= 0.5;
+            }
+            last_side = -1;
+        } else {
+            s1 = s;
+            g1 = g;
+            if last_side == 1 {
+                g0 *= 0.5;
+            }
+            last_side = 1;
+        }
+        if (s1 - s0) * length < 0.1 * tolerance {
+            break;
+        }
+    }
+    at(s)
+}
+
+/// The vertex for the crossed edge `key` placed on the edge itself: the root of f along it (no
+/// Newton step off the edge), with the gradient's direction there as its normal (the edge's
+/// direction where the gradient vanishes). Marching tetrahedra with every vertex on its own
+/// lattice edge cannot self-intersect, so this is where [`super::polygonize`] puts the vertices
+/// whose projection made triangles cross.
+pub(crate) fn place_on_edge<F: ImplicitFunction + ?Sized>(
+    function: &F,
+    grid: &Grid,
+    key: EdgeKey,
+    [fa, fb]: [f64; 2],
+    tolerance: f64,
+) -> PlacedVertex {
+    let a = grid.point(unpack((key >> 64) as u64));
+    let b = grid.point(unpack(key as u64));
+    let (neg, f_neg, pos, f_pos) = if fa < 0.0 {
+        (a, fa, b, fb)
+    } else {
+        (b, fb, a, fa)
+    };
+    let mut evaluations = 1;
+    let x = edge_root(
+        function,
+        (neg, f_neg),
+        (pos, f_pos),
+        tolerance,
+        &mut evaluations,
+    );
+    let (value, gradient) = function.value_gradient(x);
+    let g_norm = norm(gradient);
+    let residual = if value == 0.0 {
+        0.0
+    } else if g_norm > 0.0 {
+        value.abs() / g_norm
+    } else {
+        f64::INFINITY
+    };
+    let normal = if g_norm > 0.0 && g_norm.is_finite() {
+        gradient.map(|g| g / g_norm)
+    } else {
+        let d = [0, 1, 2].map(|k| pos[k] - neg[k]);
+        d.map(|c| c / norm(d))
+    };
+    PlacedVertex {
+        position: x,
+        normal,
+        residual,
+        evaluations,
+    }
+}
+
+/// The vertex for the crossed edge `key` at the linear interpolation of its end values (the
+/// position the edge collapses were judged on), with the normal of `on_edge` (the same edge's
+/// root) and its own residual |f|/|∇f| there; the last fallback of [`super::polygonize`]'s
+/// repair of crossings.
+pub(crate) fn place_linear<F: ImplicitFunction + ?Sized>(
+    function: &F,
+    grid: &Grid,
+    key: EdgeKey,
+    [fa, fb]: [f64; 2],
+    on_edge: PlacedVertex,
+) -> PlacedVertex {
+    let (a, b) = (
+        grid.point(unpack((key >> 64) as u64)),
+        grid.point(unpack(key as u64)),
+    );
+    let s = if fa == fb {
+        0.5
+    } else {
+        (fa / (fa - fb)).clamp(0.0, 1.0)
+    };
+    let x = [0, 1, 2].map(|k| a[k] + s * (b[k] - a[k]));
+    let (value, gradient) = function.value_gradient(x);
+    let g_norm = norm(gradient);
+    let residual = if value == 0.0 {
+        0.0
+    } else if g_norm > 0.0 {
+        value.abs() / g_norm
+    } else {
+        f64::INFINITY
+    };
+    PlacedVertex {
+        position: x,
+        normal: on_edge.normal,
+        residual,
+        evaluations: on_edge.evaluations + 1,
     }
 }
 
