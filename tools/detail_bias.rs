@@ -14,6 +14,9 @@ use stablesurf::detail::{fit_detail, AuxiliaryPoints, DetailParams, LocalConstra
 use stablesurf::polygonize::{polygonize, PolygonizeParams};
 use stablesurf::OrientedCloud;
 
+/// A shape's exact signed distance (positive outside).
+type SignedDistance = Box<dyn Fn([f64; 3]) -> f64>;
+
 const GOLDEN: f64 = 2.399_963_229_728_653; // π(3 − √5)
 
 /// `n` points of a Fibonacci sphere (unit directions).
@@ -28,7 +31,7 @@ fn fibonacci(n: usize) -> Vec<[f64; 3]> {
         .collect()
 }
 
-fn sphere(n: usize) -> (OrientedCloud, Box<dyn Fn([f64; 3]) -> f64>) {
+fn sphere(n: usize) -> (OrientedCloud, SignedDistance) {
     let c = [1.0, 2.0, 3.0];
     let normals = fibonacci(n);
     let points = normals
@@ -42,7 +45,7 @@ fn sphere(n: usize) -> (OrientedCloud, Box<dyn Fn([f64; 3]) -> f64>) {
     (OrientedCloud { points, normals }, Box::new(sd))
 }
 
-fn torus(n: usize) -> (OrientedCloud, Box<dyn Fn([f64; 3]) -> f64>) {
+fn torus(n: usize) -> (OrientedCloud, SignedDistance) {
     let (big, small) = (2.0, 0.6);
     // A 2D golden-ratio lattice on (u, v), with v drawn area-uniformly (density ∝ R + r cos v).
     let mut points = Vec::with_capacity(n);
