@@ -1,7 +1,8 @@
 //! The local fit of the `detail` stage: one low-degree 3LRR polynomial on the points of one ball.
 //!
 //! Input: the points and unit outward normals that fall in a ball, optional auxiliary
-//! off-surface points with target values, a degree (≤ 4), ε and κ. Output: an
+//! off-surface points with target values, a degree (≤ 4), the kind of normal constraint
+//! ([`Constraints`]: gradient rows, or the 3L layers at ±ε) and κ. Output: an
 //! [`ImplicitPolynomial`] in input coordinates that is close to a signed distance near the data
 //! (negative inside), and the largest data residual |Q|/|∇Q| in the ball.
 //!
@@ -10,12 +11,34 @@
 //!
 //! 1. Local radial normalization: μ the centroid of the ball's points, s their mean distance
 //!    to μ; every point is mapped to p̂ = (p − μ)/s.
-//! 2. 3L rows: p̂ (target 0), p̂ + εn (target +ε), p̂ − εn (target −ε); each auxiliary point q
-//!    adds the row q̂ with target t/s, t its estimated signed distance in input units.
+//! 2. Rows: p̂ with target 0, and the normal constraint, by default
+//!    ([`Constraints::Gradient`], the gradient constraints of Tasdizen, Tarel & Cooper,
+//!    *Improving the stability of algebraic curves for applications*, IEEE TIP 2000) the three rows ∇Q̂(p̂) = n, linear in the coefficients like the
+//!    value rows; or the paper's 3L rows ([`Constraints::ThreeLevels`]) p̂ + εn (target +ε) and
+//!    p̂ − εn (target −ε). The 3L targets cannot be met on a curved patch (on a sphere of radius
+//!    ρ the quadric through the data with unit gradient takes ε + ε²/(2ρ) at p̂ + εn), and the
+//!    least-squares compromise moves the zero set outward (by s·(√(1 + 2ε²/3) − 1) for a whole
+//!    sphere): with the local ε = 0.3 that was a mean offset of 1.6e-4 of the diagonal on a
+//!    sphere of 20k points. Gradient rows are
+//!    met exactly by the quadric (|q − c|² − ρ²)/(2ρ), so they leave no such bias. Each
+//!    auxiliary point q adds the row q̂ with target t/s, t its estimated signed distance in
+//!    input units.
 //! 3. Ridge regression with the Euclidean-invariant diagonal D of the paper (6.18), β computed
 //!    over the ball's data points: a = (MᵀM + κD)⁻¹Mᵀb, solved by Cholesky (c ≤ 35 unknowns,
-//!    and κD > 0 keeps the system positive definite).
-//! 4. Carried to input units: Q(p) = s·Q̂((p − μ)/s), then divided by the mean |∇Q| over the
+//!    and κD > 0 keeps the system positive definite). With gradient rows the constant term is
+//!    not penalized (D₀₀ = 0; the value rows, whose constant monomial is 1, keep the system
+//!    positive definite): the ridge then shrinks only the shape terms and the constant stays
+//!    free to make the residuals of the value rows sum to zero. Penalizing it too pulled the
+//!    zero set inward (a whole sphere's quadric (|q|² − 1)/2 shrinks its constant more than its
+//!    x², y², z² terms, held by the gradient rows: −1.4e-3 of the diagonal at κ = 1e-2).
+//! 4. With gradient rows, re-centred: the mean of Q̂ over the ball's data points is subtracted
+//!    from the constant term (a least-squares refit of the constant to the value rows alone).
+//!    The auxiliary rows ask for signed distances at the cell's centre and corners, which a
+//!    low-degree polynomial with unit gradient at the data cannot take far from it (the quadric
+//!    of a sphere grows quadratically); their compromise shifted the zero set by a constant
+//!    (+7.4e-5 of the diagonal on a sphere). They keep their role, the sign of Q away from the
+//!    data; the shift is removed.
+//! 5. Carried to input units: Q(p) = s·Q̂((p − μ)/s), then divided by the mean |∇Q| over the
 //!    ball's points so that |∇Q| ≈ 1 on the data and Q is close to a signed distance there; this
 //!    rescaling does not move the zero set, it only balances the blend.
 //!
@@ -29,6 +52,15 @@ use crate::polygonize::ImplicitFunction;
 /// One auxiliary off-surface point: its position (input coordinates) and target value (an
 /// estimate of its signed distance, input units).
 pub(crate) type AuxPoint = ([f64; 3], f64);
+
+/// How the normals enter a local fit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Constraints {
+    /// Rows ∇Q̂(p̂) = n (weight 1 each, like the value rows).
+    Gradient,
+    /// The paper's 3L rows at p̂ ± εn with targets ±ε (ε in normalized units).
+    ThreeLevels(f64),
+}
 
 /// A fitted local polynomial and how well it matches its ball's data.
 pub(crate) struct LocalFit {
@@ -59,6 +91,31 @@ pub(crate) fn monomials(n: usize, q: [f64; 3], out: &mut [f64]) {
     }
 }
 
+/// The gradients of the monomials of degree ≤ `n` at `q`, in the paper's order: `out[a][l]` is
+/// ∂m_l/∂q_a.
+pub(crate) fn monomial_gradients(n: usize, q: [f64; 3], out: &mut [[f64; 35]; 3]) {
+    let mut pw = [[1.0; 5]; 3];
+    for (a, p) in pw.iter_mut().enumerate() {
+        for e in 1..=n {
+            p[e] = p[e - 1] * q[a];
+        }
+    }
+    // d/dq of q^e: e·q^(e−1), 0 for e = 0.
+    let d = |a: usize, e: usize| if e == 0 { 0.0 } else { e as f64 * pw[a][e - 1] };
+    let mut l = 0;
+    for r in 0..=n {
+        for s in 0..=r {
+            for k in 0..=s {
+                let e = [r - s, s - k, k];
+                out[0][l] = d(0, e[0]) * pw[1][e[1]] * pw[2][e[2]];
+                out[1][l] = pw[0][e[0]] * d(1, e[1]) * pw[2][e[2]];
+                out[2][l] = pw[0][e[0]] * pw[1][e[1]] * d(2, e[2]);
+                l += 1;
+            }
+        }
+    }
+}
+
 /// Fits a local polynomial of degree `degree` (≤ 4) to the points `ball` (indices into
 /// `points`/`normals`) and the auxiliary rows `aux`. `fallback_scale` is used as s when the
 /// points all coincide. The error is measured over `measure` (indices).
@@ -70,7 +127,7 @@ pub(crate) fn fit_local(
     measure: &[u32],
     aux: &[AuxPoint],
     degree: u32,
-    epsilon: f64,
+    constraints: Constraints,
     kappa: f64,
     fallback_scale: f64,
 ) -> Option<LocalFit> {
@@ -102,16 +159,16 @@ pub(crate) fn fit_local(
     }
     let norm = |p: [f64; 3]| [0, 1, 2].map(|a| (p[a] - mu[a]) / s);
     if n == 2 && c == 10 {
-        return fit_quadric(points, normals, ball, aux, epsilon, kappa, mu, s);
+        return fit_quadric(points, normals, ball, aux, constraints, kappa, mu, s);
     }
 
     // 2. Normal equations MᵀM (upper triangle, row-major c×c) and Mᵀb.
     let mut ata = [0.0; 35 * 35];
     let mut atb = [0.0; 35];
     let mut beta = [0.0; 5];
-    let mut m = [0.0; 35];
-    let mut add_row = |q: [f64; 3], target: f64, ata: &mut [f64; 35 * 35], atb: &mut [f64; 35]| {
-        monomials(n, q, &mut m);
+    let mut mon = [0.0; 35];
+    let mut grads = [[0.0; 35]; 3];
+    let add_row = |m: &[f64; 35], target: f64, ata: &mut [f64; 35 * 35], atb: &mut [f64; 35]| {
         for i in 0..c {
             let mi = m[i];
             if mi == 0.0 {
@@ -133,14 +190,26 @@ pub(crate) fn fit_local(
             *b += pw;
             pw *= r2;
         }
-        add_row(q, 0.0, &mut ata, &mut atb);
-        let out = [0, 1, 2].map(|a| q[a] + epsilon * nv[a]);
-        add_row(out, epsilon, &mut ata, &mut atb);
-        let inn = [0, 1, 2].map(|a| q[a] - epsilon * nv[a]);
-        add_row(inn, -epsilon, &mut ata, &mut atb);
+        monomials(n, q, &mut mon);
+        add_row(&mon, 0.0, &mut ata, &mut atb);
+        match constraints {
+            Constraints::Gradient => {
+                monomial_gradients(n, q, &mut grads);
+                for (g, &t) in grads.iter().zip(&nv) {
+                    add_row(g, t, &mut ata, &mut atb);
+                }
+            }
+            Constraints::ThreeLevels(epsilon) => {
+                monomials(n, [0, 1, 2].map(|a| q[a] + epsilon * nv[a]), &mut mon);
+                add_row(&mon, epsilon, &mut ata, &mut atb);
+                monomials(n, [0, 1, 2].map(|a| q[a] - epsilon * nv[a]), &mut mon);
+                add_row(&mon, -epsilon, &mut ata, &mut atb);
+            }
+        }
     }
     for &(p, t) in aux {
-        add_row(norm(p), t / s, &mut ata, &mut atb);
+        monomials(n, norm(p), &mut mon);
+        add_row(&mon, t / s, &mut ata, &mut atb);
     }
     // 3. Ridge term κD, D_ll = β_{|α|}/T_α (paper 6.18).
     let mut l = 0;
@@ -149,7 +218,10 @@ pub(crate) fn fit_local(
             for k in 0..=s_ {
                 let (i, j) = (r - s_, s_ - k);
                 let t = factorial(r) / (factorial(i) * factorial(j) * factorial(k));
-                ata[l * c + l] += kappa * beta_r / t;
+                // The constant term is left out with gradient rows (see step 3 above).
+                if l > 0 || !matches!(constraints, Constraints::Gradient) {
+                    ata[l * c + l] += kappa * beta_r / t;
+                }
                 l += 1;
             }
         }
@@ -164,6 +236,15 @@ pub(crate) fn fit_local(
         center: mu,
         scale: s,
     };
+    if constraints == Constraints::Gradient {
+        // Re-centring: the mean of Q over the ball's points becomes 0.
+        let mean = ball
+            .iter()
+            .map(|&i| poly.eval(points[i as usize]))
+            .sum::<f64>()
+            * inv;
+        poly.coefficients[0] -= mean;
+    }
     let mut gsum = 0.0;
     for &i in ball {
         let (_, g) = poly.value_gradient(points[i as usize]);
@@ -201,7 +282,7 @@ fn fit_quadric(
     normals: &[[f64; 3]],
     ball: &[u32],
     aux: &[AuxPoint],
-    epsilon: f64,
+    constraints: Constraints,
     kappa: f64,
     mu: [f64; 3],
     s: f64,
@@ -219,12 +300,29 @@ fn fit_quadric(
         beta[2] += r2 * r2;
         let m0 = quadric_monomials(q);
         add_packed(&mut ata, &m0);
-        let m1 = quadric_monomials([0, 1, 2].map(|a| q[a] + epsilon * nv[a]));
-        add_packed(&mut ata, &m1);
-        let m2 = quadric_monomials([0, 1, 2].map(|a| q[a] - epsilon * nv[a]));
-        add_packed(&mut ata, &m2);
-        for l in 0..10 {
-            atb[l] += m1[l] * epsilon + m2[l] * -epsilon;
+        match constraints {
+            Constraints::Gradient => {
+                // ∇Q̂(q) = n: the gradients of 1, x, y, z, x², xy, xz, y², yz, z².
+                let [x, y, z] = q;
+                let gx = [0.0, 1.0, 0.0, 0.0, 2.0 * x, y, z, 0.0, 0.0, 0.0];
+                let gy = [0.0, 0.0, 1.0, 0.0, 0.0, x, 0.0, 2.0 * y, z, 0.0];
+                let gz = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, x, 0.0, y, 2.0 * z];
+                add_packed(&mut ata, &gx);
+                add_packed(&mut ata, &gy);
+                add_packed(&mut ata, &gz);
+                for l in 0..10 {
+                    atb[l] += gx[l] * nv[0] + gy[l] * nv[1] + gz[l] * nv[2];
+                }
+            }
+            Constraints::ThreeLevels(epsilon) => {
+                let m1 = quadric_monomials([0, 1, 2].map(|a| q[a] + epsilon * nv[a]));
+                add_packed(&mut ata, &m1);
+                let m2 = quadric_monomials([0, 1, 2].map(|a| q[a] - epsilon * nv[a]));
+                add_packed(&mut ata, &m2);
+                for l in 0..10 {
+                    atb[l] += m1[l] * epsilon + m2[l] * -epsilon;
+                }
+            }
         }
     }
     for &(p, t) in aux {
@@ -246,9 +344,23 @@ fn fit_quadric(
             full[i * 10 + j] = ata[k];
             k += 1;
         }
-        full[i * 10 + i] += kappa * beta[DEGREE_OF[i]] / MULTINOMIAL[i];
+        if i > 0 || !matches!(constraints, Constraints::Gradient) {
+            full[i * 10 + i] += kappa * beta[DEGREE_OF[i]] / MULTINOMIAL[i];
+        }
     }
-    let a = cholesky_solve(&mut full, &mut atb, 10)?;
+    let mut a = cholesky_solve(&mut full, &mut atb, 10)?;
+    if constraints == Constraints::Gradient {
+        // Step 4's re-centring: the mean of Q̂ over the ball's points becomes 0.
+        let mut vsum = 0.0;
+        for &i in ball {
+            let q = norm(points[i as usize]);
+            vsum += a[0]
+                + q[0] * (a[1] + a[4] * q[0] + a[5] * q[1] + a[6] * q[2])
+                + q[1] * (a[2] + a[7] * q[1] + a[8] * q[2])
+                + q[2] * (a[3] + a[9] * q[2]);
+        }
+        a[0] -= vsum / ball.len() as f64;
+    }
     // One pass over the ball: mean |∇Q| (input units, before rescaling: ∇ₚQ = ∇_qQ̂) and the
     // largest |Q|/|∇Q|, which the rescaling leaves unchanged.
     let mut gsum = 0.0;
@@ -381,11 +493,99 @@ mod tests {
         }
         let normals = vec![[0.0, 0.0, 1.0]; points.len()];
         let idx: Vec<u32> = (0..points.len() as u32).collect();
-        let fit = fit_local(&points, &normals, &idx, &idx, &[], 2, 0.3, 1e-2, 1.0).unwrap();
-        assert!(fit.max_error < 1e-6, "{}", fit.max_error);
-        for p in [[0.4, 0.4, 0.6], [0.5, 0.3, 0.45]] {
-            let v = fit.poly.eval(p);
-            assert!((v - (p[2] - 0.5)).abs() < 1e-3, "{v}");
+        for constraints in [Constraints::Gradient, Constraints::ThreeLevels(0.3)] {
+            let fit = fit_local(
+                &points,
+                &normals,
+                &idx,
+                &idx,
+                &[],
+                2,
+                constraints,
+                1e-2,
+                1.0,
+            )
+            .unwrap();
+            assert!(fit.max_error < 1e-6, "{}", fit.max_error);
+            for p in [[0.4, 0.4, 0.6], [0.5, 0.3, 0.45]] {
+                let v = fit.poly.eval(p);
+                assert!((v - (p[2] - 0.5)).abs() < 1e-3, "{v}");
+            }
+        }
+    }
+
+    #[test]
+    fn monomial_gradients_match_the_quadric_ones() {
+        let mut g = [[0.0; 35]; 3];
+        monomial_gradients(2, [2.0, 3.0, 5.0], &mut g);
+        assert_eq!(
+            &g[0][..10],
+            &[0.0, 1.0, 0.0, 0.0, 4.0, 3.0, 5.0, 0.0, 0.0, 0.0]
+        );
+        assert_eq!(
+            &g[1][..10],
+            &[0.0, 0.0, 1.0, 0.0, 0.0, 2.0, 0.0, 6.0, 5.0, 0.0]
+        );
+        assert_eq!(
+            &g[2][..10],
+            &[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 2.0, 0.0, 3.0, 10.0]
+        );
+        // Central differences at degree 4.
+        let q = [0.3, -0.7, 0.4];
+        monomial_gradients(4, q, &mut g);
+        let (mut up, mut down) = ([0.0; 35], [0.0; 35]);
+        for a in 0..3 {
+            let mut qa = q;
+            qa[a] += 1e-6;
+            monomials(4, qa, &mut up);
+            qa[a] -= 2e-6;
+            monomials(4, qa, &mut down);
+            for l in 0..35 {
+                let fd = (up[l] - down[l]) / 2e-6;
+                assert!((fd - g[a][l]).abs() < 1e-8, "{a} {l}: {fd} vs {}", g[a][l]);
+            }
+        }
+    }
+
+    #[test]
+    fn sphere_cap_has_no_offset_with_gradient_rows() {
+        // A cap of the unit sphere: gradient rows give back the sphere, the 3L rows do not.
+        let mut points = Vec::new();
+        for i in 0..20 {
+            for j in 0..20 {
+                let (x, y) = (i as f64 * 0.04 - 0.4, j as f64 * 0.04 - 0.4);
+                points.push([x, y, (1.0 - x * x - y * y).sqrt()]);
+            }
+        }
+        let normals = points.clone();
+        let idx: Vec<u32> = (0..points.len() as u32).collect();
+        for degree in [2, 3] {
+            let fit = fit_local(
+                &points,
+                &normals,
+                &idx,
+                &idx,
+                &[],
+                degree,
+                Constraints::Gradient,
+                1e-6,
+                1.0,
+            )
+            .unwrap();
+            assert!(fit.max_error < 1e-5, "{degree}: {}", fit.max_error);
+            let three = fit_local(
+                &points,
+                &normals,
+                &idx,
+                &idx,
+                &[],
+                degree,
+                Constraints::ThreeLevels(0.3),
+                1e-6,
+                1.0,
+            )
+            .unwrap();
+            assert!(three.max_error > 1e-4, "{degree}: {}", three.max_error);
         }
     }
 }
