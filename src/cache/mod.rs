@@ -267,9 +267,12 @@ enum RootState {
     Absent,
     /// Carries the marker.
     Marked,
-    /// Empty, or a cache of format 1 (stage folders of entries only, from before the marker):
-    /// the cache marks it and uses it.
-    Adoptable,
+    /// Empty (or holding only the temporary of another run that is marking it): a run marks
+    /// it and uses it; `cache info` and `cache clear` find no cache there.
+    Empty,
+    /// A cache of format 1 (stage folders of entries only, from before the marker): marked and
+    /// used like a marked one.
+    Legacy,
     /// Anything else: refused.
     Foreign(String),
 }
@@ -294,9 +297,13 @@ fn root_state(root: &Path) -> RootState {
         }
         return RootState::Foreign(format!("its {MARKER} belongs to another program"));
     }
-    let items = listing(root);
+    // Another run's temporary, while it writes the marker, leaves the folder empty.
+    let items: Vec<_> = listing(root)
+        .into_iter()
+        .filter(|(name, _, meta)| !(meta.is_file() && tmp_pid(name).is_some()))
+        .collect();
     if items.is_empty() {
-        return RootState::Adoptable;
+        return RootState::Empty;
     }
     // A cache of format 1: every item a stage folder of shard folders of entries.
     let legacy = items.iter().all(|(name, path, meta)| {
@@ -311,7 +318,7 @@ fn root_state(root: &Path) -> RootState {
             })
     });
     if legacy {
-        return RootState::Adoptable;
+        return RootState::Legacy;
     }
     let shown: Vec<&str> = items.iter().take(3).map(|i| i.0.as_str()).collect();
     RootState::Foreign(format!(
@@ -359,7 +366,7 @@ impl Cache {
                 path: root.display().to_string(),
                 why,
             }),
-            RootState::Absent | RootState::Adoptable => {
+            RootState::Absent | RootState::Empty | RootState::Legacy => {
                 fs::create_dir_all(root).map_err(io)?;
                 let marker = format!(
                     "{MARKER_SIGNATURE}\n{MARKER_OWNER} (format {CACHE_FORMAT_VERSION}): `stablesurf cache clear` removes\n# only the entries it made here. Backup tools that honour cache directory tags skip it.\n"
@@ -380,10 +387,14 @@ impl Cache {
                 path: root.display().to_string(),
                 why: "the folder does not exist".into(),
             }),
-            RootState::Adoptable => Err(CacheError::NotACache {
+            RootState::Empty => Err(CacheError::NotACache {
                 path: root.display().to_string(),
-                why: format!("it has no {MARKER} (a run marks the folder when it makes the cache)"),
+                why: format!("it is empty, with no {MARKER} (a run marks the folder when it makes the cache)"),
             }),
+            RootState::Legacy => {
+                self.prepare()?;
+                Ok(Some(root))
+            }
             RootState::Foreign(why) => Err(CacheError::NotACache {
                 path: root.display().to_string(),
                 why,
@@ -974,7 +985,7 @@ mod tests {
     }
 
     #[test]
-    fn an_empty_folder_or_a_format_1_cache_is_adopted() {
+    fn an_empty_folder_or_a_format_1_cache_is_adopted_and_a_marking_race_is_harmless() {
         let dir = tempfile::tempdir().unwrap();
         let empty = dir.path().join("empty");
         fs::create_dir(&empty).unwrap();
@@ -986,9 +997,26 @@ mod tests {
         let name = format!("ab{}", "0".repeat(62));
         fs::write(shard.join(format!("{name}.bin")), b"x").unwrap();
         fs::write(shard.join(format!("{name}.json")), b"{}").unwrap();
-        Cache::at(&old).prepare().unwrap();
+        // `cache clear` on it, before any run has marked it, clears it.
         assert_eq!(Cache::at(&old).clear().unwrap().entries, 1);
-        assert!(!old.join("fit").exists());
+        assert!(!old.join("fit").exists() && old.join(MARKER).is_file());
+        // An empty folder holds no cache to list or clear.
+        let bare = dir.path().join("bare");
+        fs::create_dir(&bare).unwrap();
+        assert!(Cache::at(&bare)
+            .usage()
+            .unwrap_err()
+            .to_string()
+            .contains("empty"));
+        // Another run's temporary while it writes the marker does not make the folder foreign.
+        let racing = dir.path().join("racing");
+        fs::create_dir(&racing).unwrap();
+        fs::write(
+            racing.join(format!("{TMP_PREFIX}{}-0", std::process::id())),
+            b"",
+        )
+        .unwrap();
+        Cache::at(&racing).prepare().unwrap();
     }
 
     #[test]
