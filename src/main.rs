@@ -289,9 +289,11 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
         fit: fit_params(&args.fit)?,
         detail: detail_params(&args.detail)?,
         polygonize: polygonize_params(&args.mesh, mode)?,
-        keep: match args.keep {
-            cli::KeepArg::All => Keep::All,
-            cli::KeepArg::Data => Keep::Data,
+        // Detail mode leaves out pieces the data does not support (a blend can close a blob in
+        // empty space); a polynomial's pieces are part of the model.
+        keep: match (args.keep, mode) {
+            (Some(cli::KeepArg::All), _) | (None, pipeline::Mode::Global) => Keep::All,
+            (Some(cli::KeepArg::Data), _) | (None, pipeline::Mode::Detail) => Keep::Data,
         },
         gltf: gltf_options(args.up),
         slices: slice_params(
@@ -330,7 +332,7 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
             ),
         };
         eprintln!(
-            "stablesurf: run {input} -> {} (mode {}{}, normals {}, {model}, depth {}, slices {} x {}^2 {}, cache {})",
+            "stablesurf: run {input} -> {} (mode {}{}, normals {}, {model}, depth {}, keep {}, slices {} x {}^2 {}, cache {})",
             args.output.display(),
             args.mode(),
             if args.mode_given() {
@@ -340,6 +342,10 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
             },
             args.normals.source,
             config.polygonize.depth,
+            match config.keep {
+                Keep::All => "all",
+                Keep::Data => "data",
+            },
             config.slices.count,
             config.slices.resolution,
             config.slices.method.name(),

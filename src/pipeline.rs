@@ -790,6 +790,12 @@ pub fn run(
         serde_json::from_value(figures["accuracy"].clone()).unwrap_or_default();
     // A polynomial's zero set that runs out of the meshing box is open there: not a bounded
     // surface in this mesh, whatever the fit certified.
+    let dropped = figures["dropped_components"].as_u64().unwrap_or(0);
+    if dropped > 0 {
+        ctx.warn(format!(
+            "left out {dropped} piece(s) of the surface with no data point within 2% of the diagonal; --keep all keeps them"
+        ));
+    }
     let clipped = matches!(model, Model::Global(_)) && report_mesh.boundary_edges > 0;
     if clipped {
         ctx.warn(format!(

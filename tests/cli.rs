@@ -1156,3 +1156,40 @@ fn run_defaults_to_detail_mode_and_says_so() {
     assert!(!stderr_of(&done).contains("by default"));
     assert!(global.join("model.json").is_file());
 }
+
+/// Detail mode leaves out unsupported pieces by default (`keep data`), global mode keeps every
+/// piece of the polynomial's zero set; `--keep` overrides either, and the first line says which.
+#[test]
+fn keep_defaults_follow_the_mode() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 300);
+    let header = |flags: &[&str]| {
+        let done = bin()
+            .arg("run")
+            .arg(&input)
+            .arg("-o")
+            .arg(dir.path().join("out"))
+            .args([
+                "--formats",
+                "json",
+                "--no-cache",
+                "--depth",
+                "4",
+                "--degree",
+                "4",
+            ])
+            .args(flags)
+            .output()
+            .unwrap();
+        assert!(done.status.success(), "{}", stderr_of(&done));
+        stderr_of(&done)
+            .lines()
+            .next()
+            .unwrap_or_default()
+            .to_string()
+    };
+    assert!(header(&[]).contains("keep data"));
+    assert!(header(&["--keep", "all"]).contains("keep all"));
+    assert!(header(&["--mode", "global"]).contains("keep all"));
+    assert!(header(&["--mode", "global", "--keep", "data"]).contains("keep data"));
+}

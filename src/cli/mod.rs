@@ -309,9 +309,10 @@ pub struct RunArgs {
     /// glTF up axis.
     #[arg(long, value_enum, default_value_t = UpArg::Y)]
     pub up: UpArg,
-    /// Which zero-set components to keep: all, or data (drop pieces with no data point near).
-    #[arg(long, value_enum, default_value_t = KeepArg::All)]
-    pub keep: KeepArg,
+    /// Which zero-set components to keep: data (drop pieces with no data point within 2% of the
+    /// diagonal; the default in detail mode) or all (the default in global mode).
+    #[arg(long, value_enum)]
+    pub keep: Option<KeepArg>,
     /// Keep points far outside the bulk of the data (left out by default, with a warning).
     #[arg(long)]
     pub keep_outliers: bool,
@@ -679,7 +680,7 @@ mod tests {
         assert_eq!(r.fit.method, "3l");
         assert_eq!(r.fit.kappa_rule, "paper");
         assert_eq!(r.mesh.depth, Some(7));
-        assert_eq!(r.keep, KeepArg::Data);
+        assert_eq!(r.keep, Some(KeepArg::Data));
         assert_eq!(r.up, UpArg::Z);
         assert_eq!(r.normals.source, "pca");
         assert!(r.cache.no_cache && r.json);
