@@ -29,6 +29,27 @@ pub(crate) fn process_is_gone(pid: u32, path: &Path) -> bool {
         .is_some_and(|age| age > Duration::from_secs(24 * 3600))
 }
 
+/// Removes the regular files of `dir` whose name `pid_of` reads a process id from, when that
+/// process is gone (a killed run's temporaries); returns how many. Never fails: what cannot be
+/// read or removed stays. Links and folders are never touched.
+pub(crate) fn remove_debris(dir: &Path, pid_of: impl Fn(&str) -> Option<u32>) -> u64 {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let path = entry.path();
+        if pid_of(&name).is_some_and(|pid| process_is_gone(pid, &path))
+            && std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_file())
+            && std::fs::remove_file(&path).is_ok()
+        {
+            removed += 1;
+        }
+    }
+    removed
+}
+
 /// What to do about an IO error on `path`, in a few words.
 pub(crate) fn io_hint(error: &std::io::Error) -> &'static str {
     use std::io::ErrorKind as K;

@@ -247,18 +247,10 @@ fn listing(dir: &Path) -> Vec<(String, PathBuf, fs::Metadata)> {
     out
 }
 
-/// Removes the cache's temporaries of ended processes in one shard folder; returns how many.
+/// Removes the cache's temporaries of ended processes in one folder (a shard, or the root);
+/// returns how many.
 fn sweep_shard(shard: &Path) -> u64 {
-    let mut removed = 0;
-    for (name, path, meta) in listing(shard) {
-        if meta.is_file()
-            && tmp_pid(&name).is_some_and(|pid| crate::files::process_is_gone(pid, &path))
-            && fs::remove_file(&path).is_ok()
-        {
-            removed += 1;
-        }
-    }
-    removed
+    crate::files::remove_debris(shard, tmp_pid)
 }
 
 /// What a folder is, as a cache root.
@@ -536,17 +528,15 @@ impl Cache {
             let path = path.display().to_string();
             move |source| CacheError::Io { path, source }
         };
+        done.debris += sweep_shard(root);
         for (name, path, meta) in listing(root) {
-            if name == MARKER || (meta.is_dir() && STAGES.contains(&name.as_str())) {
-                continue;
+            let ours = name == MARKER
+                || (meta.is_dir() && STAGES.contains(&name.as_str()))
+                // A live run's temporary is its own.
+                || (meta.is_file() && tmp_pid(&name).is_some());
+            if !ours {
+                done.foreign.push(path);
             }
-            if let Some(pid) = tmp_pid(&name).filter(|_| meta.is_file()) {
-                if crate::files::process_is_gone(pid, &path) && fs::remove_file(&path).is_ok() {
-                    done.debris += 1;
-                }
-                continue;
-            }
-            done.foreign.push(path);
         }
         for stage in STAGES {
             let stage_dir = root.join(stage);

@@ -124,27 +124,9 @@ where
 /// `NAME` that `names` accepts, when the process `pid` is gone (a killed run's debris). Never
 /// fails: what cannot be read or removed stays.
 pub(crate) fn remove_stale_temporaries(dir: &Path, names: impl Fn(&str) -> bool) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for entry in entries.flatten() {
-        let name = entry.file_name().to_string_lossy().into_owned();
-        let Some((file, pid)) = name
-            .strip_prefix('.')
-            .and_then(|rest| rest.rsplit_once(".tmp"))
-        else {
-            continue;
-        };
-        let path = entry.path();
-        if names(file)
-            && !pid.is_empty()
-            && pid.bytes().all(|b| b.is_ascii_digit())
-            && pid
-                .parse()
-                .is_ok_and(|pid| crate::files::process_is_gone(pid, &path))
-            && std::fs::symlink_metadata(&path).is_ok_and(|m| m.is_file())
-        {
-            let _ = std::fs::remove_file(&path);
-        }
-    }
+    crate::files::remove_debris(dir, |name| {
+        let (file, pid) = name.strip_prefix('.')?.rsplit_once(".tmp")?;
+        let digits = !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit());
+        (digits && names(file)).then(|| pid.parse().ok())?
+    });
 }

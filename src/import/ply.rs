@@ -634,15 +634,34 @@ fn bad_index(
     pos: usize,
 ) -> ImportError {
     let n = header.elements[header_vertex(header)].count;
-    ImportError::BadBinary {
-        path: path.to_owned(),
-        element: element.name.clone(),
-        entry: face,
-        offset: (header.body_start + pos) as u64,
-        message: format!(
+    bad_binary(
+        path,
+        header,
+        element,
+        face,
+        pos,
+        format!(
             "face {face} refers to vertex {index}, but the header declares {n} vertices \
              (0-based indices 0..{n}); fix or remove that face"
         ),
+    )
+}
+
+/// A [`ImportError::BadBinary`] for `entry` of `element`, which starts at body byte `pos`.
+fn bad_binary(
+    path: &str,
+    header: &Header,
+    element: &Element,
+    entry: u64,
+    pos: usize,
+    message: String,
+) -> ImportError {
+    ImportError::BadBinary {
+        path: path.to_owned(),
+        element: element.name.clone(),
+        entry,
+        offset: (header.body_start + pos) as u64,
+        message,
     }
 }
 
@@ -664,17 +683,18 @@ fn short_face(
     corners: usize,
     pos: usize,
 ) -> ImportError {
-    ImportError::BadBinary {
-        path: path.to_owned(),
-        element: element.name.clone(),
-        entry: face,
-        offset: (header.body_start + pos) as u64,
-        message: format!(
+    bad_binary(
+        path,
+        header,
+        element,
+        face,
+        pos,
+        format!(
             "face {face} has {corners} corner(s) and a face needs at least three; remove the \
              face (or, if the counts in the header are wrong, the faces are read from the \
              wrong bytes: fix the counts)"
         ),
-    }
+    )
 }
 
 fn read_binary_body<const BIG: bool>(

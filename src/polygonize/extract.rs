@@ -573,15 +573,8 @@ pub(crate) fn place_vertex<F: ImplicitFunction + ?Sized>(
     [fa, fb]: [f64; 2],
     tolerance: f64,
 ) -> PlacedVertex {
-    let a = grid.point(unpack((key >> 64) as u64));
-    let b = grid.point(unpack(key as u64));
     let mut evaluations = 0;
-    // Orient the edge from its negative end (f < 0) to its positive end (f ≥ 0).
-    let (neg, f_neg, pos, f_pos) = if fa < 0.0 {
-        (a, fa, b, fb)
-    } else {
-        (b, fb, a, fa)
-    };
+    let (neg, f_neg, pos, f_pos) = oriented_edge(grid, key, [fa, fb]);
     let direction = [0, 1, 2].map(|k| pos[k] - neg[k]);
     let length = norm(direction);
     let at = |s: f64| [0, 1, 2].map(|k| neg[k] + s * direction[k]);
@@ -661,24 +654,53 @@ pub(crate) fn place_vertex<F: ImplicitFunction + ?Sized>(
         (value, gradient) = function.value_gradient(x);
         evaluations += 1;
     }
-    let g_norm = norm(gradient);
-    let residual = if value == 0.0 {
+    vertex_at(x, value, gradient, direction, evaluations)
+}
+
+/// The ends of the crossed edge `key` with end values `[fa, fb]`, oriented from its negative
+/// end (f < 0) to its positive end (f ≥ 0): (neg, f_neg, pos, f_pos).
+fn oriented_edge(grid: &Grid, key: EdgeKey, [fa, fb]: [f64; 2]) -> ([f64; 3], f64, [f64; 3], f64) {
+    let a = grid.point(unpack((key >> 64) as u64));
+    let b = grid.point(unpack(key as u64));
+    if fa < 0.0 {
+        (a, fa, b, fb)
+    } else {
+        (b, fb, a, fa)
+    }
+}
+
+/// |f|/|∇f| from f's `value` and gradient norm `g_norm` (0 on the zero set, infinite where
+/// the gradient vanishes off it).
+fn residual(value: f64, g_norm: f64) -> f64 {
+    if value == 0.0 {
         0.0
     } else if g_norm > 0.0 {
         value.abs() / g_norm
     } else {
         f64::INFINITY
-    };
+    }
+}
+
+/// The vertex at `x`, where f has `value` and `gradient`: its normal is the gradient's
+/// direction, or, at a singular point of f, the edge's `direction` (negative to positive end).
+fn vertex_at(
+    x: [f64; 3],
+    value: f64,
+    gradient: [f64; 3],
+    direction: [f64; 3],
+    evaluations: u64,
+) -> PlacedVertex {
+    let g_norm = norm(gradient);
     let normal = if g_norm > 0.0 && g_norm.is_finite() {
         gradient.map(|g| g / g_norm)
     } else {
-        // A singular point of f: fall back to the edge direction (negative to positive).
+        let length = norm(direction);
         direction.map(|d| d / length)
     };
     PlacedVertex {
         position: x,
         normal,
-        residual,
+        residual: residual(value, g_norm),
         evaluations,
     }
 }
@@ -751,13 +773,7 @@ pub(crate) fn place_on_edge<F: ImplicitFunction + ?Sized>(
     [fa, fb]: [f64; 2],
     tolerance: f64,
 ) -> PlacedVertex {
-    let a = grid.point(unpack((key >> 64) as u64));
-    let b = grid.point(unpack(key as u64));
-    let (neg, f_neg, pos, f_pos) = if fa < 0.0 {
-        (a, fa, b, fb)
-    } else {
-        (b, fb, a, fa)
-    };
+    let (neg, f_neg, pos, f_pos) = oriented_edge(grid, key, [fa, fb]);
     let mut evaluations = 1;
     let x = edge_root(
         function,
@@ -767,26 +783,8 @@ pub(crate) fn place_on_edge<F: ImplicitFunction + ?Sized>(
         &mut evaluations,
     );
     let (value, gradient) = function.value_gradient(x);
-    let g_norm = norm(gradient);
-    let residual = if value == 0.0 {
-        0.0
-    } else if g_norm > 0.0 {
-        value.abs() / g_norm
-    } else {
-        f64::INFINITY
-    };
-    let normal = if g_norm > 0.0 && g_norm.is_finite() {
-        gradient.map(|g| g / g_norm)
-    } else {
-        let d = [0, 1, 2].map(|k| pos[k] - neg[k]);
-        d.map(|c| c / norm(d))
-    };
-    PlacedVertex {
-        position: x,
-        normal,
-        residual,
-        evaluations,
-    }
+    let direction = [0, 1, 2].map(|k| pos[k] - neg[k]);
+    vertex_at(x, value, gradient, direction, evaluations)
 }
 
 /// The vertex for the crossed edge `key` at the linear interpolation of its end values (the
@@ -811,18 +809,10 @@ pub(crate) fn place_linear<F: ImplicitFunction + ?Sized>(
     };
     let x = [0, 1, 2].map(|k| a[k] + s * (b[k] - a[k]));
     let (value, gradient) = function.value_gradient(x);
-    let g_norm = norm(gradient);
-    let residual = if value == 0.0 {
-        0.0
-    } else if g_norm > 0.0 {
-        value.abs() / g_norm
-    } else {
-        f64::INFINITY
-    };
     PlacedVertex {
         position: x,
         normal: on_edge.normal,
-        residual,
+        residual: residual(value, norm(gradient)),
         evaluations: on_edge.evaluations + 1,
     }
 }
