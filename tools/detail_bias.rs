@@ -83,6 +83,7 @@ fn main() -> anyhow::Result<()> {
         match a.as_str() {
             "--gradient" => {
                 params.constraints = LocalConstraints::Gradient;
+                continue;
             }
             "--three-levels" => {
                 params.constraints = LocalConstraints::ThreeLevels;
@@ -93,6 +94,9 @@ fn main() -> anyhow::Result<()> {
                 continue;
             }
             _ => {}
+        }
+        if args.is_empty() {
+            anyhow::bail!("{a} needs a value");
         }
         let v = args.remove(0);
         match a.as_str() {

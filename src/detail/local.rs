@@ -18,9 +18,9 @@
 //!    p̂ − εn (target −ε). The 3L targets cannot be met on a curved patch (on a sphere of radius
 //!    ρ the quadric through the data with unit gradient takes ε + ε²/(2ρ) at p̂ + εn), and the
 //!    least-squares compromise moves the zero set outward (by s·(√(1 + 2ε²/3) − 1) for a whole
-//!    sphere): with the local ε = 0.3 that was a mean offset of 1.6e-4 of the diagonal on a
-//!    sphere of 20k points. Gradient rows are
-//!    met exactly by the quadric (|q − c|² − ρ²)/(2ρ), so they leave no such bias. Each
+//!    sphere): with the local ε = 0.3 a mean offset of 1.6e-4 of the diagonal on a sphere of
+//!    20k points before step 4 removes it. Gradient rows are met exactly by the quadric
+//!    (|q − c|² − ρ²)/(2ρ), so they leave no such bias. Each
 //!    auxiliary point q adds the row q̂ with target t/s, t its estimated signed distance in
 //!    input units.
 //! 3. Ridge regression with the Euclidean-invariant diagonal D of the paper (6.18), β computed
@@ -31,13 +31,16 @@
 //!    free to make the residuals of the value rows sum to zero. Penalizing it too pulled the
 //!    zero set inward (a whole sphere's quadric (|q|² − 1)/2 shrinks its constant more than its
 //!    x², y², z² terms, held by the gradient rows: −1.4e-3 of the diagonal at κ = 1e-2).
-//! 4. With gradient rows, re-centred: the mean of Q̂ over the ball's data points is subtracted
-//!    from the constant term (a least-squares refit of the constant to the value rows alone).
-//!    The auxiliary rows ask for signed distances at the cell's centre and corners, which a
-//!    low-degree polynomial with unit gradient at the data cannot take far from it (the quadric
-//!    of a sphere grows quadratically); their compromise shifted the zero set by a constant
-//!    (+7.4e-5 of the diagonal on a sphere). They keep their role, the sign of Q away from the
-//!    data; the shift is removed.
+//! 4. Re-centred: a constant c is subtracted so that the mean of Q̂/|∇Q̂| over the ball's data
+//!    points, weighted by the cell's blend weight b(1.5·|p − c|/r), is 0. Two things shift the
+//!    zero set by a constant otherwise. The 3L compromise above, and the auxiliary rows, which
+//!    ask for signed distances at the cell's centre and corners that a low-degree polynomial
+//!    with unit gradient at the data cannot take far from it (+7.4e-5 of the diagonal on a
+//!    sphere with gradient rows); they keep their role, the sign of Q away from the data. The
+//!    blend weight matters where the local polynomial cannot follow the surface (a quadric on a
+//!    torus): its error then changes sign across the ball, and the mean that counts is the one
+//!    the blend sees, near the cell's centre (a torus of 20k points: −7.1e-5 of the diagonal
+//!    re-centred with equal weights, −5e-7 with the blend weights; `tools/detail_bias.rs`).
 //! 5. Carried to input units: Q(p) = s·Q̂((p − μ)/s), then divided by the mean |∇Q| over the
 //!    ball's points so that |∇Q| ≈ 1 on the data and Q is close to a signed distance there; this
 //!    rescaling does not move the zero set, it only balances the blend.
@@ -130,6 +133,7 @@ pub(crate) fn fit_local(
     constraints: Constraints,
     kappa: f64,
     fallback_scale: f64,
+    blend: Option<([f64; 3], f64)>,
 ) -> Option<LocalFit> {
     if ball.is_empty() || degree > 4 {
         return None;
@@ -159,7 +163,7 @@ pub(crate) fn fit_local(
     }
     let norm = |p: [f64; 3]| [0, 1, 2].map(|a| (p[a] - mu[a]) / s);
     if n == 2 && c == 10 {
-        return fit_quadric(points, normals, ball, aux, constraints, kappa, mu, s);
+        return fit_quadric(points, normals, ball, aux, constraints, kappa, mu, s, blend);
     }
 
     // 2. Normal equations MᵀM (upper triangle, row-major c×c) and Mᵀb.
@@ -236,14 +240,19 @@ pub(crate) fn fit_local(
         center: mu,
         scale: s,
     };
-    if constraints == Constraints::Gradient {
-        // Re-centring: the mean of Q over the ball's points becomes 0.
-        let mean = ball
-            .iter()
-            .map(|&i| poly.eval(points[i as usize]))
-            .sum::<f64>()
-            * inv;
-        poly.coefficients[0] -= mean;
+    {
+        // Re-centring: the blend-weighted mean of Q/|∇Q| over the ball's points becomes 0.
+        let weights = recentring_weights(points, ball, blend);
+        let (mut vsum, mut wsum) = (0.0, 0.0);
+        for (&i, w) in ball.iter().zip(&weights) {
+            let (v, g) = poly.value_gradient(points[i as usize]);
+            let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-12);
+            vsum += w * v / gn;
+            wsum += w / gn;
+        }
+        if wsum > 0.0 && vsum.is_finite() {
+            poly.coefficients[0] -= vsum / wsum;
+        }
     }
     let mut gsum = 0.0;
     for &i in ball {
@@ -286,6 +295,7 @@ fn fit_quadric(
     kappa: f64,
     mu: [f64; 3],
     s: f64,
+    blend: Option<([f64; 3], f64)>,
 ) -> Option<LocalFit> {
     let norm = |p: [f64; 3]| [0, 1, 2].map(|a| (p[a] - mu[a]) / s);
     let mut ata = [0.0; 55];
@@ -349,17 +359,29 @@ fn fit_quadric(
         }
     }
     let mut a = cholesky_solve(&mut full, &mut atb, 10)?;
-    if constraints == Constraints::Gradient {
-        // Step 4's re-centring: the mean of Q̂ over the ball's points becomes 0.
-        let mut vsum = 0.0;
-        for &i in ball {
+    {
+        // Step 4's re-centring: the blend-weighted mean of Q̂/|∇Q̂| over the ball's points
+        // becomes 0.
+        let weights = recentring_weights(points, ball, blend);
+        let (mut vsum, mut wsum) = (0.0, 0.0);
+        for (&i, w) in ball.iter().zip(&weights) {
             let q = norm(points[i as usize]);
-            vsum += a[0]
+            let v = a[0]
                 + q[0] * (a[1] + a[4] * q[0] + a[5] * q[1] + a[6] * q[2])
                 + q[1] * (a[2] + a[7] * q[1] + a[8] * q[2])
                 + q[2] * (a[3] + a[9] * q[2]);
+            let g = [
+                a[1] + 2.0 * a[4] * q[0] + a[5] * q[1] + a[6] * q[2],
+                a[2] + a[5] * q[0] + 2.0 * a[7] * q[1] + a[8] * q[2],
+                a[3] + a[6] * q[0] + a[8] * q[1] + 2.0 * a[9] * q[2],
+            ];
+            let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-12);
+            vsum += w * v / gn;
+            wsum += w / gn;
         }
-        a[0] -= vsum / ball.len() as f64;
+        if wsum > 0.0 && vsum.is_finite() {
+            a[0] -= vsum / wsum;
+        }
     }
     // One pass over the ball: mean |∇Q| (input units, before rescaling: ∇ₚQ = ∇_qQ̂) and the
     // largest |Q|/|∇Q|, which the rescaling leaves unchanged.
@@ -404,6 +426,36 @@ fn fit_quadric(
         },
         max_error,
     })
+}
+
+/// The weights of the re-centring (step 4): each point's blend weight b(1.5·|p − c|/r) for the
+/// cell's weight centre c and support radius r, or 1 for every point without a blend or when no
+/// point of the ball lies inside the support (a grown cell's far points).
+fn recentring_weights(
+    points: &[[f64; 3]],
+    ball: &[u32],
+    blend: Option<([f64; 3], f64)>,
+) -> Vec<f64> {
+    if let Some((c, r)) = blend {
+        let k = 1.5 / r;
+        let w: Vec<f64> = ball
+            .iter()
+            .map(|&i| {
+                let t = k * dist(points[i as usize], c);
+                if t <= 0.5 {
+                    0.75 - t * t
+                } else if t < 1.5 {
+                    0.5 * (1.5 - t) * (1.5 - t)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        if w.iter().sum::<f64>() > 1e-9 {
+            return w;
+        }
+    }
+    vec![1.0; ball.len()]
 }
 
 /// The 10 monomials of degree ≤ 2 at `q` in the paper's order.
@@ -504,6 +556,7 @@ mod tests {
                 constraints,
                 1e-2,
                 1.0,
+                None,
             )
             .unwrap();
             assert!(fit.max_error < 1e-6, "{}", fit.max_error);
@@ -570,6 +623,7 @@ mod tests {
                 Constraints::Gradient,
                 1e-6,
                 1.0,
+                None,
             )
             .unwrap();
             assert!(fit.max_error < 1e-5, "{degree}: {}", fit.max_error);
@@ -583,6 +637,7 @@ mod tests {
                 Constraints::ThreeLevels(0.3),
                 1e-6,
                 1.0,
+                None,
             )
             .unwrap();
             assert!(three.max_error > 1e-4, "{degree}: {}", three.max_error);
