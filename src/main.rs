@@ -211,7 +211,7 @@ fn detail_params(opts: &cli::DetailOpts) -> Result<stablesurf::detail::DetailPar
     Ok(stablesurf::detail::DetailParams {
         degree: opts.local_degree,
         tolerance: opts.tolerance,
-        finest_tolerance: defaults.finest_tolerance.min(opts.tolerance),
+        finest_tolerance: opts.tolerance.min(1e-3),
         ..defaults
     })
 }

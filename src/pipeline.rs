@@ -223,7 +223,8 @@ pub enum Keep {
     /// Every component.
     #[default]
     All,
-    /// Only components with a data point within 2% of the data's diagonal.
+    /// Only components with a data point within 2% of the data's diagonal, and no small closed
+    /// piece inside another ([`mesh::drop_small_nested_components`]).
     Data,
 }
 
@@ -322,10 +323,14 @@ const IMPORT_VERSION: u32 = 1;
 /// The outlier filter is not cached (it is a linear pass), but its output's key chains
 /// through it when it leaves points out.
 const OUTLIERS_VERSION: u32 = 1;
-const NORMALS_VERSION: u32 = 3;
+const NORMALS_VERSION: u32 = 4;
 const FIT_VERSION: u32 = 2;
 const POLYGONIZE_VERSION: u32 = 2;
-const EXPORT_VERSION: u32 = 3;
+const EXPORT_VERSION: u32 = 4;
+
+/// With `Keep::Data`, closed pieces inside another piece and smaller than this share of the
+/// largest piece's area are left out ([`mesh::drop_small_nested_components`]).
+const NESTED_AREA_FRACTION: f64 = 0.01;
 
 struct Ctx<'a> {
     /// The run's cache: the one asked for, or a disabled one when it cannot be written.
@@ -534,6 +539,7 @@ fn fit_stages(
             let normals = normals::estimate_normals(&cloud, &config.normals)?;
             let figures = serde_json::json!({
                 "source": normals.source_used.as_str(),
+                "surface_samples": normals.surface_samples,
                 "warnings": normals.warnings,
             });
             Ok((normals.cloud, figures))
@@ -773,6 +779,7 @@ pub fn run(
                 "files": files.len(),
                 "bytes": files.iter().map(|f| f.1.len()).sum::<usize>(),
                 "dropped_components": parts.dropped,
+                "dropped_nested": parts.nested,
                 "mesh": parts.report,
                 "accuracy": parts.accuracy,
             });
@@ -794,6 +801,13 @@ pub fn run(
     if dropped > 0 {
         ctx.warn(format!(
             "left out {dropped} piece(s) of the surface with no data point within 2% of the diagonal; --keep all keeps them"
+        ));
+    }
+    let nested = figures["dropped_nested"].as_u64().unwrap_or(0);
+    if nested > 0 {
+        ctx.warn(format!(
+            "left out {nested} small closed piece(s) inside the surface (each under {}% of the largest piece's area); --keep all keeps them",
+            100.0 * NESTED_AREA_FRACTION
         ));
     }
     let clipped = matches!(model, Model::Global(_)) && report_mesh.boundary_edges > 0;
@@ -883,6 +897,7 @@ type Files = Vec<(String, Vec<u8>)>;
 struct MeshParts {
     mesh: TriangleMesh,
     dropped: usize,
+    nested: usize,
     report: MeshReport,
     accuracy: DistanceSummary,
     files: Files,
@@ -902,10 +917,12 @@ fn mesh_parts(
     with_slices: bool,
 ) -> Result<MeshParts, PipelineError> {
     let data_diagonal = Aabb::from_points(&cloud.points).map_or(0.0, |b| b.diagonal());
-    let mut dropped = 0;
+    let (mut dropped, mut nested) = (0, 0);
     if config.keep == Keep::Data {
         let (kept, n) = mesh::drop_components_far_from(&mesh, &cloud.points, 0.02 * data_diagonal);
         (mesh, dropped) = (kept, n);
+        let (kept, n) = mesh::drop_small_nested_components(&mesh, NESTED_AREA_FRACTION);
+        (mesh, nested) = (kept, n);
     }
     let want = |f| config.formats.contains(&f);
     let one = |name: &str, bytes: Vec<u8>| -> Files { vec![(name.to_string(), bytes)] };
@@ -993,6 +1010,7 @@ fn mesh_parts(
     Ok(MeshParts {
         mesh,
         dropped,
+        nested,
         report,
         accuracy,
         files,

@@ -151,10 +151,12 @@ fn mpu_file_round_trips_byte_identically() {
     };
     let model = fit_detail(&cloud, &params).unwrap();
     assert!(model.cells.iter().any(|c| c.poly.degree == 3));
-    assert!(model
-        .cells
-        .iter()
-        .all(|c| c.poly.degree == if c.grown { 2 } else { 3 }));
+    // Grown cells: a quadric, or a plane where their own ball held almost no data.
+    assert!(model.cells.iter().all(|c| if c.grown {
+        c.poly.degree <= 2
+    } else {
+        c.poly.degree == 3
+    }));
     let mut first = Vec::new();
     write_mpu(&model, &mut first).unwrap();
     assert!(is_mpu(&first));

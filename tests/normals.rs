@@ -803,3 +803,103 @@ fn real_scans_agree_with_their_meshes() {
         );
     }
 }
+
+/// The six faces of the box [0, a] × [0, b] × [0, c], each sampled on an n × n grid (cell
+/// centres), with exact outward normals.
+fn box_surface(size: [f64; 3], n: usize) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+    let mut points = Vec::new();
+    let mut normals = Vec::new();
+    for axis in 0..3 {
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        for side in [0.0, 1.0] {
+            for i in 0..n {
+                for j in 0..n {
+                    let mut p = [0.0; 3];
+                    p[axis] = side * size[axis];
+                    p[u] = (i as f64 + 0.5) / n as f64 * size[u];
+                    p[v] = (j as f64 + 0.5) / n as f64 * size[v];
+                    let mut nrm = [0.0; 3];
+                    nrm[axis] = if side == 0.0 { -1.0 } else { 1.0 };
+                    points.push(p);
+                    normals.push(nrm);
+                }
+            }
+        }
+    }
+    (points, normals)
+}
+
+#[test]
+fn correct_input_normals_of_a_thin_plate_are_kept() {
+    // A plate 2 × 2 × 0.1, sampled every 0.05: each point's 16 nearest neighbours reach across
+    // to the other side, where the normals rightly point the other way, and round the sharp
+    // edges. The normals are right and must come out unchanged.
+    let (points, normals) = box_surface([2.0, 2.0, 0.1], 40);
+    let cloud = PointCloud {
+        points,
+        normals: Some(normals.clone()),
+        ..Default::default()
+    };
+    let params = NormalsParams {
+        source: NormalSource::Input,
+        ..Default::default()
+    };
+    let out = estimate_normals(&cloud, &params).unwrap();
+    let changed = normals
+        .iter()
+        .zip(&out.cloud.normals)
+        .filter(|(a, b)| dot(a, b) < 0.999)
+        .count();
+    assert_eq!(changed, 0, "{:?}", out.warnings);
+}
+
+#[test]
+fn large_faces_get_surface_samples_with_their_normals() {
+    // A box 1 × 1 × 10 of 12 triangles on its 8 corners: a model whose faces hold no vertex.
+    // The median edge is √2 (the end squares' diagonals); the long faces' triangles (area 5,
+    // longest edge √101) would get 6 samples each, the end squares' none; the cap of 4 samples
+    // per point (32) leaves 4 each. The samples must lie on the box's faces with the faces'
+    // outward normals.
+    let size = [1.0, 1.0, 10.0];
+    let points: Vec<[f64; 3]> = (0..8)
+        .map(|i| [0, 1, 2].map(|a| ((i >> a) & 1) as f64 * size[a]))
+        .collect();
+    let quads = [
+        [0, 2, 6, 4],
+        [1, 5, 7, 3],
+        [0, 4, 5, 1],
+        [2, 3, 7, 6],
+        [0, 1, 3, 2],
+        [4, 6, 7, 5],
+    ];
+    let triangles: Vec<[u32; 3]> = quads
+        .iter()
+        .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+        .collect();
+    let cloud = PointCloud {
+        points: points.clone(),
+        triangles,
+        ..Default::default()
+    };
+    let out = estimate_normals(&cloud, &NormalsParams::default()).unwrap();
+    assert_eq!(out.surface_samples, 8 * 4);
+    assert_eq!(out.cloud.points.len(), 8 + out.surface_samples);
+    assert_eq!(&out.cloud.points[..8], &points[..]);
+    for (p, n) in out.cloud.points.iter().zip(&out.cloud.normals).skip(8) {
+        // On a long face: x or y is 0 or 1 (to rounding), the normal is that face's.
+        let on = (0..2)
+            .find(|&a| p[a].abs() < 1e-12 || (p[a] - 1.0).abs() < 1e-12)
+            .unwrap_or_else(|| panic!("{p:?} is not on a long face"));
+        let mut want = [0.0; 3];
+        want[on] = if p[on] < 0.5 { -1.0 } else { 1.0 };
+        assert!(dot(n, &want) > 1.0 - 1e-12, "{p:?}: {n:?}");
+        assert!((0..3).all(|a| (-1e-12..=size[a] + 1e-12).contains(&p[a])));
+    }
+    // Off: the vertices only.
+    let params = NormalsParams {
+        surface_samples: false,
+        ..Default::default()
+    };
+    let out = estimate_normals(&cloud, &params).unwrap();
+    assert_eq!((out.surface_samples, out.cloud.points.len()), (0, 8));
+}

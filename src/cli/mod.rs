@@ -245,7 +245,7 @@ pub struct DetailOpts {
     pub local_degree: u32,
     /// Detail mode: split a cell while its fit is farther than this from its points (fraction
     /// of the bounding-box diagonal).
-    #[arg(long, default_value_t = 2e-3, value_name = "T",
+    #[arg(long, default_value_t = 3.5e-4, value_name = "T",
           help = TOLERANCE.help("Detail mode: split a cell while its fit is farther than this from its points, as a fraction of the bounding-box diagonal"),
           allow_negative_numbers = true, value_parser = TOLERANCE.real())]
     pub tolerance: f64,

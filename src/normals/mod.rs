@@ -189,6 +189,15 @@ pub struct NormalsParams {
     /// fan around a point before that fan counts as ill-structured (replaced by a plane fit).
     /// Default 40.
     pub max_fan_angle_deg: f64,
+    /// With normals from a mesh's faces, add points with their face's normal on triangles that
+    /// are large against the mesh's median edge ([`faces::surface_samples`]), after the input
+    /// points. Default true.
+    #[serde(default = "yes")]
+    pub surface_samples: bool,
+}
+
+fn yes() -> bool {
+    true
 }
 
 impl Default for NormalsParams {
@@ -198,6 +207,7 @@ impl Default for NormalsParams {
             k_neighbours: 16,
             max_k_neighbours: 128,
             max_fan_angle_deg: 40.0,
+            surface_samples: true,
         }
     }
 }
@@ -213,6 +223,8 @@ pub struct Normals {
     pub crust_triangles: Vec<[u32; 3]>,
     /// Messages for the user (for example a fallback from crust to pca).
     pub warnings: Vec<String>,
+    /// Points added on large faces ([`NormalsParams::surface_samples`]), at the end of the cloud.
+    pub surface_samples: usize,
 }
 
 /// Estimates unit outward normals.
@@ -309,6 +321,7 @@ pub fn estimate_normals(
         warnings,
         ..Default::default()
     };
+    let mut samples = (Vec::new(), Vec::new());
     let unique_normals = match source {
         NormalSource::Crust | NormalSource::Auto => {
             match crust::crust_normals(&dedup.unique, params) {
@@ -333,9 +346,12 @@ pub fn estimate_normals(
         }
         NormalSource::Pca => pca::pca_normals(&dedup.unique, params),
         NormalSource::Mesh => {
-            let (normals, warnings) = faces::mesh_normals(&dedup.unique, &faces, params)?;
-            out.warnings.extend(warnings);
-            normals
+            let mesh = faces::mesh_normals(&dedup.unique, &faces, params)?;
+            out.warnings.extend(mesh.warnings);
+            if params.surface_samples {
+                samples = faces::surface_samples(&dedup.unique, &mesh.triangles);
+            }
+            mesh.normals
         }
         NormalSource::Input => {
             let given = cloud.normals.as_ref().ok_or(NormalsError::NoInputNormals)?;
@@ -363,6 +379,9 @@ pub fn estimate_normals(
             .map(|&u| unique_normals[u as usize])
             .collect(),
     };
+    out.surface_samples = samples.0.len();
+    out.cloud.points.extend(samples.0);
+    out.cloud.normals.extend(samples.1);
     Ok(out)
 }
 
