@@ -375,14 +375,14 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
             pipeline::Mode::Detail => String::new(),
         };
         eprintln!(
-            "stablesurf: done in {:.2}s: {} vertices, {} triangles, {} component(s), watertight {}, self-intersecting faces {}{bounded}, mean distance {:.2e} of the diagonal; outputs in {}",
+            "stablesurf: done in {:.2}s: {} vertices, {} triangles, {} component(s), watertight {}, self-intersecting faces {}{bounded}, {}; outputs in {}",
             report.seconds,
             report.mesh.vertices,
             report.mesh.faces,
             report.mesh.components,
             report.mesh.watertight,
             report.mesh.self_intersecting_faces,
-            report.accuracy.mean_relative,
+            report.accuracy.describe(),
             args.output.display()
         );
     }

@@ -20,7 +20,7 @@ use crate::detail::{self, DetailParams, MpuModel};
 use crate::export::{self, ExportError};
 use crate::fit::{self, FitParams};
 use crate::import;
-use crate::measure::{self, DistanceSummary};
+use crate::measure::{self, Accuracy};
 use crate::mesh::{self, MeshReport, TriangleMesh};
 use crate::normals::{self, NormalsParams};
 use crate::outliers::{self, OutlierParams};
@@ -288,8 +288,10 @@ pub struct RunReport {
     pub fit: serde_json::Value,
     /// Mesh topology checks.
     pub mesh: MeshReport,
-    /// Distance from the input points to the mesh, absolute and relative to the data's diagonal.
-    pub accuracy: DistanceSummary,
+    /// Two-sided distances between the input points and the mesh, absolute and relative to the
+    /// data's diagonal: data → mesh, mesh → data by area, and the share of the mesh's area far
+    /// from every data point.
+    pub accuracy: Accuracy,
     /// Files written, relative to the output directory.
     pub outputs: Vec<String>,
     /// Every warning the run printed.
@@ -325,7 +327,7 @@ const OUTLIERS_VERSION: u32 = 1;
 const NORMALS_VERSION: u32 = 3;
 const FIT_VERSION: u32 = 2;
 const POLYGONIZE_VERSION: u32 = 2;
-const EXPORT_VERSION: u32 = 3;
+const EXPORT_VERSION: u32 = 4;
 
 struct Ctx<'a> {
     /// The run's cache: the one asked for, or a disabled one when it cannot be written.
@@ -786,7 +788,7 @@ pub fn run(
         .unwrap_or_default();
     let report_mesh: MeshReport =
         serde_json::from_value(figures["mesh"].clone()).unwrap_or_default();
-    let accuracy: DistanceSummary =
+    let accuracy: Accuracy =
         serde_json::from_value(figures["accuracy"].clone()).unwrap_or_default();
     // A polynomial's zero set that runs out of the meshing box is open there: not a bounded
     // surface in this mesh, whatever the fit certified.
@@ -884,7 +886,7 @@ struct MeshParts {
     mesh: TriangleMesh,
     dropped: usize,
     report: MeshReport,
-    accuracy: DistanceSummary,
+    accuracy: Accuracy,
     files: Files,
     slices: Option<Files>,
 }
@@ -970,12 +972,7 @@ fn mesh_parts(
                 || {
                     rayon::join(
                         || mesh::check(m),
-                        || {
-                            DistanceSummary::from_distances(
-                                &measure::point_to_mesh_distances(&cloud.points, m),
-                                data_diagonal,
-                            )
-                        },
+                        || measure::accuracy(&cloud.points, m, data_diagonal),
                     )
                 },
                 || {
