@@ -27,6 +27,7 @@ use crate::outliers::{self, OutlierParams};
 use crate::outputs::OutputSet;
 use crate::poly::ImplicitModel;
 use crate::polygonize::{self, ImplicitFunction, PolygonizeParams};
+use crate::trim::{self, TrimParams, TrimReport};
 
 /// The small real scan built into the binary: "Spot" the cow by Keenan Crane (CC0 1.0),
 /// 2,930 vertices, 5,856 triangles.
@@ -52,6 +53,9 @@ pub enum PipelineError {
     /// Meshing failed.
     #[error("meshing failed")]
     Polygonize(#[from] polygonize::PolygonizeError),
+    /// Trimming the mesh to its data failed.
+    #[error("trimming the mesh failed")]
+    Trim(#[from] trim::TrimError),
     /// Writing an output failed.
     #[error("writing outputs failed")]
     Export(#[from] ExportError),
@@ -208,6 +212,8 @@ pub struct PipelineConfig {
     pub polygonize: PolygonizeParams,
     /// Drop zero-set components with no data point near them.
     pub keep: Keep,
+    /// Trim stage parameters (default: off; `run` trims in detail mode).
+    pub trim: TrimParams,
     /// Distance slice parameters (default: 16 slices of 128² along z, exact distances; the
     /// detail mode needs [`crate::distance::DistanceMethod::Mesh`]).
     pub slices: crate::distance::SliceParams,
@@ -237,6 +243,7 @@ impl Default for PipelineConfig {
             detail: DetailParams::default(),
             polygonize: PolygonizeParams::default(),
             keep: Keep::All,
+            trim: TrimParams::off(),
             slices: crate::distance::SliceParams {
                 resolution: 128,
                 ..Default::default()
@@ -286,6 +293,8 @@ pub struct RunReport {
     pub stages: Vec<StageRecord>,
     /// The fitted model's settings and diagnostics.
     pub fit: serde_json::Value,
+    /// What the trim stage removed and closed.
+    pub trim: TrimReport,
     /// Mesh topology checks.
     pub mesh: MeshReport,
     /// Two-sided distances between the input points and the mesh, absolute and relative to the
@@ -775,6 +784,7 @@ pub fn run(
                 "files": files.len(),
                 "bytes": files.iter().map(|f| f.1.len()).sum::<usize>(),
                 "dropped_components": parts.dropped,
+                "trim": parts.trim,
                 "mesh": parts.report,
                 "accuracy": parts.accuracy,
             });
@@ -790,6 +800,8 @@ pub fn run(
         serde_json::from_value(figures["mesh"].clone()).unwrap_or_default();
     let accuracy: Accuracy =
         serde_json::from_value(figures["accuracy"].clone()).unwrap_or_default();
+    let trim_report: TrimReport =
+        serde_json::from_value(figures["trim"].clone()).unwrap_or_default();
     // A polynomial's zero set that runs out of the meshing box is open there: not a bounded
     // surface in this mesh, whatever the fit certified.
     let dropped = figures["dropped_components"].as_u64().unwrap_or(0);
@@ -844,6 +856,7 @@ pub fn run(
             }
             fit
         },
+        trim: trim_report,
         mesh: report_mesh,
         accuracy,
         outputs: names,
@@ -866,6 +879,8 @@ fn export_params_bytes(config: &PipelineConfig) -> Vec<u8> {
     cache::params_bytes(&serde_json::json!({
         "formats": formats,
         "keep": format!("{:?}", config.keep),
+        "trim": config.trim,
+        "trim_version": trim::STAGE_VERSION,
         "up": format!("{:?}", config.gltf.up),
         "slices": {
             "axis": config.slices.axis.name(),
@@ -885,6 +900,7 @@ type Files = Vec<(String, Vec<u8>)>;
 struct MeshParts {
     mesh: TriangleMesh,
     dropped: usize,
+    trim: TrimReport,
     report: MeshReport,
     accuracy: Accuracy,
     files: Files,
@@ -908,6 +924,12 @@ fn mesh_parts(
     if config.keep == Keep::Data {
         let (kept, n) = mesh::drop_components_far_from(&mesh, &cloud.points, 0.02 * data_diagonal);
         (mesh, dropped) = (kept, n);
+    }
+    // The trim stage: the surface the data supports (the mesh itself when all of it is).
+    let trimmed = trim::trim(&mesh, &cloud.points, &config.trim)?;
+    let trim_report = trimmed.report;
+    if trim_report.removed_triangles > 0 {
+        mesh = trimmed.mesh;
     }
     let want = |f| config.formats.contains(&f);
     let one = |name: &str, bytes: Vec<u8>| -> Files { vec![(name.to_string(), bytes)] };
@@ -990,6 +1012,7 @@ fn mesh_parts(
     Ok(MeshParts {
         mesh,
         dropped,
+        trim: trim_report,
         report,
         accuracy,
         files,
