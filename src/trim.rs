@@ -68,7 +68,7 @@ pub struct TrimParams {
     /// Trim or not.
     pub mode: TrimMode,
     /// A triangle is supported when a data point lies within this many local spacings of its
-    /// centroid. Default 3.
+    /// centroid. Default 2.
     pub support_factor: f64,
     /// Neighbours over which the local spacing is a median. Default 8.
     pub spacing_neighbours: usize,
@@ -86,7 +86,7 @@ impl Default for TrimParams {
     fn default() -> Self {
         TrimParams {
             mode: TrimMode::Support,
-            support_factor: 3.0,
+            support_factor: 2.0,
             spacing_neighbours: 8,
             keep_area_share: 0.1,
             fill_perimeter: 0.05,
