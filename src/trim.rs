@@ -506,8 +506,8 @@ fn remove_extra_fans(
         // Two triangles around v are in one fan when they share an edge through v.
         for i in 0..local.len() {
             let ti = mesh.triangles[local[i] as usize];
-            for j in i + 1..local.len() {
-                let tj = mesh.triangles[local[j] as usize];
+            for (j, &other) in local.iter().enumerate().skip(i + 1) {
+                let tj = mesh.triangles[other as usize];
                 let shared = ti.iter().filter(|&&w| w != v && tj.contains(&w)).count();
                 if shared > 0 {
                     let (a, b) = (root(&mut parent, i), root(&mut parent, j));
@@ -733,7 +733,7 @@ fn ear_clip(
         normal[2] += (a[0] - b[0]) * (a[1] + b[1]);
     }
     let len = norm(normal);
-    if !(len > 0.0) {
+    if len.is_nan() || len <= 0.0 {
         return None;
     }
     let nz = normal.map(|c| c / len);
