@@ -29,6 +29,7 @@ pub mod pipeline;
 pub mod poly;
 pub mod polygonize;
 pub mod render;
+pub mod trim;
 mod vec3;
 
 pub use cloud::{Aabb, OrientedCloud, PointCloud};

@@ -20,6 +20,7 @@ use stablesurf::cache::Cache;
 use stablesurf::pipeline::{
     self, Keep, Observer, OutputFormat, PipelineConfig, ScanSource, StageRecord,
 };
+use stablesurf::trim::{TrimMode, TrimParams};
 use stablesurf::{export, fit, import, normals, polygonize, Aabb, TriangleMesh};
 
 /// A command line that parsed but makes no sense (exit code 2).
@@ -165,6 +166,19 @@ fn open_cache(opts: &cli::CacheOpts) -> Result<Cache> {
     }
 }
 
+/// `--trim`: auto trims in detail mode (a blend extrapolates past the data) and keeps a
+/// polynomial's zero set whole (it is the model).
+fn trim_params(arg: Option<cli::TrimArg>, mode: pipeline::Mode) -> TrimParams {
+    match (arg.unwrap_or(cli::TrimArg::Auto), mode) {
+        (cli::TrimArg::Off, _) | (cli::TrimArg::Auto, pipeline::Mode::Global) => TrimParams::off(),
+        (cli::TrimArg::Auto, pipeline::Mode::Detail) => TrimParams::default(),
+        (cli::TrimArg::Factor(support_factor), _) => TrimParams {
+            support_factor,
+            ..TrimParams::default()
+        },
+    }
+}
+
 fn outlier_params(keep: bool) -> stablesurf::outliers::OutlierParams {
     stablesurf::outliers::OutlierParams {
         keep,
@@ -295,6 +309,7 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
             (Some(cli::KeepArg::All), _) | (None, pipeline::Mode::Global) => Keep::All,
             (Some(cli::KeepArg::Data), _) | (None, pipeline::Mode::Detail) => Keep::Data,
         },
+        trim: trim_params(args.trim, mode),
         gltf: gltf_options(args.up),
         slices: slice_params(
             cli::AxisArg::Z,
@@ -332,7 +347,7 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
             ),
         };
         eprintln!(
-            "stablesurf: run {input} -> {} (mode {}{}, normals {}, {model}, depth {}, keep {}, slices {} x {}^2 {}, cache {})",
+            "stablesurf: run {input} -> {} (mode {}{}, normals {}, {model}, depth {}, keep {}, trim {}, slices {} x {}^2 {}, cache {})",
             args.output.display(),
             args.mode(),
             if args.mode_given() {
@@ -345,6 +360,10 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
             match config.keep {
                 Keep::All => "all",
                 Keep::Data => "data",
+            },
+            match config.trim.mode {
+                TrimMode::Off => "off".to_string(),
+                TrimMode::Support => format!("support factor {}", config.trim.support_factor),
             },
             config.slices.count,
             config.slices.resolution,
@@ -374,15 +393,27 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
             ),
             pipeline::Mode::Detail => String::new(),
         };
+        let t = &report.trim;
+        let trimmed = if t.removed_triangles > 0 || t.holes_filled > 0 {
+            format!(
+                ", trimmed {} triangles ({:.1}% of the area) where no data supports the surface, {} hole(s) closed",
+                t.removed_triangles,
+                100.0 * t.removed_area_share,
+                t.holes_filled
+            )
+        } else {
+            String::new()
+        };
         eprintln!(
-            "stablesurf: done in {:.2}s: {} vertices, {} triangles, {} component(s), watertight {}, self-intersecting faces {}{bounded}, mean distance {:.2e} of the diagonal; outputs in {}",
+            "stablesurf: done in {:.2}s: {} vertices, {} triangles, {} component(s), watertight {}, boundary loops {}, self-intersecting faces {}{bounded}{trimmed}, {}; outputs in {}",
             report.seconds,
             report.mesh.vertices,
             report.mesh.faces,
             report.mesh.components,
             report.mesh.watertight,
+            report.mesh.boundary_loops,
             report.mesh.self_intersecting_faces,
-            report.accuracy.mean_relative,
+            report.accuracy.describe(),
             args.output.display()
         );
     }

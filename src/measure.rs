@@ -19,6 +19,13 @@
 //! the two, which is how the prototype measured Poisson's 1.19e-3 (divide by the data
 //! diagonal for the relative figure).
 //!
+//! The run's report uses [`accuracy`]: data → mesh as above, and mesh → data by *area*
+//! ([`mesh_to_points_by_area`]): every triangle cut into congruent pieces of at most 0.5% of the
+//! diagonal ([`area_samples`]), each piece's centroid weighted by its area, its distance to the
+//! nearest data point from the k-d tree below. Its far share (the area farther than 1% of the
+//! diagonal from every data point) shows surface the data does not support, which the data →
+//! mesh figure cannot see.
+//!
 //! The nearest-point queries (here and for the seeds of [`crate::distance`]) use
 //! [`PointTree`], a k-d tree (Friedman, Bentley and Finkel 1977) with median splits on the
 //! widest axis, leaves of 16 points and the tight bounding box of every node: a subtree is
@@ -79,6 +86,166 @@ impl DistanceSummary {
             mean_relative: rel(mean),
             max_relative: rel(max),
         }
+    }
+}
+
+/// Distances from a mesh's surface to the nearest data point, weighted by area
+/// ([`mesh_to_points_by_area`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct AreaDistanceSummary {
+    /// Area-weighted mean distance from the mesh to the nearest data point, input units.
+    pub mean: f64,
+    /// Largest sampled distance, input units.
+    pub max: f64,
+    /// `mean` divided by the data's bounding-box diagonal.
+    pub mean_relative: f64,
+    /// `max` divided by the data's bounding-box diagonal.
+    pub max_relative: f64,
+    /// Share of the mesh's area (0 to 1) farther than `far_relative` × diagonal from every data
+    /// point.
+    pub far_area_share: f64,
+    /// The threshold of `far_area_share`, relative to the diagonal ([`FAR_RELATIVE`]).
+    pub far_relative: f64,
+    /// The mesh's area, input units squared.
+    pub area: f64,
+    /// Sample points the figures come from.
+    pub samples: usize,
+}
+
+/// Two-sided accuracy of a mesh against its data: the report's `accuracy`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Accuracy {
+    /// Data → mesh: distance from every data point to the mesh (the fields `mean`, `rms`,
+    /// `max`, `mean_relative`, `max_relative` at the top level of the JSON object).
+    #[serde(flatten)]
+    pub data_to_mesh: DistanceSummary,
+    /// Mesh → data, sampled by area.
+    #[serde(default)]
+    pub mesh_to_data: AreaDistanceSummary,
+    /// Symmetric Chamfer distance relative to the diagonal: the mean of the two directions'
+    /// `mean_relative`.
+    #[serde(default)]
+    pub chamfer_relative: f64,
+}
+
+impl Accuracy {
+    /// The figures as the run's summary line prints them: both directions' mean distances and
+    /// the far share of the area.
+    pub fn describe(&self) -> String {
+        let m = &self.mesh_to_data;
+        format!(
+            "mean distance data -> mesh {:.2e}, mesh -> data {:.2e} of the diagonal, {:.1}% of the mesh area farther than {}% of the diagonal from the data",
+            self.data_to_mesh.mean_relative,
+            m.mean_relative,
+            100.0 * m.far_area_share,
+            100.0 * m.far_relative
+        )
+    }
+}
+
+/// The threshold of [`AreaDistanceSummary::far_area_share`]: 1% of the data's diagonal.
+pub const FAR_RELATIVE: f64 = 0.01;
+
+/// Largest side of the pieces [`area_samples`] cuts a triangle into, relative to the data's
+/// diagonal: half of [`FAR_RELATIVE`], so a sample stands for points at most that far from it.
+const AREA_SAMPLE_RELATIVE: f64 = 0.005;
+
+/// Most pieces per side [`area_samples`] cuts a triangle into (at most 256 samples per
+/// triangle, for the few long triangles where a surface meets the meshing box).
+const AREA_SAMPLE_MAX_SPLITS: usize = 16;
+
+/// Points spread over the mesh by area, and the area each stands for: every triangle is cut
+/// into s × s congruent pieces (s = ⌈longest edge / `piece`⌉, from 1 to 16) and each piece gives
+/// its centroid. Deterministic: triangles in order, pieces in a fixed order. Triangles with an
+/// index out of range or a non-finite vertex give nothing.
+pub fn area_samples(mesh: &TriangleMesh, piece: f64) -> (Vec<[f64; 3]>, Vec<f64>) {
+    let n = mesh.positions.len();
+    let mut points = Vec::with_capacity(mesh.triangles.len());
+    let mut weights = Vec::with_capacity(mesh.triangles.len());
+    for t in &mesh.triangles {
+        if t.iter().any(|&i| i as usize >= n) {
+            continue;
+        }
+        let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+        if ![a, b, c].iter().flatten().all(|x| x.is_finite()) {
+            continue;
+        }
+        let (ab, ac) = (crate::vec3::sub(b, a), crate::vec3::sub(c, a));
+        let area = 0.5 * crate::vec3::norm(crate::vec3::cross(ab, ac));
+        let longest = dist(a, b).max(dist(b, c)).max(dist(c, a));
+        let s = if piece > 0.0 && longest > piece {
+            ((longest / piece).ceil() as usize).min(AREA_SAMPLE_MAX_SPLITS)
+        } else {
+            1
+        };
+        let w = area / (s * s) as f64;
+        let sf = s as f64;
+        let at = |u: f64, v: f64| [0, 1, 2].map(|k| a[k] + u * ab[k] + v * ac[k]);
+        for i in 0..s {
+            for j in 0..s - i {
+                let (fi, fj) = (i as f64, j as f64);
+                points.push(at((fi + 1.0 / 3.0) / sf, (fj + 1.0 / 3.0) / sf));
+                weights.push(w);
+                if i + j + 2 <= s {
+                    points.push(at((fi + 2.0 / 3.0) / sf, (fj + 2.0 / 3.0) / sf));
+                    weights.push(w);
+                }
+            }
+        }
+    }
+    (points, weights)
+}
+
+/// Mesh → data distances by area: [`area_samples`] with pieces of at most half a percent of
+/// `diagonal`, each sample's distance to the nearest of `points` (the k-d tree of
+/// [`nearest_point_distances`]), summed in sample order. `far_relative` × `diagonal` is the
+/// threshold of the far share. `None` when there is no data point or no usable triangle.
+pub fn mesh_to_points_by_area(
+    mesh: &TriangleMesh,
+    points: &[[f64; 3]],
+    diagonal: f64,
+    far_relative: f64,
+) -> Option<AreaDistanceSummary> {
+    let (samples, weights) = area_samples(mesh, AREA_SAMPLE_RELATIVE * diagonal);
+    if samples.is_empty() {
+        return None;
+    }
+    let distances = nearest_point_distances(&samples, points)?;
+    let far = far_relative * diagonal;
+    let (mut area, mut sum, mut far_area, mut max) = (0.0, 0.0, 0.0, 0.0f64);
+    for (&d, &w) in distances.iter().zip(&weights) {
+        area += w;
+        sum += w * d;
+        max = max.max(d);
+        if d > far {
+            far_area += w;
+        }
+    }
+    let mean = if area > 0.0 { sum / area } else { 0.0 };
+    let rel = |v: f64| if diagonal > 0.0 { v / diagonal } else { 0.0 };
+    Some(AreaDistanceSummary {
+        mean,
+        max,
+        mean_relative: rel(mean),
+        max_relative: rel(max),
+        far_area_share: if area > 0.0 { far_area / area } else { 0.0 },
+        far_relative,
+        area,
+        samples: samples.len(),
+    })
+}
+
+/// The two-sided [`Accuracy`] of `mesh` against `points`, relative to `diagonal` (the data's
+/// bounding-box diagonal); the two directions run in parallel.
+pub fn accuracy(points: &[[f64; 3]], mesh: &TriangleMesh, diagonal: f64) -> Accuracy {
+    let (to_mesh, to_points) = rayon::join(
+        || DistanceSummary::from_distances(&point_to_mesh_distances(points, mesh), diagonal),
+        || mesh_to_points_by_area(mesh, points, diagonal, FAR_RELATIVE).unwrap_or_default(),
+    );
+    Accuracy {
+        data_to_mesh: to_mesh,
+        mesh_to_data: to_points,
+        chamfer_relative: 0.5 * (to_mesh.mean_relative + to_points.mean_relative),
     }
 }
 
@@ -880,6 +1047,39 @@ mod tests {
         assert!((d[1] - 1.0).abs() < 1e-12);
         let s = DistanceSummary::from_distances(&d, 2.0);
         assert!((s.mean - 0.625).abs() < 1e-12 && (s.max_relative - 0.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn area_samples_cover_the_area_and_find_the_far_part() {
+        // A unit square (two triangles) at z = 0 and a second one at z = 1; data on the first.
+        let mesh = TriangleMesh {
+            positions: vec![
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [1.0, 1.0, 0.0],
+                [0.0, 1.0, 0.0],
+                [0.0, 0.0, 1.0],
+                [1.0, 0.0, 1.0],
+                [1.0, 1.0, 1.0],
+                [0.0, 1.0, 1.0],
+            ],
+            normals: vec![[0.0, 0.0, 1.0]; 8],
+            triangles: vec![[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]],
+        };
+        let (points, weights) = area_samples(&mesh, 0.3);
+        // Longest edge √2 → 5 pieces per side, 25 samples per triangle.
+        assert_eq!(points.len(), 4 * 25);
+        assert!((weights.iter().sum::<f64>() - 2.0).abs() < 1e-12);
+        let data: Vec<[f64; 3]> = (0..=20)
+            .flat_map(|i| (0..=20).map(move |j| [i as f64 / 20.0, j as f64 / 20.0, 0.0]))
+            .collect();
+        let s = mesh_to_points_by_area(&mesh, &data, 100.0, 0.01).unwrap();
+        assert!((s.far_area_share - 0.5).abs() < 1e-12, "{s:?}");
+        assert!((s.area - 2.0).abs() < 1e-12);
+        assert!(s.max >= 1.0 && s.mean > 0.5);
+        let a = accuracy(&data, &mesh, 100.0);
+        assert!(a.data_to_mesh.max < 1e-12);
+        assert!((a.chamfer_relative - 0.5 * a.mesh_to_data.mean_relative).abs() < 1e-15);
     }
 
     #[test]

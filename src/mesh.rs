@@ -46,6 +46,11 @@ pub struct MeshReport {
     /// Edges used by exactly one triangle: the mesh's boundary (where the zero set leaves the
     /// meshing region).
     pub boundary_edges: usize,
+    /// Closed chains of boundary edges (connected pieces of the boundary edges): 0 for a
+    /// closed surface, 1 for a disc-like open patch, one more per hole. Reports written before
+    /// this field read as 0.
+    #[serde(default)]
+    pub boundary_loops: usize,
     /// Edges used by three or more triangles.
     pub non_manifold_edges: usize,
     /// Vertices whose triangles do not form a single fan (two surface sheets touching at a
@@ -279,12 +284,18 @@ pub fn check(mesh: &TriangleMesh) -> MeshReport {
     }
 
     let (components, _) = component_labels(mesh);
+    let boundary_loops = if boundary_edges == 0 {
+        0
+    } else {
+        boundary_pieces(n, &triangles)
+    };
     MeshReport {
         vertices: n,
         faces: mesh.triangles.len(),
         edges: n_edges,
         components,
         boundary_edges,
+        boundary_loops,
         non_manifold_edges,
         non_manifold_vertices,
         degenerate_faces,
@@ -297,6 +308,68 @@ pub fn check(mesh: &TriangleMesh) -> MeshReport {
             && degenerate_faces == 0,
         self_intersecting_faces: self_intersecting_faces(mesh),
     }
+}
+
+/// The boundary edges of `triangles` (edges used once), each as it runs in its triangle
+/// (a → b), sorted.
+pub fn boundary_edges(triangles: &[[u32; 3]]) -> Vec<[u32; 2]> {
+    let mut edges: Vec<([u32; 2], [u32; 2])> = triangles
+        .iter()
+        .flat_map(|t| (0..3).map(move |k| (t[k], t[(k + 1) % 3])))
+        .map(|(a, b)| ([a.min(b), a.max(b)], [a, b]))
+        .collect();
+    edges.sort_unstable();
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i < edges.len() {
+        let mut j = i + 1;
+        while j < edges.len() && edges[j].0 == edges[i].0 {
+            j += 1;
+        }
+        if j - i == 1 {
+            out.push(edges[i].1);
+        }
+        i = j;
+    }
+    out.sort_unstable();
+    out
+}
+
+/// The number of boundary loops of `mesh` (as [`check`] counts them): connected pieces of its
+/// boundary edges, 0 for a closed surface.
+pub fn boundary_loops(mesh: &TriangleMesh) -> usize {
+    let triangles: Vec<[u32; 3]> = valid_triangles(mesh).collect();
+    boundary_pieces(mesh.positions.len(), &triangles)
+}
+
+/// Connected pieces of the boundary edges of `triangles` (vertices below `n_vertices`): the
+/// number of boundary loops of a manifold mesh.
+fn boundary_pieces(n_vertices: usize, triangles: &[[u32; 3]]) -> usize {
+    let edges = boundary_edges(triangles);
+    let mut parent: Vec<u32> = (0..n_vertices as u32).collect();
+    fn root(parent: &mut [u32], mut i: u32) -> u32 {
+        while parent[i as usize] != i {
+            parent[i as usize] = parent[parent[i as usize] as usize];
+            i = parent[i as usize];
+        }
+        i
+    }
+    let mut pieces = 0usize;
+    let mut on_boundary = vec![false; n_vertices];
+    for &[a, b] in &edges {
+        for v in [a, b] {
+            if !on_boundary[v as usize] {
+                on_boundary[v as usize] = true;
+                pieces += 1;
+            }
+        }
+        let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
+        if ra != rb {
+            parent[ra.max(rb) as usize] = ra.min(rb);
+            pieces -= 1;
+        }
+    }
+    pieces
 }
 
 /// Drops the connected components of `mesh` that have no point of `points` within

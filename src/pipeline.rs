@@ -20,13 +20,14 @@ use crate::detail::{self, DetailParams, MpuModel};
 use crate::export::{self, ExportError};
 use crate::fit::{self, FitParams};
 use crate::import;
-use crate::measure::{self, DistanceSummary};
+use crate::measure::{self, Accuracy};
 use crate::mesh::{self, MeshReport, TriangleMesh};
 use crate::normals::{self, NormalsParams};
 use crate::outliers::{self, OutlierParams};
 use crate::outputs::OutputSet;
 use crate::poly::ImplicitModel;
 use crate::polygonize::{self, ImplicitFunction, PolygonizeParams};
+use crate::trim::{self, TrimParams, TrimReport};
 
 /// The small real scan built into the binary: "Spot" the cow by Keenan Crane (CC0 1.0),
 /// 2,930 vertices, 5,856 triangles.
@@ -52,6 +53,9 @@ pub enum PipelineError {
     /// Meshing failed.
     #[error("meshing failed")]
     Polygonize(#[from] polygonize::PolygonizeError),
+    /// Trimming the mesh to its data failed.
+    #[error("trimming the mesh failed")]
+    Trim(#[from] trim::TrimError),
     /// Writing an output failed.
     #[error("writing outputs failed")]
     Export(#[from] ExportError),
@@ -208,6 +212,8 @@ pub struct PipelineConfig {
     pub polygonize: PolygonizeParams,
     /// Drop zero-set components with no data point near them.
     pub keep: Keep,
+    /// Trim stage parameters (default: off; `run` trims in detail mode).
+    pub trim: TrimParams,
     /// Distance slice parameters (default: 16 slices of 128² along z, exact distances; the
     /// detail mode needs [`crate::distance::DistanceMethod::Mesh`]).
     pub slices: crate::distance::SliceParams,
@@ -238,6 +244,7 @@ impl Default for PipelineConfig {
             detail: DetailParams::default(),
             polygonize: PolygonizeParams::default(),
             keep: Keep::All,
+            trim: TrimParams::off(),
             slices: crate::distance::SliceParams {
                 resolution: 128,
                 ..Default::default()
@@ -287,10 +294,14 @@ pub struct RunReport {
     pub stages: Vec<StageRecord>,
     /// The fitted model's settings and diagnostics.
     pub fit: serde_json::Value,
+    /// What the trim stage removed and closed.
+    pub trim: TrimReport,
     /// Mesh topology checks.
     pub mesh: MeshReport,
-    /// Distance from the input points to the mesh, absolute and relative to the data's diagonal.
-    pub accuracy: DistanceSummary,
+    /// Two-sided distances between the input points and the mesh, absolute and relative to the
+    /// data's diagonal: data → mesh, mesh → data by area, and the share of the mesh's area far
+    /// from every data point.
+    pub accuracy: Accuracy,
     /// Files written, relative to the output directory.
     pub outputs: Vec<String>,
     /// Every warning the run printed.
@@ -326,7 +337,7 @@ const OUTLIERS_VERSION: u32 = 1;
 const NORMALS_VERSION: u32 = 4;
 const FIT_VERSION: u32 = 2;
 const POLYGONIZE_VERSION: u32 = 2;
-const EXPORT_VERSION: u32 = 4;
+const EXPORT_VERSION: u32 = 5;
 
 /// With `Keep::Data`, closed pieces inside another piece and smaller than this share of the
 /// largest piece's area are left out ([`mesh::drop_small_nested_components`]).
@@ -780,6 +791,7 @@ pub fn run(
                 "bytes": files.iter().map(|f| f.1.len()).sum::<usize>(),
                 "dropped_components": parts.dropped,
                 "dropped_nested": parts.nested,
+                "trim": parts.trim,
                 "mesh": parts.report,
                 "accuracy": parts.accuracy,
             });
@@ -793,8 +805,10 @@ pub fn run(
         .unwrap_or_default();
     let report_mesh: MeshReport =
         serde_json::from_value(figures["mesh"].clone()).unwrap_or_default();
-    let accuracy: DistanceSummary =
+    let accuracy: Accuracy =
         serde_json::from_value(figures["accuracy"].clone()).unwrap_or_default();
+    let trim_report: TrimReport =
+        serde_json::from_value(figures["trim"].clone()).unwrap_or_default();
     // A polynomial's zero set that runs out of the meshing box is open there: not a bounded
     // surface in this mesh, whatever the fit certified.
     let dropped = figures["dropped_components"].as_u64().unwrap_or(0);
@@ -856,6 +870,7 @@ pub fn run(
             }
             fit
         },
+        trim: trim_report,
         mesh: report_mesh,
         accuracy,
         outputs: names,
@@ -878,6 +893,8 @@ fn export_params_bytes(config: &PipelineConfig) -> Vec<u8> {
     cache::params_bytes(&serde_json::json!({
         "formats": formats,
         "keep": format!("{:?}", config.keep),
+        "trim": config.trim,
+        "trim_version": trim::STAGE_VERSION,
         "up": format!("{:?}", config.gltf.up),
         "slices": {
             "axis": config.slices.axis.name(),
@@ -898,8 +915,9 @@ struct MeshParts {
     mesh: TriangleMesh,
     dropped: usize,
     nested: usize,
+    trim: TrimReport,
     report: MeshReport,
-    accuracy: DistanceSummary,
+    accuracy: Accuracy,
     files: Files,
     slices: Option<Files>,
 }
@@ -923,6 +941,12 @@ fn mesh_parts(
         (mesh, dropped) = (kept, n);
         let (kept, n) = mesh::drop_small_nested_components(&mesh, NESTED_AREA_FRACTION);
         (mesh, nested) = (kept, n);
+    }
+    // The trim stage: the surface the data supports (the mesh itself when all of it is).
+    let trimmed = trim::trim(&mesh, &cloud.points, &config.trim)?;
+    let trim_report = trimmed.report;
+    if trim_report.removed_triangles > 0 {
+        mesh = trimmed.mesh;
     }
     let want = |f| config.formats.contains(&f);
     let one = |name: &str, bytes: Vec<u8>| -> Files { vec![(name.to_string(), bytes)] };
@@ -987,12 +1011,7 @@ fn mesh_parts(
                 || {
                     rayon::join(
                         || mesh::check(m),
-                        || {
-                            DistanceSummary::from_distances(
-                                &measure::point_to_mesh_distances(&cloud.points, m),
-                                data_diagonal,
-                            )
-                        },
+                        || measure::accuracy(&cloud.points, m, data_diagonal),
                     )
                 },
                 || {
@@ -1011,6 +1030,7 @@ fn mesh_parts(
         mesh,
         dropped,
         nested,
+        trim: trim_report,
         report,
         accuracy,
         files,

@@ -105,7 +105,7 @@ fn summary(case: &Path) -> String {
     line("watertight", report.mesh.watertight.to_string());
     line(
         "mesh_mean_distance_relative",
-        format!("{:.9e}", report.accuracy.mean_relative),
+        format!("{:.9e}", report.accuracy.data_to_mesh.mean_relative),
     );
     s
 }

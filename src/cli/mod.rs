@@ -178,6 +178,10 @@ pub struct Cli {
     pub threads: Option<usize>,
 }
 
+/// `--trim` as a number: the support factor (a triangle is kept when a data point lies within
+/// this many local sample spacings of it).
+pub const TRIM: Range = Range::float("--trim", 0.5, 100.0);
+
 /// The subcommands.
 #[derive(Debug, Subcommand)]
 pub enum CommandArgs {
@@ -316,6 +320,13 @@ pub struct RunArgs {
     /// Keep points far outside the bulk of the data (left out by default, with a warning).
     #[arg(long)]
     pub keep_outliers: bool,
+    /// Trim the mesh to the surface the data supports: auto (on in detail mode, off in global
+    /// mode), off, or a support factor (how many local sample spacings from the data a
+    /// triangle may lie).
+    #[arg(long, value_name = "auto|off|FACTOR",
+          help = trim_help(),
+          allow_negative_numbers = true, value_parser = parse_trim)]
+    pub trim: Option<TrimArg>,
     /// Print the stage summary as JSON on stdout.
     #[arg(long)]
     pub json: bool,
@@ -589,6 +600,38 @@ fn bounds_help(what: &str) -> String {
     )
 }
 
+/// `--trim`'s value.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum TrimArg {
+    /// On in detail mode, off in global mode.
+    Auto,
+    /// No trimming.
+    Off,
+    /// Trim with this support factor.
+    Factor(f64),
+}
+
+fn trim_help() -> String {
+    TRIM.help("Trim the mesh to the surface the data supports (detail mode's unsupported curtains and sheets go, small holes are closed): auto (on in detail mode, off in global mode), off, or a support factor, how many local sample spacings from the data a triangle may lie; default auto")
+}
+
+/// `--trim`: `auto`, `off` (any case) or a number in [`TRIM`].
+fn parse_trim(text: &str) -> Result<TrimArg, String> {
+    let t = text.trim();
+    if t.eq_ignore_ascii_case("auto") {
+        return Ok(TrimArg::Auto);
+    }
+    if t.eq_ignore_ascii_case("off") {
+        return Ok(TrimArg::Off);
+    }
+    TRIM.check_f64(text).map(TrimArg::Factor).map_err(|_| {
+        format!(
+            "--trim takes auto, off or a number from {}, got '{text}'",
+            TRIM.describe()
+        )
+    })
+}
+
 /// `--kappa`: `auto` (any case) or a number in [`KAPPA`]. The text is kept as typed; `main.rs`
 /// turns it into a `fit::Kappa`.
 fn parse_kappa(text: &str) -> Result<String, String> {
@@ -755,8 +798,9 @@ mod tests {
     fn ranged_flags_print_and_check_the_same_constant() {
         use clap::CommandFactory;
         let cli = Cli::command();
-        let cases: [(&str, &str, Range); 13] = [
+        let cases: [(&str, &str, Range); 14] = [
             ("run", "threads", THREADS),
+            ("run", "trim", TRIM),
             ("run", "degree", DEGREE),
             ("run", "kappa", KAPPA),
             ("run", "epsilon", EPSILON),
@@ -806,6 +850,34 @@ mod tests {
         assert!(
             Cli::try_parse_from(["stablesurf", "fit", "x", "-o", "y", "--kappa", "AUTO"]).is_ok()
         );
+    }
+
+    #[test]
+    fn trim_takes_auto_off_or_a_factor() {
+        let trim = |v: &str| {
+            Cli::try_parse_from(["stablesurf", "run", "x", "-o", "y", "--trim", v]).map(|c| {
+                let CommandArgs::Run(r) = c.command else {
+                    panic!()
+                };
+                r.trim
+            })
+        };
+        assert_eq!(trim("auto").unwrap(), Some(TrimArg::Auto));
+        assert_eq!(trim("OFF").unwrap(), Some(TrimArg::Off));
+        assert_eq!(trim("2.5").unwrap(), Some(TrimArg::Factor(2.5)));
+        for bad in ["0", "-3", "x", "1e9", "nan"] {
+            let err = trim(bad).unwrap_err();
+            assert_eq!(err.exit_code(), 2, "{bad}");
+            assert!(
+                err.to_string()
+                    .contains("--trim takes auto, off or a number"),
+                "{err}"
+            );
+        }
+        let CommandArgs::Run(r) = parse(&["run", "-o", "out"]).command else {
+            panic!()
+        };
+        assert_eq!(r.trim, None);
     }
 
     #[test]
