@@ -177,6 +177,7 @@ fn normals_params(opts: &cli::NormalsOpts) -> Result<normals::NormalsParams> {
         .map_err(|e| usage(format!("--normals: {e}")))?;
     Ok(normals::NormalsParams {
         source,
+        viewpoint: opts.viewpoint,
         ..Default::default()
     })
 }

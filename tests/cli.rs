@@ -1193,3 +1193,40 @@ fn keep_defaults_follow_the_mode() {
     assert!(header(&["--mode", "global"]).contains("keep all"));
     assert!(header(&["--mode", "global", "--keep", "data"]).contains("keep data"));
 }
+
+#[test]
+fn viewpoint_is_checked_and_turns_every_normal_toward_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 400);
+    let input = input.to_str().unwrap();
+    for bad in ["1,2", "1,2,3,4", "a,0,0", "1e16,0,0", "0,nan,0"] {
+        assert_usage_error(
+            &["normals", input, "-o", "n.ply", "--viewpoint", bad],
+            &["--viewpoint", "three numbers X,Y,Z"],
+        );
+    }
+    // The sphere's centre is (1, 2, 3): seen from there, every outward normal turns inward.
+    let out_ply = dir.path().join("n.ply");
+    let out = bin()
+        .args(["-v", "normals", input, "-o"])
+        .arg(&out_ply)
+        .args(["--viewpoint", "1,2,3"])
+        .output()
+        .unwrap();
+    let err = stderr_of(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("turned 400 of 400 normals to face the viewpoint (1, 2, 3)"),
+        "{err}"
+    );
+    // From far below (-z), the upper half turns: its normals pointed away.
+    let out = bin()
+        .args(["-v", "normals", input, "-o"])
+        .arg(&out_ply)
+        .args(["--viewpoint", "1,2,-1e6"])
+        .output()
+        .unwrap();
+    let err = stderr_of(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("turned 200 of 400 normals"), "{err}");
+}
