@@ -301,8 +301,10 @@ pub struct CacheOpts {
 /// `stablesurf run`.
 #[derive(Debug, Args)]
 pub struct RunArgs {
-    /// Scan file (PLY, OBJ, STL, XYZ). Without it, a small built-in sample scan is used.
-    pub input: Option<PathBuf>,
+    /// Scan file (PLY, OBJ, STL, XYZ); a Stanford .conf registration file (its scans, moved by
+    /// their poses); or several scans of one object in one frame. Each scan gets its normals in
+    /// its own frame before the merge. Without any, a small built-in sample scan is used.
+    pub input: Vec<PathBuf>,
     /// Output directory (created if missing).
     #[arg(short, long, value_name = "OUT_DIR")]
     pub output: PathBuf,
@@ -660,7 +662,7 @@ mod tests {
         let CommandArgs::Run(r) = parse(&["run", "-o", "out"]).command else {
             panic!()
         };
-        assert!(r.input.is_none());
+        assert!(r.input.is_empty());
         assert_eq!(r.fit.degree, 8);
         assert_eq!(r.fit.kappa, "auto");
         assert_eq!(r.mesh.depth, None);

@@ -45,6 +45,7 @@
 //! intensity and colour columns of a 7-column .pts file, or a PLY's `confidence` property), and
 //! `stablesurf info` prints them from [`ScanInfo::notices`].
 
+pub mod conf;
 mod obj;
 mod ply;
 pub mod range;
