@@ -4,7 +4,7 @@
 //! [`OrientedCloud`] (points with unit outward normals), plus the axis-aligned box [`Aabb`].
 //!
 //! Invariants: every index in `triangles` is `< points.len()`; when `normals` is present it has
-//! one entry per point. All coordinates are in the input file's frame and units, as `f64`.
+//! one entry per point, and so have a range surface's `falloff` and an oriented cloud's `weights`. All coordinates are in the input file's frame and units, as `f64`.
 
 use serde::{Deserialize, Serialize};
 
@@ -19,11 +19,26 @@ pub struct PointCloud {
     /// Triangles as indices into `points`, polygons fan-triangulated, winding as in the file.
     /// Empty for a pure point cloud.
     pub triangles: Vec<[u32; 3]>,
+    /// Set when `triangles` were made from a range scan's grid: they are then an open surface
+    /// wound so that their normals face the scanner, not a closed mesh. `None` for any other file.
+    pub range: Option<RangeSurface>,
 }
 
 impl PointCloud {
     /// Version of this artifact's layout; bump it whenever a field changes.
-    pub const FORMAT_VERSION: u32 = 1;
+    pub const FORMAT_VERSION: u32 = 2;
+}
+
+/// What a range grid tells about its samples beyond their positions.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct RangeSurface {
+    /// The scanner's estimated position in the file's coordinates, or `None` when the grid's
+    /// scan lines do not fix it.
+    pub sensor: Option<[f64; 3]>,
+    /// Per point, in (0, 1]: how far it lies from the edge of the scanned surface (1 inside,
+    /// lower within a few samples of a hole, a cut or the grid's border), as VRIP ramps its
+    /// confidence down towards a range mesh's boundary.
+    pub falloff: Vec<f32>,
 }
 
 /// Points with unit-length outward normals: the input of the `fit` stage.
@@ -33,11 +48,15 @@ pub struct OrientedCloud {
     pub points: Vec<[f64; 3]>,
     /// One unit-length normal per point, pointing out of the object.
     pub normals: Vec<[f64; 3]>,
+    /// Per point, a confidence in (0, 1] that weighs its rows in the detail mode's local fits
+    /// (head-on range samples more than grazing ones or those near a scan's edge); `None` weighs
+    /// every point 1.
+    pub weights: Option<Vec<f32>>,
 }
 
 impl OrientedCloud {
     /// Version of this artifact's layout; bump it whenever a field changes.
-    pub const FORMAT_VERSION: u32 = 1;
+    pub const FORMAT_VERSION: u32 = 2;
 }
 
 /// An axis-aligned box in input coordinates.

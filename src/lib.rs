@@ -21,6 +21,7 @@ mod files;
 pub mod fit;
 pub mod import;
 pub mod measure;
+pub mod merge;
 pub mod mesh;
 pub mod normals;
 pub mod outliers;

@@ -191,6 +191,7 @@ fn normals_params(opts: &cli::NormalsOpts) -> Result<normals::NormalsParams> {
         .map_err(|e| usage(format!("--normals: {e}")))?;
     Ok(normals::NormalsParams {
         source,
+        viewpoint: opts.viewpoint,
         ..Default::default()
     })
 }
@@ -323,15 +324,17 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
         formats,
     };
     let cache = open_cache(&args.cache)?;
-    let source = match &args.input {
-        Some(p) => ScanSource::File(p.clone()),
-        None => ScanSource::Sample,
-    };
+    let source = ScanSource::from_inputs(&args.input);
+    if args.input.len() > 1 {
+        if let Some(conf) = args.input.iter().find(|p| import::conf::is_conf(p)) {
+            return Err(usage(format!(
+                "{} is a registration file: give it alone, or give the scans without it",
+                conf.display()
+            )));
+        }
+    }
     if verbosity != Verbosity::Quiet {
-        let input = match &args.input {
-            Some(p) => p.display().to_string(),
-            None => pipeline::SAMPLE_NAME.to_string(),
-        };
+        let input = source.name();
         let model = match mode {
             pipeline::Mode::Global => format!(
                 "degree {}, method {}, kappa {}, rule {}, epsilon {}",
@@ -376,9 +379,10 @@ fn cmd_run(args: cli::RunArgs, verbosity: Verbosity) -> Result<()> {
         .with_context(|| {
             format!(
                 "running the pipeline on {}",
-                args.input
-                    .as_deref()
-                    .map_or_else(|| "the built-in sample".into(), |p| p.display().to_string())
+                match source {
+                    ScanSource::Sample => "the built-in sample".into(),
+                    _ => source.name(),
+                }
             )
         })?;
     if verbosity != Verbosity::Quiet {

@@ -266,6 +266,7 @@ fn without(cloud: &PointCloud, removed: &[usize]) -> (PointCloud, usize) {
         points,
         normals,
         triangles,
+        range,
     } = cloud;
     const GONE: u32 = u32::MAX;
     let mut new_index = vec![0_u32; points.len()];
@@ -297,11 +298,19 @@ fn without(cloud: &PointCloud, removed: &[usize]) -> (PointCloud, usize) {
         .map(|t| t.map(|i| new_index[i as usize]))
         .collect();
     let removed_faces = triangles.len() - kept_triangles.len();
+    let range = range.as_ref().map(|r| crate::cloud::RangeSurface {
+        sensor: r.sensor,
+        falloff: (0..r.falloff.len())
+            .filter(|&i| keep(i))
+            .map(|i| r.falloff[i])
+            .collect(),
+    });
     (
         PointCloud {
             points,
             normals,
             triangles: kept_triangles,
+            range,
         },
         removed_faces,
     )
@@ -444,6 +453,7 @@ mod tests {
             points,
             normals: Some(normals),
             triangles,
+            range: None,
         };
         let split = remove_outliers(&c, &OutlierParams::default());
         assert_eq!(split.removed_indices, vec![3, 100]);

@@ -268,6 +268,38 @@ pub enum ScanSource {
     File(PathBuf),
     /// The built-in sample ([`SAMPLE_SCAN`]).
     Sample,
+    /// A Stanford `.conf` registration file: its scans, each oriented in its own frame, moved
+    /// by their poses and merged ([`crate::merge`]).
+    Conf(PathBuf),
+    /// Several scans of one object, already in one frame (identity poses), each oriented on its
+    /// own and then merged.
+    Files(Vec<PathBuf>),
+}
+
+impl ScanSource {
+    /// The source for the command line's inputs: none is the sample, one `.conf` its scans, one
+    /// other file itself, several files views of one object.
+    pub fn from_inputs(inputs: &[PathBuf]) -> ScanSource {
+        match inputs {
+            [] => ScanSource::Sample,
+            [one] if import::conf::is_conf(one) => ScanSource::Conf(one.clone()),
+            [one] => ScanSource::File(one.clone()),
+            many => ScanSource::Files(many.to_vec()),
+        }
+    }
+
+    /// The name the report and messages give the input.
+    pub fn name(&self) -> String {
+        match self {
+            ScanSource::Sample => SAMPLE_NAME.to_string(),
+            ScanSource::File(p) | ScanSource::Conf(p) => p.display().to_string(),
+            ScanSource::Files(ps) => ps
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(" "),
+        }
+    }
 }
 
 /// One stage's line in the report.
@@ -330,7 +362,9 @@ impl Observer for Silent {}
 // Stage versions: if you change anything that changes a stage's output for the same input and
 // params (algorithm, defaults, artifact layout), bump its version so old cache entries are not
 // reused.
-const IMPORT_VERSION: u32 = 1;
+const IMPORT_VERSION: u32 = 2;
+/// Merging the views of a `.conf` or of several files.
+const MERGE_VERSION: u32 = 1;
 /// The outlier filter is not cached (it is a linear pass), but its output's key chains
 /// through it when it leaves points out.
 const OUTLIERS_VERSION: u32 = 1;
@@ -483,22 +517,29 @@ impl<'a> Ctx<'a> {
     }
 }
 
-/// Reads the scan bytes and the name to report.
-fn scan_bytes(source: &ScanSource) -> Result<(Vec<u8>, PathBuf, String), PipelineError> {
-    match source {
-        ScanSource::Sample => Ok((
-            SAMPLE_SCAN.to_vec(),
-            PathBuf::from("spot.obj"),
-            SAMPLE_NAME.to_string(),
-        )),
-        ScanSource::File(path) => {
-            let bytes = std::fs::read(path).map_err(|source| PipelineError::Read {
-                path: path.display().to_string(),
-                source,
-            })?;
-            Ok((bytes, path.clone(), path.display().to_string()))
-        }
-    }
+/// Reads a file's bytes.
+fn read_bytes(path: &Path) -> Result<Vec<u8>, PipelineError> {
+    std::fs::read(path).map_err(|source| PipelineError::Read {
+        path: path.display().to_string(),
+        source,
+    })
+}
+
+/// The views of a multi-view source (`None` for a single scan), poses included.
+fn views_of(source: &ScanSource) -> Result<Option<Vec<import::conf::View>>, PipelineError> {
+    Ok(match source {
+        ScanSource::Sample | ScanSource::File(_) => None,
+        ScanSource::Conf(path) => Some(import::conf::read_conf(&read_bytes(path)?, path)?),
+        ScanSource::Files(paths) => Some(
+            paths
+                .iter()
+                .map(|p| import::conf::View {
+                    path: p.clone(),
+                    pose: crate::merge::Pose::IDENTITY,
+                })
+                .collect(),
+        ),
+    })
 }
 
 /// Imports, estimates normals and fits: the part of the pipeline shared by `run` and `fit`.
@@ -508,14 +549,76 @@ fn fit_stages(
     source: &ScanSource,
     config: &PipelineConfig,
 ) -> Result<(PointCloud, OrientedCloud, Model, Key), PipelineError> {
-    let (bytes, path, _) = scan_bytes(source)?;
+    let (cloud, oriented, oriented_key) = match views_of(source)? {
+        Some(views) => merged_views(ctx, &views, config)?,
+        None => {
+            let (bytes, path) = match source {
+                ScanSource::File(path) => (read_bytes(path)?, path.clone()),
+                _ => (SAMPLE_SCAN.to_vec(), PathBuf::from("spot.obj")),
+            };
+            oriented_scan(ctx, bytes, &path, config)?
+        }
+    };
+    model_stages(ctx, cloud, oriented, oriented_key, config)
+}
+
+/// Each view imported and oriented in its own frame (through the cache), then moved by its
+/// pose and merged (the `merge` stage, keyed by every view's normals key, which covers its
+/// file's bytes, and every pose).
+fn merged_views(
+    ctx: &mut Ctx<'_>,
+    views: &[import::conf::View],
+    config: &PipelineConfig,
+) -> Result<(PointCloud, OrientedCloud, Key), PipelineError> {
+    let mut oriented = Vec::with_capacity(views.len());
+    let mut keys = Vec::new();
+    for view in views {
+        let bytes = read_bytes(&view.path)?;
+        let (_, cloud, key) = oriented_scan(ctx, bytes, &view.path, config)?;
+        keys.extend_from_slice(key.hex().as_bytes());
+        oriented.push((cloud, view.pose));
+    }
+    let poses: Vec<crate::merge::Pose> = views.iter().map(|v| v.pose).collect();
+    let (merged, key) = ctx.stage(
+        "merge",
+        MERGE_VERSION,
+        &cache::params_bytes(&poses),
+        &Key::of_bytes(&keys),
+        || {
+            let refs: Vec<(&OrientedCloud, crate::merge::Pose)> =
+                oriented.iter().map(|(c, p)| (c, *p)).collect();
+            let merged = crate::merge::merge_views(&refs);
+            let figures = serde_json::json!({
+                "views": views.len(),
+                "points": merged.points.len(),
+                "weighted": merged.weights.is_some(),
+            });
+            Ok((merged, figures))
+        },
+    )?;
+    let cloud = PointCloud {
+        points: merged.points.clone(),
+        normals: Some(merged.normals.clone()),
+        ..Default::default()
+    };
+    Ok((cloud, merged, key))
+}
+
+/// One scan through import, outlier removal and normals; returns the cloud, the oriented cloud
+/// and the latter's key.
+fn oriented_scan(
+    ctx: &mut Ctx<'_>,
+    bytes: Vec<u8>,
+    path: &Path,
+    config: &PipelineConfig,
+) -> Result<(PointCloud, OrientedCloud, Key), PipelineError> {
     let (cloud, cloud_key) = ctx.stage(
         "import",
         IMPORT_VERSION,
         b"",
         &Key::of_bytes(&bytes),
         || {
-            let scan = import::import_scan_bytes(&bytes, &path)?;
+            let scan = import::import_scan_bytes(&bytes, path)?;
             let figures = serde_json::json!({
                 "points": scan.cloud.points.len(),
                 "triangles": scan.cloud.triangles.len(),
@@ -557,6 +660,17 @@ fn fit_stages(
         },
     )?;
     ctx.warn_figures();
+    Ok((cloud, oriented, oriented_key))
+}
+
+/// The global fit or the detail fit of the oriented cloud.
+fn model_stages(
+    ctx: &mut Ctx<'_>,
+    cloud: PointCloud,
+    oriented: OrientedCloud,
+    oriented_key: Key,
+    config: &PipelineConfig,
+) -> Result<(PointCloud, OrientedCloud, Model, Key), PipelineError> {
     let (model, model_key) = match config.mode {
         Mode::Global => {
             let (model, key) = ctx.stage(
@@ -692,10 +806,7 @@ pub fn run(
     let mut outputs = OutputSet::begin(out_dir)?;
     let mut ctx = Ctx::new(cache, observer)?;
     let cache = &ctx.cache.clone();
-    let input_name = match source {
-        ScanSource::Sample => SAMPLE_NAME.to_string(),
-        ScanSource::File(p) => p.display().to_string(),
-    };
+    let input_name = source.name();
     let (cloud, _oriented, model, model_key) = fit_stages(&mut ctx, source, config)?;
 
     let region = model.region();

@@ -1335,3 +1335,94 @@ fn a_single_range_scan_becomes_a_clean_open_patch() {
     assert!(chamfer <= BUN000_POISSON_CHAMFER, "{accuracy}");
     println!("bun000: Chamfer {chamfer:.3e} of the diagonal, {far:.2e} of the area far");
 }
+
+#[test]
+fn viewpoint_is_checked_and_turns_every_normal_toward_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 400);
+    let input = input.to_str().unwrap();
+    for bad in ["1,2", "1,2,3,4", "a,0,0", "1e16,0,0", "0,nan,0"] {
+        assert_usage_error(
+            &["normals", input, "-o", "n.ply", "--viewpoint", bad],
+            &["--viewpoint", "three numbers X,Y,Z"],
+        );
+    }
+    // The sphere's centre is (1, 2, 3): seen from there, every outward normal turns inward.
+    let out_ply = dir.path().join("n.ply");
+    let out = bin()
+        .args(["-v", "normals", input, "-o"])
+        .arg(&out_ply)
+        .args(["--viewpoint", "1,2,3"])
+        .output()
+        .unwrap();
+    let err = stderr_of(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("turned 400 of 400 normals to face the viewpoint (1, 2, 3)"),
+        "{err}"
+    );
+    // From far below (-z), the upper half turns: its normals pointed away.
+    let out = bin()
+        .args(["-v", "normals", input, "-o"])
+        .arg(&out_ply)
+        .args(["--viewpoint", "1,2,-1e6"])
+        .output()
+        .unwrap();
+    let err = stderr_of(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(err.contains("turned 200 of 400 normals"), "{err}");
+}
+
+#[test]
+fn conf_files_and_several_scans_merge_and_bad_lines_name_the_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 400);
+    let conf = dir.path().join("views.conf");
+    // The same sphere twice, both with the identity pose.
+    fs::write(
+        &conf,
+        "camera 0 0 5 0 0 0 1\n# two views\nbmesh sphere.xyz 0 0 0 0 0 0 1\n\nbmesh sphere.xyz 0 0 0 0 0 0 1\n",
+    )
+    .unwrap();
+    let out = bin()
+        .args(["run"])
+        .arg(&conf)
+        .arg("-o")
+        .arg(dir.path().join("out"))
+        .args(["--formats", "json", "--no-cache", "--json"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr_of(&out));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let merge = report["stages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["stage"] == "merge")
+        .expect("a merge stage");
+    assert_eq!(merge["figures"]["points"], 800);
+    assert_eq!(report["mesh"]["components"], 1);
+    // Several files: the same merge with identity poses.
+    let out = bin()
+        .args(["run"])
+        .args([&input, &input])
+        .arg("-o")
+        .arg(dir.path().join("out2"))
+        .args(["--formats", "json", "--no-cache"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr_of(&out));
+    fs::write(&conf, "bmesh sphere.xyz 0 0 0 0 0 0 1\nscan sphere.xyz\n").unwrap();
+    let out = bin()
+        .args(["run"])
+        .arg(&conf)
+        .arg("-o")
+        .arg(dir.path().join("out3"))
+        .args(["--no-cache"])
+        .output()
+        .unwrap();
+    let err = stderr_of(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("views.conf:2"), "{err}");
+    assert!(!dir.path().join("out3").exists());
+}

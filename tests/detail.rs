@@ -100,6 +100,7 @@ fn rigid_motion_moves_the_surface_with_the_input() {
     let moved_cloud = OrientedCloud {
         points: cloud.points.iter().map(|&p| moved(p)).collect(),
         normals: cloud.normals.iter().map(|&n| rotated(n)).collect(),
+        weights: None,
     };
     let params = DetailParams::default();
     let a = fit_detail(&cloud, &params).unwrap();
@@ -216,6 +217,7 @@ fn bad_input_is_an_error() {
     let same = OrientedCloud {
         points: vec![[1.0, 2.0, 3.0]; 50],
         normals: vec![[0.0, 0.0, 1.0]; 50],
+        weights: None,
     };
     assert!(matches!(
         fit_detail(&same, &DetailParams::default()),
@@ -270,6 +272,7 @@ fn sphere_and_torus_have_no_offset_bias() {
             .map(|u| [0, 1, 2].map(|a| c[a] + r * u[a]))
             .collect(),
         normals: sphere_normals,
+        weights: None,
     };
     let sphere_distance = |p: [f64; 3]| {
         let d = [0, 1, 2].map(|a| p[a] - c[a]);
@@ -281,6 +284,7 @@ fn sphere_and_torus_have_no_offset_bias() {
     let mut torus = OrientedCloud {
         points: Vec::new(),
         normals: Vec::new(),
+        weights: None,
     };
     for i in 0..n {
         let u = std::f64::consts::TAU * (i as f64 + 0.5) / n as f64;

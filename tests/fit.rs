@@ -266,6 +266,7 @@ fn invariance_error(cloud: &OrientedCloud, params: &FitParams, seed: u64) -> f64
             .iter()
             .map(|n| apply(&r, [0.0; 3], *n))
             .collect(),
+        weights: None,
     };
     let f = fit(cloud, params).unwrap().polynomial;
     let g = fit(&moved, params).unwrap().polynomial;
@@ -473,6 +474,7 @@ fn bad_input_gives_clear_errors() {
     let same = OrientedCloud {
         points: vec![[1.0, 2.0, 3.0]; 50],
         normals: vec![[0.0, 0.0, 1.0]; 50],
+        weights: None,
     };
     let e = fit(
         &same,
@@ -487,6 +489,7 @@ fn bad_input_gives_clear_errors() {
     let short = OrientedCloud {
         points: cloud.points.clone(),
         normals: cloud.normals[..50].to_vec(),
+        weights: None,
     };
     assert!(matches!(
         fit(&short, &FitParams::default()),

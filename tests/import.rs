@@ -65,7 +65,8 @@ const EXPECTED: &[Expected] = &[
         file: "bun000.ply",
         format: ScanFormat::PlyAscii,
         points: 40_256,
-        triangles: 0,
+        // Its range grid, triangulated (see `range_grid_is_triangulated_facing_the_sensor`).
+        triangles: 78_081,
         has_normals: false,
         duplicates: None,
         bbox_size: [0.156, 0.152, 0.117],
@@ -205,7 +206,7 @@ fn quadknot_normals_are_unit_and_per_vertex() {
 }
 
 #[test]
-fn raw_scan_skips_the_range_grid_and_matches_the_zippered_frame() {
+fn raw_scan_matches_the_zippered_frame() {
     let Some(dir) = data_dir() else { return };
     let raw = scan_info(&read_scan(&dir.join("bun000.ply")).unwrap());
     let zip = scan_info(&read_scan(&dir.join("bunny_zipper.ply")).unwrap());
@@ -1185,4 +1186,103 @@ proptest! {
         let want: Vec<[u64; 3]> = points.iter().map(|p| p.map(f64::to_bits)).collect();
         prop_assert_eq!(got, want);
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Range grids
+
+/// An ascii PLY range image of the unit sphere seen from a pinhole at (0, 0, 5): `cols` × `rows`
+/// rays, each cell holding its sample, except the cells in `holes` (row-major indices). The
+/// header and grid follow Stanford's raw scans (`obj_info num_cols`, `range_grid`).
+fn sphere_range_ply(cols: usize, rows: usize, holes: &[usize], bad_cell: Option<&str>) -> String {
+    let mut points = Vec::new();
+    let mut cells = Vec::new();
+    for r in 0..rows {
+        for c in 0..cols {
+            let u = (c as f64 / (cols - 1) as f64 - 0.5) * 0.25;
+            let v = (r as f64 / (rows - 1) as f64 - 0.5) * 0.25;
+            let l = (u * u + v * v + 1.0).sqrt();
+            let d = [u / l, v / l, -1.0 / l];
+            // |s + t d| = 1 with s = (0, 0, 5).
+            let b = 5.0 * d[2];
+            let t = -b - (b * b - 24.0).sqrt();
+            if holes.contains(&(r * cols + c)) {
+                cells.push("0".to_string());
+            } else {
+                cells.push(format!("1 {}", points.len()));
+                points.push([t * d[0], t * d[1], 5.0 + t * d[2]]);
+            }
+        }
+    }
+    if let Some(bad) = bad_cell {
+        cells[0] = bad.to_string();
+    }
+    let mut s = format!(
+        "ply\nformat ascii 1.0\nobj_info num_cols {cols}\nobj_info num_rows {rows}\n\
+         element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
+         element range_grid {}\nproperty list uchar int vertex_indices\nend_header\n",
+        points.len(),
+        cells.len()
+    );
+    for p in &points {
+        s += &format!("{} {} {}\n", p[0], p[1], p[2]);
+    }
+    for c in &cells {
+        s += c;
+        s.push('\n');
+    }
+    s
+}
+
+#[test]
+fn range_grid_is_triangulated_facing_the_sensor() {
+    let (cols, rows) = (24, 20);
+    // A hole of one sample in the middle: the four squares around it keep one triangle each.
+    let hole = 10 * cols + 12;
+    let text = sphere_range_ply(cols, rows, &[hole], None);
+    let scan = read_scan_bytes(text.as_bytes(), Path::new("grid.ply")).unwrap();
+    let info = scan.range_grid.as_ref().expect("range grid info");
+    assert_eq!(
+        (info.cols, info.rows, info.samples),
+        (cols, rows, cols * rows - 1)
+    );
+    assert_eq!(info.squares, (cols - 1) * (rows - 1));
+    // Two triangles per full square, one per square with three samples, none cut (the cap is
+    // seen within 60 degrees of the rays, all spacings alike).
+    assert_eq!(info.triangles, 2 * info.squares - 4);
+    assert_eq!(info.cut_long_edges + info.cut_grazing, 0);
+    let sensor = info.sensor.expect("sensor");
+    let err = ((sensor[0]).powi(2) + sensor[1].powi(2) + (sensor[2] - 5.0).powi(2)).sqrt();
+    assert!(err < 0.05, "sensor {sensor:?}");
+    let cloud = &scan.cloud;
+    assert_eq!(cloud.triangles.len(), info.triangles);
+    assert_eq!(cloud.range.as_ref().unwrap().sensor, Some(sensor));
+    for t in &cloud.triangles {
+        let [a, b, c] = t.map(|v| cloud.points[v as usize]);
+        let n = [
+            (b[1] - a[1]) * (c[2] - a[2]) - (b[2] - a[2]) * (c[1] - a[1]),
+            (b[2] - a[2]) * (c[0] - a[0]) - (b[0] - a[0]) * (c[2] - a[2]),
+            (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]),
+        ];
+        // Facing the sensor at +z, which on the sphere is outward.
+        assert!(n[0] * a[0] + n[1] * a[1] + n[2] * a[2] > 0.0);
+    }
+    let notices = scan.notices.join("\n");
+    assert!(
+        notices.contains("range_grid 24 x 20 triangulated"),
+        "{notices}"
+    );
+    assert!(!notices.contains("elements not read"), "{notices}");
+    let shown = serde_json::to_value(scan_info(&scan)).unwrap();
+    assert_eq!(shown["range_grid"]["triangles"], info.triangles);
+}
+
+#[test]
+fn range_grid_cell_with_two_indices_is_an_error_naming_the_line() {
+    let text = sphere_range_ply(6, 5, &[], Some("2 0 1"));
+    let err = read_scan_bytes(text.as_bytes(), Path::new("grid.ply")).unwrap_err();
+    let msg = err.to_string();
+    // 4 header lines before the vertices + 30 vertices + end of header block (11 lines).
+    assert!(msg.contains("grid.ply:42"), "{msg}");
+    assert!(msg.contains("holds 2 vertex indices"), "{msg}");
 }

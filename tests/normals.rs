@@ -590,6 +590,7 @@ fn mesh_and_input_sources_orient_outward() {
         points: points.clone(),
         normals: None,
         triangles,
+        range: None,
     };
     let out = estimate_normals(&cloud, &NormalsParams::default()).unwrap();
     assert_eq!(out.source_used, NormalSource::Mesh);
@@ -611,6 +612,7 @@ fn mesh_and_input_sources_orient_outward() {
         points: s.points.clone(),
         normals: Some(inward),
         triangles: Vec::new(),
+        range: None,
     };
     let out = estimate_normals(&cloud, &NormalsParams::default()).unwrap();
     assert_eq!(out.source_used, NormalSource::Input);
@@ -902,4 +904,133 @@ fn large_faces_get_surface_samples_with_their_normals() {
     };
     let out = estimate_normals(&cloud, &params).unwrap();
     assert_eq!((out.surface_samples, out.cloud.points.len()), (0, 8));
+}
+
+/// The shared data folder; `None` when it is absent and `CI` is not set. With `CI` set, an
+/// absent folder is a failure, not a silent pass.
+fn shared_data_or_skip(what: &str) -> Option<std::path::PathBuf> {
+    let dir = data_dir();
+    if dir.join("bunny-scans").is_dir() {
+        return Some(dir);
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "{}/bunny-scans is absent and CI is set: {what} needs the shared scans",
+        dir.display()
+    );
+    eprintln!("notice: {} is absent; skipping {what}", dir.display());
+    None
+}
+
+/// p ↦ R(q)ᵀ·p + t for the unit quaternion q = (qx, qy, qz, qw), and n ↦ R(q)ᵀ·n: the
+/// convention of Stanford's `bun.conf` (see ../shared/data/SOURCES.md).
+fn conf_pose(t: [f64; 3], q: [f64; 4]) -> impl Fn([f64; 3], bool) -> [f64; 3] {
+    let l = q.iter().map(|c| c * c).sum::<f64>().sqrt();
+    let [x, y, z, w] = q.map(|c| c / l);
+    let r = [
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - z * w),
+            2.0 * (x * z + y * w),
+        ],
+        [
+            2.0 * (x * y + z * w),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - x * w),
+        ],
+        [
+            2.0 * (x * z - y * w),
+            2.0 * (y * z + x * w),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
+    ];
+    move |p: [f64; 3], is_point: bool| {
+        let mut out = [0, 1, 2].map(|i| (0..3).map(|k| r[k][i] * p[k]).sum::<f64>());
+        if is_point {
+            out = [0, 1, 2].map(|i| out[i] + t[i]);
+        }
+        out
+    }
+}
+
+/// The six registered raw scans of the bunny: their range grids' normals (`--normals auto`),
+/// moved into the common frame with their `bun.conf` poses, agree in sign with the outward
+/// area-weighted vertex normals of the zippered bunny (the nearest vertex) on ≥ 98% of points.
+#[test]
+fn range_scans_face_out_of_the_zippered_bunny() {
+    let Some(dir) = shared_data_or_skip("the range-scan normal check") else {
+        return;
+    };
+    let (zp, zf) = read_ply(&dir.join("bunny_zipper.ply"));
+    let mut reference = mesh_vertex_normals(&zp, &zf);
+    let n = zp.len() as f64;
+    let centre = [0, 1, 2].map(|a| zp.iter().map(|p| p[a]).sum::<f64>() / n);
+    let volume: f64 = zf
+        .iter()
+        .map(|f| {
+            let [a, b, c] = f.map(|v| {
+                let p = zp[v as usize];
+                [p[0] - centre[0], p[1] - centre[1], p[2] - centre[2]]
+            });
+            a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+                + a[2] * (b[0] * c[1] - b[1] * c[0])
+        })
+        .sum();
+    if volume < 0.0 {
+        reference.iter_mut().for_each(|r| *r = r.map(|c| -c));
+    }
+    // Only vertices that faces use have a reference normal.
+    let used: Vec<usize> = (0..zp.len())
+        .filter(|&i| dot(&reference[i], &reference[i]) > 0.0)
+        .collect();
+    let tree =
+        stablesurf::measure::PointTree::new(&used.iter().map(|&i| zp[i]).collect::<Vec<_>>())
+            .unwrap();
+    let conf = std::fs::read_to_string(dir.join("bunny-scans/bun.conf")).unwrap();
+    let mut scans = 0;
+    for line in conf.lines() {
+        let w: Vec<&str> = line.split_whitespace().collect();
+        if w.first() != Some(&"bmesh") {
+            continue;
+        }
+        let v: Vec<f64> = w[2..9].iter().map(|x| x.parse().unwrap()).collect();
+        let pose = conf_pose([v[0], v[1], v[2]], [v[3], v[4], v[5], v[6]]);
+        let path = dir.join("bunny-scans").join(w[1]);
+        let bytes = std::fs::read(&path).unwrap();
+        let cloud = stablesurf::import::import_bytes(&bytes, &path).unwrap();
+        let range = cloud.range.as_ref().expect("a range grid");
+        let sensor = range.sensor.expect("a sensor estimate");
+        // The Cyberware scanner sits about 1.2–1.6 m in front of the scan along +z.
+        assert!(
+            sensor[1].abs() < 0.3 && (1.0..1.8).contains(&sensor[2]),
+            "{}: sensor {sensor:?}",
+            w[1]
+        );
+        let out = estimate_normals(&cloud, &NormalsParams::default()).unwrap();
+        assert_eq!(out.source_used, NormalSource::Mesh);
+        let weights = out.cloud.weights.as_ref().expect("range confidence");
+        assert!(weights.iter().all(|&x| x > 0.0 && x <= 1.0));
+        let (mut agree, mut near, mut agree_near) = (0usize, 0usize, 0usize);
+        for (p, nrm) in out.cloud.points.iter().zip(&out.cloud.normals) {
+            let (q, m) = (pose(*p, true), pose(*nrm, false));
+            let (d2, j) = tree.nearest(q);
+            let ok = dot(&m, &reference[used[j]]) > 0.0;
+            agree += usize::from(ok);
+            // Within 2 mm of the zippered surface (its bbox diagonal is 0.25 m).
+            if d2 < 2e-3 * 2e-3 {
+                near += 1;
+                agree_near += usize::from(ok);
+            }
+        }
+        let total = out.cloud.points.len();
+        let fraction = agree as f64 / total as f64;
+        println!(
+            "{}: {total} points, sign agreement {fraction:.4} (within 2 mm: {near} points, {:.4}), sensor {sensor:?}",
+            w[1],
+            agree_near as f64 / near.max(1) as f64
+        );
+        assert!(fraction >= 0.98, "{}: agreement {fraction}", w[1]);
+        scans += 1;
+    }
+    assert_eq!(scans, 6);
 }

@@ -424,9 +424,19 @@ def main():
             results[method] = r
             print(f"bench_peers: {name:10s} {method:30s} {'ok' if r['ok'] else 'FAILED ' + r['error']} cpu {cpu:.2f} s", file=sys.stderr)
         rows.append((name, len(pts), synthetic, facts, results))
+    scan_lines, scan_rows = [], []
+    if not a.quick and (only is None or "scans" in only):
+        sys.path.insert(0, str(HERE))
+        import bench_scans
+
+        scan_rows = bench_scans.run(a.bin, work / "scans")
+        scan_lines = bench_scans.section(a.bin, scan_rows, a.out, work / "scans")
     total = time.perf_counter() - start
     write_doc(a, rows, baseline, total)
-    (Path(a.out).with_suffix(".json")).write_text(json.dumps({"rows": rows, "baseline": baseline, "total_wall_s": total}, indent=1, default=str))
+    if scan_lines:
+        with open(a.out, "a") as f:
+            f.write("\n".join(scan_lines) + "\n")
+    (Path(a.out).with_suffix(".json")).write_text(json.dumps({"rows": rows, "scans": scan_rows, "baseline": baseline, "total_wall_s": total}, indent=1, default=str))
     print(a.out)
 
 

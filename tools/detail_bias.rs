@@ -42,7 +42,14 @@ fn sphere(n: usize) -> (OrientedCloud, SignedDistance) {
         let d = [0, 1, 2].map(|a| p[a] - c[a]);
         (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() - 2.0
     };
-    (OrientedCloud { points, normals }, Box::new(sd))
+    (
+        OrientedCloud {
+            points,
+            normals,
+            weights: None,
+        },
+        Box::new(sd),
+    )
 }
 
 fn torus(n: usize) -> (OrientedCloud, SignedDistance) {
@@ -70,7 +77,14 @@ fn torus(n: usize) -> (OrientedCloud, SignedDistance) {
         let rho = (p[0] * p[0] + p[1] * p[1]).sqrt();
         ((rho - big).powi(2) + p[2] * p[2]).sqrt() - small
     };
-    (OrientedCloud { points, normals }, Box::new(sd))
+    (
+        OrientedCloud {
+            points,
+            normals,
+            weights: None,
+        },
+        Box::new(sd),
+    )
 }
 
 fn main() -> anyhow::Result<()> {

@@ -204,6 +204,7 @@ fn degrade(cloud: &OrientedCloud, variant: Variant, seed: u64) -> OrientedCloud 
             OrientedCloud {
                 points,
                 normals: cloud.normals.clone(),
+                weights: None,
             }
         }
         Variant::Cut => {
@@ -221,7 +222,11 @@ fn degrade(cloud: &OrientedCloud, variant: Variant, seed: u64) -> OrientedCloud 
                 .filter(|(p, _)| key(p) < threshold)
                 .map(|(p, n)| (*p, *n))
                 .unzip();
-            OrientedCloud { points, normals }
+            OrientedCloud {
+                points,
+                normals,
+                weights: None,
+            }
         }
     }
 }
@@ -240,7 +245,11 @@ fn load_real(path: &Path, n: usize) -> Result<OrientedCloud, String> {
         .step_by(stride)
         .map(|(p, q)| (*p, *q))
         .unzip();
-    Ok(OrientedCloud { points, normals })
+    Ok(OrientedCloud {
+        points,
+        normals,
+        weights: None,
+    })
 }
 
 fn run_fit(

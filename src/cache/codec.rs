@@ -16,7 +16,7 @@
 //! length, checksum, trailing bytes) makes [`decode_entry`] return `None`, which the cache
 //! treats as a miss.
 
-use crate::cloud::{OrientedCloud, PointCloud};
+use crate::cloud::{OrientedCloud, PointCloud, RangeSurface};
 use crate::mesh::TriangleMesh;
 use crate::poly::ImplicitModel;
 
@@ -173,6 +173,10 @@ impl<'a> Reader<'a> {
         })
     }
 
+    fn f32s(&mut self) -> Option<Vec<f32>> {
+        self.vec::<4, _>(|c| f32::from_le_bytes(*c))
+    }
+
     fn bytes(&mut self) -> Option<&'a [u8]> {
         let n = usize::try_from(self.u64()?).ok()?;
         self.take(n)
@@ -185,6 +189,13 @@ fn put_vec3_f64(out: &mut Vec<u8>, v: &[[f64; 3]]) {
         for c in p {
             out.extend_from_slice(&c.to_le_bytes());
         }
+    }
+}
+
+fn put_f32s(out: &mut Vec<u8>, v: &[f32]) {
+    out.extend_from_slice(&(v.len() as u64).to_le_bytes());
+    for x in v {
+        out.extend_from_slice(&x.to_le_bytes());
     }
 }
 
@@ -208,6 +219,14 @@ impl Artifact for PointCloud {
             put_vec3_f64(out, normals);
         }
         put_vec3_u32(out, &self.triangles);
+        out.push(u8::from(self.range.is_some()));
+        if let Some(range) = &self.range {
+            out.push(u8::from(range.sensor.is_some()));
+            for c in range.sensor.unwrap_or_default() {
+                out.extend_from_slice(&c.to_le_bytes());
+            }
+            put_f32s(out, &range.falloff);
+        }
     }
 
     fn decode_payload(r: &mut Reader<'_>) -> Option<Self> {
@@ -218,10 +237,30 @@ impl Artifact for PointCloud {
             _ => return None,
         };
         let triangles = r.vec3_u32()?;
+        let range = match r.take(1)?[0] {
+            0 => None,
+            1 => {
+                let has_sensor = r.take(1)?[0];
+                let raw = r.take(24)?;
+                let sensor = [0, 1, 2].map(|a| {
+                    f64::from_le_bytes(raw[8 * a..8 * a + 8].try_into().expect("8 bytes"))
+                });
+                Some(RangeSurface {
+                    sensor: match has_sensor {
+                        0 => None,
+                        1 => Some(sensor),
+                        _ => return None,
+                    },
+                    falloff: r.f32s()?,
+                })
+            }
+            _ => return None,
+        };
         Some(PointCloud {
             points,
             normals,
             triangles,
+            range,
         })
     }
 }
@@ -233,12 +272,24 @@ impl Artifact for OrientedCloud {
     fn encode_payload(&self, out: &mut Vec<u8>) {
         put_vec3_f64(out, &self.points);
         put_vec3_f64(out, &self.normals);
+        out.push(u8::from(self.weights.is_some()));
+        if let Some(weights) = &self.weights {
+            put_f32s(out, weights);
+        }
     }
 
     fn decode_payload(r: &mut Reader<'_>) -> Option<Self> {
+        let points = r.vec3_f64()?;
+        let normals = r.vec3_f64()?;
+        let weights = match r.take(1)?[0] {
+            0 => None,
+            1 => Some(r.f32s()?),
+            _ => return None,
+        };
         Some(OrientedCloud {
-            points: r.vec3_f64()?,
-            normals: r.vec3_f64()?,
+            points,
+            normals,
+            weights,
         })
     }
 }
@@ -336,6 +387,10 @@ mod tests {
             points: vec![[0.0, 1.5, -2.25], [1e-300, f64::MAX, 3.0]],
             normals: Some(vec![[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]),
             triangles: vec![[0, 1, 1]],
+            range: Some(RangeSurface {
+                sensor: Some([0.0, 0.2, 1.3]),
+                falloff: vec![0.25, 1.0],
+            }),
         }
     }
 

@@ -148,6 +148,8 @@ pub const SLICE_RESOLUTION: Range = Range {
     flag: "--slice-resolution",
     ..RESOLUTION
 };
+/// `--viewpoint X,Y,Z`: each coordinate of the sensor's position, as large as `--bounds` allows.
+pub const VIEWPOINT: Range = Range::float("--viewpoint", -BOUNDS_MAX_ABS, BOUNDS_MAX_ABS);
 /// `render --size`: image width and height in pixels.
 pub const SIZE: Range = Range::int("--size", 16, 8192);
 /// `--bounds`: largest magnitude of a coordinate; beyond it the box's diagonal and the octree's
@@ -211,6 +213,11 @@ pub struct NormalsOpts {
     /// file's faces), input (the file's normals).
     #[arg(long = "normals", value_name = "SOURCE", default_value = "auto")]
     pub source: String,
+    /// The sensor's position in input coordinates: every normal, whatever its source, is turned
+    /// to face it. For several scans, each scan's own coordinates.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_viewpoint,
+          help = viewpoint_help())]
+    pub viewpoint: Option<[f64; 3]>,
 }
 
 /// Options of the fit stage.
@@ -298,8 +305,10 @@ pub struct CacheOpts {
 /// `stablesurf run`.
 #[derive(Debug, Args)]
 pub struct RunArgs {
-    /// Scan file (PLY, OBJ, STL, XYZ). Without it, a small built-in sample scan is used.
-    pub input: Option<PathBuf>,
+    /// Scan file (PLY, OBJ, STL, XYZ); a Stanford .conf registration file (its scans, moved by
+    /// their poses); or several scans of one object in one frame. Each scan gets its normals in
+    /// its own frame before the merge. Without any, a small built-in sample scan is used.
+    pub input: Vec<PathBuf>,
     /// Output directory (created if missing).
     #[arg(short, long, value_name = "OUT_DIR")]
     pub output: PathBuf,
@@ -591,6 +600,33 @@ fn depth_help() -> String {
     )
 }
 
+/// The help of `--viewpoint`, with its range.
+fn viewpoint_help() -> String {
+    VIEWPOINT.help(
+        "The sensor's position X,Y,Z in input coordinates: every normal is turned to face it \
+         (for several scans, in each scan's own coordinates)",
+    )
+}
+
+/// Parses `x,y,z`: three numbers, each in [`VIEWPOINT`].
+fn parse_viewpoint(text: &str) -> Result<[f64; 3], String> {
+    let parts: Vec<&str> = text.split(',').collect();
+    let bad = || {
+        format!(
+            "--viewpoint takes three numbers X,Y,Z, each from {}, got '{text}'",
+            VIEWPOINT.describe()
+        )
+    };
+    let [x, y, z] = parts.as_slice() else {
+        return Err(bad());
+    };
+    let mut out = [0.0; 3];
+    for (slot, part) in out.iter_mut().zip([x, y, z]) {
+        *slot = VIEWPOINT.check_f64(part).map_err(|_| bad())?;
+    }
+    Ok(out)
+}
+
 /// The help of `--bounds`, with its limits.
 fn bounds_help(what: &str) -> String {
     format!(
@@ -669,7 +705,7 @@ mod tests {
         let CommandArgs::Run(r) = parse(&["run", "-o", "out"]).command else {
             panic!()
         };
-        assert!(r.input.is_none());
+        assert!(r.input.is_empty());
         assert_eq!(r.fit.degree, 8);
         assert_eq!(r.fit.kappa, "auto");
         assert_eq!(r.mesh.depth, None);

@@ -134,6 +134,7 @@ pub(crate) fn fit_local(
     kappa: f64,
     fallback_scale: f64,
     blend: Option<([f64; 3], f64)>,
+    confidence: Option<&[f32]>,
 ) -> Option<LocalFit> {
     if ball.is_empty() || degree > 4 {
         return None;
@@ -163,7 +164,17 @@ pub(crate) fn fit_local(
     }
     let norm = |p: [f64; 3]| [0, 1, 2].map(|a| (p[a] - mu[a]) / s);
     if n == 2 && c == 10 {
-        return fit_quadric(points, normals, ball, aux, constraints, kappa, mu, s, blend);
+        return fit_quadric(
+            points,
+            normals,
+            ball,
+            aux,
+            constraints,
+            kappa,
+            (mu, s),
+            blend,
+            confidence,
+        );
     }
 
     // 2. Normal equations MᵀM (upper triangle, row-major c×c) and Mᵀb.
@@ -172,22 +183,26 @@ pub(crate) fn fit_local(
     let mut beta = [0.0; 5];
     let mut mon = [0.0; 35];
     let mut grads = [[0.0; 35]; 3];
-    let add_row = |m: &[f64; 35], target: f64, ata: &mut [f64; 35 * 35], atb: &mut [f64; 35]| {
-        for i in 0..c {
-            let mi = m[i];
-            if mi == 0.0 {
-                continue;
+    // Each row weighted by `w` (the point's confidence; 1 for the auxiliary rows). w·mᵢ is mᵢ
+    // exactly when w = 1, so a cloud without confidences gives the same bits as unweighted rows.
+    let add_row =
+        |m: &[f64; 35], target: f64, w: f64, ata: &mut [f64; 35 * 35], atb: &mut [f64; 35]| {
+            for i in 0..c {
+                let mi = w * m[i];
+                if mi == 0.0 {
+                    continue;
+                }
+                atb[i] += mi * target;
+                let row = &mut ata[i * c..i * c + c];
+                for j in i..c {
+                    row[j] += mi * m[j];
+                }
             }
-            atb[i] += mi * target;
-            let row = &mut ata[i * c..i * c + c];
-            for j in i..c {
-                row[j] += mi * m[j];
-            }
-        }
-    };
+        };
     for &i in ball {
         let q = norm(points[i as usize]);
         let nv = normals[i as usize];
+        let w = confidence.map_or(1.0, |c| f64::from(c[i as usize]));
         let r2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
         let mut pw = 1.0;
         for b in beta.iter_mut().take(n + 1) {
@@ -195,25 +210,25 @@ pub(crate) fn fit_local(
             pw *= r2;
         }
         monomials(n, q, &mut mon);
-        add_row(&mon, 0.0, &mut ata, &mut atb);
+        add_row(&mon, 0.0, w, &mut ata, &mut atb);
         match constraints {
             Constraints::Gradient => {
                 monomial_gradients(n, q, &mut grads);
                 for (g, &t) in grads.iter().zip(&nv) {
-                    add_row(g, t, &mut ata, &mut atb);
+                    add_row(g, t, w, &mut ata, &mut atb);
                 }
             }
             Constraints::ThreeLevels(epsilon) => {
                 monomials(n, [0, 1, 2].map(|a| q[a] + epsilon * nv[a]), &mut mon);
-                add_row(&mon, epsilon, &mut ata, &mut atb);
+                add_row(&mon, epsilon, w, &mut ata, &mut atb);
                 monomials(n, [0, 1, 2].map(|a| q[a] - epsilon * nv[a]), &mut mon);
-                add_row(&mon, -epsilon, &mut ata, &mut atb);
+                add_row(&mon, -epsilon, w, &mut ata, &mut atb);
             }
         }
     }
     for &(p, t) in aux {
         monomials(n, norm(p), &mut mon);
-        add_row(&mon, t / s, &mut ata, &mut atb);
+        add_row(&mon, t / s, 1.0, &mut ata, &mut atb);
     }
     // 3. Ridge term κD, D_ll = β_{|α|}/T_α (paper 6.18).
     let mut l = 0;
@@ -242,7 +257,7 @@ pub(crate) fn fit_local(
     };
     {
         // Re-centring: the blend-weighted mean of Q/|∇Q| over the ball's points becomes 0.
-        let weights = recentring_weights(points, ball, blend);
+        let weights = recentring_weights(points, ball, blend, confidence);
         let (mut vsum, mut wsum) = (0.0, 0.0);
         for (&i, w) in ball.iter().zip(&weights) {
             let (v, g) = poly.value_gradient(points[i as usize]);
@@ -293,9 +308,9 @@ fn fit_quadric(
     aux: &[AuxPoint],
     constraints: Constraints,
     kappa: f64,
-    mu: [f64; 3],
-    s: f64,
+    (mu, s): ([f64; 3], f64),
     blend: Option<([f64; 3], f64)>,
+    confidence: Option<&[f32]>,
 ) -> Option<LocalFit> {
     let norm = |p: [f64; 3]| [0, 1, 2].map(|a| (p[a] - mu[a]) / s);
     let mut ata = [0.0; 55];
@@ -304,12 +319,13 @@ fn fit_quadric(
     for &i in ball {
         let q = norm(points[i as usize]);
         let nv = normals[i as usize];
+        let w = confidence.map_or(1.0, |c| f64::from(c[i as usize]));
         let r2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
         beta[0] += 1.0;
         beta[1] += r2;
         beta[2] += r2 * r2;
         let m0 = quadric_monomials(q);
-        add_packed(&mut ata, &m0);
+        add_packed(&mut ata, &m0, w);
         match constraints {
             Constraints::Gradient => {
                 // ∇Q̂(q) = n: the gradients of 1, x, y, z, x², xy, xz, y², yz, z².
@@ -317,27 +333,27 @@ fn fit_quadric(
                 let gx = [0.0, 1.0, 0.0, 0.0, 2.0 * x, y, z, 0.0, 0.0, 0.0];
                 let gy = [0.0, 0.0, 1.0, 0.0, 0.0, x, 0.0, 2.0 * y, z, 0.0];
                 let gz = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, x, 0.0, y, 2.0 * z];
-                add_packed(&mut ata, &gx);
-                add_packed(&mut ata, &gy);
-                add_packed(&mut ata, &gz);
+                add_packed(&mut ata, &gx, w);
+                add_packed(&mut ata, &gy, w);
+                add_packed(&mut ata, &gz, w);
                 for l in 0..10 {
-                    atb[l] += gx[l] * nv[0] + gy[l] * nv[1] + gz[l] * nv[2];
+                    atb[l] += w * (gx[l] * nv[0] + gy[l] * nv[1] + gz[l] * nv[2]);
                 }
             }
             Constraints::ThreeLevels(epsilon) => {
                 let m1 = quadric_monomials([0, 1, 2].map(|a| q[a] + epsilon * nv[a]));
-                add_packed(&mut ata, &m1);
+                add_packed(&mut ata, &m1, w);
                 let m2 = quadric_monomials([0, 1, 2].map(|a| q[a] - epsilon * nv[a]));
-                add_packed(&mut ata, &m2);
+                add_packed(&mut ata, &m2, w);
                 for l in 0..10 {
-                    atb[l] += m1[l] * epsilon + m2[l] * -epsilon;
+                    atb[l] += w * (m1[l] * epsilon + m2[l] * -epsilon);
                 }
             }
         }
     }
     for &(p, t) in aux {
         let m = quadric_monomials(norm(p));
-        add_packed(&mut ata, &m);
+        add_packed(&mut ata, &m, 1.0);
         let target = t / s;
         for l in 0..10 {
             atb[l] += m[l] * target;
@@ -362,7 +378,7 @@ fn fit_quadric(
     {
         // Step 4's re-centring: the blend-weighted mean of Q̂/|∇Q̂| over the ball's points
         // becomes 0.
-        let weights = recentring_weights(points, ball, blend);
+        let weights = recentring_weights(points, ball, blend, confidence);
         let (mut vsum, mut wsum) = (0.0, 0.0);
         for (&i, w) in ball.iter().zip(&weights) {
             let q = norm(points[i as usize]);
@@ -430,12 +446,25 @@ fn fit_quadric(
 
 /// The weights of the re-centring (step 4): each point's blend weight b(1.5·|p − c|/r) for the
 /// cell's weight centre c and support radius r, or 1 for every point without a blend or when no
-/// point of the ball lies inside the support (a grown cell's far points).
+/// point of the ball lies inside the support (a grown cell's far points); each times the
+/// point's confidence when the cloud has them.
 fn recentring_weights(
     points: &[[f64; 3]],
     ball: &[u32],
     blend: Option<([f64; 3], f64)>,
+    confidence: Option<&[f32]>,
 ) -> Vec<f64> {
+    let mut w = blend_weights(points, ball, blend);
+    if let Some(c) = confidence {
+        for (w, &i) in w.iter_mut().zip(ball) {
+            *w *= f64::from(c[i as usize]);
+        }
+    }
+    w
+}
+
+/// The blend part of [`recentring_weights`].
+fn blend_weights(points: &[[f64; 3]], ball: &[u32], blend: Option<([f64; 3], f64)>) -> Vec<f64> {
     if let Some((c, r)) = blend {
         let k = 1.5 / r;
         let w: Vec<f64> = ball
@@ -465,12 +494,13 @@ fn quadric_monomials(q: [f64; 3]) -> [f64; 10] {
     [1.0, x, y, z, x * x, x * y, x * z, y * y, y * z, z * z]
 }
 
-/// Adds m·mᵀ to the packed upper triangle (row-major) of a 10 × 10 matrix.
+/// Adds w·m·mᵀ to the packed upper triangle (row-major) of a 10 × 10 matrix (the same bits as
+/// m·mᵀ when w = 1).
 #[inline(always)]
-fn add_packed(ata: &mut [f64; 55], m: &[f64; 10]) {
+fn add_packed(ata: &mut [f64; 55], m: &[f64; 10], w: f64) {
     let mut k = 0;
     for i in 0..10 {
-        let mi = m[i];
+        let mi = w * m[i];
         for mj in &m[i..] {
             ata[k] += mi * mj;
             k += 1;
@@ -557,6 +587,7 @@ mod tests {
                 1e-2,
                 1.0,
                 None,
+                None,
             )
             .unwrap();
             assert!(fit.max_error < 1e-6, "{}", fit.max_error);
@@ -624,6 +655,7 @@ mod tests {
                 1e-6,
                 1.0,
                 None,
+                None,
             )
             .unwrap();
             assert!(fit.max_error < 1e-5, "{degree}: {}", fit.max_error);
@@ -637,6 +669,7 @@ mod tests {
                 Constraints::ThreeLevels(0.3),
                 1e-6,
                 1.0,
+                None,
                 None,
             )
             .unwrap();

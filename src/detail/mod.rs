@@ -319,6 +319,8 @@ impl MpuModel {
 struct Ctx<'a> {
     points: &'a [[f64; 3]],
     normals: &'a [[f64; 3]],
+    /// Per-point confidence weighing the point's rows in the local fits (`None`: 1).
+    weights: Option<&'a [f32]>,
     tree: ImmutableKdTree<f64, 3>,
     params: &'a DetailParams,
     diagonal: f64,
@@ -425,6 +427,15 @@ pub fn fit_detail(cloud: &OrientedCloud, params: &DetailParams) -> Result<MpuMod
             n_normals: cloud.normals.len(),
         });
     }
+    if let Some(w) = &cloud.weights {
+        if w.len() != n || w.iter().any(|&x| !(x.is_finite() && x > 0.0)) {
+            return Err(DetailError::InvalidParams(format!(
+                "the cloud has {} confidence weights for {n} points (each must be finite and \
+                 positive); give one per point or none",
+                w.len()
+            )));
+        }
+    }
     let n_min = ((1.2 * n_coefficients(params.degree) as f64).ceil() as usize).max(15);
     let n_min_grown = ((1.2 * n_coefficients(params.degree.min(2)) as f64).ceil() as usize).max(15);
     if n < n_min {
@@ -458,6 +469,7 @@ pub fn fit_detail(cloud: &OrientedCloud, params: &DetailParams) -> Result<MpuMod
     let ctx = Ctx {
         points: &cloud.points,
         normals: &cloud.normals,
+        weights: cloud.weights.as_deref(),
         tree,
         params,
         diagonal,
@@ -657,6 +669,7 @@ fn visit(
         params.kappa,
         fit_radius,
         Some((center, radius)),
+        ctx.weights,
     ) else {
         part.error = Some(DetailError::LocalFit { level, center });
         return part;

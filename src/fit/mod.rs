@@ -512,6 +512,7 @@ fn validate(cloud: &OrientedCloud, degree: u32) -> Result<Option<OrientedCloud>,
     Ok(Some(OrientedCloud {
         points: cloud.points.clone(),
         normals,
+        weights: cloud.weights.clone(),
     }))
 }
 

@@ -246,7 +246,11 @@ pub fn sample(shape: Shape, variant: Variant, n_points: usize, seed: u64) -> Ori
                 .filter(|(p, _)| key(p) < threshold)
                 .map(|(p, n)| (*p, *n))
                 .unzip();
-            cloud = OrientedCloud { points, normals };
+            cloud = OrientedCloud {
+                points,
+                normals,
+                weights: None,
+            };
         }
     }
     cloud

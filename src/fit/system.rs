@@ -625,7 +625,11 @@ mod tests {
                 p.map(|c| c / n)
             })
             .collect();
-        let cloud = OrientedCloud { points, normals };
+        let cloud = OrientedCloud {
+            points,
+            normals,
+            weights: None,
+        };
         let norm = Normalization::of(&cloud.points);
         let eps = 0.05;
         let sys = accumulate(&cloud, &norm, 3, Rows::ThreeLayers { epsilon: eps });

@@ -45,8 +45,10 @@
 //! intensity and colour columns of a 7-column .pts file, or a PLY's `confidence` property), and
 //! `stablesurf info` prints them from [`ScanInfo::notices`].
 
+pub mod conf;
 mod obj;
 mod ply;
+pub mod range;
 mod stl;
 mod xyz;
 
@@ -270,6 +272,8 @@ pub struct Scan {
     /// line (intensity, r, g, b in the .pts layout) are not read: the cloud keeps x y z").
     /// Empty when the cloud holds everything the file does. A caller should print them.
     pub notices: Vec<String>,
+    /// What triangulating the file's range grid did, when it has one (see [`range`]).
+    pub range_grid: Option<range::RangeGridInfo>,
 }
 
 /// What `stablesurf info` prints about a scan.
@@ -293,6 +297,10 @@ pub struct ScanInfo {
     pub nan_points: usize,
     /// What the reader read but did not keep (see [`Scan::notices`]).
     pub notices: Vec<String>,
+    /// The range grid's size, what its triangulation kept and cut, and the sensor (only for a
+    /// file with a range grid).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub range_grid: Option<range::RangeGridInfo>,
 }
 
 /// `:LINE` after a path when the line is known.
@@ -379,8 +387,13 @@ pub fn read_scan_bytes_as(
 /// Runs the reader of `detected` on the bytes.
 fn read_detected(bytes: &[u8], name: &str, detected: Detected) -> Result<Scan, ImportError> {
     let mut notices = Vec::new();
+    let mut range_grid = None;
     let (format, cloud) = match detected {
-        Detected::Ply => ply::read(bytes, name, &mut notices)?,
+        Detected::Ply => {
+            let (format, cloud, grid) = ply::read(bytes, name, &mut notices)?;
+            range_grid = grid;
+            (format, cloud)
+        }
         Detected::StlBinary => (ScanFormat::StlBinary, stl::read_binary(bytes, name)?),
         Detected::StlAscii => (ScanFormat::StlAscii, stl::read_ascii(bytes, name)?),
         Detected::Obj => (ScanFormat::Obj, obj::read(bytes, name, &mut notices)?),
@@ -390,6 +403,7 @@ fn read_detected(bytes: &[u8], name: &str, detected: Detected) -> Result<Scan, I
         format,
         cloud,
         notices,
+        range_grid,
     })
 }
 
@@ -514,6 +528,7 @@ pub fn scan_info(scan: &Scan) -> ScanInfo {
         duplicate_points,
         nan_points,
         notices: scan.notices.clone(),
+        range_grid: scan.range_grid.clone(),
     }
 }
 
@@ -755,6 +770,7 @@ mod tests {
             points: vec![[0.0; 3]; 3],
             normals: None,
             triangles: vec![[0, 1, 2]],
+            range: None,
         };
         assert!(validate(&ok, "f").is_ok());
         let mut bad = ok.clone();

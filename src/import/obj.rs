@@ -213,6 +213,7 @@ pub(crate) fn read(
         points,
         normals,
         triangles,
+        range: None,
     })
 }
 

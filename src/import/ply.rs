@@ -4,9 +4,10 @@
 //! Input: the whole file as bytes. Output: the format and a cloud with the `vertex` element's
 //! x/y/z (any numeric type, converted to f64), its nx/ny/nz when all three are present, and the
 //! `face` element's `vertex_indices` (or `vertex_index`) lists of any integer type,
-//! fan-triangulated. Every other element and property is skipped, for example the `range_grid`
-//! element of Stanford's raw range scans or per-vertex `confidence` and `intensity`, and named in
-//! the scan's notices. A face with fewer than three corners is an error.
+//! fan-triangulated. A file without faces whose header gives `obj_info num_cols` and `num_rows`
+//! has its `range_grid` element (Stanford's raw range scans: one list of 0 or 1 vertex index per
+//! grid cell, row-major) read and triangulated by [`range`]. Every other element and property is
+//! skipped, for example per-vertex `confidence` and `intensity`, and named in the scan's notices. A face with fewer than three corners is an error.
 //!
 //! Binary bodies are believed, not the header: after every element is read exactly as declared,
 //! the bytes consumed must equal the body's length. A body that ends early is a
@@ -44,7 +45,7 @@
 //! ply-rs-bw stays the writer of the round-trip test files and the baseline of the bench.
 
 use crate::cloud::PointCloud;
-use crate::import::{push_fan, ImportError, Lines, ScanFormat};
+use crate::import::{push_fan, range, ImportError, Lines, ScanFormat};
 
 /// A PLY scalar type.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -135,10 +136,12 @@ enum Encoding {
 }
 
 /// The parsed header.
-#[derive(Debug)]
+#[derive(Clone, Debug)]
 struct Header {
     encoding: Encoding,
     elements: Vec<Element>,
+    /// `obj_info num_cols N` and `obj_info num_rows N`: a range grid's size.
+    grid_size: (Option<usize>, Option<usize>),
     /// Byte offset of the first payload byte.
     body_start: usize,
     /// Line number of the first payload line (ascii).
@@ -150,26 +153,55 @@ pub(crate) fn read(
     bytes: &[u8],
     path: &str,
     notices: &mut Vec<String>,
-) -> Result<(ScanFormat, PointCloud), ImportError> {
+) -> Result<(ScanFormat, PointCloud, Option<range::RangeGridInfo>), ImportError> {
     let header = read_header(bytes, path)?;
     let plan = Plan::new(&header, path)?;
     let body = bytes.get(header.body_start..).unwrap_or(&[]);
-    let (format, cloud) = match header.encoding {
+    let mut cells = Vec::new();
+    let (format, mut cloud) = match header.encoding {
         Encoding::Ascii => (
             ScanFormat::PlyAscii,
-            read_ascii(body, &header, &plan, path)?,
+            read_ascii(body, &header, &plan, path, &mut cells)?,
         ),
         Encoding::BinaryLe => (
             ScanFormat::PlyBinaryLe,
-            read_binary::<false>(body, &header, &plan, path)?,
+            read_binary::<false>(body, &header, &plan, path, &mut cells)?,
         ),
         Encoding::BinaryBe => (
             ScanFormat::PlyBinaryBe,
-            read_binary::<true>(body, &header, &plan, path)?,
+            read_binary::<true>(body, &header, &plan, path, &mut cells)?,
         ),
     };
     notices.extend(skipped(&header, &plan));
-    Ok((format, cloud))
+    let mut grid_info = None;
+    if let (Some(_), (Some(cols), Some(rows))) = (plan.grid, header.grid_size) {
+        let grid = range::triangulate(&cloud.points, cols, rows, &cells);
+        let i = &grid.info;
+        notices.push(format!(
+            "range_grid {cols} x {rows} triangulated: {} samples, {} grid squares with 3 or 4 \
+             samples, {} triangles kept, {} cut at long edges (> {} x the median spacing {:.3e}) \
+             and {} at grazing angles (> {} degrees from the sensor); sensor {}",
+            i.samples,
+            i.squares,
+            i.triangles,
+            i.cut_long_edges,
+            range::LONG_EDGE_FACTOR,
+            i.median_spacing,
+            i.cut_grazing,
+            range::GRAZING_DEG,
+            match (i.sensor, i.sensor_from) {
+                (Some(s), Some(from)) => format!(
+                    "estimated at ({:.4}, {:.4}, {:.4}) from the grid's {from}",
+                    s[0], s[1], s[2]
+                ),
+                _ => "not estimated (the scan lines do not fix it)".to_owned(),
+            }
+        ));
+        cloud.triangles = grid.triangles;
+        cloud.range = Some(grid.surface);
+        grid_info = Some(grid.info);
+    }
+    Ok((format, cloud, grid_info))
 }
 
 /// Notices naming the vertex properties and the elements the cloud does not keep.
@@ -198,8 +230,11 @@ fn skipped(header: &Header, plan: &Plan) -> Vec<String> {
         ));
     }
     let face = plan.face.map(|(f, _)| f);
+    let grid = plan.grid.map(|(g, _)| g);
     let elements: Vec<String> = (0..header.elements.len())
-        .filter(|&e| e != plan.vertex && Some(e) != face && header.elements[e].count > 0)
+        .filter(|&e| {
+            e != plan.vertex && Some(e) != face && Some(e) != grid && header.elements[e].count > 0
+        })
         .map(|e| {
             let element = &header.elements[e];
             format!("{} ({} entries)", element.name, element.count)
@@ -220,6 +255,7 @@ fn read_header(bytes: &[u8], path: &str) -> Result<Header, ImportError> {
     };
     let mut encoding = None;
     let mut elements: Vec<Element> = Vec::new();
+    let mut grid_size = (None, None);
     let mut offset = 0;
     let mut line_number = 0;
     loop {
@@ -268,7 +304,16 @@ fn read_header(bytes: &[u8], path: &str) -> Result<Header, ImportError> {
                     }
                 });
             }
-            "comment" | "obj_info" | "" => {}
+            "obj_info" => {
+                let key = words.next();
+                let value = words.next().and_then(|v| v.parse::<usize>().ok());
+                match key {
+                    Some("num_cols") => grid_size.0 = value,
+                    Some("num_rows") => grid_size.1 = value,
+                    _ => {}
+                }
+            }
+            "comment" | "" => {}
             "element" => {
                 let (Some(name), Some(count), None) = (words.next(), words.next(), words.next())
                 else {
@@ -366,6 +411,7 @@ fn read_header(bytes: &[u8], path: &str) -> Result<Header, ImportError> {
     Ok(Header {
         encoding,
         elements,
+        grid_size,
         body_start: offset,
         body_line: line_number + 1,
     })
@@ -381,6 +427,9 @@ struct Plan {
     normals: Option<[usize; 3]>,
     /// Index of the `face` element and of its index-list property.
     face: Option<(usize, usize)>,
+    /// Index of the `range_grid` element and of its index-list property, when the file has no
+    /// faces and the header gives the grid's size.
+    grid: Option<(usize, usize)>,
 }
 
 impl Plan {
@@ -443,11 +492,30 @@ impl Plan {
                 }
             }
         };
+        let grid = match (face, header.grid_size) {
+            (None, (Some(cols), Some(rows))) => header
+                .elements
+                .iter()
+                .position(|e| e.name == "range_grid")
+                .and_then(|g| {
+                    let element = &header.elements[g];
+                    let index = element.property_index("vertex_indices")?;
+                    let sized = cols.checked_mul(rows).map(|n| n as u64) == Some(element.count);
+                    match element.properties[index].ty {
+                        PropertyType::List { item, .. } if item.is_integer() && sized => {
+                            Some((g, index))
+                        }
+                        _ => None,
+                    }
+                }),
+            _ => None,
+        };
         Ok(Plan {
             vertex,
             coords,
             normals,
             face,
+            grid,
         })
     }
 }
@@ -549,8 +617,9 @@ fn read_binary<const BIG: bool>(
     header: &Header,
     plan: &Plan,
     path: &str,
+    cells: &mut Vec<u32>,
 ) -> Result<PointCloud, ImportError> {
-    let error = match read_binary_body::<BIG>(body, header, plan, path) {
+    let error = match read_binary_body::<BIG>(body, header, plan, path, cells) {
         Ok(cloud) => return Ok(cloud),
         Err(error) => error,
     };
@@ -605,14 +674,9 @@ fn count_hint<const BIG: bool>(body: &[u8], header: &Header, plan: &Plan) -> Opt
             let Some(new) = count.checked_add_signed(delta) else {
                 continue;
             };
-            let mut changed = Header {
-                encoding: header.encoding,
-                elements: header.elements.clone(),
-                body_start: header.body_start,
-                body_line: header.body_line,
-            };
+            let mut changed = header.clone();
             changed.elements[e].count = new;
-            if read_binary_body::<BIG>(body, &changed, plan, "").is_ok() {
+            if read_binary_body::<BIG>(body, &changed, plan, "", &mut Vec::new()).is_ok() {
                 return Some(format!(
                     "the body reads without error with `element {} {new}` instead of {count}: \
                      fix that count in the header",
@@ -697,11 +761,13 @@ fn short_face(
     )
 }
 
+/// Reads a binary body; a range grid's cells go to `cells` (`u32::MAX` for an empty cell).
 fn read_binary_body<const BIG: bool>(
     body: &[u8],
     header: &Header,
     plan: &Plan,
     path: &str,
+    cells: &mut Vec<u32>,
 ) -> Result<PointCloud, ImportError> {
     let n_vertices = header.elements[plan.vertex].count;
     let mut pos = 0;
@@ -776,7 +842,10 @@ fn read_binary_body<const BIG: bool>(
             slots = wanted.enumerate().map(|(slot, &p)| (p, slot)).collect();
         } else if plan.face.is_some_and(|(f, _)| f == e) {
             list = plan.face.map(|(_, p)| p);
+        } else if plan.grid.is_some_and(|(g, _)| g == e) {
+            list = plan.grid.map(|(_, p)| p);
         }
+        let is_grid = plan.grid.is_some_and(|(g, _)| g == e);
         let wanted = Wanted {
             scalars: &slots,
             list,
@@ -796,6 +865,28 @@ fn read_binary_body<const BIG: bool>(
                 if let Some(n) = normals.as_mut() {
                     n.push([values[3], values[4], values[5]]);
                 }
+            } else if is_grid {
+                cells.push(match polygon.as_slice() {
+                    [] => u32::MAX,
+                    [v] => match u32::try_from(*v) {
+                        Ok(i) if u64::from(i) < n_vertices => i,
+                        _ => return Err(bad_index(path, header, element, entry, *v, start)),
+                    },
+                    more => {
+                        return Err(bad_binary(
+                            path,
+                            header,
+                            element,
+                            entry,
+                            start,
+                            format!(
+                                "range_grid cell {entry} holds {} vertex indices; a range grid \
+                                 cell holds 0 or 1",
+                                more.len()
+                            ),
+                        ))
+                    }
+                });
             } else if list.is_some() {
                 if polygon.len() < 3 {
                     return Err(short_face(
@@ -857,6 +948,7 @@ fn read_binary_body<const BIG: bool>(
         points,
         normals,
         triangles,
+        range: None,
     })
 }
 
@@ -1044,8 +1136,9 @@ fn read_ascii(
     header: &Header,
     plan: &Plan,
     path: &str,
+    cells: &mut Vec<u32>,
 ) -> Result<PointCloud, ImportError> {
-    match read_ascii_entries(body, header, plan, path) {
+    match read_ascii_entries(body, header, plan, path, cells) {
         Ok(cloud) => Ok(cloud),
         // A count that disagrees with the number of lines explains most parse errors (the next
         // element's lines are read as this one's), so report that instead when it is the case.
@@ -1098,6 +1191,8 @@ struct EntryLayout {
     normals: bool,
     /// The index-list property when this is the face element.
     face_list: Option<usize>,
+    /// The index-list property when this is the range grid element.
+    grid_list: Option<usize>,
 }
 
 fn entry_layouts(header: &Header, plan: &Plan) -> Vec<EntryLayout> {
@@ -1120,6 +1215,7 @@ fn entry_layouts(header: &Header, plan: &Plan) -> Vec<EntryLayout> {
             is_vertex,
             normals: is_vertex && plan.normals.is_some(),
             face_list: plan.face.filter(|(f, _)| *f == e).map(|(_, p)| p),
+            grid_list: plan.grid.filter(|(g, _)| *g == e).map(|(_, p)| p),
         });
         start = end;
     }
@@ -1139,6 +1235,8 @@ struct BlockOutput {
     points: Vec<[f64; 3]>,
     normals: Vec<[f64; 3]>,
     triangles: Vec<[u32; 3]>,
+    /// Range grid cells (`u32::MAX` when empty).
+    cells: Vec<u32>,
     /// Entries read, and the line of the last one.
     entries: u64,
     last_entry_line: Option<usize>,
@@ -1159,19 +1257,21 @@ fn read_ascii_entries(
     header: &Header,
     plan: &Plan,
     path: &str,
+    cells: &mut Vec<u32>,
 ) -> Result<PointCloud, ImportError> {
     let block_bytes = (body.len() >= ASCII_PARALLEL_BYTES).then_some(ASCII_BLOCK);
-    read_ascii_blocks(body, header, plan, path, block_bytes)
+    read_ascii_blocks(body, header, plan, path, block_bytes, cells)
 }
 
 /// [`read_ascii_entries`] with blocks of `block_bytes` read in parallel, or one block read on
-/// the calling thread when `None`.
+/// the calling thread when `None`. A range grid's cells go to `cells`.
 fn read_ascii_blocks(
     body: &[u8],
     header: &Header,
     plan: &Plan,
     path: &str,
     block_bytes: Option<usize>,
+    cells: &mut Vec<u32>,
 ) -> Result<PointCloud, ImportError> {
     use rayon::prelude::*;
     // A `\n` byte is never part of a multi-byte UTF-8 sequence, so the lines before the one
@@ -1241,10 +1341,15 @@ fn read_ascii_blocks(
     let points = outputs.iter().map(|o| o.points.as_slice());
     let normals = outputs.iter().map(|o| o.normals.as_slice());
     let triangles = outputs.iter().map(|o| o.triangles.as_slice());
+    *cells = concat(
+        outputs.iter().map(|o| o.cells.as_slice()).collect(),
+        parallel,
+    );
     Ok(PointCloud {
         points: concat(points.collect(), parallel),
         normals: plan.normals.map(|_| concat(normals.collect(), parallel)),
         triangles: concat(triangles.collect(), parallel),
+        range: None,
     })
 }
 
@@ -1388,6 +1493,22 @@ fn read_block(
                             })?;
                             polygon.push(to_index(value, entry, n_vertices, path)?);
                         }
+                    } else if layout.grid_list == Some(p) {
+                        if n > 1 {
+                            return Err(malformed(format!(
+                                "range_grid cell {entry} holds {n} vertex indices; a range grid \
+                                 cell holds 0 or 1"
+                            )));
+                        }
+                        let mut cell = u32::MAX;
+                        for _ in 0..n {
+                            let token = next("list item")?;
+                            let value: i64 = token.parse().map_err(|_| {
+                                malformed(format!("`{token}` is not a vertex index"))
+                            })?;
+                            cell = to_index(value, entry, n_vertices, path)?;
+                        }
+                        out.cells.push(cell);
                     } else {
                         for _ in 0..n {
                             next("list item")?;
@@ -1542,7 +1663,7 @@ mod tests {
     use super::*;
 
     fn read_str(s: &str) -> Result<(ScanFormat, PointCloud), ImportError> {
-        read(s.as_bytes(), "t.ply", &mut Vec::new())
+        read(s.as_bytes(), "t.ply", &mut Vec::new()).map(|(f, c, _)| (f, c))
     }
 
     const SQUARE: &str = "ply\nformat ascii 1.0\ncomment c\nelement vertex 4\n\
@@ -1629,7 +1750,7 @@ mod tests {
         for i in [1u32, 0, 1] {
             bytes.extend_from_slice(&i.to_be_bytes());
         }
-        let (format, cloud) = read(&bytes, "t.ply", &mut Vec::new()).unwrap();
+        let (format, cloud, _) = read(&bytes, "t.ply", &mut Vec::new()).unwrap();
         assert_eq!(format, ScanFormat::PlyBinaryBe);
         assert_eq!(cloud.points, vec![[-3.0, 7.0, 0.25], [4.0, 9.0, -1.5]]);
         assert_eq!(cloud.triangles, vec![[1, 0, 1]]);
@@ -1701,7 +1822,7 @@ mod tests {
         let body = &bytes[header.body_start..];
         format!(
             "{:?}",
-            read_ascii_blocks(body, &header, &plan, "t.ply", block_bytes)
+            read_ascii_blocks(body, &header, &plan, "t.ply", block_bytes, &mut Vec::new())
         )
     }
 

@@ -146,6 +146,7 @@ pub(crate) fn read_binary(bytes: &[u8], path: &str) -> Result<PointCloud, Import
         points: welder.points,
         normals: None,
         triangles,
+        range: None,
     })
 }
 
@@ -266,6 +267,7 @@ pub(crate) fn read_ascii(bytes: &[u8], path: &str) -> Result<PointCloud, ImportE
         points: welder.points,
         normals: None,
         triangles,
+        range: None,
     })
 }
 

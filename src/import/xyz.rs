@@ -164,6 +164,7 @@ pub(crate) fn read(
         points,
         normals,
         triangles: Vec::new(),
+        range: None,
     })
 }
 

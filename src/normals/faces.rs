@@ -140,8 +140,28 @@ pub fn mesh_normals(
             n_conflicts / 2
         ));
     }
+    let (normals, more) = wound_normals(points, &tris, params);
+    warnings.extend(more);
+    Ok(MeshNormals {
+        normals,
+        triangles: tris,
+        warnings,
+    })
+}
+
+/// Unit normals from triangles whose winding already says which side is out (a range grid's
+/// triangles face the scanner): each vertex gets the sum of its triangles' unnormalised
+/// right-hand normals (area weighting); vertices with no usable triangle get a plane fit signed
+/// like their neighbours. Returns the normals and warnings.
+pub fn wound_normals(
+    points: &[[f64; 3]],
+    tris: &[[u32; 3]],
+    params: &NormalsParams,
+) -> (Vec<[f64; 3]>, Vec<String>) {
+    let n = points.len();
+    let mut warnings = Vec::new();
     let mut sums = vec![[0.0; 3]; n];
-    for tri in &tris {
+    for tri in tris {
         let nrm = triangle_normal(
             &points[tri[0] as usize],
             &points[tri[1] as usize],
@@ -159,14 +179,13 @@ pub fn mesh_normals(
         ));
         fill_missing(points, &mut normals, params);
     }
-    Ok(MeshNormals {
-        normals: normals
+    (
+        normals
             .into_iter()
             .map(|x| x.unwrap_or([0.0, 0.0, 1.0]))
             .collect(),
-        triangles: tris,
         warnings,
-    })
+    )
 }
 
 /// What [`mesh_normals`] gives.

@@ -194,6 +194,11 @@ pub struct NormalsParams {
     /// points. Default true.
     #[serde(default = "yes")]
     pub surface_samples: bool,
+    /// The sensor's position in the input's coordinates: every normal, whatever its source, is
+    /// turned to face it (n flipped where n·(v − p) < 0). Default `None` (left out of the cache
+    /// key then, so keys of runs without it are unchanged).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub viewpoint: Option<[f64; 3]>,
 }
 
 fn yes() -> bool {
@@ -208,6 +213,7 @@ impl Default for NormalsParams {
             max_k_neighbours: 128,
             max_fan_angle_deg: 40.0,
             surface_samples: true,
+            viewpoint: None,
         }
     }
 }
@@ -274,6 +280,14 @@ pub fn estimate_normals(
         return Err(NormalsError::InvalidParams(format!(
             "max_fan_angle_deg is {}, choose a value in (0, 180]",
             params.max_fan_angle_deg
+        )));
+    }
+    if let Some(v) = params
+        .viewpoint
+        .filter(|v| !v.iter().all(|c| c.is_finite()))
+    {
+        return Err(NormalsError::InvalidParams(format!(
+            "the viewpoint {v:?} is not finite; give three finite coordinates"
         )));
     }
     if cloud.points.len() >= (u32::MAX / 4) as usize {
@@ -345,6 +359,12 @@ pub fn estimate_normals(
             }
         }
         NormalSource::Pca => pca::pca_normals(&dedup.unique, params),
+        NormalSource::Mesh if cloud.range.is_some() => {
+            // A range grid's triangles face the scanner by construction: keep their winding.
+            let (normals, warnings) = faces::wound_normals(&dedup.unique, &faces, params);
+            out.warnings.extend(warnings);
+            normals
+        }
         NormalSource::Mesh => {
             let mesh = faces::mesh_normals(&dedup.unique, &faces, params)?;
             out.warnings.extend(mesh.warnings);
@@ -371,18 +391,82 @@ pub fn estimate_normals(
             normals
         }
     };
-    out.cloud = OrientedCloud {
-        points: cloud.points.clone(),
-        normals: dedup
-            .of_point
-            .iter()
-            .map(|&u| unique_normals[u as usize])
-            .collect(),
-    };
+    let mut points = cloud.points.clone();
+    let mut normals: Vec<[f64; 3]> = dedup
+        .of_point
+        .iter()
+        .map(|&u| unique_normals[u as usize])
+        .collect();
+    // Samples on large faces (a mesh, never a range grid) follow the input points.
     out.surface_samples = samples.0.len();
-    out.cloud.points.extend(samples.0);
-    out.cloud.normals.extend(samples.1);
+    points.extend(samples.0);
+    normals.extend(samples.1);
+    if let Some(v) = params.viewpoint {
+        let flipped = toward_viewpoint(&points, &mut normals, v);
+        if flipped > 0 {
+            out.warnings.push(format!(
+                "turned {flipped} of {} normals to face the viewpoint ({}, {}, {})",
+                normals.len(),
+                v[0],
+                v[1],
+                v[2]
+            ));
+        }
+    }
+    let weights = cloud
+        .range
+        .as_ref()
+        .map(|r| confidence(&cloud.points, &normals, r));
+    out.cloud = OrientedCloud {
+        points,
+        normals,
+        weights,
+    };
     Ok(out)
+}
+
+/// Flips each normal `n` at `p` with n·(v − p) < 0, so that all face the viewpoint `v`.
+/// Returns how many were flipped.
+pub fn toward_viewpoint(points: &[[f64; 3]], normals: &mut [[f64; 3]], v: [f64; 3]) -> usize {
+    let mut flipped = 0;
+    for (p, n) in points.iter().zip(normals.iter_mut()) {
+        if vec3::dot(n, &vec3::sub(&v, p)) < 0.0 {
+            *n = n.map(|c| -c);
+            flipped += 1;
+        }
+    }
+    flipped
+}
+
+/// Smallest confidence a range sample gets (a zero would leave a local fit without rows).
+pub const MIN_CONFIDENCE: f32 = 0.05;
+
+/// Per point of a range scan, the confidence of its sample: the cosine between its normal and
+/// the direction to the sensor (1 without a sensor) times its falloff near the scan's edge,
+/// at least [`MIN_CONFIDENCE`].
+pub fn confidence(
+    points: &[[f64; 3]],
+    normals: &[[f64; 3]],
+    range: &crate::cloud::RangeSurface,
+) -> Vec<f32> {
+    points
+        .iter()
+        .zip(normals)
+        .enumerate()
+        .map(|(i, (p, n))| {
+            let cos = range.sensor.map_or(1.0, |s| {
+                let d = vec3::sub(&s, p);
+                let l = vec3::norm(&d) * vec3::norm(n);
+                if l > 0.0 {
+                    (vec3::dot(n, &d) / l).abs()
+                } else {
+                    1.0
+                }
+            });
+            let falloff = range.falloff.get(i).copied().unwrap_or(1.0);
+            (cos as f32 * falloff).max(MIN_CONFIDENCE)
+        })
+        .collect()
 }
 
 /// Whether triangle `t` (indices into `points`) has an area: its corners are distinct and not on
