@@ -503,11 +503,12 @@ fn scan_bytes(source: &ScanSource) -> Result<(Vec<u8>, PathBuf, String), Pipelin
 
 /// Imports, estimates normals and fits: the part of the pipeline shared by `run` and `fit`.
 /// Returns the input cloud, the oriented cloud and the model.
-fn fit_stages(
+/// Import, outliers and normals through the cache: the fit's input.
+fn orient_stages(
     ctx: &mut Ctx<'_>,
     source: &ScanSource,
     config: &PipelineConfig,
-) -> Result<(PointCloud, OrientedCloud, Model, Key), PipelineError> {
+) -> Result<(PointCloud, OrientedCloud, Key), PipelineError> {
     let (bytes, path, _) = scan_bytes(source)?;
     let (cloud, cloud_key) = ctx.stage(
         "import",
@@ -556,6 +557,15 @@ fn fit_stages(
             Ok((normals.cloud, figures))
         },
     )?;
+    Ok((cloud, oriented, oriented_key))
+}
+
+fn fit_stages(
+    ctx: &mut Ctx<'_>,
+    source: &ScanSource,
+    config: &PipelineConfig,
+) -> Result<(PointCloud, OrientedCloud, Model, Key), PipelineError> {
+    let (cloud, oriented, oriented_key) = orient_stages(ctx, source, config)?;
     ctx.warn_figures();
     let (model, model_key) = match config.mode {
         Mode::Global => {
@@ -662,6 +672,24 @@ pub fn fit_model(
     let (_, oriented, model, _) = fit_stages(&mut ctx, source, config)?;
     ctx.finish_puts();
     Ok((model, oriented, ctx.stages))
+}
+
+/// The oriented points a fit would see (import, outliers unless kept, normals), without
+/// fitting: the input of [`crate::fit::moments::moments`] for one chunk.
+///
+/// # Errors
+/// Any stage's error.
+pub fn oriented_cloud(
+    source: &ScanSource,
+    config: &PipelineConfig,
+    cache: &Cache,
+    observer: &mut dyn Observer,
+) -> Result<OrientedCloud, PipelineError> {
+    let mut ctx = Ctx::new(cache, observer)?;
+    let (_, oriented, _) = orient_stages(&mut ctx, source, config)?;
+    ctx.warn_figures();
+    ctx.finish_puts();
+    Ok(oriented)
 }
 
 /// The region a model is meshed in: its stored box, or the normalization sphere's cube.
