@@ -80,6 +80,8 @@ fn real_main(cli: Cli) -> Result<()> {
         CommandArgs::Run(args) => cmd_run(args, verbosity),
         CommandArgs::Normals(args) => cmd_normals(args, verbosity),
         CommandArgs::Fit(args) => cmd_fit(args, verbosity),
+        CommandArgs::Moments(args) => cmd_moments(args, verbosity),
+        CommandArgs::Frame(args) => cmd_frame(args),
         CommandArgs::Mesh(args) => cmd_mesh(args, verbosity),
         CommandArgs::Slices(args) => cmd_slices(args, verbosity),
         CommandArgs::Render(args) => cmd_render(args),
@@ -467,6 +469,9 @@ fn cmd_normals(args: cli::NormalsArgs, verbosity: Verbosity) -> Result<()> {
 }
 
 fn cmd_fit(args: cli::FitArgs, verbosity: Verbosity) -> Result<()> {
+    let Some(input) = args.input.clone() else {
+        return cmd_fit_from_moments(args, verbosity);
+    };
     let config = PipelineConfig {
         mode: parse_mode(&args.mode)?,
         outliers: outlier_params(args.keep_outliers),
@@ -477,12 +482,12 @@ fn cmd_fit(args: cli::FitArgs, verbosity: Verbosity) -> Result<()> {
     };
     let mut observer = StderrObserver::new(verbosity);
     let (model, _, _) = pipeline::fit_model(
-        &ScanSource::File(args.input.clone()),
+        &ScanSource::File(input.clone()),
         &config,
         &Cache::disabled(),
         &mut observer,
     )
-    .with_context(|| format!("fitting {}", args.input.display()))?;
+    .with_context(|| format!("fitting {}", input.display()))?;
     let (_, bytes) = model.file()?;
     export::write_atomic(&args.output, |w| {
         w.write_all(&bytes).map_err(export::ExportError::Write)
@@ -507,6 +512,125 @@ fn cmd_fit(args: cli::FitArgs, verbosity: Verbosity) -> Result<()> {
                     d.cells, d.grown_cells, d.depth_reached, d.mean_residual
                 );
             }
+        }
+    }
+    if args.json {
+        let mut out = std::io::stdout().lock();
+        serde_json::to_writer_pretty(&mut out, &model.report())?;
+        writeln!(out)?;
+    }
+    Ok(())
+}
+
+/// Reads a moments file; errors name it.
+fn read_moments(path: &Path) -> Result<fit::moments::PartialMoments> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    fit::moments::PartialMoments::from_bytes(&bytes)
+        .with_context(|| format!("reading {}", path.display()))
+}
+
+/// A merge error, naming the offending file when the error points at one.
+fn merge_error(err: fit::moments::MomentsError, parts: &[PathBuf]) -> anyhow::Error {
+    let named = match &err {
+        fit::moments::MomentsError::Mismatch { index, .. } => parts.get(*index),
+        _ => None,
+    };
+    match named {
+        Some(path) => anyhow!("{}: {err}", path.display()),
+        None => anyhow!("merging {} moments files: {err}", parts.len()),
+    }
+}
+
+/// `stablesurf moments`: one pass of the moments protocol over one chunk.
+fn cmd_moments(args: cli::MomentsArgs, verbosity: Verbosity) -> Result<()> {
+    let fit = fit_params(&args.fit)?;
+    let config = PipelineConfig {
+        // Outlier removal needs all the points: a chunk is used as it is.
+        outliers: outlier_params(true),
+        normals: normals_params(&args.normals)?,
+        ..Default::default()
+    };
+    let pass = match (args.center, args.frame) {
+        (_, Some(f)) => fit::moments::MomentsPass::System {
+            frame: fit::moments::Frame {
+                center: [f[0], f[1], f[2]],
+                scale: f[3],
+            },
+            degree: fit.degree,
+            epsilon: fit.epsilon,
+        },
+        (Some(center), None) => fit::moments::MomentsPass::Scale { center },
+        (None, None) => fit::moments::MomentsPass::Center,
+    };
+    let mut observer = StderrObserver::new(verbosity);
+    let cloud = pipeline::oriented_cloud(
+        &ScanSource::File(args.input.clone()),
+        &config,
+        &Cache::disabled(),
+        &mut observer,
+    )
+    .with_context(|| format!("reading {}", args.input.display()))?;
+    let part = fit::moments::moments(&cloud, &pass)
+        .with_context(|| format!("moments of {}", args.input.display()))?;
+    let bytes = part.to_bytes();
+    export::write_atomic(&args.output, |w| {
+        w.write_all(&bytes).map_err(export::ExportError::Write)
+    })?;
+    Ok(())
+}
+
+/// `stablesurf frame`: merges pass-1 or pass-2 files and prints the next pass's argument.
+fn cmd_frame(args: cli::FrameArgs) -> Result<()> {
+    let parts = args
+        .parts
+        .iter()
+        .map(|p| read_moments(p))
+        .collect::<Result<Vec<_>>>()?;
+    let merged = fit::moments::merge_frame(&parts).map_err(|e| merge_error(e, &args.parts))?;
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "{}", merged.argument())?;
+    Ok(())
+}
+
+/// `stablesurf fit --from-moments`.
+fn cmd_fit_from_moments(args: cli::FitArgs, verbosity: Verbosity) -> Result<()> {
+    if args.mode != "global" {
+        return Err(usage(format!(
+            "--from-moments fits one global polynomial, not --mode {}: drop --mode",
+            args.mode
+        )));
+    }
+    let params = fit_params(&args.fit)?;
+    let parts = args
+        .from_moments
+        .iter()
+        .map(|p| read_moments(p))
+        .collect::<Result<Vec<_>>>()?;
+    let merged =
+        fit::moments::merge_system(&parts).map_err(|e| merge_error(e, &args.from_moments))?;
+    let model = fit::fit_from_moments(&merged, &params).map_err(|e| {
+        let first = args
+            .from_moments
+            .first()
+            .map(|p| p.display().to_string())
+            .unwrap_or_default();
+        match e {
+            fit::FitError::NeedsPoints { .. } => usage(format!("--from-moments: {e}")),
+            fit::FitError::MomentsMismatch { .. } => anyhow!("{first}: {e}"),
+            e => anyhow!(e).context(format!("fitting from {} moments files", parts.len())),
+        }
+    })?;
+    let model = pipeline::Model::Global(model);
+    let (_, bytes) = model.file()?;
+    export::write_atomic(&args.output, |w| {
+        w.write_all(&bytes).map_err(export::ExportError::Write)
+    })?;
+    if let (pipeline::Model::Global(m), true) = (&model, verbosity != Verbosity::Quiet) {
+        if let (Some(f), Some(d)) = (&m.fit, &m.diagnostics) {
+            eprintln!(
+                "stablesurf: degree {} {} fit from {} points, kappa {:e} ({}), bounded {}",
+                m.polynomial.degree, f.method, f.n_points, f.kappa, f.kappa_rule, d.bounded
+            );
         }
     }
     if args.json {

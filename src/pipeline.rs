@@ -542,24 +542,23 @@ fn views_of(source: &ScanSource) -> Result<Option<Vec<import::conf::View>>, Pipe
     })
 }
 
-/// Imports, estimates normals and fits: the part of the pipeline shared by `run` and `fit`.
-/// Returns the input cloud, the oriented cloud and the model.
-fn fit_stages(
+/// Import, outliers and normals through the cache: the fit's input. Several views (a `.conf`,
+/// or several files) are each oriented in their own frame, then merged.
+fn orient_stages(
     ctx: &mut Ctx<'_>,
     source: &ScanSource,
     config: &PipelineConfig,
-) -> Result<(PointCloud, OrientedCloud, Model, Key), PipelineError> {
-    let (cloud, oriented, oriented_key) = match views_of(source)? {
-        Some(views) => merged_views(ctx, &views, config)?,
+) -> Result<(PointCloud, OrientedCloud, Key), PipelineError> {
+    match views_of(source)? {
+        Some(views) => merged_views(ctx, &views, config),
         None => {
             let (bytes, path) = match source {
                 ScanSource::File(path) => (read_bytes(path)?, path.clone()),
                 _ => (SAMPLE_SCAN.to_vec(), PathBuf::from("spot.obj")),
             };
-            oriented_scan(ctx, bytes, &path, config)?
+            oriented_scan(ctx, bytes, &path, config)
         }
-    };
-    model_stages(ctx, cloud, oriented, oriented_key, config)
+    }
 }
 
 /// Each view imported and oriented in its own frame (through the cache), then moved by its
@@ -661,6 +660,17 @@ fn oriented_scan(
     )?;
     ctx.warn_figures();
     Ok((cloud, oriented, oriented_key))
+}
+
+/// Imports, estimates normals and fits: the part of the pipeline shared by `run` and `fit`.
+/// Returns the input cloud, the oriented cloud, the model and its key.
+fn fit_stages(
+    ctx: &mut Ctx<'_>,
+    source: &ScanSource,
+    config: &PipelineConfig,
+) -> Result<(PointCloud, OrientedCloud, Model, Key), PipelineError> {
+    let (cloud, oriented, oriented_key) = orient_stages(ctx, source, config)?;
+    model_stages(ctx, cloud, oriented, oriented_key, config)
 }
 
 /// The global fit or the detail fit of the oriented cloud.
@@ -776,6 +786,24 @@ pub fn fit_model(
     let (_, oriented, model, _) = fit_stages(&mut ctx, source, config)?;
     ctx.finish_puts();
     Ok((model, oriented, ctx.stages))
+}
+
+/// The oriented points a fit would see (import, outliers unless kept, normals), without
+/// fitting: the input of [`crate::fit::moments::moments`] for one chunk.
+///
+/// # Errors
+/// Any stage's error.
+pub fn oriented_cloud(
+    source: &ScanSource,
+    config: &PipelineConfig,
+    cache: &Cache,
+    observer: &mut dyn Observer,
+) -> Result<OrientedCloud, PipelineError> {
+    let mut ctx = Ctx::new(cache, observer)?;
+    let (_, oriented, _) = orient_stages(&mut ctx, source, config)?;
+    ctx.warn_figures();
+    ctx.finish_puts();
+    Ok(oriented)
 }
 
 /// The region a model is meshed in: its stored box, or the normalization sphere's cube.

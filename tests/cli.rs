@@ -1426,3 +1426,158 @@ fn conf_files_and_several_scans_merge_and_bad_lines_name_the_line() {
     assert!(err.contains("views.conf:2"), "{err}");
     assert!(!dir.path().join("out3").exists());
 }
+
+/// Runs `stablesurf moments` on `chunk` with `flags`; returns the part path.
+fn moments_part(chunk: &Path, out: &Path, flags: &[&str]) -> PathBuf {
+    let output = bin()
+        .args(["-q", "moments"])
+        .arg(chunk)
+        .arg("-o")
+        .arg(out)
+        .args(flags)
+        .output()
+        .unwrap();
+    assert!(output.status.success(), "{}", stderr_of(&output));
+    out.to_path_buf()
+}
+
+#[test]
+fn moments_parts_fit_like_the_whole_and_bad_parts_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let whole = sphere_xyz(dir.path(), 600);
+    let text = fs::read_to_string(&whole).unwrap();
+    let lines: Vec<&str> = text.lines().skip(1).collect();
+    let chunks: Vec<PathBuf> = (0..2)
+        .map(|k| {
+            let path = dir.path().join(format!("chunk{k}.xyz"));
+            fs::write(&path, lines[k * 300..(k + 1) * 300].join("\n") + "\n").unwrap();
+            path
+        })
+        .collect();
+    let fit_flags = ["--degree", "4", "--kappa", "1e-4", "--normals", "input"];
+    let mut frame = String::new();
+    let mut parts = Vec::new();
+    for pass in 1..=3 {
+        parts = chunks
+            .iter()
+            .enumerate()
+            .map(|(k, c)| {
+                let out = dir.path().join(format!("p{pass}-{k}.moments"));
+                let mut flags = fit_flags.to_vec();
+                match pass {
+                    2 => flags.extend(["--center", frame.as_str()]),
+                    3 => flags.extend(["--frame", frame.as_str()]),
+                    _ => {}
+                }
+                moments_part(c, &out, &flags)
+            })
+            .collect();
+        if pass < 3 {
+            let out = bin().arg("frame").args(&parts).output().unwrap();
+            assert!(out.status.success(), "{}", stderr_of(&out));
+            frame = String::from_utf8(out.stdout).unwrap().trim().to_string();
+        }
+    }
+    let model_of = |args: &[&std::ffi::OsStr]| {
+        let out = bin()
+            .args(["-q", "fit"])
+            .args(args)
+            .args(fit_flags)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", stderr_of(&out));
+    };
+    let merged = dir.path().join("merged.json");
+    let whole_model = dir.path().join("whole.json");
+    let mut args: Vec<&std::ffi::OsStr> =
+        vec!["-o".as_ref(), merged.as_os_str(), "--from-moments".as_ref()];
+    args.extend(parts.iter().map(|p| p.as_os_str()));
+    model_of(&args);
+    model_of(&[
+        whole.as_os_str(),
+        "-o".as_ref(),
+        whole_model.as_os_str(),
+        "--keep-outliers".as_ref(),
+    ]);
+    let coefficients = |p: &Path| -> Vec<f64> {
+        let v: serde_json::Value = serde_json::from_str(&fs::read_to_string(p).unwrap()).unwrap();
+        v["coefficients"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap())
+            .collect()
+    };
+    let (a, b) = (coefficients(&merged), coefficients(&whole_model));
+    let scale = b.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    for (x, y) in a.iter().zip(&b) {
+        assert!((x - y).abs() <= 1e-9 * scale, "{x} vs {y}");
+    }
+
+    // A part of another degree: exit 1, naming that file.
+    let d6 = moments_part(
+        &chunks[1],
+        &dir.path().join("d6.moments"),
+        &[
+            "--degree",
+            "6",
+            "--normals",
+            "input",
+            "--frame",
+            frame.as_str(),
+        ],
+    );
+    let out_model = dir.path().join("bad.json");
+    let out = bin()
+        .args(["fit", "--kappa", "1e-4", "--degree", "4", "-o"])
+        .arg(&out_model)
+        .arg("--from-moments")
+        .arg(&parts[0])
+        .arg(&d6)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1), "{}", stderr_of(&out));
+    assert!(
+        stderr_of(&out).contains("d6.moments"),
+        "{}",
+        stderr_of(&out)
+    );
+    assert!(stderr_of(&out).contains("degree 6"), "{}", stderr_of(&out));
+    assert!(!out_model.exists());
+
+    // A truncated part: exit 1, naming the file; no model written.
+    let bytes = fs::read(&parts[1]).unwrap();
+    let cut = dir.path().join("cut.moments");
+    fs::write(&cut, &bytes[..bytes.len() - 9]).unwrap();
+    let out = bin()
+        .args(["fit", "--kappa", "1e-4", "--degree", "4", "-o"])
+        .arg(&out_model)
+        .arg("--from-moments")
+        .arg(&parts[0])
+        .arg(&cut)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1), "{}", stderr_of(&out));
+    assert!(
+        stderr_of(&out).contains("cut.moments"),
+        "{}",
+        stderr_of(&out)
+    );
+    assert!(
+        stderr_of(&out).contains("truncated or corrupt"),
+        "{}",
+        stderr_of(&out)
+    );
+    assert!(!out_model.exists());
+
+    // The stable κ rule needs the points: a usage error saying what to pass.
+    let out = bin()
+        .args(["fit", "--degree", "4", "-o"])
+        .arg(&out_model)
+        .arg("--from-moments")
+        .args(&parts)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2), "{}", stderr_of(&out));
+    assert!(stderr_of(&out).contains("--kappa"), "{}", stderr_of(&out));
+}

@@ -4,9 +4,13 @@
 
 use std::path::PathBuf;
 
+use stablesurf::fit::moments::{
+    merge_frame, merge_system, moments, MergedFrame, MomentsError, MomentsPass, PartialMoments,
+};
 use stablesurf::fit::study::{assess, sample, Shape, Variant};
 use stablesurf::fit::{
-    fit, system_summary, FitError, FitMethod, FitParams, FitSolver, Kappa, KappaRule, RidgeMatrix,
+    fit, fit_from_moments, system_summary, FitError, FitMethod, FitParams, FitSolver, Kappa,
+    KappaRule, RidgeMatrix,
 };
 use stablesurf::{ImplicitPolynomial, OrientedCloud};
 
@@ -561,4 +565,160 @@ fn high_degrees_agree_with_qr_and_run_to_fourteen() {
     );
     assert!(model.polynomial.coefficients.iter().all(|a| a.is_finite()));
     assert!(diag.mean_distance_relative < 1e-2);
+}
+
+/// Runs the three passes of the moments protocol over `chunks` and merges them.
+fn moments_of_chunks(chunks: &[OrientedCloud], degree: u32, epsilon: f64) -> Vec<PartialMoments> {
+    let pass1: Vec<_> = chunks
+        .iter()
+        .map(|c| moments(c, &MomentsPass::Center).unwrap())
+        .collect();
+    let MergedFrame::Center(center) = merge_frame(&pass1).unwrap() else {
+        panic!("pass 1 gives a centre")
+    };
+    let pass2: Vec<_> = chunks
+        .iter()
+        .map(|c| moments(c, &MomentsPass::Scale { center }).unwrap())
+        .collect();
+    let MergedFrame::Frame(frame) = merge_frame(&pass2).unwrap() else {
+        panic!("pass 2 gives a frame")
+    };
+    chunks
+        .iter()
+        .map(|c| {
+            let part = moments(
+                c,
+                &MomentsPass::System {
+                    frame,
+                    degree,
+                    epsilon,
+                },
+            )
+            .unwrap();
+            // Every part goes through its file encoding, as between machines.
+            PartialMoments::from_bytes(&part.to_bytes()).unwrap()
+        })
+        .collect()
+}
+
+#[test]
+fn moments_of_eight_chunks_give_the_whole_fit() {
+    let cloud = sample(Shape::Torus, Variant::Noisy, 20_000, 7);
+    // Eight chunks of unequal sizes, none a multiple of the accumulation's 2,048-point groups.
+    let mut chunks = Vec::new();
+    let mut start = 0;
+    for k in 0..8 {
+        let end = if k == 7 {
+            cloud.points.len()
+        } else {
+            start + 1_000 + 411 * k
+        };
+        chunks.push(OrientedCloud {
+            points: cloud.points[start..end].to_vec(),
+            normals: cloud.normals[start..end].to_vec(),
+            weights: None,
+        });
+        start = end;
+    }
+    for (degree, kappa, rule) in [
+        (6, Kappa::Fixed(1e-4), KappaRule::Stable),
+        (8, Kappa::Fixed(1e-3), KappaRule::Stable),
+        (8, Kappa::Auto, KappaRule::Paper),
+    ] {
+        let params = FitParams {
+            degree,
+            kappa,
+            kappa_rule: rule,
+            ..FitParams::default()
+        };
+        let whole = fit(&cloud, &params).unwrap();
+        let parts = moments_of_chunks(&chunks, degree, params.epsilon);
+        let merged = merge_system(&parts).unwrap();
+        let model = fit_from_moments(&merged, &params).unwrap();
+        let diff = max_rel_diff(
+            &model.polynomial.coefficients,
+            &whole.polynomial.coefficients,
+        );
+        eprintln!("degree {degree} {kappa:?} {rule:?}: max relative difference {diff:.1e}");
+        assert!(diff <= 1e-9, "degree {degree}: {diff:e}");
+        assert_eq!(
+            model.fit.as_ref().unwrap().kappa,
+            whole.fit.as_ref().unwrap().kappa
+        );
+        assert_eq!(model.fit.as_ref().unwrap().n_points, cloud.points.len());
+        assert_eq!(model.bounds, whole.bounds);
+        let (c, w) = (&model.polynomial, &whole.polynomial);
+        assert!((c.scale - w.scale).abs() <= 1e-14 * w.scale);
+        for a in 0..3 {
+            assert!((c.center[a] - w.center[a]).abs() <= 1e-14 * w.scale);
+        }
+    }
+    // The stable rule needs the points: refused with what to use instead.
+    let merged = merge_system(&moments_of_chunks(&chunks, 8, 0.05)).unwrap();
+    let err = fit_from_moments(&merged, &FitParams::default()).unwrap_err();
+    assert!(matches!(err, FitError::NeedsPoints { .. }), "{err}");
+    assert!(err.to_string().contains("--kappa"), "{err}");
+}
+
+#[test]
+fn mismatched_and_corrupt_moments_are_refused() {
+    let cloud = sample(Shape::Torus, Variant::Clean, 2_000, 3);
+    let half = cloud.points.len() / 2;
+    let chunks = [
+        OrientedCloud {
+            points: cloud.points[..half].to_vec(),
+            normals: cloud.normals[..half].to_vec(),
+            weights: None,
+        },
+        OrientedCloud {
+            points: cloud.points[half..].to_vec(),
+            normals: cloud.normals[half..].to_vec(),
+            weights: None,
+        },
+    ];
+    let d6 = moments_of_chunks(&chunks, 6, 0.05);
+    let d4 = moments_of_chunks(&chunks, 4, 0.05);
+    // Mixed degrees: refused, naming the part.
+    let err = merge_system(&[d6[0].clone(), d4[1].clone()]).unwrap_err();
+    assert!(
+        matches!(err, MomentsError::Mismatch { index: 1, .. }),
+        "{err}"
+    );
+    assert!(err.to_string().contains("degree 4"), "{err}");
+    // Parts of another degree than the fit asks for: refused with the flag to change.
+    let merged = merge_system(&d6).unwrap();
+    let params = FitParams {
+        degree: 8,
+        kappa: Kappa::Fixed(1e-4),
+        ..FitParams::default()
+    };
+    let err = fit_from_moments(&merged, &params).unwrap_err();
+    assert!(err.to_string().contains("--degree 6"), "{err}");
+    // Another ε: refused.
+    let e3 = moments_of_chunks(&chunks, 6, 0.03);
+    assert!(merge_system(&[d6[0].clone(), e3[1].clone()]).is_err());
+    // Truncated, corrupt, foreign and future files.
+    let bytes = d6[0].to_bytes();
+    for cut in [0, 5, 12, 40, bytes.len() - 1] {
+        assert!(
+            PartialMoments::from_bytes(&bytes[..cut]).is_err(),
+            "cut at {cut}"
+        );
+    }
+    let mut flipped = bytes.clone();
+    flipped[100] ^= 1;
+    assert!(matches!(
+        PartialMoments::from_bytes(&flipped),
+        Err(MomentsError::Corrupt(_))
+    ));
+    assert!(matches!(
+        PartialMoments::from_bytes(b"ply\nformat ascii 1.0\n"),
+        Err(MomentsError::NotMoments)
+    ));
+    let mut future = bytes.clone();
+    future[8] = 99;
+    assert!(matches!(
+        PartialMoments::from_bytes(&future),
+        Err(MomentsError::Version { found: 99 })
+    ));
 }

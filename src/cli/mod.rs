@@ -193,6 +193,10 @@ pub enum CommandArgs {
     Normals(NormalsArgs),
     /// Fit an implicit polynomial and write the model file.
     Fit(FitArgs),
+    /// Write one chunk's fit statistics (one pass of the moments protocol) for `fit --from-moments`.
+    Moments(MomentsArgs),
+    /// Merge pass-1 or pass-2 moments files into the next pass's --center or --frame value.
+    Frame(FrameArgs),
     /// Mesh a model file's zero set.
     Mesh(MeshArgs),
     /// Write signed-distance slices (OpenEXR) and PNG previews of a model.
@@ -387,11 +391,49 @@ pub struct NormalsArgs {
     pub normals: NormalsOpts,
 }
 
+/// `stablesurf moments`.
+#[derive(Debug, Args)]
+pub struct MomentsArgs {
+    /// Chunk of the scan (any scan format; normals from the file or the normals stage).
+    pub input: PathBuf,
+    /// Output moments file.
+    #[arg(short, long, value_name = "PART.moments")]
+    pub output: PathBuf,
+    /// Pass 2: the centroid printed by `stablesurf frame` over the pass-1 files.
+    #[arg(long, value_name = "CX,CY,CZ", allow_hyphen_values = true,
+          value_parser = parse_center, conflicts_with = "frame")]
+    pub center: Option<[f64; 3]>,
+    /// Pass 3: the frame printed by `stablesurf frame` over the pass-2 files. Without --center
+    /// or --frame, pass 1 (counts and sums) is written.
+    #[arg(long, value_name = "CX,CY,CZ,S", allow_hyphen_values = true, value_parser = parse_frame)]
+    pub frame: Option<[f64; 4]>,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub normals: NormalsOpts,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub fit: FitOpts,
+}
+
+/// `stablesurf frame`.
+#[derive(Debug, Args)]
+pub struct FrameArgs {
+    /// Pass-1 files (prints CX,CY,CZ for --center) or pass-2 files (prints CX,CY,CZ,S for
+    /// --frame).
+    #[arg(required = true, value_name = "PART")]
+    pub parts: Vec<PathBuf>,
+}
+
 /// `stablesurf fit`.
 #[derive(Debug, Args)]
 pub struct FitArgs {
     /// Scan file.
-    pub input: PathBuf,
+    #[arg(required_unless_present = "from_moments")]
+    pub input: Option<PathBuf>,
+    /// Fit from pass-3 moments files (`stablesurf moments --frame`) instead of a scan: needs a
+    /// fixed --kappa or --kappa-rule paper, and the --degree and --epsilon of the moments.
+    #[arg(long, value_name = "PART", num_args = 1.., conflicts_with = "input")]
+    pub from_moments: Vec<PathBuf>,
     /// Output model file.
     #[arg(short, long, value_name = "MODEL.json")]
     pub output: PathBuf,
@@ -670,6 +712,37 @@ fn parse_trim(text: &str) -> Result<TrimArg, String> {
 
 /// `--kappa`: `auto` (any case) or a number in [`KAPPA`]. The text is kept as typed; `main.rs`
 /// turns it into a `fit::Kappa`.
+fn parse_numbers<const N: usize>(text: &str, flag: &str, form: &str) -> Result<[f64; N], String> {
+    let values: Vec<f64> = text
+        .split(',')
+        .map(|v| v.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("{flag} takes {form}, got '{text}'"))?;
+    let out: [f64; N] = values
+        .try_into()
+        .map_err(|_| format!("{flag} takes {N} numbers {form}, got '{text}'"))?;
+    if out.iter().all(|v| v.is_finite()) {
+        Ok(out)
+    } else {
+        Err(format!("{flag} takes finite numbers, got '{text}'"))
+    }
+}
+
+fn parse_center(text: &str) -> Result<[f64; 3], String> {
+    parse_numbers(text, "--center", "CX,CY,CZ")
+}
+
+fn parse_frame(text: &str) -> Result<[f64; 4], String> {
+    let f = parse_numbers::<4>(text, "--frame", "CX,CY,CZ,S")?;
+    if f[3] > 0.0 {
+        Ok(f)
+    } else {
+        Err(format!(
+            "--frame: the scale S must be positive, got '{text}'"
+        ))
+    }
+}
+
 fn parse_kappa(text: &str) -> Result<String, String> {
     if text.trim().eq_ignore_ascii_case("auto") {
         return Ok(text.trim().to_string());

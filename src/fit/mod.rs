@@ -35,6 +35,7 @@
 //! order, sequential factorizations); bad input is an `Err`, never a panic.
 
 mod kappa;
+pub mod moments;
 mod solve;
 pub mod study;
 mod system;
@@ -90,6 +91,18 @@ pub enum FitError {
     /// All points coincide.
     #[error("all points coincide: the cloud has no extent to fit")]
     DegenerateCloud,
+    /// A fit from moments was asked for something that needs the points.
+    #[error("a fit from moments cannot use {what}")]
+    NeedsPoints {
+        /// What needs the points, and what to use instead.
+        what: &'static str,
+    },
+    /// The moments were accumulated with other settings than the fit asks for.
+    #[error("{what}")]
+    MomentsMismatch {
+        /// What differs and what to change.
+        what: String,
+    },
     /// Degree out of range.
     #[error("degree {degree} is not supported: use a degree from 1 to {max}")]
     InvalidDegree {
@@ -337,6 +350,99 @@ impl Default for FitParams {
 /// Too few points for the degree, non-finite input, zero normals, coincident points, invalid
 /// degree/ε/κ, automatic κ with an odd degree, or a singular system ([`FitError`]).
 pub fn fit(cloud: &OrientedCloud, params: &FitParams) -> Result<ImplicitModel, FitError> {
+    check_params(params)?;
+    let degree = params.degree;
+    let checked = validate(cloud, degree, n_coefficients(degree))?;
+    let cloud = checked.as_ref().unwrap_or(cloud);
+    let norm = Normalization::of(&cloud.points);
+    if !(norm.scale.is_finite() && norm.scale > 0.0) {
+        return Err(FitError::DegenerateCloud);
+    }
+    let rows = match params.method {
+        FitMethod::Ls => Rows::Data,
+        _ => Rows::ThreeLayers {
+            epsilon: params.epsilon,
+        },
+    };
+    let sys = system::accumulate(cloud, &norm, degree, rows);
+    let bbox = Aabb::from_points(&cloud.points).ok_or(FitError::DegenerateCloud)?;
+    solve_system(&sys, &norm, bbox, cloud.points.len(), params, Some(cloud))
+}
+
+/// Fits from merged pass-3 moments ([`moments`]): the same model as [`fit`] on all the points
+/// (to rounding), except that the first-order distances to the data are not measured (0, with a
+/// warning).
+///
+/// # Errors
+/// As [`fit`]; and [`FitError::NeedsPoints`] for what the moments cannot carry (the stable κ
+/// rule, the `ls` method, the QR solver), [`FitError::MomentsMismatch`] when the parts were
+/// accumulated at another degree or ε than `params` asks for.
+pub fn fit_from_moments(
+    merged: &moments::SystemMoments,
+    params: &FitParams,
+) -> Result<ImplicitModel, FitError> {
+    check_params(params)?;
+    if params.method == FitMethod::Ls {
+        return Err(FitError::NeedsPoints {
+            what: "the ls method (it signs its solution with the normals): use --method 3lrr or 3l",
+        });
+    }
+    if params.solver == FitSolver::Qr {
+        return Err(FitError::NeedsPoints {
+            what: "the QR solver (it streams the rows): use the moment solver",
+        });
+    }
+    if params.method == FitMethod::ThreeLrr
+        && params.kappa == Kappa::Auto
+        && params.kappa_rule == KappaRule::Stable
+    {
+        return Err(FitError::NeedsPoints {
+            what: "the stable kappa rule (it checks the zero set against the points): pass a fixed --kappa or --kappa-rule paper",
+        });
+    }
+    if merged.degree != params.degree {
+        return Err(FitError::MomentsMismatch {
+            what: format!(
+                "the moments were accumulated at degree {} but the fit asks for degree {}: pass --degree {} or recompute the moments",
+                merged.degree, params.degree, merged.degree
+            ),
+        });
+    }
+    if merged.epsilon != params.epsilon {
+        return Err(FitError::MomentsMismatch {
+            what: format!(
+                "the moments were accumulated at epsilon {} but the fit asks for epsilon {}: pass --epsilon {} or recompute the moments",
+                merged.epsilon, params.epsilon, merged.epsilon
+            ),
+        });
+    }
+    let min = n_coefficients(params.degree);
+    let n_points = usize::try_from(merged.n_points).unwrap_or(usize::MAX);
+    if n_points < min {
+        return Err(FitError::TooFewPoints {
+            n_points,
+            degree: params.degree,
+            min,
+        });
+    }
+    let norm = Normalization {
+        center: merged.frame.center,
+        scale: merged.frame.scale,
+    };
+    if !(norm.scale.is_finite() && norm.scale > 0.0) {
+        return Err(FitError::DegenerateCloud);
+    }
+    let sys = System {
+        degree: merged.degree,
+        moments: merged.moments.clone(),
+        rhs: merged.rhs.clone(),
+        beta: merged.beta.clone(),
+    };
+    solve_system(&sys, &norm, merged.bounds, n_points, params, None)
+}
+
+/// Checks degree, ε and κ.
+fn check_params(params: &FitParams) -> Result<(), FitError> {
     let degree = params.degree;
     if degree == 0 || degree > MAX_DEGREE {
         return Err(FitError::InvalidDegree {
@@ -344,10 +450,8 @@ pub fn fit(cloud: &OrientedCloud, params: &FitParams) -> Result<ImplicitModel, F
             max: MAX_DEGREE,
         });
     }
-    if params.method != FitMethod::Ls && !(params.epsilon.is_finite() && params.epsilon > 0.0) {
-        return Err(FitError::InvalidEpsilon {
-            epsilon: params.epsilon,
-        });
+    if params.method != FitMethod::Ls {
+        check_degree_epsilon(degree, params.epsilon)?;
     }
     if let Kappa::Fixed(kappa) = params.kappa {
         if !(kappa.is_finite() && kappa >= 0.0) {
@@ -358,20 +462,40 @@ pub fn fit(cloud: &OrientedCloud, params: &FitParams) -> Result<ImplicitModel, F
     if auto_kappa && degree % 2 == 1 {
         return Err(FitError::OddDegreeAutoKappa { degree });
     }
-    let checked = validate(cloud, degree)?;
-    let cloud = checked.as_ref().unwrap_or(cloud);
-    let norm = Normalization::of(&cloud.points);
-    if !(norm.scale.is_finite() && norm.scale > 0.0) {
-        return Err(FitError::DegenerateCloud);
+    Ok(())
+}
+
+/// Checks a degree and a 3L ε.
+fn check_degree_epsilon(degree: u32, epsilon: f64) -> Result<(), FitError> {
+    if degree == 0 || degree > MAX_DEGREE {
+        return Err(FitError::InvalidDegree {
+            degree,
+            max: MAX_DEGREE,
+        });
     }
+    if !(epsilon.is_finite() && epsilon > 0.0) {
+        return Err(FitError::InvalidEpsilon { epsilon });
+    }
+    Ok(())
+}
+
+/// Solves an accumulated system and assembles the model. `cloud` (validated) is needed by the
+/// `ls` method, the stable κ rule, the QR solver and the distance diagnostics; without it those
+/// distances are reported as 0 with a warning.
+fn solve_system(
+    sys: &System,
+    norm: &Normalization,
+    bbox: Aabb,
+    n_points: usize,
+    params: &FitParams,
+    cloud: Option<&OrientedCloud>,
+) -> Result<ImplicitModel, FitError> {
+    let degree = params.degree;
+    let norm = *norm;
     let c = n_coefficients(degree);
-    let rows = match params.method {
-        FitMethod::Ls => Rows::Data,
-        _ => Rows::ThreeLayers {
-            epsilon: params.epsilon,
-        },
-    };
-    let sys = system::accumulate(cloud, &norm, degree, rows);
+    // Only the paper rule runs without points (fit_from_moments refuses the rest).
+    let no_points = OrientedCloud::default();
+    let points = cloud.unwrap_or(&no_points);
     let gram = sys.gram();
     let ridge = match params.ridge {
         RidgeMatrix::Invariant => sys.ridge_diagonal(),
@@ -380,12 +504,16 @@ pub fn fit(cloud: &OrientedCloud, params: &FitParams) -> Result<ImplicitModel, F
     let mut warnings = Vec::new();
     let mut selection = None;
     let (kappa, kappa_rule, mut coefficients) = match params.method {
-        FitMethod::Ls => (0.0, "fixed", least_squares(&gram, c, cloud, &norm, degree)?),
-        FitMethod::ThreeL => (0.0, "fixed", solve_fixed(&sys, &gram, &ridge, 0.0)?),
+        FitMethod::Ls => (
+            0.0,
+            "fixed",
+            least_squares(&gram, c, points, &norm, degree)?,
+        ),
+        FitMethod::ThreeL => (0.0, "fixed", solve_fixed(sys, &gram, &ridge, 0.0)?),
         FitMethod::ThreeLrr => match params.kappa {
-            Kappa::Fixed(k) => (k, "fixed", solve_fixed(&sys, &gram, &ridge, k)?),
+            Kappa::Fixed(k) => (k, "fixed", solve_fixed(sys, &gram, &ridge, k)?),
             Kappa::Auto => {
-                let sel = kappa::select(&sys, &gram, &ridge, &norm, cloud, params.kappa_rule)?;
+                let sel = kappa::select(sys, &gram, &ridge, &norm, points, params.kappa_rule)?;
                 warnings.extend(sel.warnings.iter().cloned());
                 let out = (
                     sel.kappa,
@@ -398,7 +526,7 @@ pub fn fit(cloud: &OrientedCloud, params: &FitParams) -> Result<ImplicitModel, F
         },
     };
     if params.solver == FitSolver::Qr && params.method != FitMethod::Ls {
-        coefficients = solve_qr(cloud, &norm, degree, params.epsilon, kappa, &ridge)?;
+        coefficients = solve_qr(points, &norm, degree, params.epsilon, kappa, &ridge)?;
     }
     let polynomial = ImplicitPolynomial {
         degree,
@@ -418,8 +546,16 @@ pub fn fit(cloud: &OrientedCloud, params: &FitParams) -> Result<ImplicitModel, F
     } else {
         None
     };
-    let bbox = Aabb::from_points(&cloud.points).ok_or(FitError::DegenerateCloud)?;
-    let (mean_distance, max_distance) = first_order_distances(&polynomial, &cloud.points);
+    let (mean_distance, max_distance) = match cloud {
+        Some(cloud) => first_order_distances(&polynomial, &cloud.points),
+        None => {
+            warnings.push(
+                "fitted from moments: the distances to the data were not measured (0 is written)"
+                    .to_string(),
+            );
+            (0.0, 0.0)
+        }
+    };
     let diagonal = bbox.diagonal();
     if !bounded {
         warnings.push(if degree % 2 == 1 {
@@ -462,14 +598,19 @@ pub fn fit(cloud: &OrientedCloud, params: &FitParams) -> Result<ImplicitModel, F
             },
             kappa,
             kappa_rule: kappa_rule.to_string(),
-            n_points: cloud.points.len(),
+            n_points,
         }),
         diagnostics: Some(diagnostics),
     })
 }
 
-/// Checks the cloud; returns a copy with renormalized normals when some are not unit length.
-fn validate(cloud: &OrientedCloud, degree: u32) -> Result<Option<OrientedCloud>, FitError> {
+/// Checks the cloud (at least `min` points); returns a copy with renormalized normals when some
+/// are not unit length.
+fn validate(
+    cloud: &OrientedCloud,
+    degree: u32,
+    min: usize,
+) -> Result<Option<OrientedCloud>, FitError> {
     let n_points = cloud.points.len();
     if cloud.normals.len() != n_points {
         return Err(FitError::NormalsMismatch {
@@ -477,7 +618,6 @@ fn validate(cloud: &OrientedCloud, degree: u32) -> Result<Option<OrientedCloud>,
             n_normals: cloud.normals.len(),
         });
     }
-    let min = n_coefficients(degree);
     if n_points < min {
         return Err(FitError::TooFewPoints {
             n_points,
@@ -688,7 +828,7 @@ pub fn system_summary(
             max: MAX_DEGREE,
         });
     }
-    let checked = validate(cloud, degree)?;
+    let checked = validate(cloud, degree, n_coefficients(degree))?;
     let cloud = checked.as_ref().unwrap_or(cloud);
     let norm = Normalization::of(&cloud.points);
     let sys = system::accumulate(cloud, &norm, degree, Rows::ThreeLayers { epsilon });
