@@ -1034,3 +1034,34 @@ fn range_scans_face_out_of_the_zippered_bunny() {
     }
     assert_eq!(scans, 6);
 }
+
+#[test]
+fn flipped_input_normals_are_found_by_the_sampled_check() {
+    // 120,000 points: the sign check looks at a sample of 50,000. With every 20th normal
+    // flipped (5% of the points, about 10% of the pairs on one sheet) the sample must see the
+    // conflicts and the normals must come out consistent and outward; unflipped, they must
+    // come out unchanged.
+    let s = sphere(120_000, 77);
+    let flipped: Vec<[f64; 3]> = s
+        .normals
+        .iter()
+        .enumerate()
+        .map(|(i, n)| if i % 20 == 0 { n.map(|c| -c) } else { *n })
+        .collect();
+    let params = NormalsParams {
+        source: NormalSource::Input,
+        ..Default::default()
+    };
+    for (given, must_warn) in [(flipped, true), (s.normals.clone(), false)] {
+        let cloud = PointCloud {
+            points: s.points.clone(),
+            normals: Some(given),
+            ..Default::default()
+        };
+        let out = estimate_normals(&cloud, &params).unwrap();
+        let (mean, outward) = score(&s.normals, &out.cloud.normals);
+        assert_eq!(outward, 1.0, "{:?}", out.warnings);
+        assert!(mean < 1e-6, "{mean}");
+        assert_eq!(!out.warnings.is_empty(), must_warn, "{:?}", out.warnings);
+    }
+}
