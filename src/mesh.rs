@@ -13,6 +13,7 @@
 //! components (union–find over triangle edges), and [`drop_components_far_from`] removes the
 //! components that no data point comes near (`--keep data`).
 
+use crate::vec3::{cross, norm, sub};
 use serde::{Deserialize, Serialize};
 
 /// A triangle mesh in input coordinates.
@@ -310,27 +311,26 @@ pub fn check(mesh: &TriangleMesh) -> MeshReport {
     }
 }
 
-/// The boundary edges of `triangles` (edges used once), each as it runs in its triangle
-/// (a → b), sorted.
-pub fn boundary_edges(triangles: &[[u32; 3]]) -> Vec<[u32; 2]> {
+/// Every use of an edge by `triangles`: (the edge as (min, max), as it runs in its triangle
+/// a → b), sorted, so that the uses of one edge are adjacent.
+fn edge_uses(triangles: &[[u32; 3]]) -> Vec<([u32; 2], [u32; 2])> {
     let mut edges: Vec<([u32; 2], [u32; 2])> = triangles
         .iter()
         .flat_map(|t| (0..3).map(move |k| (t[k], t[(k + 1) % 3])))
         .map(|(a, b)| ([a.min(b), a.max(b)], [a, b]))
         .collect();
     edges.sort_unstable();
-    let mut out = Vec::new();
-    let mut i = 0;
-    while i < edges.len() {
-        let mut j = i + 1;
-        while j < edges.len() && edges[j].0 == edges[i].0 {
-            j += 1;
-        }
-        if j - i == 1 {
-            out.push(edges[i].1);
-        }
-        i = j;
-    }
+    edges
+}
+
+/// The boundary edges of `triangles` (edges used once), each as it runs in its triangle
+/// (a → b), sorted.
+pub fn boundary_edges(triangles: &[[u32; 3]]) -> Vec<[u32; 2]> {
+    let mut out: Vec<[u32; 2]> = edge_uses(triangles)
+        .chunk_by(|x, y| x.0 == y.0)
+        .filter(|uses| uses.len() == 1)
+        .map(|uses| uses[0].1)
+        .collect();
     out.sort_unstable();
     out
 }
@@ -498,28 +498,25 @@ pub fn drop_small_nested_components(
     if n_components < 2 {
         return (mesh.clone(), 0);
     }
+    // Only closed meshes have an inside: every edge used by exactly two triangles, or nothing
+    // is dropped.
+    let triangles: Vec<[u32; 3]> = valid_triangles(mesh).collect();
+    if !edge_uses(&triangles)
+        .chunk_by(|x, y| x.0 == y.0)
+        .all(|uses| uses.len() == 2)
+    {
+        return (mesh.clone(), 0);
+    }
     let mut area = vec![0.0; n_components];
     let mut tris_of: Vec<Vec<[u32; 3]>> = vec![Vec::new(); n_components];
-    for t in valid_triangles(mesh) {
+    for t in triangles {
         let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-        let u = [0, 1, 2].map(|k| b[k] - a[k]);
-        let v = [0, 1, 2].map(|k| c[k] - a[k]);
-        let n = [
-            u[1] * v[2] - u[2] * v[1],
-            u[2] * v[0] - u[0] * v[2],
-            u[0] * v[1] - u[1] * v[0],
-        ];
         let l = labels[t[0] as usize] as usize;
-        area[l] += 0.5 * (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        area[l] += 0.5 * norm(cross(sub(b, a), sub(c, a)));
         tris_of[l].push(t);
     }
     let largest = area.iter().copied().fold(0.0, f64::max);
-    let report = check(mesh);
     let mut keep = vec![true; n_components];
-    // Only closed meshes have an inside; any boundary edge and nothing is dropped.
-    if report.boundary_edges > 0 || report.non_manifold_edges > 0 {
-        return (mesh.clone(), 0);
-    }
     let first_vertex: Vec<Option<u32>> = (0..n_components)
         .map(|c| tris_of[c].first().map(|t| t[0]))
         .collect();
