@@ -24,9 +24,11 @@
 //!    measure module's k-d tree) is within `support_factor` × that point's spacing.
 //! 3. *Regions*: the unsupported triangles joined by edges. A region is removed when it
 //!    reaches the mesh's own boundary (a sheet cut by the meshing box) or when it holds more
-//!    than `keep_area_share` of the mesh's area (the unseen back of a closed blob); a smaller
-//!    region enclosed by supported surface is a hole of the scan that the model closes, and is
-//!    kept.
+//!    than `keep_area_share` of the mesh's area (the unseen back of a closed blob), or when some
+//!    triangle of it lies farther than `hole_depth` × the diagonal from every data point (the
+//!    unseen underside of a single view, which the blend bulges out far past the data); a
+//!    smaller, shallow region enclosed by supported surface is a hole of the scan that the
+//!    model closes, and is kept.
 //! 4. *Clean-up*: at a vertex where the kept triangles form several fans (joined only through
 //!    that vertex), the fans other than the largest (by area) are removed, until no such vertex
 //!    is left; then components with less than `island_share` of the kept area are removed.
@@ -49,7 +51,7 @@ use crate::vec3::{cross, dot, norm, sub};
 /// Version of this stage's algorithm: if you change anything that changes its output for the
 /// same input and params, bump it (the stage's params and version enter the export stage's
 /// cache key).
-pub const STAGE_VERSION: u32 = 1;
+pub const STAGE_VERSION: u32 = 2;
 
 /// Whether the stage trims.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -75,6 +77,10 @@ pub struct TrimParams {
     /// An unsupported region enclosed by supported surface (it does not reach the mesh's
     /// boundary) and with no more than this share of the mesh's area is kept. Default 0.1.
     pub keep_area_share: f64,
+    /// An enclosed unsupported region is kept only if all its triangles' centroids lie within
+    /// this share of the data's diagonal of a data point: a closed hole stays within the
+    /// distance at which the accuracy report counts mesh area as near the data. Default 0.01.
+    pub hole_depth: f64,
     /// Boundary loops left by the cut and no longer than this (relative to the data's
     /// diagonal) are closed. Default 0.05.
     pub fill_perimeter: f64,
@@ -89,6 +95,7 @@ impl Default for TrimParams {
             support_factor: 2.0,
             spacing_neighbours: 8,
             keep_area_share: 0.1,
+            hole_depth: 0.01,
             fill_perimeter: 0.05,
             island_share: 0.01,
         }
@@ -210,17 +217,20 @@ pub fn trim(
         .iter()
         .map(|t| triangle_area(&mesh.positions, *t))
         .collect();
-    let unsupported: Vec<bool> = mesh
+    // Per triangle: the distance from its centroid to the nearest data point when that point
+    // does not support it, `None` when supported.
+    let unsupported: Vec<Option<f64>> = mesh
         .triangles
         .par_iter()
         .map(|t| {
             let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
             let centroid = [0, 1, 2].map(|k| (a[k] + b[k] + c[k]) / 3.0);
             let (d2, j) = tree.nearest(centroid);
-            d2.sqrt() > params.support_factor * spacing[j]
+            let d = d2.sqrt();
+            (d > params.support_factor * spacing[j]).then_some(d)
         })
         .collect();
-    let n_unsupported = unsupported.iter().filter(|&&u| u).count();
+    let n_unsupported = unsupported.iter().filter(|u| u.is_some()).count();
     let mut report = TrimReport {
         enabled: true,
         unsupported_triangles: n_unsupported,
@@ -237,6 +247,7 @@ pub fn trim(
         &unsupported,
         &areas,
         params.keep_area_share * total_area,
+        params.hole_depth * diagonal,
     );
     report.holes_kept = holes_kept;
     if !removed.iter().any(|&r| r) {
@@ -290,6 +301,12 @@ fn validate(params: &TrimParams) -> Result<(), TrimError> {
         return Err(TrimError::BadParams(format!(
             "keep_area_share must be from 0 to 1, got {}",
             params.keep_area_share
+        )));
+    }
+    if !(params.hole_depth.is_finite() && params.hole_depth >= 0.0) {
+        return Err(TrimError::BadParams(format!(
+            "hole_depth must be 0 or more, got {}",
+            params.hole_depth
         )));
     }
     if !(params.fill_perimeter.is_finite() && params.fill_perimeter >= 0.0) {
@@ -405,9 +422,10 @@ impl EdgeMap {
 fn unsupported_regions(
     mesh: &TriangleMesh,
     edges: &EdgeMap,
-    unsupported: &[bool],
+    unsupported: &[Option<f64>],
     areas: &[f64],
     keep_area: f64,
+    keep_depth: f64,
 ) -> (Vec<bool>, usize) {
     let n = mesh.triangles.len();
     let mut removed = vec![false; n];
@@ -416,31 +434,33 @@ fn unsupported_regions(
     let mut stack = Vec::new();
     let mut region = Vec::new();
     for first in 0..n {
-        if !unsupported[first] || seen[first] {
+        if unsupported[first].is_none() || seen[first] {
             continue;
         }
         seen[first] = true;
         stack.push(first as u32);
         region.clear();
         let mut area = 0.0;
+        let mut depth = 0.0f64;
         let mut reaches_boundary = false;
         while let Some(t) = stack.pop() {
             region.push(t);
             area += areas[t as usize];
+            depth = depth.max(unsupported[t as usize].unwrap_or(0.0));
             for &e in &edges.of_triangle[t as usize] {
                 let on = edges.triangles_of(e);
                 if on.len() == 1 {
                     reaches_boundary = true;
                 }
                 for &u in on {
-                    if unsupported[u as usize] && !seen[u as usize] {
+                    if unsupported[u as usize].is_some() && !seen[u as usize] {
                         seen[u as usize] = true;
                         stack.push(u);
                     }
                 }
             }
         }
-        if reaches_boundary || area > keep_area {
+        if reaches_boundary || area > keep_area || depth > keep_depth {
             for &t in &region {
                 removed[t as usize] = true;
             }
@@ -895,6 +915,37 @@ mod tests {
             .positions
             .iter()
             .all(|p| p[0] <= 0.5 + 4.0 * 0.05 + 1e-9));
+    }
+
+    #[test]
+    fn an_enclosed_region_is_kept_only_when_shallow() {
+        // Data everywhere but a disk of radius 0.12 in the middle of a 40 × 40 grid (spacing
+        // 0.025, so the triangles more than 2 spacings from the data lie within 0.07 of the
+        // centre): an enclosed region of 1.5% of the area whose centroids lie up to ~0.07 from
+        // the data, i.e. ~5% of the data's diagonal (1.41).
+        let mesh = grid(40);
+        let away = |p: &[f64; 3]| ((p[0] - 0.5).powi(2) + (p[1] - 0.5).powi(2)).sqrt() > 0.12;
+        let points: Vec<[f64; 3]> = mesh.positions.iter().copied().filter(away).collect();
+        let lenient = TrimParams {
+            hole_depth: 0.1,
+            ..TrimParams::default()
+        };
+        let out = trim(&mesh, &points, &lenient).unwrap();
+        assert_eq!(out.report.holes_kept, 1, "{:?}", out.report);
+        assert_eq!(out.mesh, mesh);
+        let out = trim(&mesh, &points, &TrimParams::default()).unwrap();
+        let r = out.report;
+        assert_eq!(r.holes_kept, 0, "{r:?}");
+        assert!(
+            r.removed_triangles > 0 && r.removed_area_share < 0.05,
+            "{r:?}"
+        );
+        assert_eq!(r.boundary_loops, 2, "{r:?}");
+        let check = mesh::check(&out.mesh);
+        assert_eq!(
+            (check.non_manifold_edges, check.non_manifold_vertices),
+            (0, 0)
+        );
     }
 
     #[test]
