@@ -115,6 +115,13 @@ impl Model {
     ///
     /// # Errors
     /// [`ExportError`] when the bytes are not a valid model file of the kind they look like.
+    ///
+    /// ```
+    /// use std::path::Path;
+    /// use stablesurf::pipeline::Model;
+    /// let err = Model::from_bytes(b"{}", Path::new("m.json")).unwrap_err();
+    /// assert!(err.to_string().contains("m.json"));
+    /// ```
     pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Model, ExportError> {
         Ok(if export::mpu::is_mpu(bytes) {
             Model::Detail(export::mpu::read_mpu(bytes, path)?)
@@ -256,6 +263,20 @@ pub struct MeshFileOptions<'a> {
 ///
 /// # Errors
 /// [`ExportError`] from the writer (an empty or invalid mesh, a glTF over its size limit).
+///
+/// ```
+/// use stablesurf::pipeline::{mesh_files, MeshFileOptions, MeshFormat};
+/// use stablesurf::TriangleMesh;
+/// let mesh = TriangleMesh {
+///     positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+///     normals: vec![[0.0, 0.0, 1.0]; 3],
+///     triangles: vec![[0, 1, 2]],
+/// };
+/// let opts = MeshFileOptions::default();
+/// let files = mesh_files(&mesh, MeshFormat::Gltf, "a.gltf", &opts).unwrap();
+/// let names: Vec<&str> = files.iter().map(|(name, _)| name.as_str()).collect();
+/// assert_eq!(names, ["a.bin", "a.gltf"]);
+/// ```
 pub fn mesh_files(
     mesh: &TriangleMesh,
     format: MeshFormat,

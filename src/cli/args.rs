@@ -1002,4 +1002,57 @@ mod tests {
         let err = Cli::try_parse_from(["stablesurf", "run"]).unwrap_err();
         assert_eq!(err.exit_code(), 2);
     }
+
+    /// The closed choices take the spellings they always took: `--normals`, `--method` and
+    /// `--kappa-rule` in any case, `--normals` and `--formats` with spaces around a value,
+    /// `--mode` and `--view` exactly; anything else is a usage error naming the flag.
+    #[test]
+    fn choices_take_their_spellings() {
+        let run = |flags: &[&str]| {
+            let args = ["stablesurf", "run", "-o", "out"].iter().chain(flags);
+            Cli::try_parse_from(args).map(|c| match c.command {
+                CommandArgs::Run(r) => r,
+                _ => panic!(),
+            })
+        };
+        let r = run(&[
+            "--normals",
+            " PCA",
+            "--method",
+            "3LRR",
+            "--kappa-rule",
+            "Paper",
+        ])
+        .unwrap();
+        assert_eq!(r.normals.source, SourceArg::Pca);
+        assert_eq!(r.fit.method, MethodArg::ThreeLrr);
+        assert_eq!(r.fit.kappa_rule, KappaRuleArg::Paper);
+        let r = run(&["--formats", "glb, ply ,json", "--mode", "global"]).unwrap();
+        assert_eq!(r.formats, [FormatArg::Glb, FormatArg::Ply, FormatArg::Json]);
+        assert_eq!(r.mode(), ModeArg::Global);
+        assert_eq!(run(&[]).unwrap().mode(), ModeArg::Detail);
+        for (flag, bad) in [
+            ("--normals", "normal"),
+            ("--method", "qr"),
+            ("--kappa-rule", "strict"),
+            ("--formats", "glb,obj"),
+            ("--mode", "Global"),
+        ] {
+            let err = run(&[flag, bad]).unwrap_err();
+            assert_eq!(err.exit_code(), 2, "{flag} {bad}");
+            assert!(err.to_string().contains(flag), "{err}");
+        }
+        let view = |v: &str| {
+            Cli::try_parse_from(["stablesurf", "render", "m.ply", "-o", "p.png", "--view", v]).map(
+                |c| match c.command {
+                    CommandArgs::Render(r) => r.view,
+                    _ => panic!(),
+                },
+            )
+        };
+        assert_eq!(view("top").unwrap(), ViewArg::Top);
+        assert_eq!(view("Top").unwrap_err().exit_code(), 2);
+        assert_eq!(spelling(&MethodArg::ThreeL), "3l");
+        assert_eq!(spelling(&ModeArg::Detail), "detail");
+    }
 }

@@ -274,3 +274,57 @@ pub fn print_json(value: &impl serde::Serialize) -> Result<()> {
     writeln!(out)?;
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::*;
+    use crate::cli::args::{Cli, CommandArgs};
+
+    fn run_args(flags: &[&str]) -> RunArgs {
+        let args = ["stablesurf", "run", "-o", "out"].iter().chain(flags);
+        match Cli::try_parse_from(args).unwrap().command {
+            CommandArgs::Run(r) => r,
+            _ => panic!(),
+        }
+    }
+
+    /// Without flags, `run` in either mode is the library's configuration of that mode: the
+    /// flags' defaults and the library's agree.
+    #[test]
+    fn run_defaults_are_the_library_defaults_of_the_mode() {
+        for (flags, mode) in [
+            (&[][..], Mode::Detail),
+            (&["--mode", "detail"][..], Mode::Detail),
+            (&["--mode", "global"][..], Mode::Global),
+        ] {
+            let config = run_config(&run_args(flags)).unwrap();
+            let library = PipelineConfig::for_mode(mode);
+            assert_eq!(format!("{config:?}"), format!("{library:?}"), "{flags:?}");
+        }
+    }
+
+    #[test]
+    fn run_flags_override_the_mode_defaults() {
+        let config = run_config(&run_args(&[
+            "--trim",
+            "off",
+            "--keep",
+            "all",
+            "--slice-distance",
+            "mesh",
+            "--depth",
+            "5",
+        ]))
+        .unwrap();
+        assert_eq!(config.trim.mode, stablesurf::trim::TrimMode::Off);
+        assert_eq!(config.keep, Keep::All);
+        assert_eq!(config.polygonize.depth, 5);
+        assert_eq!(config.polygonize.guard_levels, 0);
+        let global = run_config(&run_args(&["--mode", "global", "--trim", "3"])).unwrap();
+        assert_eq!(global.trim.support_factor, 3.0);
+        assert_eq!(global.trim.mode, stablesurf::trim::TrimMode::Support);
+        assert_eq!(global.slices.method, DistanceMethod::Exact);
+    }
+}
