@@ -12,6 +12,7 @@ use std::time::Instant;
 use criterion::{criterion_group, criterion_main, Criterion};
 use stablesurf::detail::{chamfer_distance, fit_detail, DetailParams};
 use stablesurf::normals::{estimate_normals, NormalSource, NormalsParams};
+use stablesurf::pipeline::{Mode, PipelineConfig};
 use stablesurf::polygonize::{polygonize, PolygonizeParams};
 use stablesurf::OrientedCloud;
 
@@ -19,11 +20,10 @@ use stablesurf::OrientedCloud;
 mod proc_time;
 use proc_time::cpu_seconds;
 
-const MESH: PolygonizeParams = PolygonizeParams {
-    depth: 7,
-    guard_levels: 0,
-    simplification: stablesurf::polygonize::Simplification::EdgeCollapse,
-};
+/// The meshing of `stablesurf run --mode detail` (depth 7, no topology-guard levels).
+fn mesh_params() -> PolygonizeParams {
+    PipelineConfig::for_mode(Mode::Detail).polygonize
+}
 
 /// Peak resident memory of the process so far, MB.
 fn peak_mb() -> f64 {
@@ -89,12 +89,13 @@ fn bench(c: &mut Criterion) {
         return;
     };
     let params = DetailParams::default();
+    let meshing = mesh_params();
     for n in [cloud.points.len(), 140_000, 1_000_000] {
         let input = upsample(&cloud, &triangles, n);
         let (t0, c0) = (Instant::now(), cpu_seconds());
         let model = fit_detail(&input, &params).unwrap();
         let (t1, c1) = (Instant::now(), cpu_seconds());
-        let out = polygonize(&model, &model.region, &MESH).unwrap();
+        let out = polygonize(&model, &model.region, &meshing).unwrap();
         let (t2, c2) = (Instant::now(), cpu_seconds());
         let report = stablesurf::mesh::check(&out.mesh);
         let chamfer = chamfer_distance(&cloud.points, &out.mesh).unwrap_or_default();
@@ -118,7 +119,7 @@ fn bench(c: &mut Criterion) {
     group.bench_function("bunny35k/fit+mesh depth 7", |b| {
         b.iter(|| {
             let model = fit_detail(&cloud, &params).unwrap();
-            polygonize(&model, &model.region, &MESH).unwrap()
+            polygonize(&model, &model.region, &meshing).unwrap()
         })
     });
     group.bench_function("bunny35k/fit", |b| {

@@ -2,7 +2,8 @@
 //! cache, on the Stanford bunny from ../shared/data when present, else on the built-in sample.
 //! Prints the per-stage breakdown of one run before the criterion measurement. Cases: global mode
 //! without files, global with glb+ply+json, and detail mode with every output (the defaults of
-//! `stablesurf run --mode detail`: depth 7, no topology guard, mesh-distance slices).
+//! `stablesurf run --mode detail`, `PipelineConfig::for_mode`: depth 7, no topology guard, the
+//! pieces near the data kept and trimmed, mesh-distance slices).
 //!
 //! Run: `cargo bench --bench pipeline`.
 
@@ -10,9 +11,7 @@ use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use stablesurf::cache::Cache;
-use stablesurf::distance::DistanceMethod;
 use stablesurf::pipeline::{self, Mode, OutputFormat, PipelineConfig, ScanSource, Silent};
-use stablesurf::polygonize::PolygonizeParams;
 
 fn source() -> (ScanSource, &'static str) {
     let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/bunny_zipper.ply");
@@ -26,17 +25,8 @@ fn source() -> (ScanSource, &'static str) {
 fn bench(c: &mut Criterion) {
     let (source, name) = source();
     let out = tempfile::tempdir().unwrap();
-    let global = PipelineConfig::default();
-    let mut detail = PipelineConfig {
-        mode: Mode::Detail,
-        polygonize: PolygonizeParams {
-            depth: 7,
-            guard_levels: 0,
-            ..Default::default()
-        },
-        ..Default::default()
-    };
-    detail.slices.method = DistanceMethod::Mesh;
+    let global = PipelineConfig::for_mode(Mode::Global);
+    let detail = PipelineConfig::for_mode(Mode::Detail);
     for (label, config) in [
         (
             "no files",

@@ -110,6 +110,26 @@ impl Model {
         }
     }
 
+    /// Reads a model file of either kind from its bytes: a `stablesurf.mpu` file (detail) by its
+    /// magic, else `model.json` (global). `path` names the file in errors.
+    ///
+    /// # Errors
+    /// [`ExportError`] when the bytes are not a valid model file of the kind they look like.
+    ///
+    /// ```
+    /// use std::path::Path;
+    /// use stablesurf::pipeline::Model;
+    /// let err = Model::from_bytes(b"{}", Path::new("m.json")).unwrap_err();
+    /// assert!(err.to_string().contains("m.json"));
+    /// ```
+    pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Model, ExportError> {
+        Ok(if export::mpu::is_mpu(bytes) {
+            Model::Detail(export::mpu::read_mpu(bytes, path)?)
+        } else {
+            Model::Global(export::model::read_model(bytes, path)?)
+        })
+    }
+
     /// The model as a function to mesh and sign distances with.
     pub fn function(&self) -> &dyn ImplicitFunction {
         match self {
@@ -195,6 +215,91 @@ impl std::str::FromStr for OutputFormat {
     }
 }
 
+/// A mesh file format: `run`'s `mesh.glb`, `mesh.gltf` and `mesh.ply`, and the `-o` of
+/// `stablesurf mesh`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MeshFormat {
+    /// Binary glTF, one file.
+    Glb,
+    /// glTF JSON and the binary buffer it refers to, `<stem>.bin` beside it.
+    Gltf,
+    /// PLY ([`export::ply`]).
+    Ply,
+}
+
+impl MeshFormat {
+    /// The format a file name's extension names, in any case: `.glb`, `.gltf` or `.ply`.
+    ///
+    /// ```
+    /// use std::path::Path;
+    /// use stablesurf::pipeline::MeshFormat;
+    /// assert_eq!(MeshFormat::from_path(Path::new("out/a.GLB")), Some(MeshFormat::Glb));
+    /// assert_eq!(MeshFormat::from_path(Path::new("a.obj")), None);
+    /// ```
+    pub fn from_path(path: &Path) -> Option<MeshFormat> {
+        let extension = path.extension()?.to_string_lossy().to_ascii_lowercase();
+        match extension.as_str() {
+            "glb" => Some(MeshFormat::Glb),
+            "gltf" => Some(MeshFormat::Gltf),
+            "ply" => Some(MeshFormat::Ply),
+            _ => None,
+        }
+    }
+}
+
+/// How [`mesh_files`] writes a mesh: the glTF options for glTF, the PLY options for PLY.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct MeshFileOptions<'a> {
+    /// Options of the glTF writers.
+    pub gltf: export::gltf::GltfOptions,
+    /// Options of the PLY writer (encoding, per-vertex quality).
+    pub ply: export::ply::PlyOptions<'a>,
+}
+
+/// The files of `mesh` in `format`, named after `name` (a file name such as `mesh.glb`), as
+/// (file name, bytes): `name` alone, or for glTF the buffer `<stem of name>.bin` first and
+/// then `name`, which refers to the buffer by that file name. The one mesh writer of `run` and
+/// `stablesurf mesh`; the caller puts the files where they belong.
+///
+/// # Errors
+/// [`ExportError`] from the writer (an empty or invalid mesh, a glTF over its size limit).
+///
+/// ```
+/// use stablesurf::pipeline::{mesh_files, MeshFileOptions, MeshFormat};
+/// use stablesurf::TriangleMesh;
+/// let mesh = TriangleMesh {
+///     positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+///     normals: vec![[0.0, 0.0, 1.0]; 3],
+///     triangles: vec![[0, 1, 2]],
+/// };
+/// let opts = MeshFileOptions::default();
+/// let files = mesh_files(&mesh, MeshFormat::Gltf, "a.gltf", &opts).unwrap();
+/// let names: Vec<&str> = files.iter().map(|(name, _)| name.as_str()).collect();
+/// assert_eq!(names, ["a.bin", "a.gltf"]);
+/// ```
+pub fn mesh_files(
+    mesh: &TriangleMesh,
+    format: MeshFormat,
+    name: &str,
+    opts: &MeshFileOptions<'_>,
+) -> Result<Vec<(String, Vec<u8>)>, ExportError> {
+    let mut bytes = Vec::new();
+    match format {
+        MeshFormat::Glb => export::gltf::write_glb(mesh, &mut bytes, &opts.gltf)?,
+        MeshFormat::Gltf => {
+            let bin_name = Path::new(name)
+                .with_extension("bin")
+                .to_string_lossy()
+                .into_owned();
+            let mut bin = Vec::new();
+            export::gltf::write_gltf(mesh, &mut bytes, &mut bin, &bin_name, &opts.gltf)?;
+            return Ok(vec![(bin_name, bin), (name.to_string(), bytes)]);
+        }
+        MeshFormat::Ply => export::ply::write(mesh, &mut bytes, &opts.ply)?,
+    }
+    Ok(vec![(name.to_string(), bytes)])
+}
+
 /// Everything that decides what `run` computes and writes.
 #[derive(Clone, Debug)]
 pub struct PipelineConfig {
@@ -208,14 +313,15 @@ pub struct PipelineConfig {
     pub fit: FitParams,
     /// Detail fit parameters (detail mode).
     pub detail: DetailParams,
-    /// Polygonize stage parameters.
+    /// Polygonize stage parameters (see [`PipelineConfig::for_mode`]).
     pub polygonize: PolygonizeParams,
-    /// Drop zero-set components with no data point near them.
+    /// Which zero-set components the mesh keeps (see [`PipelineConfig::for_mode`]).
     pub keep: Keep,
-    /// Trim stage parameters (default: off; `run` trims in detail mode).
+    /// Trim stage parameters (see [`PipelineConfig::for_mode`]).
     pub trim: TrimParams,
-    /// Distance slice parameters (default: 16 slices of 128² along z, exact distances; the
-    /// detail mode needs [`crate::distance::DistanceMethod::Mesh`]).
+    /// Distance slice parameters: 16 slices of 128² along z, by default exact distances in
+    /// global mode and the distance to the mesh in detail mode, which has only that one (see
+    /// [`PipelineConfig::for_mode`]).
     pub slices: crate::distance::SliceParams,
     /// glTF options.
     pub gltf: export::gltf::GltfOptions,
@@ -234,9 +340,33 @@ pub enum Keep {
     Data,
 }
 
-impl Default for PipelineConfig {
-    fn default() -> Self {
-        PipelineConfig {
+impl PipelineConfig {
+    /// The defaults of a `mode` run, the ones `stablesurf run --mode MODE` starts from: every
+    /// stage's `…Params::default()`, 16 distance slices of 128² along z, every output format,
+    /// and per mode:
+    ///
+    /// | mode   | topology guard | components kept     | trim         | slice distance |
+    /// |--------|----------------|---------------------|--------------|----------------|
+    /// | global | 3 levels       | all (the model's)   | off          | exact          |
+    /// | detail | none           | data ([`Keep::Data`]) | on (support) | mesh           |
+    ///
+    /// A polynomial's zero set is the model, so all of it is kept. A detail model's blend
+    /// extrapolates past the data (it can close a blob in empty space), so the pieces and the
+    /// parts of the surface the data does not support are left out; its loose gradient
+    /// enclosure cannot pass the topology guard's test (it would refine nearly everywhere), and
+    /// only the distance to the mesh is defined for it.
+    ///
+    /// ```
+    /// use stablesurf::distance::DistanceMethod;
+    /// use stablesurf::pipeline::{Keep, Mode, PipelineConfig};
+    /// let detail = PipelineConfig::for_mode(Mode::Detail);
+    /// assert_eq!(detail.mode, Mode::Detail);
+    /// assert_eq!(detail.keep, Keep::Data);
+    /// assert_eq!(detail.slices.method, DistanceMethod::Mesh);
+    /// assert_eq!(PipelineConfig::for_mode(Mode::Global).polygonize.guard_levels, 3);
+    /// ```
+    pub fn for_mode(mode: Mode) -> PipelineConfig {
+        let global = PipelineConfig {
             mode: Mode::Global,
             outliers: OutlierParams::default(),
             normals: NormalsParams::default(),
@@ -247,6 +377,7 @@ impl Default for PipelineConfig {
             trim: TrimParams::off(),
             slices: crate::distance::SliceParams {
                 resolution: 128,
+                method: crate::distance::DistanceMethod::Exact,
                 ..Default::default()
             },
             gltf: Default::default(),
@@ -257,7 +388,31 @@ impl Default for PipelineConfig {
                 OutputFormat::Png,
                 OutputFormat::Json,
             ],
+        };
+        match mode {
+            Mode::Global => global,
+            Mode::Detail => PipelineConfig {
+                mode: Mode::Detail,
+                polygonize: PolygonizeParams {
+                    guard_levels: 0,
+                    ..global.polygonize
+                },
+                keep: Keep::Data,
+                trim: TrimParams::default(),
+                slices: crate::distance::SliceParams {
+                    method: crate::distance::DistanceMethod::Mesh,
+                    ..global.slices
+                },
+                ..global
+            },
         }
+    }
+}
+
+impl Default for PipelineConfig {
+    /// The defaults of the default mode ([`Mode::Global`]): `PipelineConfig::for_mode(Mode::default())`.
+    fn default() -> Self {
+        PipelineConfig::for_mode(Mode::default())
     }
 }
 
@@ -1090,6 +1245,10 @@ fn mesh_parts(
     let want = |f| config.formats.contains(&f);
     let one = |name: &str, bytes: Vec<u8>| -> Files { vec![(name.to_string(), bytes)] };
     let m = &mesh;
+    let mesh_opts = MeshFileOptions {
+        gltf: config.gltf,
+        ..Default::default()
+    };
     let json = || -> Result<Files, PipelineError> {
         if !want(OutputFormat::Json) {
             return Ok(Vec::new());
@@ -1101,33 +1260,27 @@ fn mesh_parts(
         if !want(OutputFormat::Glb) {
             return Ok(Vec::new());
         }
-        Ok(one(
-            "mesh.glb",
-            encode(&|w| export::gltf::write_glb(m, w, &config.gltf))?,
-        ))
+        Ok(mesh_files(m, MeshFormat::Glb, "mesh.glb", &mesh_opts)?)
     };
     let gltf = || -> Result<Files, PipelineError> {
         if !want(OutputFormat::Gltf) {
             return Ok(Vec::new());
         }
-        let mut bin = Vec::new();
-        let mut json = Vec::new();
-        export::gltf::write_gltf(m, &mut json, &mut bin, "mesh.bin", &config.gltf)?;
-        Ok(vec![("mesh.bin".into(), bin), ("mesh.gltf".into(), json)])
+        Ok(mesh_files(m, MeshFormat::Gltf, "mesh.gltf", &mesh_opts)?)
     };
     let ply = || -> Result<Files, PipelineError> {
         if !want(OutputFormat::Ply) {
             return Ok(Vec::new());
         }
         let quality = export::ply::nearest_point_distances(&m.positions, &cloud.points)?;
-        let opts = export::ply::PlyOptions {
-            quality: Some(&quality),
-            ..Default::default()
+        let opts = MeshFileOptions {
+            ply: export::ply::PlyOptions {
+                quality: Some(&quality),
+                ..Default::default()
+            },
+            ..mesh_opts
         };
-        Ok(one(
-            "mesh.ply",
-            encode(&|w| export::ply::write(m, w, &opts))?,
-        ))
+        Ok(mesh_files(m, MeshFormat::Ply, "mesh.ply", &opts)?)
     };
     let preview = || -> Result<Files, PipelineError> {
         if !want(OutputFormat::Png) {

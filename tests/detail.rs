@@ -13,14 +13,14 @@ use stablesurf::detail::{chamfer_distance, fit_detail, DetailError, DetailParams
 use stablesurf::export::mpu::{is_mpu, read_mpu, write_mpu};
 use stablesurf::fit::study::{sample, Shape, Variant};
 use stablesurf::mesh::check;
+use stablesurf::pipeline::{Mode, PipelineConfig};
 use stablesurf::polygonize::{polygonize, ImplicitFunction, PolygonizeParams};
 use stablesurf::{OrientedCloud, TriangleMesh};
 
 fn mesh(model: &MpuModel, depth: u32) -> TriangleMesh {
     let params = PolygonizeParams {
         depth,
-        guard_levels: 0,
-        ..PolygonizeParams::default()
+        ..PipelineConfig::for_mode(Mode::Detail).polygonize
     };
     polygonize(model, &model.region, &params).unwrap().mesh
 }

@@ -1,0 +1,1058 @@
+//! The command line as clap parses it: the subcommands' argument structs and the typed values
+//! of their flags (closed choices as `ValueEnum`s, numbers checked against their
+//! [`range`](super::range) constants). Nothing here calls the library; `cli::config` turns these
+//! values into the library's parameters.
+//!
+//! Input: `std::env::args`. Output: a [`Cli`]. A value clap refuses (an unknown choice, a number
+//! out of range) is a usage error, exit code 2, before any work.
+
+use std::ffi::OsStr;
+use std::marker::PhantomData;
+use std::path::PathBuf;
+
+use clap::builder::{EnumValueParser, PossibleValue, TypedValueParser};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use stablesurf::fit;
+
+use super::range::{
+    number, BOUNDS_MAX_ABS, COUNT, DEGREE, DEPTH, EPSILON, KAPPA, LOCAL_DEGREE, RESOLUTION, SIZE,
+    SLICE_COUNT, SLICE_RESOLUTION, THREADS, TOLERANCE, TRIM, VIEWPOINT,
+};
+
+/// stablesurf: stable algebraic surfaces from 3D scans (Sahin & Unel 2008).
+///
+/// Imports a scan, estimates outward normals, fits an implicit polynomial with 3L and
+/// Euclidean-invariant ridge regression, meshes its zero set with an adaptive octree and writes
+/// glTF, PLY, OpenEXR distance slices and the polynomial itself.
+#[derive(Debug, Parser)]
+#[command(name = "stablesurf", version, about, long_about = None, propagate_version = true)]
+pub struct Cli {
+    /// The subcommand.
+    #[command(subcommand)]
+    pub command: CommandArgs,
+    /// Print nothing but errors on stderr.
+    #[arg(short, long, global = true, conflicts_with = "verbose")]
+    pub quiet: bool,
+    /// Print one line per stage (cache hit or miss, seconds, key figures); repeat for more.
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    pub verbose: u8,
+    /// Worker threads (default: all cores). Results do not depend on it.
+    #[arg(short = 'j', long, global = true, value_name = "N",
+          help = THREADS.help("Worker threads (default: all cores). Results do not depend on it"),
+          allow_negative_numbers = true, value_parser = THREADS.whole::<usize>())]
+    pub threads: Option<usize>,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum CommandArgs {
+    /// Scan to outputs in one command: import, normals, fit, mesh, export.
+    Run(RunArgs),
+    /// Estimate oriented normals and write them as a binary PLY.
+    Normals(NormalsArgs),
+    /// Fit an implicit polynomial and write the model file.
+    Fit(FitArgs),
+    /// Write one chunk's fit statistics (one pass of the moments protocol) for `fit --from-moments`.
+    Moments(MomentsArgs),
+    /// Merge pass-1 or pass-2 moments files into the next pass's --center or --frame value.
+    Frame(FrameArgs),
+    /// Mesh a model file's zero set.
+    Mesh(MeshArgs),
+    /// Write signed-distance slices (OpenEXR) and PNG previews of a model.
+    Slices(SlicesArgs),
+    /// Render a shaded picture of a mesh.
+    Render(RenderArgs),
+    /// Show what a scan, model or mesh file holds.
+    Info(InfoArgs),
+    /// Inspect or clear the stage cache.
+    Cache(CacheArgs),
+}
+
+/// Options of the normals stage.
+#[derive(Debug, Args, Clone)]
+pub struct NormalsOpts {
+    /// Where normals come from: auto (file normals, else mesh faces, else crust), crust
+    /// (Voronoi/Delaunay crust, paper section 5), pca (k-nearest-neighbour planes), mesh (the
+    /// file's faces), input (the file's normals).
+    #[arg(long = "normals", value_name = "SOURCE", default_value = "auto",
+          value_parser = Trimmed::<SourceArg>::default(), ignore_case = true,
+          hide_possible_values = true)]
+    pub source: SourceArg,
+    /// The sensor's position in input coordinates: every normal, whatever its source, is turned
+    /// to face it. For several scans, each scan's own coordinates.
+    #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true, value_parser = parse_viewpoint,
+          help = viewpoint_help())]
+    pub viewpoint: Option<[f64; 3]>,
+}
+
+/// Options of the fit stage.
+#[derive(Debug, Args, Clone)]
+pub struct FitOpts {
+    /// Polynomial degree (even for automatic κ).
+    #[arg(long, default_value_t = 8, value_name = "N",
+          help = DEGREE.help("Polynomial degree, even for automatic κ"),
+          allow_negative_numbers = true, value_parser = DEGREE.whole::<u32>())]
+    pub degree: u32,
+    /// Ridge weight κ: `auto` or a number.
+    #[arg(long, default_value = "auto",
+          help = KAPPA.help("Ridge weight κ: auto, or a number"),
+          allow_negative_numbers = true, value_parser = parse_kappa)]
+    pub kappa: KappaArg,
+    /// Rule for automatic κ: `stable` (default, checks the zero set) or `paper` (section 6.3).
+    #[arg(long, value_name = "RULE", value_enum, default_value_t = KappaRuleArg::Stable,
+          ignore_case = true, hide_possible_values = true)]
+    pub kappa_rule: KappaRuleArg,
+    /// Layer offset ε in normalized units (paper: 0.01 to 0.05).
+    #[arg(long, default_value_t = 0.05, value_name = "E",
+          help = EPSILON.help("Layer offset ε in normalized units (paper: 0.01 to 0.05)"),
+          allow_negative_numbers = true, value_parser = EPSILON.real())]
+    pub epsilon: f64,
+    /// Fitting method: 3lrr (3L + ridge regression), 3l (κ = 0) or ls (plain least squares).
+    #[arg(long, value_enum, default_value_t = MethodArg::ThreeLrr, ignore_case = true,
+          hide_possible_values = true)]
+    pub method: MethodArg,
+}
+
+/// Options of the detail fit (`--mode detail`).
+#[derive(Debug, Args, Clone)]
+pub struct DetailOpts {
+    /// Degree of the local fits in detail mode.
+    #[arg(long, default_value_t = 2, value_name = "N",
+          help = LOCAL_DEGREE.help("Degree of the local fits in detail mode"),
+          allow_negative_numbers = true, value_parser = LOCAL_DEGREE.whole::<u32>())]
+    pub local_degree: u32,
+    /// Detail mode: split a cell while its fit is farther than this from its points (fraction
+    /// of the bounding-box diagonal).
+    #[arg(long, default_value_t = 3.5e-4, value_name = "T",
+          help = TOLERANCE.help("Detail mode: split a cell while its fit is farther than this from its points, as a fraction of the bounding-box diagonal"),
+          allow_negative_numbers = true, value_parser = TOLERANCE.real())]
+    pub tolerance: f64,
+}
+
+/// Options of the polygonize stage.
+#[derive(Debug, Args, Clone)]
+pub struct MeshOpts {
+    /// Octree depth near the surface: finest cell = longest side of the box / 2^depth
+    /// [default: 7].
+    #[arg(long, value_name = "D",
+          help = depth_help(),
+          allow_negative_numbers = true, value_parser = DEPTH.whole::<u32>())]
+    pub depth: Option<u32>,
+}
+
+/// `--mode`: which model to fit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ModeArg {
+    /// One polynomial.
+    Global,
+    /// Local fits blended.
+    Detail,
+}
+
+/// `--normals`: where the normals come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum SourceArg {
+    /// The file's normals, else its faces, else the crust.
+    Auto,
+    /// The Voronoi/Delaunay crust.
+    Crust,
+    /// k-nearest-neighbour planes.
+    Pca,
+    /// The file's faces.
+    Mesh,
+    /// The file's normals.
+    Input,
+}
+
+/// `--method`: how the polynomial is fitted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum MethodArg {
+    /// 3L with ridge regression.
+    #[value(name = "3lrr")]
+    ThreeLrr,
+    /// 3L alone (κ = 0).
+    #[value(name = "3l")]
+    ThreeL,
+    /// Plain least squares.
+    Ls,
+}
+
+/// `--kappa-rule`: how automatic κ is chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum KappaRuleArg {
+    /// The stricter rule that checks the zero set.
+    Stable,
+    /// The paper's rule (section 6.3).
+    Paper,
+}
+
+/// `--kappa`: `auto` (any case) or a number in [`KAPPA`], with the text as typed (trimmed) for
+/// the run's summary line.
+#[derive(Debug, Clone, PartialEq)]
+pub struct KappaArg {
+    /// The value as typed, without surrounding spaces.
+    pub text: String,
+    /// The value.
+    pub value: fit::Kappa,
+}
+
+impl std::fmt::Display for KappaArg {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.text)
+    }
+}
+
+/// `--formats`: one output kind of `run`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum FormatArg {
+    /// mesh.glb.
+    Glb,
+    /// mesh.gltf and mesh.bin.
+    Gltf,
+    /// mesh.ply.
+    Ply,
+    /// OpenEXR distance slices.
+    Exr,
+    /// preview.png and the slices' PNG previews.
+    Png,
+    /// The model file and report.json.
+    Json,
+}
+
+/// `render --view`: the camera direction.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ViewArg {
+    /// From the front-right, a little above.
+    Iso,
+    /// From the front.
+    Front,
+    /// From above.
+    Top,
+    /// From the right (+x).
+    Side,
+}
+
+/// The spelling of a choice on the command line (`3lrr`, `detail`).
+pub fn spelling<E: ValueEnum>(value: &E) -> String {
+    value
+        .to_possible_value()
+        .map(|v| v.get_name().to_string())
+        .unwrap_or_default()
+}
+
+/// A value parser for the choice `E` that ignores spaces around the value (`--formats "glb,
+/// ply"`), as these flags always have; clap's enum parser does the rest (case, errors, help).
+#[derive(Clone, Copy, Debug)]
+struct Trimmed<E>(PhantomData<E>);
+
+impl<E> Default for Trimmed<E> {
+    fn default() -> Self {
+        Trimmed(PhantomData)
+    }
+}
+
+impl<E: ValueEnum + Clone + Send + Sync + 'static> TypedValueParser for Trimmed<E> {
+    type Value = E;
+
+    fn parse_ref(
+        &self,
+        cmd: &clap::Command,
+        arg: Option<&clap::Arg>,
+        value: &OsStr,
+    ) -> Result<E, clap::Error> {
+        let value = value.to_str().map_or(value, |t| OsStr::new(t.trim()));
+        EnumValueParser::<E>::new().parse_ref(cmd, arg, value)
+    }
+
+    fn possible_values(&self) -> Option<Box<dyn Iterator<Item = PossibleValue> + '_>> {
+        Some(Box::new(
+            E::value_variants()
+                .iter()
+                .filter_map(ValueEnum::to_possible_value),
+        ))
+    }
+}
+
+/// Which zero-set components to keep.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum KeepArg {
+    /// Every component.
+    All,
+    /// Components with a data point nearby.
+    Data,
+}
+
+/// glTF up axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum UpArg {
+    /// Coordinates unchanged (glTF is +Y up).
+    Y,
+    /// The scan is Z-up: rotate it so it stands upright in Blender.
+    Z,
+}
+
+/// Cache options.
+#[derive(Debug, Args, Clone)]
+pub struct CacheOpts {
+    /// Cache directory (default: $XDG_CACHE_HOME/stablesurf or ~/.cache/stablesurf).
+    #[arg(long, value_name = "DIR")]
+    pub cache_dir: Option<PathBuf>,
+    /// Do not read or write the cache.
+    #[arg(long)]
+    pub no_cache: bool,
+}
+
+/// `stablesurf run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// Scan file (PLY, OBJ, STL, XYZ); a Stanford .conf registration file (its scans, moved by
+    /// their poses); or several scans of one object in one frame. Each scan gets its normals in
+    /// its own frame before the merge. Without any, a small built-in sample scan is used.
+    pub input: Vec<PathBuf>,
+    /// Output directory (created if missing).
+    #[arg(short, long, value_name = "OUT_DIR")]
+    pub output: PathBuf,
+    /// detail (the default): local fits blended, a mesh close to the scan; global: one
+    /// polynomial, the paper's compact descriptor of the coarse shape.
+    #[arg(long, value_name = "MODE", value_enum, hide_possible_values = true)]
+    pub mode: Option<ModeArg>,
+    /// Outputs to write, comma-separated: glb, gltf, ply, exr, png, json.
+    #[arg(long, value_delimiter = ',', default_value = "glb,ply,exr,png,json",
+          value_parser = Trimmed::<FormatArg>::default(), hide_possible_values = true)]
+    pub formats: Vec<FormatArg>,
+    /// glTF up axis.
+    #[arg(long, value_enum, default_value_t = UpArg::Y)]
+    pub up: UpArg,
+    /// Which zero-set components to keep: data (drop pieces with no data point within 2% of the
+    /// diagonal; the default in detail mode) or all (the default in global mode).
+    #[arg(long, value_enum)]
+    pub keep: Option<KeepArg>,
+    /// Keep points far outside the bulk of the data (left out by default, with a warning).
+    #[arg(long)]
+    pub keep_outliers: bool,
+    /// Trim the mesh to the surface the data supports: auto (on in detail mode, off in global
+    /// mode), off, or a support factor (how many local sample spacings from the data a
+    /// triangle may lie).
+    #[arg(long, value_name = "auto|off|FACTOR",
+          help = trim_help(),
+          allow_negative_numbers = true, value_parser = parse_trim)]
+    pub trim: Option<TrimArg>,
+    /// Print the stage summary as JSON on stdout.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub normals: NormalsOpts,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub fit: FitOpts,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub detail: DetailOpts,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub mesh: MeshOpts,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub slices: SliceOpts,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub cache: CacheOpts,
+}
+
+impl RunArgs {
+    /// The mode asked for, or the default (detail).
+    pub fn mode(&self) -> ModeArg {
+        self.mode.unwrap_or(ModeArg::Detail)
+    }
+}
+
+/// `stablesurf normals`.
+#[derive(Debug, Args)]
+pub struct NormalsArgs {
+    /// Scan file.
+    pub input: PathBuf,
+    /// Output PLY (binary, points with normals).
+    #[arg(short, long, value_name = "OUT.ply")]
+    pub output: PathBuf,
+    /// Also write the crust triangulation (points and triangles) to this PLY.
+    #[arg(long, value_name = "CRUST.ply")]
+    pub mesh: Option<PathBuf>,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub normals: NormalsOpts,
+}
+
+/// `stablesurf moments`.
+#[derive(Debug, Args)]
+pub struct MomentsArgs {
+    /// Chunk of the scan (any scan format; normals from the file or the normals stage).
+    pub input: PathBuf,
+    /// Output moments file.
+    #[arg(short, long, value_name = "PART.moments")]
+    pub output: PathBuf,
+    /// Pass 2: the centroid printed by `stablesurf frame` over the pass-1 files.
+    #[arg(long, value_name = "CX,CY,CZ", allow_hyphen_values = true,
+          value_parser = parse_center, conflicts_with = "frame")]
+    pub center: Option<[f64; 3]>,
+    /// Pass 3: the frame printed by `stablesurf frame` over the pass-2 files. Without --center
+    /// or --frame, pass 1 (counts and sums) is written.
+    #[arg(long, value_name = "CX,CY,CZ,S", allow_hyphen_values = true, value_parser = parse_frame)]
+    pub frame: Option<[f64; 4]>,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub normals: NormalsOpts,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub fit: FitOpts,
+}
+
+/// `stablesurf frame`.
+#[derive(Debug, Args)]
+pub struct FrameArgs {
+    /// Pass-1 files (prints CX,CY,CZ for --center) or pass-2 files (prints CX,CY,CZ,S for
+    /// --frame).
+    #[arg(required = true, value_name = "PART")]
+    pub parts: Vec<PathBuf>,
+}
+
+/// `stablesurf fit`.
+#[derive(Debug, Args)]
+pub struct FitArgs {
+    /// Scan file.
+    #[arg(required_unless_present = "from_moments")]
+    pub input: Option<PathBuf>,
+    /// Fit from pass-3 moments files (`stablesurf moments --frame`) instead of a scan: needs a
+    /// fixed --kappa or --kappa-rule paper, and the --degree and --epsilon of the moments.
+    #[arg(long, value_name = "PART", num_args = 1.., conflicts_with = "input")]
+    pub from_moments: Vec<PathBuf>,
+    /// Output model file.
+    #[arg(short, long, value_name = "MODEL.json")]
+    pub output: PathBuf,
+    /// Print the model's diagnostics as JSON on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// global: one polynomial, written as model.json; detail: local fits blended, written as a
+    /// stablesurf.mpu file.
+    #[arg(long, value_enum, default_value_t = ModeArg::Global, hide_possible_values = true)]
+    pub mode: ModeArg,
+    /// Keep points far outside the bulk of the data (left out by default, with a warning).
+    #[arg(long)]
+    pub keep_outliers: bool,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub normals: NormalsOpts,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub fit: FitOpts,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub detail: DetailOpts,
+}
+
+/// `stablesurf mesh`.
+#[derive(Debug, Args)]
+pub struct MeshArgs {
+    /// Model file (model.json or model.mpu).
+    pub model: PathBuf,
+    /// Output mesh: .glb, .gltf or .ply (format from the extension).
+    #[arg(short, long, value_name = "OUT")]
+    pub output: PathBuf,
+    /// Meshing region in input coordinates: xmin,ymin,zmin,xmax,ymax,zmax (overrides the model's box).
+    #[arg(long, value_name = "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX", allow_hyphen_values = true, value_parser = parse_bounds,
+          help = bounds_help("Meshing region in input coordinates (overrides the model's box)"))]
+    pub bounds: Option<[f64; 6]>,
+    /// Write a text PLY instead of binary.
+    #[arg(long)]
+    pub ascii: bool,
+    /// glTF up axis.
+    #[arg(long, value_enum, default_value_t = UpArg::Y)]
+    pub up: UpArg,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub mesh: MeshOpts,
+}
+
+/// Slice axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum AxisArg {
+    /// Slices perpendicular to x.
+    X,
+    /// Slices perpendicular to y.
+    Y,
+    /// Slices perpendicular to z.
+    Z,
+}
+
+/// Distance method.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum DistanceArg {
+    /// First-order distance f/|∇f| (fast, accurate near the surface only).
+    Taubin,
+    /// Distance to the zero set by closest-point search and Newton projection.
+    Exact,
+    /// Distance to the meshed zero set (meshed at --depth), signed by the model.
+    Mesh,
+}
+
+/// Options of the distance slices `run` writes.
+#[derive(Debug, Args, Clone)]
+pub struct SliceOpts {
+    /// Number of distance slices across the box (along z).
+    #[arg(long, default_value_t = 16, value_name = "K",
+          help = SLICE_COUNT.help("Number of distance slices across the box (along z)"),
+          allow_negative_numbers = true, value_parser = SLICE_COUNT.whole::<usize>())]
+    pub slice_count: usize,
+    /// Pixels per side of each distance slice (`stablesurf slices` makes finer ones).
+    #[arg(long, default_value_t = 128, value_name = "R",
+          help = SLICE_RESOLUTION.help("Pixels per side of each distance slice (`stablesurf slices` makes finer ones)"),
+          allow_negative_numbers = true, value_parser = SLICE_RESOLUTION.whole::<usize>())]
+    pub slice_resolution: usize,
+    /// Distance method of the slices [default: exact for --mode global, mesh for --mode detail].
+    #[arg(long, value_enum)]
+    pub slice_distance: Option<DistanceArg>,
+}
+
+/// `stablesurf slices`.
+#[derive(Debug, Args)]
+pub struct SlicesArgs {
+    /// Model file (model.json or model.mpu).
+    pub model: PathBuf,
+    /// Output directory.
+    #[arg(short, long, value_name = "DIR")]
+    pub output: PathBuf,
+    /// Slice axis.
+    #[arg(long, value_enum, default_value_t = AxisArg::Z)]
+    pub axis: AxisArg,
+    /// Number of slices across the model's box.
+    #[arg(long, default_value_t = 16, value_name = "K",
+          help = COUNT.help("Number of slices across the model's box"),
+          allow_negative_numbers = true, value_parser = COUNT.whole::<usize>())]
+    pub count: usize,
+    /// Pixels per side of each slice.
+    #[arg(long, default_value_t = 256, value_name = "R",
+          help = RESOLUTION.help("Pixels per side of each slice"),
+          allow_negative_numbers = true, value_parser = RESOLUTION.whole::<usize>())]
+    pub resolution: usize,
+    /// Distance method [default: exact for model.json, mesh for model.mpu].
+    #[arg(long, value_enum)]
+    pub distance: Option<DistanceArg>,
+    /// Region in input coordinates: xmin,ymin,zmin,xmax,ymax,zmax (overrides the model's box).
+    #[arg(long, value_name = "XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX", allow_hyphen_values = true, value_parser = parse_bounds,
+          help = bounds_help("Region in input coordinates (overrides the model's box)"))]
+    pub bounds: Option<[f64; 6]>,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub mesh: MeshOpts,
+}
+
+/// `stablesurf render`.
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    /// Mesh file (PLY, OBJ, STL).
+    pub mesh: PathBuf,
+    /// Output PNG.
+    #[arg(short, long, value_name = "PREVIEW.png")]
+    pub output: PathBuf,
+    /// Image width and height in pixels.
+    #[arg(long, default_value_t = 800, value_name = "PIXELS",
+          help = SIZE.help("Image width and height in pixels"),
+          allow_negative_numbers = true, value_parser = SIZE.whole::<u32>())]
+    pub size: u32,
+    /// Camera direction: iso, front, top or side.
+    #[arg(long, value_enum, default_value_t = ViewArg::Iso, hide_possible_values = true)]
+    pub view: ViewArg,
+    /// The model's up axis (up in the picture).
+    #[arg(long, value_enum, default_value_t = UpArg::Y)]
+    pub up: UpArg,
+}
+
+/// `stablesurf info`.
+#[derive(Debug, Args)]
+pub struct InfoArgs {
+    /// A scan, mesh or model file.
+    pub file: PathBuf,
+    /// Print one JSON object on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `stablesurf cache`.
+#[derive(Debug, Args)]
+pub struct CacheArgs {
+    /// What to do.
+    #[command(subcommand)]
+    pub action: CacheAction,
+    /// Cache directory (default: $XDG_CACHE_HOME/stablesurf or ~/.cache/stablesurf).
+    #[arg(long, value_name = "DIR", global = true)]
+    pub cache_dir: Option<PathBuf>,
+}
+
+/// Cache actions.
+#[derive(Debug, Subcommand)]
+pub enum CacheAction {
+    /// Where the cache is and how much each stage holds.
+    Info,
+    /// Remove every entry.
+    Clear,
+}
+
+/// Parses `xmin,ymin,zmin,xmax,ymax,zmax`: six finite numbers, each min below its max.
+fn parse_bounds(text: &str) -> Result<[f64; 6], String> {
+    let values: Vec<f64> = text
+        .split(',')
+        .map(|v| {
+            v.trim()
+                .parse::<f64>()
+                .map_err(|_| format!("'{v}' is not a number"))
+        })
+        .collect::<Result<_, _>>()?;
+    let v: [f64; 6] = values.try_into().map_err(|v: Vec<f64>| {
+        format!(
+            "expected 6 numbers xmin,ymin,zmin,xmax,ymax,zmax, got {}",
+            v.len()
+        )
+    })?;
+    let within = |c: &f64| c.is_finite() && c.abs() <= BOUNDS_MAX_ABS;
+    if !v.iter().all(within) || (0..3).any(|a| v[a] >= v[a + 3]) {
+        return Err(format!(
+            "--bounds takes six numbers xmin,ymin,zmin,xmax,ymax,zmax, each from {} to {} and each min below its max, got '{text}'",
+            number(-BOUNDS_MAX_ABS),
+            number(BOUNDS_MAX_ABS)
+        ));
+    }
+    Ok(v)
+}
+
+/// The help of `--depth`, whose default is the library's (`PolygonizeParams::default().depth`).
+fn depth_help() -> String {
+    format!(
+        "{} [default: {}]",
+        DEPTH
+            .help("Octree depth near the surface: finest cell = longest side of the box / 2^depth"),
+        stablesurf::polygonize::PolygonizeParams::default().depth
+    )
+}
+
+/// The help of `--viewpoint`, with its range.
+fn viewpoint_help() -> String {
+    VIEWPOINT.help(
+        "The sensor's position X,Y,Z in input coordinates: every normal is turned to face it \
+         (for several scans, in each scan's own coordinates)",
+    )
+}
+
+/// Parses `x,y,z`: three numbers, each in [`VIEWPOINT`].
+fn parse_viewpoint(text: &str) -> Result<[f64; 3], String> {
+    let parts: Vec<&str> = text.split(',').collect();
+    let bad = || {
+        format!(
+            "--viewpoint takes three numbers X,Y,Z, each from {}, got '{text}'",
+            VIEWPOINT.describe()
+        )
+    };
+    let [x, y, z] = parts.as_slice() else {
+        return Err(bad());
+    };
+    let mut out = [0.0; 3];
+    for (slot, part) in out.iter_mut().zip([x, y, z]) {
+        *slot = VIEWPOINT.check_f64(part).map_err(|_| bad())?;
+    }
+    Ok(out)
+}
+
+/// The help of `--bounds`, with its limits.
+fn bounds_help(what: &str) -> String {
+    format!(
+        "{what}: xmin,ymin,zmin,xmax,ymax,zmax, each min below its max [range: {} to {}]",
+        number(-BOUNDS_MAX_ABS),
+        number(BOUNDS_MAX_ABS)
+    )
+}
+
+/// `--trim`'s value.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum TrimArg {
+    /// On in detail mode, off in global mode.
+    Auto,
+    /// No trimming.
+    Off,
+    /// Trim with this support factor.
+    Factor(f64),
+}
+
+fn trim_help() -> String {
+    TRIM.help("Trim the mesh to the surface the data supports (detail mode's unsupported curtains and sheets go, small holes are closed): auto (on in detail mode, off in global mode), off, or a support factor, how many local sample spacings from the data a triangle may lie; default auto")
+}
+
+/// `--trim`: `auto`, `off` (any case) or a number in [`TRIM`].
+fn parse_trim(text: &str) -> Result<TrimArg, String> {
+    let t = text.trim();
+    if t.eq_ignore_ascii_case("auto") {
+        return Ok(TrimArg::Auto);
+    }
+    if t.eq_ignore_ascii_case("off") {
+        return Ok(TrimArg::Off);
+    }
+    TRIM.check_f64(text).map(TrimArg::Factor).map_err(|_| {
+        format!(
+            "--trim takes auto, off or a number from {}, got '{text}'",
+            TRIM.describe()
+        )
+    })
+}
+
+/// `N` comma-separated finite numbers; `form` names them in the error (`CX,CY,CZ`).
+fn parse_numbers<const N: usize>(text: &str, flag: &str, form: &str) -> Result<[f64; N], String> {
+    let values: Vec<f64> = text
+        .split(',')
+        .map(|v| v.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("{flag} takes {form}, got '{text}'"))?;
+    let out: [f64; N] = values
+        .try_into()
+        .map_err(|_| format!("{flag} takes {N} numbers {form}, got '{text}'"))?;
+    if out.iter().all(|v| v.is_finite()) {
+        Ok(out)
+    } else {
+        Err(format!("{flag} takes finite numbers, got '{text}'"))
+    }
+}
+
+fn parse_center(text: &str) -> Result<[f64; 3], String> {
+    parse_numbers(text, "--center", "CX,CY,CZ")
+}
+
+fn parse_frame(text: &str) -> Result<[f64; 4], String> {
+    let f = parse_numbers::<4>(text, "--frame", "CX,CY,CZ,S")?;
+    if f[3] > 0.0 {
+        Ok(f)
+    } else {
+        Err(format!(
+            "--frame: the scale S must be positive, got '{text}'"
+        ))
+    }
+}
+
+fn parse_kappa(text: &str) -> Result<KappaArg, String> {
+    let t = text.trim();
+    if t.eq_ignore_ascii_case("auto") {
+        return Ok(KappaArg {
+            text: t.to_string(),
+            value: fit::Kappa::Auto,
+        });
+    }
+    KAPPA
+        .check_f64(text)
+        .map(|v| KappaArg {
+            text: t.to_string(),
+            value: fit::Kappa::Fixed(v),
+        })
+        .map_err(|_| {
+            format!(
+                "--kappa takes auto or a number from {}, got '{text}'",
+                KAPPA.describe()
+            )
+        })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::range::Range;
+    use super::*;
+
+    fn parse(args: &[&str]) -> Cli {
+        Cli::try_parse_from(std::iter::once("stablesurf").chain(args.iter().copied()))
+            .unwrap_or_else(|e| panic!("{args:?}: {e}"))
+    }
+
+    #[test]
+    fn definitions_are_consistent() {
+        use clap::CommandFactory;
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn run_without_input_uses_defaults() {
+        let CommandArgs::Run(r) = parse(&["run", "-o", "out"]).command else {
+            panic!()
+        };
+        assert!(r.input.is_empty());
+        assert_eq!(r.fit.degree, 8);
+        assert_eq!(r.fit.kappa.value, fit::Kappa::Auto);
+        assert_eq!(r.mesh.depth, None);
+        assert_eq!(
+            r.formats,
+            [
+                FormatArg::Glb,
+                FormatArg::Ply,
+                FormatArg::Exr,
+                FormatArg::Png,
+                FormatArg::Json
+            ]
+        );
+    }
+
+    #[test]
+    fn run_flags_parse() {
+        let cli = parse(&[
+            "run",
+            "scan.ply",
+            "-o",
+            "out",
+            "--degree",
+            "8",
+            "--kappa",
+            "1e-3",
+            "--epsilon",
+            "0.01",
+            "--method",
+            "3l",
+            "--depth",
+            "7",
+            "--formats",
+            "glb,gltf",
+            "--cache-dir",
+            "c",
+            "--no-cache",
+            "--normals",
+            "pca",
+            "--kappa-rule",
+            "paper",
+            "--keep",
+            "data",
+            "--up",
+            "z",
+            "--json",
+            "-v",
+            "-v",
+            "-j",
+            "1",
+        ]);
+        assert_eq!(cli.verbose, 2);
+        assert_eq!(cli.threads, Some(1));
+        let CommandArgs::Run(r) = cli.command else {
+            panic!()
+        };
+        assert_eq!(r.fit.degree, 8);
+        assert_eq!(r.fit.kappa.value, fit::Kappa::Fixed(1e-3));
+        assert_eq!(r.fit.epsilon, 0.01);
+        assert_eq!(r.fit.method, MethodArg::ThreeL);
+        assert_eq!(r.fit.kappa_rule, KappaRuleArg::Paper);
+        assert_eq!(r.mesh.depth, Some(7));
+        assert_eq!(r.keep, Some(KeepArg::Data));
+        assert_eq!(r.up, UpArg::Z);
+        assert_eq!(r.normals.source, SourceArg::Pca);
+        assert!(r.cache.no_cache && r.json);
+        assert_eq!(r.cache.cache_dir, Some(PathBuf::from("c")));
+        assert_eq!(r.formats, [FormatArg::Glb, FormatArg::Gltf]);
+    }
+
+    #[test]
+    fn mesh_bounds_take_six_numbers() {
+        let CommandArgs::Mesh(m) = parse(&[
+            "mesh",
+            "m.json",
+            "-o",
+            "x.ply",
+            "--bounds",
+            "-1,-1,-1,1,1,1",
+        ])
+        .command
+        else {
+            panic!()
+        };
+        assert_eq!(m.bounds, Some([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0]));
+        for bad in ["1,2", "0,0,0,1,1,x", "0,0,0,0,1,1", "0,0,0,1,1,inf"] {
+            let r = Cli::try_parse_from(["stablesurf", "mesh", "m", "-o", "x", "--bounds", bad]);
+            assert_eq!(r.unwrap_err().exit_code(), 2, "{bad}");
+        }
+    }
+
+    #[test]
+    fn slices_and_info_and_cache_parse() {
+        let CommandArgs::Slices(s) = parse(&[
+            "slices",
+            "m.json",
+            "-o",
+            "d",
+            "--axis",
+            "x",
+            "--count",
+            "4",
+            "--resolution",
+            "64",
+            "--distance",
+            "taubin",
+        ])
+        .command
+        else {
+            panic!()
+        };
+        assert_eq!(
+            (s.axis, s.count, s.resolution, s.distance),
+            (AxisArg::X, 4, 64, Some(DistanceArg::Taubin))
+        );
+        let CommandArgs::Info(i) = parse(&["info", "f.ply", "--json"]).command else {
+            panic!()
+        };
+        assert!(i.json);
+        let CommandArgs::Cache(c) = parse(&["cache", "clear", "--cache-dir", "x"]).command else {
+            panic!()
+        };
+        assert!(matches!(c.action, CacheAction::Clear));
+        let CommandArgs::Normals(n) =
+            parse(&["normals", "a.xyz", "-o", "n.ply", "--mesh", "c.ply"]).command
+        else {
+            panic!()
+        };
+        assert_eq!(n.mesh, Some(PathBuf::from("c.ply")));
+    }
+
+    /// Each ranged flag's help prints its constant's range, and its parser takes both ends and
+    /// refuses the values just outside them.
+    #[test]
+    fn ranged_flags_print_and_check_the_same_constant() {
+        use clap::CommandFactory;
+        let cli = Cli::command();
+        let cases: [(&str, &str, Range); 14] = [
+            ("run", "threads", THREADS),
+            ("run", "trim", TRIM),
+            ("run", "degree", DEGREE),
+            ("run", "kappa", KAPPA),
+            ("run", "epsilon", EPSILON),
+            ("run", "local_degree", LOCAL_DEGREE),
+            ("run", "tolerance", TOLERANCE),
+            ("run", "depth", DEPTH),
+            ("run", "slice_count", SLICE_COUNT),
+            ("run", "slice_resolution", SLICE_RESOLUTION),
+            ("slices", "count", COUNT),
+            ("slices", "resolution", RESOLUTION),
+            ("slices", "depth", DEPTH),
+            ("render", "size", SIZE),
+        ];
+        for (sub, id, range) in cases {
+            let cmd = cli.find_subcommand(sub).unwrap();
+            let arg = cmd
+                .get_arguments()
+                .chain(cli.get_arguments())
+                .find(|a| a.get_id() == id)
+                .unwrap_or_else(|| panic!("{sub} {id}"));
+            let help = arg.get_help().unwrap().to_string();
+            assert!(
+                help.contains(&format!("[range: {}]", range.describe())),
+                "{help}"
+            );
+            let flag = format!("--{}", id.replace('_', "-"));
+            let accepts = |v: f64| {
+                let text = format!("{v}");
+                Cli::try_parse_from(["stablesurf", sub, "x", "-o", "y", &flag, &text]).is_ok()
+            };
+            assert!(accepts(range.min) && accepts(range.max), "{flag}");
+            let step = if range.integer { 1.0 } else { range.max * 1e-9 };
+            assert!(!accepts(range.max + step), "{flag}");
+            if range.min > 0.0 {
+                let below = if range.integer {
+                    range.min - 1.0
+                } else {
+                    range.min * (1.0 - 1e-9)
+                };
+                assert!(!accepts(below), "{flag}");
+            }
+        }
+        assert!(
+            Cli::try_parse_from(["stablesurf", "fit", "x", "-o", "y", "--kappa", "-1e-300"])
+                .is_err()
+        );
+        assert!(
+            Cli::try_parse_from(["stablesurf", "fit", "x", "-o", "y", "--kappa", "AUTO"]).is_ok()
+        );
+    }
+
+    #[test]
+    fn trim_takes_auto_off_or_a_factor() {
+        let trim = |v: &str| {
+            Cli::try_parse_from(["stablesurf", "run", "x", "-o", "y", "--trim", v]).map(|c| {
+                let CommandArgs::Run(r) = c.command else {
+                    panic!()
+                };
+                r.trim
+            })
+        };
+        assert_eq!(trim("auto").unwrap(), Some(TrimArg::Auto));
+        assert_eq!(trim("OFF").unwrap(), Some(TrimArg::Off));
+        assert_eq!(trim("2.5").unwrap(), Some(TrimArg::Factor(2.5)));
+        for bad in ["0", "-3", "x", "1e9", "nan"] {
+            let err = trim(bad).unwrap_err();
+            assert_eq!(err.exit_code(), 2, "{bad}");
+            assert!(
+                err.to_string()
+                    .contains("--trim takes auto, off or a number"),
+                "{err}"
+            );
+        }
+        let CommandArgs::Run(r) = parse(&["run", "-o", "out"]).command else {
+            panic!()
+        };
+        assert_eq!(r.trim, None);
+    }
+
+    #[test]
+    fn missing_output_is_a_usage_error() {
+        let err = Cli::try_parse_from(["stablesurf", "run"]).unwrap_err();
+        assert_eq!(err.exit_code(), 2);
+    }
+
+    /// The closed choices take the spellings they always took: `--normals`, `--method` and
+    /// `--kappa-rule` in any case, `--normals` and `--formats` with spaces around a value,
+    /// `--mode` and `--view` exactly; anything else is a usage error naming the flag.
+    #[test]
+    fn choices_take_their_spellings() {
+        let run = |flags: &[&str]| {
+            let args = ["stablesurf", "run", "-o", "out"].iter().chain(flags);
+            Cli::try_parse_from(args).map(|c| match c.command {
+                CommandArgs::Run(r) => r,
+                _ => panic!(),
+            })
+        };
+        let r = run(&[
+            "--normals",
+            " PCA",
+            "--method",
+            "3LRR",
+            "--kappa-rule",
+            "Paper",
+        ])
+        .unwrap();
+        assert_eq!(r.normals.source, SourceArg::Pca);
+        assert_eq!(r.fit.method, MethodArg::ThreeLrr);
+        assert_eq!(r.fit.kappa_rule, KappaRuleArg::Paper);
+        let r = run(&["--formats", "glb, ply ,json", "--mode", "global"]).unwrap();
+        assert_eq!(r.formats, [FormatArg::Glb, FormatArg::Ply, FormatArg::Json]);
+        assert_eq!(r.mode(), ModeArg::Global);
+        assert_eq!(run(&[]).unwrap().mode(), ModeArg::Detail);
+        for (flag, bad) in [
+            ("--normals", "normal"),
+            ("--method", "qr"),
+            ("--kappa-rule", "strict"),
+            ("--formats", "glb,obj"),
+            ("--mode", "Global"),
+        ] {
+            let err = run(&[flag, bad]).unwrap_err();
+            assert_eq!(err.exit_code(), 2, "{flag} {bad}");
+            assert!(err.to_string().contains(flag), "{err}");
+        }
+        let view = |v: &str| {
+            Cli::try_parse_from(["stablesurf", "render", "m.ply", "-o", "p.png", "--view", v]).map(
+                |c| match c.command {
+                    CommandArgs::Render(r) => r.view,
+                    _ => panic!(),
+                },
+            )
+        };
+        assert_eq!(view("top").unwrap(), ViewArg::Top);
+        assert_eq!(view("Top").unwrap_err().exit_code(), 2);
+        assert_eq!(spelling(&MethodArg::ThreeL), "3l");
+        assert_eq!(spelling(&ModeArg::Detail), "detail");
+    }
+}

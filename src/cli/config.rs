@@ -1,0 +1,330 @@
+//! From parsed arguments to the library's parameters, and the few file reads and writes every
+//! command shares. The per-mode defaults are the library's ([`PipelineConfig::for_mode`]): a
+//! flag here only overrides them.
+
+use std::io::Write;
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use stablesurf::cache::Cache;
+use stablesurf::detail::DetailParams;
+use stablesurf::distance::{Axis, DistanceMethod};
+use stablesurf::export::{self, gltf::UpAxis};
+use stablesurf::fit::{self, FitMethod, KappaRule};
+use stablesurf::normals::{NormalSource, NormalsParams};
+use stablesurf::pipeline::{Keep, Mode, Model, OutputFormat, PipelineConfig};
+use stablesurf::polygonize::PolygonizeParams;
+use stablesurf::render::View;
+use stablesurf::trim::TrimParams;
+use stablesurf::{import, Aabb, PointCloud};
+
+use super::args::{
+    AxisArg, CacheOpts, DetailOpts, DistanceArg, FitOpts, FormatArg, KappaRuleArg, KeepArg,
+    MeshOpts, MethodArg, ModeArg, NormalsOpts, RunArgs, SourceArg, TrimArg, UpArg, ViewArg,
+};
+use super::usage;
+
+impl From<ModeArg> for Mode {
+    fn from(mode: ModeArg) -> Mode {
+        match mode {
+            ModeArg::Global => Mode::Global,
+            ModeArg::Detail => Mode::Detail,
+        }
+    }
+}
+
+impl From<SourceArg> for NormalSource {
+    fn from(source: SourceArg) -> NormalSource {
+        match source {
+            SourceArg::Auto => NormalSource::Auto,
+            SourceArg::Crust => NormalSource::Crust,
+            SourceArg::Pca => NormalSource::Pca,
+            SourceArg::Mesh => NormalSource::Mesh,
+            SourceArg::Input => NormalSource::Input,
+        }
+    }
+}
+
+impl From<MethodArg> for FitMethod {
+    fn from(method: MethodArg) -> FitMethod {
+        match method {
+            MethodArg::ThreeLrr => FitMethod::ThreeLrr,
+            MethodArg::ThreeL => FitMethod::ThreeL,
+            MethodArg::Ls => FitMethod::Ls,
+        }
+    }
+}
+
+impl From<KappaRuleArg> for KappaRule {
+    fn from(rule: KappaRuleArg) -> KappaRule {
+        match rule {
+            KappaRuleArg::Stable => KappaRule::Stable,
+            KappaRuleArg::Paper => KappaRule::Paper,
+        }
+    }
+}
+
+impl From<FormatArg> for OutputFormat {
+    fn from(format: FormatArg) -> OutputFormat {
+        match format {
+            FormatArg::Glb => OutputFormat::Glb,
+            FormatArg::Gltf => OutputFormat::Gltf,
+            FormatArg::Ply => OutputFormat::Ply,
+            FormatArg::Exr => OutputFormat::Exr,
+            FormatArg::Png => OutputFormat::Png,
+            FormatArg::Json => OutputFormat::Json,
+        }
+    }
+}
+
+impl From<ViewArg> for View {
+    fn from(view: ViewArg) -> View {
+        match view {
+            ViewArg::Iso => View::Iso,
+            ViewArg::Front => View::Front,
+            ViewArg::Top => View::Top,
+            ViewArg::Side => View::Side,
+        }
+    }
+}
+
+impl From<UpArg> for UpAxis {
+    fn from(up: UpArg) -> UpAxis {
+        match up {
+            UpArg::Y => UpAxis::Y,
+            UpArg::Z => UpAxis::Z,
+        }
+    }
+}
+
+impl From<AxisArg> for Axis {
+    fn from(axis: AxisArg) -> Axis {
+        match axis {
+            AxisArg::X => Axis::X,
+            AxisArg::Y => Axis::Y,
+            AxisArg::Z => Axis::Z,
+        }
+    }
+}
+
+impl From<DistanceArg> for DistanceMethod {
+    fn from(distance: DistanceArg) -> DistanceMethod {
+        match distance {
+            DistanceArg::Taubin => DistanceMethod::Taubin,
+            DistanceArg::Exact => DistanceMethod::Exact,
+            DistanceArg::Mesh => DistanceMethod::Mesh,
+        }
+    }
+}
+
+impl From<KeepArg> for Keep {
+    fn from(keep: KeepArg) -> Keep {
+        match keep {
+            KeepArg::All => Keep::All,
+            KeepArg::Data => Keep::Data,
+        }
+    }
+}
+
+/// The cache `--cache-dir`/`--no-cache` ask for.
+pub fn open_cache(opts: &CacheOpts) -> Result<Cache> {
+    if opts.no_cache {
+        return Ok(Cache::disabled());
+    }
+    match opts
+        .cache_dir
+        .clone()
+        .or_else(stablesurf::cache::default_dir)
+    {
+        Some(dir) => Ok(Cache::at(dir)),
+        None => Err(usage(
+            "no cache directory: set HOME or XDG_CACHE_HOME, pass --cache-dir, or use --no-cache",
+        )),
+    }
+}
+
+/// Normals-stage parameters: the source and the viewpoint, the rest the library's defaults.
+pub fn normals_params(opts: &NormalsOpts) -> NormalsParams {
+    NormalsParams {
+        source: opts.source.into(),
+        viewpoint: opts.viewpoint,
+        ..Default::default()
+    }
+}
+
+/// Fit-stage parameters. An odd degree with automatic κ is a usage error: its zero set is
+/// never bounded.
+pub fn fit_params(opts: &FitOpts) -> Result<fit::FitParams> {
+    let method = FitMethod::from(opts.method);
+    let kappa = opts.kappa.value;
+    // --degree, --kappa and --epsilon are within range::DEGREE, range::KAPPA and range::EPSILON.
+    if opts.degree % 2 == 1 && kappa == fit::Kappa::Auto && method == FitMethod::ThreeLrr {
+        return Err(usage(format!(
+            "--degree {} is odd: automatic κ needs an even degree (an odd-degree zero set is never bounded); use an even degree or give --kappa a number",
+            opts.degree
+        )));
+    }
+    Ok(fit::FitParams {
+        degree: opts.degree,
+        method,
+        kappa,
+        kappa_rule: opts.kappa_rule.into(),
+        epsilon: opts.epsilon,
+        ..Default::default()
+    })
+}
+
+/// Detail-fit parameters (`--local-degree` and `--tolerance` are within range::LOCAL_DEGREE and
+/// range::TOLERANCE). The finest cells split down to `--tolerance` or 1e-3, whichever is
+/// smaller.
+pub fn detail_params(opts: &DetailOpts) -> DetailParams {
+    DetailParams {
+        degree: opts.local_degree,
+        tolerance: opts.tolerance,
+        finest_tolerance: opts.tolerance.min(1e-3),
+        ..DetailParams::default()
+    }
+}
+
+/// Meshing parameters for a model of `mode`: the mode's defaults
+/// ([`PipelineConfig::for_mode`]) with `--depth` when given (within range::DEPTH). Every mesh
+/// vertex is projected onto the zero set, so a finer mesh only flattens the facets between
+/// them: on the ten scans of ../shared/data a global (polynomial) model meshed at depth 8 has 4×
+/// the triangles of depth 7, the same topology (watertight, components, Euler characteristic)
+/// and a mean point-to-mesh distance within 4.6e-6 of the diagonal of depth 7's (README).
+pub fn polygonize_params(opts: &MeshOpts, mode: Mode) -> PolygonizeParams {
+    let defaults = PipelineConfig::for_mode(mode).polygonize;
+    PolygonizeParams {
+        depth: opts.depth.unwrap_or(defaults.depth),
+        ..defaults
+    }
+}
+
+/// The configuration of `stablesurf run`: the mode's defaults, then every flag given.
+pub fn run_config(args: &RunArgs) -> Result<PipelineConfig> {
+    let mode = Mode::from(args.mode());
+    let mut config = PipelineConfig::for_mode(mode);
+    config.outliers.keep = args.keep_outliers;
+    config.normals = normals_params(&args.normals);
+    config.fit = fit_params(&args.fit)?;
+    config.detail = detail_params(&args.detail);
+    config.polygonize = polygonize_params(&args.mesh, mode);
+    if let Some(keep) = args.keep {
+        config.keep = keep.into();
+    }
+    match args.trim {
+        None | Some(TrimArg::Auto) => {}
+        Some(TrimArg::Off) => config.trim = TrimParams::off(),
+        Some(TrimArg::Factor(support_factor)) => {
+            config.trim = TrimParams {
+                support_factor,
+                ..TrimParams::default()
+            }
+        }
+    }
+    config.gltf.up = args.up.into();
+    // The count and resolution are within range::SLICE_COUNT and range::SLICE_RESOLUTION.
+    config.slices.count = args.slices.slice_count;
+    config.slices.resolution = args.slices.slice_resolution;
+    if let Some(distance) = args.slices.slice_distance {
+        config.slices.method = distance.into();
+    }
+    config.formats = args.formats.iter().map(|&f| f.into()).collect();
+    Ok(config)
+}
+
+/// `--bounds` as a box.
+pub fn region_from(bounds: Option<[f64; 6]>) -> Option<Aabb> {
+    bounds.map(|v| Aabb {
+        min: [v[0], v[1], v[2]],
+        max: [v[3], v[4], v[5]],
+    })
+}
+
+/// Reads a scan or mesh file; errors name it.
+pub fn read_cloud(path: &Path) -> Result<PointCloud> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    Ok(import::import_bytes(&bytes, path)?)
+}
+
+/// Reads a model file of either kind ([`Model::from_bytes`]); errors name it.
+pub fn read_model(path: &Path) -> Result<Model> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    Ok(Model::from_bytes(&bytes, path)?)
+}
+
+/// Writes `bytes` to `path` atomically.
+pub fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
+    export::write_atomic(path, |w| {
+        w.write_all(bytes).map_err(export::ExportError::Write)
+    })?;
+    Ok(())
+}
+
+/// Writes a model file (`model.json` or `.mpu` bytes, whatever `path` is called).
+pub fn write_model(model: &Model, path: &Path) -> Result<()> {
+    let (_, bytes) = model.file()?;
+    write_file(path, &bytes)
+}
+
+/// Prints `value` as pretty JSON and a newline on stdout.
+pub fn print_json(value: &impl serde::Serialize) -> Result<()> {
+    let mut out = std::io::stdout().lock();
+    serde_json::to_writer_pretty(&mut out, value)?;
+    writeln!(out)?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::*;
+    use crate::cli::args::{Cli, CommandArgs};
+
+    fn run_args(flags: &[&str]) -> RunArgs {
+        let args = ["stablesurf", "run", "-o", "out"].iter().chain(flags);
+        match Cli::try_parse_from(args).unwrap().command {
+            CommandArgs::Run(r) => r,
+            _ => panic!(),
+        }
+    }
+
+    /// Without flags, `run` in either mode is the library's configuration of that mode: the
+    /// flags' defaults and the library's agree.
+    #[test]
+    fn run_defaults_are_the_library_defaults_of_the_mode() {
+        for (flags, mode) in [
+            (&[][..], Mode::Detail),
+            (&["--mode", "detail"][..], Mode::Detail),
+            (&["--mode", "global"][..], Mode::Global),
+        ] {
+            let config = run_config(&run_args(flags)).unwrap();
+            let library = PipelineConfig::for_mode(mode);
+            assert_eq!(format!("{config:?}"), format!("{library:?}"), "{flags:?}");
+        }
+    }
+
+    #[test]
+    fn run_flags_override_the_mode_defaults() {
+        let config = run_config(&run_args(&[
+            "--trim",
+            "off",
+            "--keep",
+            "all",
+            "--slice-distance",
+            "mesh",
+            "--depth",
+            "5",
+        ]))
+        .unwrap();
+        assert_eq!(config.trim.mode, stablesurf::trim::TrimMode::Off);
+        assert_eq!(config.keep, Keep::All);
+        assert_eq!(config.polygonize.depth, 5);
+        assert_eq!(config.polygonize.guard_levels, 0);
+        let global = run_config(&run_args(&["--mode", "global", "--trim", "3"])).unwrap();
+        assert_eq!(global.trim.support_factor, 3.0);
+        assert_eq!(global.trim.mode, stablesurf::trim::TrimMode::Support);
+        assert_eq!(global.slices.method, DistanceMethod::Exact);
+    }
+}

@@ -1,0 +1,62 @@
+//! `stablesurf mesh`: a model file's zero set meshed into one glTF or PLY file, the format from
+//! the output's extension, written by the library's one mesh writer
+//! ([`pipeline::mesh_files`]).
+
+use anyhow::{anyhow, Context, Result};
+use stablesurf::pipeline::{self, MeshFileOptions, MeshFormat, Model};
+use stablesurf::{export, polygonize};
+
+use super::args::MeshArgs;
+use super::config;
+use super::progress::Verbosity;
+use super::usage;
+
+/// Runs `stablesurf mesh`.
+pub fn mesh(args: MeshArgs, verbosity: Verbosity) -> Result<()> {
+    let Some(format) = MeshFormat::from_path(&args.output) else {
+        return Err(usage(format!(
+            "-o {}: the mesh format comes from the extension: .glb, .gltf or .ply",
+            args.output.display()
+        )));
+    };
+    let model = config::read_model(&args.model)?;
+    let params = config::polygonize_params(&args.mesh, model.mode());
+    let region = match (config::region_from(args.bounds), &model) {
+        (Some(b), _) => b,
+        (None, Model::Detail(m)) => m.region,
+        (None, Model::Global(m)) => m.bounds.ok_or_else(|| {
+            anyhow!("{} has no \"box\": pass the meshing region with --bounds xmin,ymin,zmin,xmax,ymax,zmax", args.model.display())
+        })?,
+    };
+    let mesh = polygonize::polygonize(model.function(), &region, &params)
+        .with_context(|| format!("meshing {}", args.model.display()))?
+        .mesh;
+    let opts = MeshFileOptions {
+        gltf: export::gltf::GltfOptions { up: args.up.into() },
+        ply: export::ply::PlyOptions {
+            encoding: if args.ascii {
+                export::ply::PlyEncoding::Ascii
+            } else {
+                export::ply::PlyEncoding::BinaryLittleEndian
+            },
+            ..Default::default()
+        },
+    };
+    let name = args
+        .output
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    // glTF's buffer file first, then the file that refers to it.
+    for (file_name, bytes) in pipeline::mesh_files(&mesh, format, &name, &opts)? {
+        config::write_file(&args.output.with_file_name(file_name), &bytes)?;
+    }
+    if verbosity != Verbosity::Quiet {
+        let check = stablesurf::mesh::check(&mesh);
+        eprintln!(
+            "stablesurf: {} vertices, {} triangles, {} component(s), {} boundary edges, watertight {}",
+            check.vertices, check.faces, check.components, check.boundary_edges, check.watertight
+        );
+    }
+    Ok(())
+}

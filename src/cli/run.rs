@@ -1,0 +1,131 @@
+//! `stablesurf run`: a scan (or several, or a registration file, or the built-in sample) through
+//! the whole pipeline into an output folder, with a one-line summary of the settings before and
+//! of the result after on stderr, and the stage summary as JSON on stdout with `--json`.
+
+use anyhow::{Context, Result};
+use stablesurf::import;
+use stablesurf::pipeline::{self, Keep, Mode, ScanSource};
+use stablesurf::trim::TrimMode;
+
+use super::args::{spelling, DistanceArg, RunArgs};
+use super::config;
+use super::progress::{StderrObserver, Verbosity};
+use super::usage;
+
+/// Runs `stablesurf run`.
+pub fn run(args: RunArgs, verbosity: Verbosity) -> Result<()> {
+    let mode = Mode::from(args.mode());
+    if mode == Mode::Detail
+        && matches!(
+            args.slices.slice_distance,
+            Some(DistanceArg::Exact | DistanceArg::Taubin)
+        )
+    {
+        return Err(usage(
+            "--slice-distance exact and taubin need a polynomial: use --slice-distance mesh with --mode detail",
+        ));
+    }
+    let config = config::run_config(&args)?;
+    let cache = config::open_cache(&args.cache)?;
+    let source = ScanSource::from_inputs(&args.input);
+    if args.input.len() > 1 {
+        if let Some(conf) = args.input.iter().find(|p| import::conf::is_conf(p)) {
+            return Err(usage(format!(
+                "{} is a registration file: give it alone, or give the scans without it",
+                conf.display()
+            )));
+        }
+    }
+    if verbosity != Verbosity::Quiet {
+        let input = source.name();
+        let model = match mode {
+            Mode::Global => format!(
+                "degree {}, method {}, kappa {}, rule {}, epsilon {}",
+                args.fit.degree,
+                spelling(&args.fit.method),
+                args.fit.kappa,
+                spelling(&args.fit.kappa_rule),
+                args.fit.epsilon
+            ),
+            Mode::Detail => format!(
+                "local degree {}, tolerance {}",
+                args.detail.local_degree, args.detail.tolerance
+            ),
+        };
+        eprintln!(
+            "stablesurf: run {input} -> {} (mode {}{}, normals {}, {model}, depth {}, keep {}, trim {}, slices {} x {}^2 {}, cache {})",
+            args.output.display(),
+            spelling(&args.mode()),
+            if args.mode.is_some() {
+                ""
+            } else {
+                " by default; --mode global fits one polynomial"
+            },
+            spelling(&args.normals.source),
+            config.polygonize.depth,
+            match config.keep {
+                Keep::All => "all",
+                Keep::Data => "data",
+            },
+            match config.trim.mode {
+                TrimMode::Off => "off".to_string(),
+                TrimMode::Support => format!("support factor {}", config.trim.support_factor),
+            },
+            config.slices.count,
+            config.slices.resolution,
+            config.slices.method.name(),
+            cache.root().map_or("off".to_string(), |r| r.display().to_string()),
+        );
+    }
+    let mut observer = StderrObserver::new(verbosity);
+    let report = pipeline::run(&source, &args.output, &config, &cache, &mut observer)
+        .with_context(|| {
+            format!(
+                "running the pipeline on {}",
+                match source {
+                    ScanSource::Sample => "the built-in sample".into(),
+                    _ => source.name(),
+                }
+            )
+        })?;
+    if verbosity != Verbosity::Quiet {
+        let bounded = match mode {
+            Mode::Global => format!(
+                ", bounded {}",
+                report
+                    .fit
+                    .get("diagnostics")
+                    .and_then(|d| d.get("bounded"))
+                    .map_or("unknown".into(), |b| b.to_string())
+            ),
+            Mode::Detail => String::new(),
+        };
+        let t = &report.trim;
+        let trimmed = if t.removed_triangles > 0 || t.holes_filled > 0 {
+            format!(
+                ", trimmed {} triangles ({:.1}% of the area) where no data supports the surface, {} hole(s) closed",
+                t.removed_triangles,
+                100.0 * t.removed_area_share,
+                t.holes_filled
+            )
+        } else {
+            String::new()
+        };
+        eprintln!(
+            "stablesurf: done in {:.2}s: {} vertices, {} triangles, {} component(s), watertight {}, boundary loops {}, self-intersecting faces {}{bounded}{trimmed}, {}; outputs in {}",
+            report.seconds,
+            report.mesh.vertices,
+            report.mesh.faces,
+            report.mesh.components,
+            report.mesh.watertight,
+            report.mesh.boundary_loops,
+            report.mesh.self_intersecting_faces,
+            report.accuracy.describe(),
+            args.output.display()
+        );
+    }
+    if args.json {
+        config::print_json(&report)?;
+    }
+    Ok(())
+}
