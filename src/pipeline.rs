@@ -1030,6 +1030,7 @@ pub fn run(
                     "vertices": out.mesh.positions.len(),
                     "triangles": out.mesh.triangles.len(),
                     "evaluations": out.evaluations,
+                    "simplified": out.simplified,
                 });
                 Ok((out.mesh, figures))
             },

@@ -24,11 +24,12 @@
 //!    measure module's k-d tree) is within `support_factor` × that point's spacing.
 //! 3. *Regions*: the unsupported triangles joined by edges. A region is removed when it
 //!    reaches the mesh's own boundary (a sheet cut by the meshing box) or when it holds more
-//!    than `keep_area_share` of the mesh's area (the unseen back of a closed blob), or when it
-//!    reaches deeper than `hole_depth` local spacings and `hole_depth_share` of the diagonal
-//!    from the data (the unseen underside of a single view, which the blend bulges out past
-//!    the data); a smaller, shallow region enclosed by supported surface is a hole of the scan
-//!    that the model closes, and is kept.
+//!    than `keep_area_share` of the mesh's area (the unseen back of a closed blob). When such a
+//!    region opens the mesh, an enclosed region that reaches deeper than `hole_depth` local
+//!    spacings and `hole_depth_share` of the diagonal from the data goes too (the unseen
+//!    underside of a single view, which the blend bulges out past the data). Any other region
+//!    enclosed by supported surface is a hole of the scan that the model closes, and is kept:
+//!    a mesh that no removal opens stays closed.
 //! 4. *Clean-up*: at a vertex where the kept triangles form several fans (joined only through
 //!    that vertex), the fans other than the largest (by area) are removed, until no such vertex
 //!    is left; then components with less than `island_share` of the kept area are removed.
@@ -77,8 +78,9 @@ pub struct TrimParams {
     /// An unsupported region enclosed by supported surface (it does not reach the mesh's
     /// boundary) and with no more than this share of the mesh's area is kept. Default 0.1.
     pub keep_area_share: f64,
-    /// An enclosed unsupported region is removed when it reaches deeper than this many local
-    /// spacings *and* deeper than `hole_depth_share`: some triangle's centroid lies that far
+    /// When the trim opens the mesh (a region reaches the boundary or exceeds
+    /// `keep_area_share`), an enclosed unsupported region is removed too when it reaches deeper
+    /// than this many local spacings *and* deeper than `hole_depth_share`: some triangle's centroid lies that far
     /// from its nearest data point, in that point's spacings. A hole of the scan up to about
     /// 2 × 10 samples across is closed; the unseen underside of a single view, which the blend
     /// bulges out past the data, is not (bunny top view: 20–40 spacings deep, 7.9% of the
@@ -460,6 +462,9 @@ fn unsupported_regions(
     let mut removed = vec![false; n];
     let mut seen = vec![false; n];
     let mut kept_regions = 0;
+    let mut opened = false;
+    // Enclosed regions that are deep: removed only when the mesh is opened anyway.
+    let mut deep_regions: Vec<Vec<u32>> = Vec::new();
     let mut stack = Vec::new();
     let mut region = Vec::new();
     for first in 0..n {
@@ -493,13 +498,23 @@ fn unsupported_regions(
             }
         }
         let deep = depth.spacings > keep_depth.spacings && depth.distance > keep_depth.distance;
-        if reaches_boundary || area > keep_area || deep {
+        if reaches_boundary || area > keep_area {
+            opened = true;
             for &t in &region {
                 removed[t as usize] = true;
             }
+        } else if deep {
+            deep_regions.push(region.clone());
         } else {
             kept_regions += 1;
         }
+    }
+    if opened {
+        for t in deep_regions.iter().flatten() {
+            removed[*t as usize] = true;
+        }
+    } else {
+        kept_regions += deep_regions.len();
     }
     (removed, kept_regions)
 }
@@ -951,40 +966,55 @@ mod tests {
     }
 
     #[test]
-    fn an_enclosed_region_is_kept_only_when_shallow() {
-        // Data everywhere but a disk of radius 0.15 in the middle of a 100 × 100 grid (spacing
-        // 0.01): an enclosed region of ~6% of the area whose centre lies 0.15 from the data,
-        // i.e. 15 spacings and 11% of the data's diagonal (1.41).
+    fn an_enclosed_region_is_kept_only_when_shallow_or_nothing_opens_the_mesh() {
+        // A 100 × 100 grid (spacing 0.01) with no data in a disk of radius 0.15 around (0.4,
+        // 0.5): an enclosed region of ~6% of the area whose centre lies 0.15 from the data, i.e.
+        // 15 spacings and 11% of the data's diagonal. With `open`, no data beyond x = 0.8
+        // either: that strip reaches the mesh's boundary and opens it.
         let mesh = grid(100);
-        let away = |p: &[f64; 3]| ((p[0] - 0.5).powi(2) + (p[1] - 0.5).powi(2)).sqrt() > 0.15;
-        let points: Vec<[f64; 3]> = mesh.positions.iter().copied().filter(away).collect();
-        for lenient in [
-            TrimParams {
-                hole_depth: 20.0,
-                ..TrimParams::default()
-            },
-            TrimParams {
-                hole_depth_share: 0.2,
-                ..TrimParams::default()
-            },
-        ] {
-            let out = trim(&mesh, &points, &lenient).unwrap();
-            assert_eq!(out.report.holes_kept, 1, "{:?}", out.report);
-            assert_eq!(out.mesh, mesh);
+        let outside_disk =
+            |p: &[f64; 3]| ((p[0] - 0.4).powi(2) + (p[1] - 0.5).powi(2)).sqrt() > 0.15;
+        for open in [false, true] {
+            let points: Vec<[f64; 3]> = mesh
+                .positions
+                .iter()
+                .copied()
+                .filter(|p| outside_disk(p) && (!open || p[0] <= 0.8))
+                .collect();
+            for lenient in [
+                TrimParams {
+                    hole_depth: 20.0,
+                    ..TrimParams::default()
+                },
+                TrimParams {
+                    hole_depth_share: 0.2,
+                    ..TrimParams::default()
+                },
+            ] {
+                let out = trim(&mesh, &points, &lenient).unwrap();
+                assert_eq!(out.report.holes_kept, 1, "{:?}", out.report);
+                assert_eq!(out.report.boundary_loops, 1, "{:?}", out.report);
+            }
+            let out = trim(&mesh, &points, &TrimParams::default()).unwrap();
+            let r = out.report;
+            if !open {
+                // Nothing opens the mesh: the deep hole is closed by the model all the same.
+                assert_eq!(out.mesh, mesh);
+                assert_eq!((r.holes_kept, r.removed_triangles), (1, 0), "{r:?}");
+                continue;
+            }
+            assert_eq!(r.holes_kept, 0, "{r:?}");
+            assert!(
+                r.removed_area_share > 0.2 && r.removed_area_share < 0.28,
+                "{r:?}"
+            );
+            assert_eq!(r.boundary_loops, 2, "{r:?}");
+            let check = mesh::check(&out.mesh);
+            assert_eq!(
+                (check.non_manifold_edges, check.non_manifold_vertices),
+                (0, 0)
+            );
         }
-        let out = trim(&mesh, &points, &TrimParams::default()).unwrap();
-        let r = out.report;
-        assert_eq!(r.holes_kept, 0, "{r:?}");
-        assert!(
-            r.removed_area_share > 0.03 && r.removed_area_share < 0.08,
-            "{r:?}"
-        );
-        assert_eq!(r.boundary_loops, 2, "{r:?}");
-        let check = mesh::check(&out.mesh);
-        assert_eq!(
-            (check.non_manifold_edges, check.non_manifold_vertices),
-            (0, 0)
-        );
     }
 
     #[test]

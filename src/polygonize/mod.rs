@@ -8,10 +8,10 @@
 //!
 //! Invariants: the mesh is a 2-manifold whose boundary edges lie only on the region's boundary
 //! (where the zero set leaves the region, the mesh is cut and [`crate::mesh::check`] reports the
-//! boundary edges); step 5 removes the crossings the projection makes, so that no triangle
-//! crosses another away from their shared vertices and edges on the shapes tested (the bunny,
-//! the test shapes); a crossing that survives its last fallback (seen on a torus of minor radius
-//! 0.1 at depths 2–5) is counted by [`crate::mesh::check`]; every vertex satisfies
+//! boundary edges); step 5 removes the crossings the projection and the collapses make, so that
+//! no triangle crosses another away from their shared vertices and edges (when one survives
+//! every fallback of the simplified mesh, the mesh is made again without collapses); a crossing
+//! that survives there too is counted by [`crate::mesh::check`]; every vertex satisfies
 //! |f|/|∇f| ≤ 10⁻⁷ × the region's diagonal unless ∇f vanishes there or step 5 had to fall back
 //! to its linear position (reported in [`Polygonized::max_projection_residual`]); the output is
 //! byte-identical for any number of threads.
@@ -60,7 +60,11 @@
 //!    of f on their own lattice edge, and the pairs around the moved vertices are tested again;
 //!    a crossing that remains (a collapse judged on the linearly interpolated positions) sends
 //!    its vertices to that linear position. Few vertices move (about 160 of 250 000 on the
-//!    bunny at depth 8), all still on their edges.
+//!    bunny at depth 8), all still on their edges. Should a crossing survive even that (an edge
+//!    collapse made it on the very positions it was judged on: the teapot of ../shared/data,
+//!    where spout and handle meet the body), the mesh is made again without collapses, whose
+//!    vertices on their lattice edges cannot cross, at about twice the triangles
+//!    ([`Polygonized::simplified`] is then false).
 //!
 //! Determinism: the octree visits children in a fixed order and concatenates their results;
 //! leaves and edges are processed in fixed-size chunks collected in order; the simplification
@@ -107,7 +111,7 @@ use grid::Grid;
 
 /// Version of this stage's algorithm; if you change anything that changes its output for the same
 /// input and params, bump it.
-pub const STAGE_VERSION: u32 = 4;
+pub const STAGE_VERSION: u32 = 5;
 
 /// Largest `depth + guard_levels` supported.
 pub const MAX_LEVEL: u32 = Grid::MAX_CAP;
@@ -200,6 +204,10 @@ pub struct Polygonized {
     /// Deepest level among the surface leaves (`depth` when the guard split nothing; 0 when there
     /// is no surface leaf).
     pub max_level: u32,
+    /// Whether the mesh is the simplified one: `false` when [`Simplification::None`] was asked
+    /// for, or when a crossing survived the repair of the simplified mesh and the mesh without
+    /// collapses was made instead (see the module docs, step 5).
+    pub simplified: bool,
     /// Largest |f|/|∇f| over the vertices, divided by the region's diagonal (0 for an empty
     /// mesh; infinite if a vertex sits where ∇f = 0 and f ≠ 0).
     pub max_projection_residual: f64,
@@ -243,21 +251,88 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
         extract::triangulate(function, &grid, &tree);
     let diagonal = region.diagonal();
     let tolerance = PROJECTION_TOLERANCE * diagonal;
+    let fallback_triangles = match params.simplification {
+        Simplification::EdgeCollapse => Some(triangles.clone()),
+        Simplification::None => None,
+    };
+    let mut simplified = params.simplification == Simplification::EdgeCollapse;
+    let mut done = place_and_repair(
+        function,
+        &grid,
+        &edges,
+        &end_values,
+        triangles,
+        params.simplification,
+        tolerance,
+    );
+    let mut spent_before = 0;
+    if let (true, Some(triangles)) = (done.crossings_left, fallback_triangles) {
+        // A crossing survived every fallback position: an edge collapse made it on the very
+        // positions it was judged on. The marching-tetrahedra mesh without collapses, its
+        // vertices on their lattice edges, is embedded by construction (each triangle lies in
+        // its own tetrahedron), so the repair of step 5 always ends without crossings there.
+        spent_before = done.vertices.iter().map(|v| v.evaluations).sum::<u64>();
+        simplified = false;
+        done = place_and_repair(
+            function,
+            &grid,
+            &edges,
+            &end_values,
+            triangles,
+            Simplification::None,
+            tolerance,
+        );
+    }
+    let Repaired { vertices, mesh, .. } = done;
+    let max_residual = vertices.iter().map(|v| v.residual).fold(0.0, f64::max);
+    Ok(Polygonized {
+        mesh,
+        evaluations: tree.evaluations
+            + extraction_evaluations
+            + spent_before
+            + vertices.iter().map(|v| v.evaluations).sum::<u64>(),
+        simplified,
+        cells: tree.leaves.len(),
+        guard_splits: tree.guard_splits,
+        max_level: tree.leaves.iter().map(|c| c.level).max().unwrap_or(0),
+        max_projection_residual: max_residual / diagonal,
+    })
+}
+
+/// Steps 3–5 on the extracted triangles: simplification, vertex placement, and the repair of
+/// crossings.
+struct Repaired {
+    vertices: Vec<extract::PlacedVertex>,
+    mesh: TriangleMesh,
+    /// Whether some triangle still crosses another with all its vertices at their last
+    /// fallback position.
+    crossings_left: bool,
+}
+
+fn place_and_repair<F: ImplicitFunction + ?Sized>(
+    function: &F,
+    grid: &Grid,
+    edges: &[extract::EdgeKey],
+    end_values: &[[f64; 2]],
+    triangles: Vec<[u32; 3]>,
+    simplification: Simplification,
+    tolerance: f64,
+) -> Repaired {
     // The output vertices, their triangles, and each vertex's crossed lattice edge.
     let (mut vertices, triangles, edge_of): (Vec<extract::PlacedVertex>, Vec<[u32; 3]>, Vec<u32>) =
-        match params.simplification {
+        match simplification {
             Simplification::None => (
-                extract::place_vertices(function, &grid, &edges, &end_values, tolerance),
+                extract::place_vertices(function, grid, &edges, &end_values, tolerance),
                 triangles,
                 (0..edges.len() as u32).collect(),
             ),
             Simplification::EdgeCollapse => {
-                let (positions, sizes) = extract::approximate_vertices(&grid, &edges, &end_values);
+                let (positions, sizes) = extract::approximate_vertices(grid, &edges, &end_values);
                 // The surviving vertices are placed inside the simplification, as soon as each is
                 // known to survive (see simplify::simplify).
                 let place = |v: u32| {
                     let v = v as usize;
-                    extract::place_vertex(function, &grid, edges[v], end_values[v], tolerance)
+                    extract::place_vertex(function, grid, edges[v], end_values[v], tolerance)
                 };
                 let simplified = simplify::simplify(&positions, &sizes, triangles, &place);
                 let mut index = vec![u32::MAX; edges.len()];
@@ -295,10 +370,16 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
     // (fallback level per vertex: 0 projected, 1 edge root, 2 linear interpolation)
     let mut level = vec![0u8; vertices.len()];
     let mut changed: Option<Vec<bool>> = None;
+    // Whether some round saw a crossing triangle with every vertex at its last fallback.
+    let mut stuck = false;
     loop {
         // The first round tests every pair, the next ones only the pairs with a triangle whose
         // vertex moved (the others cannot have changed).
         let flags = crate::mesh::intersecting_triangles_among(&mesh, changed.as_deref());
+        stuck |= flags
+            .iter()
+            .zip(&mesh.triangles)
+            .any(|(&f, t)| f && t.iter().all(|&v| level[v as usize] >= 2));
         let mut moved: Vec<u32> = flags
             .iter()
             .zip(&mesh.triangles)
@@ -316,11 +397,11 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
             .map(|&v| {
                 let e = edge_of[v as usize] as usize;
                 let on_edge =
-                    extract::place_on_edge(function, &grid, edges[e], end_values[e], tolerance);
+                    extract::place_on_edge(function, grid, edges[e], end_values[e], tolerance);
                 if level[v as usize] == 0 {
                     on_edge
                 } else {
-                    extract::place_linear(function, &grid, edges[e], end_values[e], on_edge)
+                    extract::place_linear(function, grid, edges[e], end_values[e], on_edge)
                 }
             })
             .collect();
@@ -342,15 +423,12 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
                 .collect(),
         );
     }
-    let max_residual = vertices.iter().map(|v| v.residual).fold(0.0, f64::max);
-    Ok(Polygonized {
+    // A stuck crossing may have been resolved by a neighbour's later move: one full test says.
+    let crossings_left =
+        stuck && crate::mesh::intersecting_triangles_among(&mesh, None).contains(&true);
+    Repaired {
+        vertices,
         mesh,
-        evaluations: tree.evaluations
-            + extraction_evaluations
-            + vertices.iter().map(|v| v.evaluations).sum::<u64>(),
-        cells: tree.leaves.len(),
-        guard_splits: tree.guard_splits,
-        max_level: tree.leaves.iter().map(|c| c.level).max().unwrap_or(0),
-        max_projection_residual: max_residual / diagonal,
-    })
+        crossings_left,
+    }
 }
