@@ -18,17 +18,43 @@ const SHARED: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared");
 /// notice on stderr, except under CI (the `CI` variable set), where it fails: a CI run must not
 /// pass by skipping. `what` names the check for either message.
 pub fn shared(relative: &str, what: &str) -> Option<PathBuf> {
-    let path = Path::new(SHARED).join(relative);
+    shared_in(
+        Path::new(SHARED),
+        relative,
+        what,
+        std::env::var_os("CI").is_some(),
+    )
+}
+
+/// [`shared`] with the folder and whether this is CI given.
+fn shared_in(root: &Path, relative: &str, what: &str, ci: bool) -> Option<PathBuf> {
+    let path = root.join(relative);
     if path.exists() {
         return Some(path);
     }
     assert!(
-        std::env::var_os("CI").is_none(),
+        !ci,
         "{} is absent and CI is set: {what} needs it",
         path.display()
     );
     eprintln!("notice: {} is absent; skipping {what}", path.display());
     None
+}
+
+#[test]
+fn absent_shared_data_skips_but_fails_under_ci() {
+    let root = tempfile::tempdir().unwrap();
+    std::fs::create_dir(root.path().join("data")).unwrap();
+    let found = shared_in(root.path(), "data", "the check", true);
+    assert_eq!(found, Some(root.path().join("data")));
+    assert_eq!(shared_in(root.path(), "cases", "the check", false), None);
+    let under_ci = std::panic::catch_unwind(|| shared_in(root.path(), "cases", "the check", true));
+    let message = under_ci.expect_err("an absent folder under CI is a failure");
+    let message = message.downcast_ref::<String>().unwrap();
+    assert!(
+        message.contains("is absent and CI is set: the check needs it"),
+        "{message}"
+    );
 }
 
 /// The `stablesurf` binary, without the environment that would change where it caches or make
