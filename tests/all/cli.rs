@@ -5,7 +5,7 @@
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use crate::fixtures::{bin, read_report, run_ok, shared, sphere_xyz, stderr_of};
+use crate::fixtures::{bin, flags, read_report, run_ok, shared, sphere_xyz, stderr_of};
 
 /// The `-v` line of a stage: "stablesurf: <stage> <hit|miss|corrupt> ...".
 fn cache_state(stderr: &str, stage: &str) -> String {
@@ -360,18 +360,7 @@ fn json_goes_to_stdout_only() {
     let out = run_ok(
         &input,
         &dir.path().join("out"),
-        &[
-            "--mode",
-            "global",
-            "--degree",
-            "2",
-            "--depth",
-            "4",
-            "--formats",
-            "json",
-            "--no-cache",
-            "--json",
-        ],
+        &flags("--mode global --degree 2 --depth 4 --formats json --no-cache --json"),
     );
     let v: serde_json::Value =
         serde_json::from_slice(&out.stdout).expect("stdout is one JSON document");
@@ -867,28 +856,26 @@ fn help_prints_every_range() {
         assert!(o.status.success());
         String::from_utf8_lossy(&o.stdout).into_owned()
     };
-    let run = help("run");
-    for range in [
+    // `run` takes the fit's flags and the meshing, slicing and thread flags.
+    let fit_ranges = [
         "[range: 2 to 14]",
         "[range: 0 to 1000]",
         "[range: 1e-4 to 0.5]",
         "[range: 2 to 4]",
         "[range: 1e-6 to 0.5]",
+    ];
+    let run_only_ranges = [
         "[range: 1 to 12]",
         "[range: 1 to 1024]",
         "[range: 2 to 4096]",
         "[range: 1 to 256]",
-    ] {
+    ];
+    let run = help("run");
+    for range in fit_ranges.iter().chain(&run_only_ranges) {
         assert!(run.contains(range), "run --help lacks {range}:\n{run}");
     }
     let fit = help("fit");
-    for range in [
-        "[range: 2 to 14]",
-        "[range: 0 to 1000]",
-        "[range: 1e-4 to 0.5]",
-        "[range: 2 to 4]",
-        "[range: 1e-6 to 0.5]",
-    ] {
+    for range in fit_ranges {
         assert!(fit.contains(range), "fit --help lacks {range}:\n{fit}");
     }
     let mesh = help("mesh");
@@ -997,17 +984,7 @@ fn every_warning_in_the_report_is_printed() {
     let done = run_ok(
         &input,
         &out,
-        &[
-            "--mode",
-            "global",
-            "--degree",
-            "4",
-            "--depth",
-            "5",
-            "--formats",
-            "json",
-            "--no-cache",
-        ],
+        &flags("--mode global --degree 4 --depth 5 --formats json --no-cache"),
     );
     let stderr = stderr_of(&done);
     let report = read_report(&out);
@@ -1055,19 +1032,7 @@ fn a_clipped_zero_set_is_not_reported_bounded() {
     let done = run_ok(
         &input,
         &out,
-        &[
-            "--mode",
-            "global",
-            "--degree",
-            "2",
-            "--kappa",
-            "0",
-            "--depth",
-            "5",
-            "--formats",
-            "json",
-            "--no-cache",
-        ],
+        &flags("--mode global --degree 2 --kappa 0 --depth 5 --formats json --no-cache"),
     );
     let stderr = stderr_of(&done);
     assert!(stderr.contains("clipped by the meshing box"), "{stderr}");
@@ -1087,11 +1052,7 @@ fn run_defaults_to_detail_mode_and_says_so() {
     let dir = tempfile::tempdir().unwrap();
     let input = sphere_xyz(dir.path(), 400, "");
     let out = dir.path().join("out");
-    let done = run_ok(
-        &input,
-        &out,
-        &["--formats", "json", "--no-cache", "--depth", "5"],
-    );
+    let done = run_ok(&input, &out, &flags("--formats json --no-cache --depth 5"));
     let stderr = stderr_of(&done);
     assert!(stderr.contains("mode detail by default"), "{stderr}");
     assert!(out.join("model.mpu").is_file() && !out.join("model.json").exists());
@@ -1101,17 +1062,7 @@ fn run_defaults_to_detail_mode_and_says_so() {
     let done = run_ok(
         &input,
         &global,
-        &[
-            "--mode",
-            "global",
-            "--degree",
-            "4",
-            "--depth",
-            "5",
-            "--formats",
-            "json",
-            "--no-cache",
-        ],
+        &flags("--mode global --degree 4 --depth 5 --formats json --no-cache"),
     );
     assert!(!stderr_of(&done).contains("by default"));
     assert!(global.join("model.json").is_file());
@@ -1123,22 +1074,14 @@ fn run_defaults_to_detail_mode_and_says_so() {
 fn keep_defaults_follow_the_mode() {
     let dir = tempfile::tempdir().unwrap();
     let input = sphere_xyz(dir.path(), 300, "");
-    let header = |flags: &[&str]| {
+    let header = |extra: &[&str]| {
         let done = bin()
             .arg("run")
             .arg(&input)
             .arg("-o")
             .arg(dir.path().join("out"))
-            .args([
-                "--formats",
-                "json",
-                "--no-cache",
-                "--depth",
-                "4",
-                "--degree",
-                "4",
-            ])
-            .args(flags)
+            .args(flags("--formats json --no-cache --depth 4 --degree 4"))
+            .args(extra)
             .output()
             .unwrap();
         assert!(done.status.success(), "{}", stderr_of(&done));

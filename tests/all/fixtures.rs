@@ -85,6 +85,11 @@ pub fn run_ok(input: &Path, out: &Path, flags: &[&str]) -> Output {
     done
 }
 
+/// Command-line flags written as one line, split at whitespace.
+pub fn flags(line: &str) -> Vec<&str> {
+    line.split_whitespace().collect()
+}
+
 /// The `report.json` a run wrote into its output folder `out`.
 pub fn read_report(out: &Path) -> serde_json::Value {
     serde_json::from_slice(&fs::read(out.join("report.json")).unwrap()).unwrap()

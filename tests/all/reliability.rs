@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 use assert_cmd::Command;
 
-use crate::fixtures::{bin, read_report, run_ok, sphere_xyz, stderr_of};
+use crate::fixtures::{bin, flags, read_report, run_ok, sphere_xyz, stderr_of};
 
 /// Every file under `dir` as (relative path, BLAKE3 of its bytes), sorted.
 fn files_under(dir: &Path) -> Vec<(String, String)> {
@@ -500,17 +500,7 @@ fn one_far_outlier_is_left_out_with_a_warning() {
     let done = run_ok(
         &input,
         &out,
-        &[
-            "--mode",
-            "global",
-            "--degree",
-            "4",
-            "--depth",
-            "5",
-            "--formats",
-            "ply,json",
-            "--no-cache",
-        ],
+        &flags("--mode global --degree 4 --depth 5 --formats ply,json --no-cache"),
     );
     let err = stderr_of(&done);
     assert!(
