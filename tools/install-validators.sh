@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Installs the external validators that tests/export.rs runs on stablesurf's output files:
+# Installs the external validators that tests/all/export.rs runs on stablesurf's output files:
 #   - the Khronos glTF-Validator (npm package gltf-validator) into tools/validate/node_modules,
 #   - plyfile, pymeshlab (MeshLab) and the OpenEXR Python bindings into tools/validate/.venv,
 #   - the Debian libraries pymeshlab loads (OpenGL, X11, fontconfig, GLib).

@@ -6,7 +6,7 @@
 //! (ZIP by default, PIZ on request). Row 0 of the image is the top (largest in-plane v).
 //!
 //! Header attributes (besides the required ones), all checked by the OpenEXR Python bindings in
-//! `tests/export.rs`:
+//! `tests/all/export.rs`:
 //!
 //! | name                    | type   | value                                                  |
 //! |-------------------------|--------|--------------------------------------------------------|

@@ -6,7 +6,7 @@
 //! `asset.generator = "stablesurf"`. The JSON is built with `gltf-json` and the binary container
 //! framed with `gltf::binary::Glb`.
 //!
-//! Invariants of what is written, all checked by the Khronos glTF-Validator in `tests/export.rs`:
+//! Invariants of what is written, all checked by the Khronos glTF-Validator in `tests/all/export.rs`:
 //! positions and normals are `f32` `VEC3`, little-endian, tightly packed; the POSITION accessor
 //! carries the exact per-component `min`/`max` of the `f32` values written (the validator compares
 //! them bit for bit); normals are renormalised in `f32`; indices are `u16` when every index fits

@@ -30,7 +30,7 @@
 //! element, and byte-for-byte deterministic. ASCII floats use Rust's shortest round-trip
 //! formatting, so reading the text back gives the same `f32` values as the binary file.
 //! The files are checked by independent readers (Python `plyfile` and MeshLab's own loader via
-//! `pymeshlab`) in `tests/export.rs`.
+//! `pymeshlab`) in `tests/all/export.rs`.
 
 use std::io::Write;
 

@@ -24,7 +24,7 @@
 //! [`FitSolver::Qr`]. On the torus reference case (10,000 points, ε = 0.05) both agree with
 //! the independent reference: moments + scaled Cholesky to 2e-13 … 4e-11 relative over degrees
 //! 4, 6, 8 and κ = 1e-5 … 1e-3, QR to 4e-12 (degree 6) and 4e-11 (degree 8), the two routes to
-//! 5e-13 and 2e-11 of each other (tests/fit.rs). The moment route costs about C(2n+3, 3)
+//! 5e-13 and 2e-11 of each other (tests/all/fit.rs). The moment route costs about C(2n+3, 3)
 //! multiply-adds per row against c² for QR, and its memory does not grow with N, so it is the
 //! default.
 //!

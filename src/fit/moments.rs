@@ -18,7 +18,7 @@
 //!
 //! μ and s are the same sums [`super::fit`] computes over the whole cloud, added in another
 //! order, so the merged system equals the whole fit's to rounding (measured: 8 chunks of a
-//! torus, coefficients within 1e-12 relative; tests/fit.rs).
+//! torus, coefficients within 1e-12 relative; tests/all/fit.rs).
 //!
 //! What the moments cannot carry: the stable κ rule checks the zero set against the points, the
 //! `ls` method signs its eigenvector with the normals, and the QR solver streams the rows, so

@@ -1,6 +1,6 @@
 //! The synthetic κ study: six shapes, sampled with exact normals, and an independent judge of
 //! whether a fitted zero set is a "good fit". Used by `tools/kappa_study.rs` (the full table) and
-//! by the reduced study in `tests/fit.rs`.
+//! by the reduced study in `tests/all/fit.rs`.
 //!
 //! Shapes (before normalization): sphere (radius 1), torus (R = 1, r = 0.4), an eight (the
 //! peanut x⁴ − 1.5x² + y² + z² − 0.1 = 0), the heart (x² + 9/4 y² + z² − 1)³ − x²z³ − 9/80 y²z³ = 0,

@@ -18,21 +18,7 @@ use stablesurf::import::{
     ScanFormat,
 };
 
-const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data");
-
-/// The shared data folder, or `None` (with a notice) when it is absent.
-fn data_dir() -> Option<&'static Path> {
-    let dir = Path::new(DATA);
-    if dir.is_dir() {
-        Some(dir)
-    } else {
-        eprintln!("notice: {DATA} is absent; skipping the shared-data import checks");
-        None
-    }
-}
-
-// ---------------------------------------------------------------------------------------------
-// Shared data
+use crate::fixtures::{binary_stl, shared};
 
 /// One row of ../shared/data/SOURCES.md: file, format, points, triangles after fan
 /// triangulation, normals, duplicate positions (where SOURCES.md states them), bbox size.
@@ -156,7 +142,9 @@ const EXPECTED: &[Expected] = &[
 
 #[test]
 fn shared_data_imports_with_the_listed_counts() {
-    let Some(dir) = data_dir() else { return };
+    let Some(dir) = shared("data", "the shared-data import checks") else {
+        return;
+    };
     for e in EXPECTED {
         let path = dir.join(e.file);
         let scan = read_scan(&path).unwrap_or_else(|err| panic!("{err}"));
@@ -184,7 +172,9 @@ fn shared_data_imports_with_the_listed_counts() {
 
 #[test]
 fn bunny_has_1113_vertices_no_face_uses() {
-    let Some(dir) = data_dir() else { return };
+    let Some(dir) = shared("data", "the shared-data import checks") else {
+        return;
+    };
     let cloud = read_scan(&dir.join("bunny_zipper.ply")).unwrap().cloud;
     let mut used = vec![false; cloud.points.len()];
     for &i in cloud.triangles.iter().flatten() {
@@ -195,7 +185,9 @@ fn bunny_has_1113_vertices_no_face_uses() {
 
 #[test]
 fn quadknot_normals_are_unit_and_per_vertex() {
-    let Some(dir) = data_dir() else { return };
+    let Some(dir) = shared("data", "the shared-data import checks") else {
+        return;
+    };
     let scan = read_scan(&dir.join("quadknot.obj")).unwrap();
     let normals = scan.cloud.normals.unwrap();
     assert_eq!(normals.len(), 1_440);
@@ -207,7 +199,9 @@ fn quadknot_normals_are_unit_and_per_vertex() {
 
 #[test]
 fn raw_scan_matches_the_zippered_frame() {
-    let Some(dir) = data_dir() else { return };
+    let Some(dir) = shared("data", "the shared-data import checks") else {
+        return;
+    };
     let raw = scan_info(&read_scan(&dir.join("bun000.ply")).unwrap());
     let zip = scan_info(&read_scan(&dir.join("bunny_zipper.ply")).unwrap());
     // Same frame (identity transform in bun.conf): the boxes overlap to within a centimetre.
@@ -245,23 +239,13 @@ const SQUARE: [[f64; 3]; 4] = [
     [0.0, 1.0, 0.0],
 ];
 
-fn binary_stl(triangles: &[[[f32; 3]; 3]]) -> Vec<u8> {
-    let mut b = b"solid (a binary header that starts like ascii)".to_vec();
-    b.resize(80, b' ');
-    b.extend_from_slice(&(triangles.len() as u32).to_le_bytes());
-    for t in triangles {
-        b.extend_from_slice(&[0; 12]);
-        for c in t.iter().flatten() {
-            b.extend_from_slice(&c.to_le_bytes());
-        }
-        b.extend_from_slice(&[0; 2]);
-    }
-    b
-}
+/// The header of the binary STL files here: it starts with `solid` like an ASCII STL, as some
+/// exporters' headers do, so the reader must look further to tell the encodings apart.
+const STL_HEADER: &str = "solid (a binary header that starts like ascii)";
 
 fn square_stl() -> Vec<u8> {
     let s = SQUARE.map(|p| p.map(|c| c as f32));
-    binary_stl(&[[s[0], s[1], s[2]], [s[0], s[2], s[3]]])
+    binary_stl(STL_HEADER, &[[s[0], s[1], s[2]], [s[0], s[2], s[3]]])
 }
 
 /// A PLY written by ply-rs-bw with unusual types: char x, ushort y, double z, float normals, a
@@ -449,7 +433,7 @@ fn stl_round_trip_welds_to_the_original_vertices() {
         ascii.push_str("endloop\nendfacet\n");
     }
     ascii.push_str("endsolid t\n");
-    for bytes in [binary_stl(&tris), ascii.into_bytes()] {
+    for bytes in [binary_stl(STL_HEADER, &tris), ascii.into_bytes()] {
         let cloud = import_bytes(&bytes, Path::new("t.stl")).unwrap();
         assert_eq!(cloud.points.len(), 4);
         assert_eq!(cloud.triangles.len(), 4);
@@ -653,7 +637,10 @@ fn non_finite_coordinates_name_the_point() {
         b
     };
     let obj = OBJ.replace("v 1 1 0", "v 1 1 -inf");
-    let stl = binary_stl(&[[[0.0, 0.0, 0.0], [f32::NAN, 1.0, 0.0], [0.0, 1.0, 0.0]]]);
+    let stl = binary_stl(
+        STL_HEADER,
+        &[[[0.0, 0.0, 0.0], [f32::NAN, 1.0, 0.0], [0.0, 1.0, 0.0]]],
+    );
     let xyz = "0 0 0\n1 1 1\n2 2 2\nNaN 0 0\n";
     for (bytes, name, point) in [
         (ply.as_bytes(), "nan.ply", 2),
@@ -863,7 +850,9 @@ fn reject_binary_ply_body_shorter_or_longer_than_its_counts() {
 
 #[test]
 fn reject_binary_ply_from_real_data_with_a_wrong_vertex_count() {
-    let Some(dir) = data_dir() else { return };
+    let Some(dir) = shared("data", "the shared-data import checks") else {
+        return;
+    };
     let duck = std::fs::read(dir.join("duck.ply")).unwrap();
     for (to, fixed) in [
         (&b"element vertex 2109"[..], "2108"),

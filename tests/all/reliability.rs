@@ -11,42 +11,7 @@ use std::path::{Path, PathBuf};
 
 use assert_cmd::Command;
 
-fn bin() -> Command {
-    let mut cmd = Command::cargo_bin("stablesurf").expect("binary built");
-    cmd.env_remove("XDG_CACHE_HOME")
-        .env_remove("STABLESURF_FAULT");
-    cmd
-}
-
-fn stderr_of(out: &std::process::Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
-
-/// `n` points of a sphere (centre (1, 2, 3), radius 2) with exact outward normals, as XYZ text,
-/// plus `extra` lines.
-fn sphere_xyz(dir: &Path, n: usize, extra: &str) -> PathBuf {
-    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-    let mut text = String::new();
-    for i in 0..n {
-        let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
-        let r = (1.0 - z * z).sqrt();
-        let t = golden * i as f64;
-        let m = [r * t.cos(), r * t.sin(), z];
-        text += &format!(
-            "{} {} {} {} {} {}\n",
-            1.0 + 2.0 * m[0],
-            2.0 + 2.0 * m[1],
-            3.0 + 2.0 * m[2],
-            m[0],
-            m[1],
-            m[2]
-        );
-    }
-    text += extra;
-    let path = dir.join("sphere.xyz");
-    fs::write(&path, text).unwrap();
-    path
-}
+use crate::fixtures::{bin, flags, read_report, run_ok, sphere_xyz, stderr_of};
 
 /// Every file under `dir` as (relative path, BLAKE3 of its bytes), sorted.
 fn files_under(dir: &Path) -> Vec<(String, String)> {
@@ -252,10 +217,8 @@ fn a_cache_entry_moved_onto_another_key_is_refused() {
         fs::read(dir.path().join("again/mesh.ply")).unwrap(),
         fs::read(dir.path().join("d4/mesh.ply")).unwrap()
     );
-    let report: serde_json::Value =
-        serde_json::from_slice(&fs::read(dir.path().join("again/report.json")).unwrap()).unwrap();
-    let first: serde_json::Value =
-        serde_json::from_slice(&fs::read(dir.path().join("d4/report.json")).unwrap()).unwrap();
+    let report = read_report(&dir.path().join("again"));
+    let first = read_report(&dir.path().join("d4"));
     assert_eq!(report["mesh"], first["mesh"]);
     assert_eq!(report["fit"], first["fit"]);
 }
@@ -329,10 +292,7 @@ fn an_entry_with_another_identity_or_edited_figures_is_recomputed() {
             // over the files: the summary comes from the same entry.
             assert!(line.contains("hit"), "case {i}: {err}");
         }
-        let report: serde_json::Value = serde_json::from_slice(
-            &fs::read(dir.path().join(format!("t{i}/report.json"))).unwrap(),
-        )
-        .unwrap();
+        let report = read_report(&dir.path().join(format!("t{i}")));
         if i < 2 {
             assert!(report["mesh"]["faces"].as_u64().unwrap() > 0, "{report}");
         }
@@ -354,8 +314,7 @@ fn an_entry_with_another_identity_or_edited_figures_is_recomputed() {
             .any(|l| l.contains(" export ") && l.contains("hit")),
         "{err}"
     );
-    let report: serde_json::Value =
-        serde_json::from_slice(&fs::read(dir.path().join("stray/report.json")).unwrap()).unwrap();
+    let report = read_report(&dir.path().join("stray"));
     assert!(report["mesh"]["faces"].as_u64().unwrap() > 0, "{report}");
 }
 
@@ -538,23 +497,17 @@ fn one_far_outlier_is_left_out_with_a_warning() {
     let dir = tempfile::tempdir().unwrap();
     let input = sphere_xyz(dir.path(), 500, "1e30 1e30 1e30 0 0 1\n");
     let out = dir.path().join("out");
-    let done = bin()
-        .arg("run")
-        .arg(&input)
-        .arg("-o")
-        .arg(&out)
-        .args(["--mode", "global", "--degree", "4", "--depth", "5"])
-        .args(["--formats", "ply,json", "--no-cache"])
-        .output()
-        .unwrap();
-    assert!(done.status.success(), "{}", stderr_of(&done));
+    let done = run_ok(
+        &input,
+        &out,
+        &flags("--mode global --degree 4 --depth 5 --formats ply,json --no-cache"),
+    );
     let err = stderr_of(&done);
     assert!(
         err.contains("warning: left out 1 of 501 points") && err.contains("--keep-outliers"),
         "{err}"
     );
-    let report: serde_json::Value =
-        serde_json::from_slice(&fs::read(out.join("report.json")).unwrap()).unwrap();
+    let report = read_report(&out);
     assert_eq!(report["mesh"]["components"], 1, "{report}");
     assert_eq!(report["mesh"]["watertight"], true, "{report}");
     assert!(

@@ -2,8 +2,6 @@
 //! implementation, Euclidean invariance (and its failure with D = identity), a reduced κ study,
 //! and clear errors for bad input.
 
-use std::path::PathBuf;
-
 use stablesurf::fit::moments::{
     merge_frame, merge_system, moments, MergedFrame, MomentsError, MomentsPass, PartialMoments,
 };
@@ -14,12 +12,7 @@ use stablesurf::fit::{
 };
 use stablesurf::{ImplicitPolynomial, OrientedCloud};
 
-fn case_dir() -> PathBuf {
-    PathBuf::from(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../shared/cases/torus-d6"
-    ))
-}
+use crate::fixtures::{quaternion_rotation, shared};
 
 struct Reference {
     cloud: OrientedCloud,
@@ -27,14 +20,9 @@ struct Reference {
 }
 
 fn load_reference() -> Option<Reference> {
-    let dir = case_dir();
-    let (Ok(text), Ok(json)) = (
-        std::fs::read_to_string(dir.join("points_normals.xyz")),
-        std::fs::read_to_string(dir.join("reference.json")),
-    ) else {
-        eprintln!("skipping: reference case not found at {}", dir.display());
-        return None;
-    };
+    let dir = shared("cases/torus-d6", "the torus reference case")?;
+    let text = std::fs::read_to_string(dir.join("points_normals.xyz")).unwrap();
+    let json = std::fs::read_to_string(dir.join("reference.json")).unwrap();
     let mut cloud = OrientedCloud::default();
     for line in text
         .lines()
@@ -233,25 +221,7 @@ fn torus_reference_qr_route_agrees() {
 fn rigid_motion(seed: u64) -> ([[f64; 3]; 3], [f64; 3]) {
     let mut rng = stablesurf::fit::study::Lcg::new(seed);
     let q: Vec<f64> = (0..4).map(|_| rng.normal()).collect();
-    let len = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-    let (w, x, y, z) = (q[0] / len, q[1] / len, q[2] / len, q[3] / len);
-    let r = [
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
-        ],
-        [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
-        ],
-        [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
-    ];
+    let r = quaternion_rotation(q[0], q[1], q[2], q[3]);
     let t = [0, 1, 2].map(|_| 5.0 * (2.0 * rng.uniform() - 1.0));
     (r, t)
 }

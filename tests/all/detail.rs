@@ -17,6 +17,8 @@ use stablesurf::pipeline::{Mode, PipelineConfig};
 use stablesurf::polygonize::{polygonize, ImplicitFunction, PolygonizeParams};
 use stablesurf::{OrientedCloud, TriangleMesh};
 
+use crate::fixtures::shared;
+
 fn mesh(model: &MpuModel, depth: u32) -> TriangleMesh {
     let params = PolygonizeParams {
         depth,
@@ -227,12 +229,10 @@ fn bad_input_is_an_error() {
 
 #[test]
 fn duck_meets_the_chamfer_bar() {
-    let dir = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data"));
-    let path = dir.join("duck.ply");
-    let Ok(bytes) = std::fs::read(&path) else {
-        println!("skipping: {} is absent", path.display());
+    let Some(path) = shared("data/duck.ply", "the duck's Chamfer bar") else {
         return;
     };
+    let bytes = std::fs::read(&path).unwrap();
     let cloud = stablesurf::import::import_bytes(&bytes, &path).unwrap();
     let normals = stablesurf::normals::estimate_normals(&cloud, &Default::default()).unwrap();
     let model = fit_detail(&normals.cloud, &DetailParams::default()).unwrap();

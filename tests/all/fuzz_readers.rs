@@ -10,7 +10,7 @@
 //! through `read_scan_bytes` and `import_bytes` under its own name and another extension, and
 //! through every reader forced with `read_scan_bytes_as`, inside `catch_unwind`. The test fails
 //! when any case panics, or parses into triangles that index past the points, and prints the
-//! seed and case to reproduce (`FUZZ_SEED=… FUZZ_CASE=… cargo test --test fuzz_readers`).
+//! seed and case to reproduce (`FUZZ_SEED=… FUZZ_CASE=… cargo test --test all fuzz_readers`).
 //!
 //! `FUZZ_SEED` (decimal or 0x-hex) and `FUZZ_CASES` override the fixed seed and the case count.
 //! When ../shared/data is absent the test fails if `CI` is set, and otherwise fuzzes the
@@ -18,43 +18,19 @@
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
 use stablesurf::import::{
     import_bytes, read_scan_bytes, read_scan_bytes_as, scan_info, ScanFormat,
 };
 
-const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data");
+use crate::fixtures::{binary_stl, shared, Rng};
+
 /// The fixed seed of a normal run.
 const SEED: u64 = 0x5eed_0f5c_a11e_d001;
 /// Cases of a normal run.
 const CASES: u64 = 20_000;
-
-/// splitmix64 (Steele, Lea and Flood 2014): a tiny, good-enough PRNG with a 64-bit state.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in `0..n` (0 when `n` is 0).
-    fn below(&mut self, n: usize) -> usize {
-        if n == 0 {
-            0
-        } else {
-            (self.next() % n as u64) as usize
-        }
-    }
-
-    fn byte(&mut self) -> u8 {
-        self.next() as u8
-    }
-}
 
 // ---------------------------------------------------------------------------------------------
 // Seeds
@@ -157,20 +133,6 @@ fn strip_triangles(points: &[[f32; 3]]) -> Vec<[[f32; 3]; 3]> {
     points.windows(3).map(|w| [w[0], w[1], w[2]]).collect()
 }
 
-fn binary_stl(triangles: &[[[f32; 3]; 3]]) -> Vec<u8> {
-    let mut b = b"solid binary header".to_vec();
-    b.resize(80, b' ');
-    b.extend_from_slice(&(triangles.len() as u32).to_le_bytes());
-    for t in triangles {
-        b.extend_from_slice(&[0; 12]);
-        for c in t.iter().flatten() {
-            b.extend_from_slice(&c.to_le_bytes());
-        }
-        b.extend_from_slice(&[0; 2]);
-    }
-    b
-}
-
 fn ascii_stl(triangles: &[[[f32; 3]; 3]]) -> Vec<u8> {
     let mut s = String::from("solid fuzz\n");
     for t in triangles {
@@ -225,14 +187,14 @@ fn text_prefix(bytes: &[u8], n: usize) -> Vec<u8> {
     bytes[..end].to_vec()
 }
 
-/// Seeds cut from the shared data, or `None` when the folder is absent.
+/// Seeds cut from the shared data, or `None` (after a notice; a failure under CI) when the
+/// folder is absent.
 fn data_seeds() -> Option<Vec<Seed>> {
-    let dir = Path::new(DATA);
-    if !dir.is_dir() {
-        return None;
-    }
-    let read =
-        |name: &str| std::fs::read(dir.join(name)).unwrap_or_else(|e| panic!("{DATA}/{name}: {e}"));
+    let dir = shared("data", "the fuzz seeds cut from real scans")?;
+    let read = |name: &str| {
+        let path = dir.join(name);
+        std::fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+    };
     let mut seeds = Vec::new();
     for name in ["bunny_zipper.ply", "bun000.ply", "bunny-scans/top2.ply"] {
         let bytes = read(name);
@@ -256,7 +218,10 @@ fn data_seeds() -> Option<Vec<Seed>> {
         ));
         let tag = name.trim_end_matches(".ply");
         let triangles = strip_triangles(&points[..points.len().min(16)]);
-        seeds.push((format!("{tag}.stl"), binary_stl(&triangles)));
+        seeds.push((
+            format!("{tag}.stl"),
+            binary_stl("solid binary header", &triangles),
+        ));
         seeds.push((format!("{tag}-ascii.stl"), ascii_stl(&triangles)));
         seeds.extend(point_lists(&points[..points.len().min(30)], tag));
     }
@@ -319,7 +284,10 @@ fn generated_seeds() -> Vec<Seed> {
                 .to_vec(),
         ),
         ("f.stl".to_owned(), ascii_stl(&strip_triangles(&square))),
-        ("g.stl".to_owned(), binary_stl(&strip_triangles(&square))),
+        (
+            "g.stl".to_owned(),
+            binary_stl("solid binary header", &strip_triangles(&square)),
+        ),
     ];
     // A big-endian PLY whose vertices hold a list (the walking path) and odd types.
     let mut odd = b"ply\nformat binary_big_endian 1.0\nelement vertex 3\n\
@@ -528,13 +496,7 @@ fn mutated_files_never_panic_any_reader() {
     let mut seeds = generated_seeds();
     match data_seeds() {
         Some(data) => seeds.extend(data),
-        None if std::env::var_os("CI").is_some() => {
-            panic!("{DATA} is absent and CI is set: the fuzz needs the shared scans")
-        }
-        None => eprintln!(
-            "notice: {DATA} is absent; fuzzing the {} hand-made seeds only",
-            seeds.len()
-        ),
+        None => eprintln!("notice: fuzzing the {} hand-made seeds only", seeds.len()),
     }
     // Every seed reads as its format before it is mutated (a seed that is already broken would
     // fuzz only the first error path), except the raw prefixes, which are truncated on purpose.
@@ -550,18 +512,28 @@ fn mutated_files_never_panic_any_reader() {
     let cases = env_u64("FUZZ_CASES").unwrap_or(CASES);
     let extensions = ["ply", "obj", "stl", "xyz", "pts", "txt", "csv", "bin"];
     // The panic messages are collected below; the default hook would print each one too. The
-    // guard puts the hook back however this test ends.
+    // hook is process-wide and the other test modules run beside this one in the same process,
+    // so only panics on this thread and on unnamed threads (the readers' worker threads) are
+    // kept quiet: a panic on another test's thread still reaches the previous hook. The guard
+    // puts the previous hook back however this test ends.
     type Hook = Box<dyn Fn(&std::panic::PanicHookInfo<'_>) + Sync + Send>;
-    struct RestoreHook(Option<Hook>);
+    struct RestoreHook(Option<Arc<Hook>>);
     impl Drop for RestoreHook {
         fn drop(&mut self) {
             if let Some(hook) = self.0.take() {
-                std::panic::set_hook(hook);
+                std::panic::set_hook(Box::new(move |info| hook(info)));
             }
         }
     }
-    let mut restore = RestoreHook(Some(std::panic::take_hook()));
-    std::panic::set_hook(Box::new(|_| {}));
+    let previous: Arc<Hook> = Arc::new(std::panic::take_hook());
+    let mut restore = RestoreHook(Some(Arc::clone(&previous)));
+    let fuzz_thread = std::thread::current().id();
+    std::panic::set_hook(Box::new(move |info| {
+        let current = std::thread::current();
+        if current.id() != fuzz_thread && current.name().is_some() {
+            previous(info);
+        }
+    }));
     let start = Instant::now();
     let mut failures: Vec<Failure> = Vec::new();
     let mut run = 0u64;

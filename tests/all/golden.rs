@@ -1,7 +1,7 @@
 //! Golden cases: each folder of `golden/` holds a small input (or names the built-in sample),
 //! `params.json`, and `expected.txt` with the report's key figures at fixed precision. One
 //! `check(case)` runs the pipeline and compares: counts and flags exactly, floats to a stated
-//! relative tolerance. `UPDATE_GOLDEN=1 cargo test --test golden` rewrites the expected files.
+//! relative tolerance. `UPDATE_GOLDEN=1 cargo test --test all golden` rewrites the expected files.
 
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -128,7 +128,7 @@ fn check(case: &Path) -> Vec<String> {
     }
     let expected = fs::read_to_string(&expected_path).unwrap_or_else(|_| {
         panic!(
-            "{} missing: run UPDATE_GOLDEN=1 cargo test --test golden",
+            "{} missing: run UPDATE_GOLDEN=1 cargo test --test all golden",
             expected_path.display()
         )
     });

@@ -5,41 +5,7 @@
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use assert_cmd::Command;
-
-fn bin() -> Command {
-    let mut cmd = Command::cargo_bin("stablesurf").expect("binary built");
-    cmd.env_remove("XDG_CACHE_HOME");
-    cmd
-}
-
-/// Writes `n` points of a sphere (centre (1, 2, 3), radius 2) with exact outward normals.
-fn sphere_xyz(dir: &Path, n: usize) -> PathBuf {
-    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-    let mut text = String::from("# sphere, radius 2, centre (1, 2, 3)\n");
-    for i in 0..n {
-        let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
-        let r = (1.0 - z * z).sqrt();
-        let t = golden * i as f64;
-        let nrm = [r * t.cos(), r * t.sin(), z];
-        text += &format!(
-            "{} {} {} {} {} {}\n",
-            1.0 + 2.0 * nrm[0],
-            2.0 + 2.0 * nrm[1],
-            3.0 + 2.0 * nrm[2],
-            nrm[0],
-            nrm[1],
-            nrm[2]
-        );
-    }
-    let path = dir.join("sphere.xyz");
-    fs::write(&path, text).unwrap();
-    path
-}
-
-fn stderr_of(out: &std::process::Output) -> String {
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
+use crate::fixtures::{bin, flags, read_report, run_ok, shared, sphere_xyz, stderr_of};
 
 /// The `-v` line of a stage: "stablesurf: <stage> <hit|miss|corrupt> ...".
 fn cache_state(stderr: &str, stage: &str) -> String {
@@ -56,7 +22,7 @@ fn cache_state(stderr: &str, stage: &str) -> String {
 #[test]
 fn info_json_has_the_documented_keys() {
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 100);
+    let input = sphere_xyz(dir.path(), 100, "");
     let out = bin().args(["info", "--json"]).arg(&input).output().unwrap();
     assert!(out.status.success(), "{}", stderr_of(&out));
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
@@ -125,19 +91,10 @@ fn usage_errors_are_exit_2() {
 /// `stablesurf run INPUT -o OUT --degree 4 --cache-dir CACHE` with the given flags; asserts
 /// that it succeeded.
 fn run_degree_4(input: &Path, out: &Path, cache: &Path, flags: &[&str]) -> std::process::Output {
-    let o = bin()
-        .arg("run")
-        .arg(input)
-        .arg("-o")
-        .arg(out)
-        .args(["--mode", "global", "--degree", "4"])
-        .args(flags)
-        .arg("--cache-dir")
-        .arg(cache)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", stderr_of(&o));
-    o
+    let mut all = vec!["--mode", "global", "--degree", "4"];
+    all.extend_from_slice(flags);
+    all.extend(["--cache-dir", cache.to_str().unwrap()]);
+    run_ok(input, out, &all)
 }
 
 #[test]
@@ -146,7 +103,7 @@ fn polynomial_slices_do_not_depend_on_the_mesh() {
     // two depths (two meshes, the fit reused) give byte-identical slice files, and a third run
     // with the distance to the mesh gives different ones (so the comparison can fail).
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 400);
+    let input = sphere_xyz(dir.path(), 400, "");
     let cache = dir.path().join("cache");
     let run = |depth: &str, method: &str, out: &str| {
         run_degree_4(
@@ -183,7 +140,7 @@ fn polynomial_slices_do_not_depend_on_the_mesh() {
 #[test]
 fn rerun_hits_cache_and_depth_change_reuses_the_fit() {
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 400);
+    let input = sphere_xyz(dir.path(), 400, "");
     let cache = dir.path().join("cache");
     let run = |depth: &str, out: &str| {
         let o = run_degree_4(
@@ -244,7 +201,7 @@ fn corrupt_export_entry_is_rebuilt_into_the_same_files() {
     // beside the meshing; the export stage then makes them all itself, and every file comes
     // out as from the cold run.
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 400);
+    let input = sphere_xyz(dir.path(), 400, "");
     let cache = dir.path().join("cache");
     let run = |out: &str| {
         let o = run_degree_4(
@@ -295,7 +252,7 @@ fn corrupt_export_entry_is_rebuilt_into_the_same_files() {
 #[test]
 fn no_cache_writes_no_cache() {
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 300);
+    let input = sphere_xyz(dir.path(), 300, "");
     let out = bin()
         .arg("run")
         .arg(&input)
@@ -323,8 +280,7 @@ fn no_cache_writes_no_cache() {
         stderr_of(&out)
     );
     assert!(!dir.path().join("xdg").exists());
-    let report: serde_json::Value =
-        serde_json::from_slice(&fs::read(dir.path().join("out/report.json")).unwrap()).unwrap();
+    let report = read_report(&dir.path().join("out"));
     assert_eq!(report["mesh"]["watertight"], true);
 }
 
@@ -333,7 +289,7 @@ fn unwritable_cache_is_one_warning_and_complete_outputs() {
     // The cache is stored beside the run's work; a cache that cannot be written costs only the
     // next run's time, so the run succeeds, says so once, and writes every output.
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 300);
+    let input = sphere_xyz(dir.path(), 300, "");
     let blocker = dir.path().join("not-a-dir");
     fs::write(&blocker, b"").unwrap();
     let out = bin()
@@ -372,7 +328,7 @@ fn unwritable_cache_is_one_warning_and_complete_outputs() {
 #[test]
 fn unwritable_output_is_exit_1_and_leaves_no_file() {
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 300);
+    let input = sphere_xyz(dir.path(), 300, "");
     // A regular file where the output directory should be.
     let blocker = dir.path().join("blocker");
     fs::write(&blocker, "x").unwrap();
@@ -400,27 +356,12 @@ fn unwritable_output_is_exit_1_and_leaves_no_file() {
 #[test]
 fn json_goes_to_stdout_only() {
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 300);
-    let out = bin()
-        .arg("run")
-        .arg(&input)
-        .arg("-o")
-        .arg(dir.path().join("out"))
-        .args([
-            "--mode",
-            "global",
-            "--degree",
-            "2",
-            "--depth",
-            "4",
-            "--formats",
-            "json",
-            "--no-cache",
-            "--json",
-        ])
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", stderr_of(&out));
+    let input = sphere_xyz(dir.path(), 300, "");
+    let out = run_ok(
+        &input,
+        &dir.path().join("out"),
+        &flags("--mode global --degree 2 --depth 4 --formats json --no-cache --json"),
+    );
     let v: serde_json::Value =
         serde_json::from_slice(&out.stdout).expect("stdout is one JSON document");
     assert_eq!(v["stages"][0]["stage"], "import");
@@ -431,7 +372,7 @@ fn json_goes_to_stdout_only() {
 #[test]
 fn killed_runs_leave_no_partial_output_and_no_corrupt_cache() {
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 400);
+    let input = sphere_xyz(dir.path(), 400, "");
     let cache = dir.path().join("cache");
     let args = |out: &Path| {
         let mut a: Vec<std::ffi::OsString> = vec!["run".into(), input.clone().into(), "-o".into()];
@@ -500,7 +441,7 @@ fn killed_runs_leave_no_partial_output_and_no_corrupt_cache() {
 #[test]
 fn concurrent_runs_share_a_cache_safely() {
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 400);
+    let input = sphere_xyz(dir.path(), 400, "");
     let cache = dir.path().join("cache");
     let exe = assert_cmd::cargo::cargo_bin("stablesurf");
     let spawn = |out: &str, verbose: bool| {
@@ -546,7 +487,7 @@ fn detail_mode_runs_end_to_end_and_its_model_file_works_everywhere() {
     // `run --mode detail` on a sphere: one closed component close to the data, a model.mpu
     // that `info`, `mesh` and `slices` accept, and a detail stage that a rerun hits.
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 3000);
+    let input = sphere_xyz(dir.path(), 3000, "");
     let out = dir.path().join("out");
     let cache = dir.path().join("cache");
     let run = |extra: &[&str]| {
@@ -674,7 +615,7 @@ fn thread_count_out_of_range_is_a_usage_error() {
     // `-j 100000` used to try to spawn 100,000 threads and fail with "Resource temporarily
     // unavailable (os error 11)".
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 100);
+    let input = sphere_xyz(dir.path(), 100, "");
     let input = input.to_str().unwrap();
     for j in ["100000", "257", "0", "-1"] {
         assert_usage_error(&["-j", j, "info", input], &["-j", "1 to 256"]);
@@ -742,7 +683,7 @@ fn degree_range_in_help_is_the_one_checked() {
 fn huge_kappa_and_epsilon_name_their_flag() {
     // They used to reach the fit and fail there, blaming outliers or a singular system.
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 400);
+    let input = sphere_xyz(dir.path(), 400, "");
     let input = input.to_str().unwrap();
     assert_usage_error(
         &["fit", input, "-o", "m.json", "--kappa", "1e308"],
@@ -915,28 +856,26 @@ fn help_prints_every_range() {
         assert!(o.status.success());
         String::from_utf8_lossy(&o.stdout).into_owned()
     };
-    let run = help("run");
-    for range in [
+    // `run` takes the fit's flags and the meshing, slicing and thread flags.
+    let fit_ranges = [
         "[range: 2 to 14]",
         "[range: 0 to 1000]",
         "[range: 1e-4 to 0.5]",
         "[range: 2 to 4]",
         "[range: 1e-6 to 0.5]",
+    ];
+    let run_only_ranges = [
         "[range: 1 to 12]",
         "[range: 1 to 1024]",
         "[range: 2 to 4096]",
         "[range: 1 to 256]",
-    ] {
+    ];
+    let run = help("run");
+    for range in fit_ranges.iter().chain(&run_only_ranges) {
         assert!(run.contains(range), "run --help lacks {range}:\n{run}");
     }
     let fit = help("fit");
-    for range in [
-        "[range: 2 to 14]",
-        "[range: 0 to 1000]",
-        "[range: 1e-4 to 0.5]",
-        "[range: 2 to 4]",
-        "[range: 1e-6 to 0.5]",
-    ] {
+    for range in fit_ranges {
         assert!(fit.contains(range), "fit --help lacks {range}:\n{fit}");
     }
     let mesh = help("mesh");
@@ -1040,21 +979,15 @@ fn auto_normals_on_degenerate_faces_use_the_crust() {
 #[test]
 fn every_warning_in_the_report_is_printed() {
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 300);
+    let input = sphere_xyz(dir.path(), 300, "");
     let out = dir.path().join("out");
-    let done = bin()
-        .arg("run")
-        .arg(&input)
-        .arg("-o")
-        .arg(&out)
-        .args(["--mode", "global", "--degree", "4", "--depth", "5"])
-        .args(["--formats", "json", "--no-cache"])
-        .output()
-        .unwrap();
-    assert!(done.status.success(), "{}", stderr_of(&done));
+    let done = run_ok(
+        &input,
+        &out,
+        &flags("--mode global --degree 4 --depth 5 --formats json --no-cache"),
+    );
     let stderr = stderr_of(&done);
-    let report: serde_json::Value =
-        serde_json::from_slice(&fs::read(out.join("report.json")).unwrap()).unwrap();
+    let report = read_report(&out);
     let listed: Vec<&str> = report["warnings"]
         .as_array()
         .unwrap()
@@ -1096,22 +1029,14 @@ fn a_clipped_zero_set_is_not_reported_bounded() {
     let input = dir.path().join("patch.xyz");
     fs::write(&input, text).unwrap();
     let out = dir.path().join("out");
-    let done = bin()
-        .arg("run")
-        .arg(&input)
-        .arg("-o")
-        .arg(&out)
-        .args([
-            "--mode", "global", "--degree", "2", "--kappa", "0", "--depth", "5",
-        ])
-        .args(["--formats", "json", "--no-cache"])
-        .output()
-        .unwrap();
-    assert!(done.status.success(), "{}", stderr_of(&done));
+    let done = run_ok(
+        &input,
+        &out,
+        &flags("--mode global --degree 2 --kappa 0 --depth 5 --formats json --no-cache"),
+    );
     let stderr = stderr_of(&done);
     assert!(stderr.contains("clipped by the meshing box"), "{stderr}");
-    let report: serde_json::Value =
-        serde_json::from_slice(&fs::read(out.join("report.json")).unwrap()).unwrap();
+    let report = read_report(&out);
     assert!(
         report["mesh"]["boundary_edges"].as_u64().unwrap() > 0,
         "{report}"
@@ -1125,34 +1050,20 @@ fn a_clipped_zero_set_is_not_reported_bounded() {
 #[test]
 fn run_defaults_to_detail_mode_and_says_so() {
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 400);
+    let input = sphere_xyz(dir.path(), 400, "");
     let out = dir.path().join("out");
-    let done = bin()
-        .arg("run")
-        .arg(&input)
-        .arg("-o")
-        .arg(&out)
-        .args(["--formats", "json", "--no-cache", "--depth", "5"])
-        .output()
-        .unwrap();
-    assert!(done.status.success(), "{}", stderr_of(&done));
+    let done = run_ok(&input, &out, &flags("--formats json --no-cache --depth 5"));
     let stderr = stderr_of(&done);
     assert!(stderr.contains("mode detail by default"), "{stderr}");
     assert!(out.join("model.mpu").is_file() && !out.join("model.json").exists());
-    let report: serde_json::Value =
-        serde_json::from_slice(&fs::read(out.join("report.json")).unwrap()).unwrap();
+    let report = read_report(&out);
     assert_eq!(report["fit"]["mode"], "detail");
     let global = dir.path().join("global");
-    let done = bin()
-        .arg("run")
-        .arg(&input)
-        .arg("-o")
-        .arg(&global)
-        .args(["--mode", "global", "--degree", "4", "--depth", "5"])
-        .args(["--formats", "json", "--no-cache"])
-        .output()
-        .unwrap();
-    assert!(done.status.success(), "{}", stderr_of(&done));
+    let done = run_ok(
+        &input,
+        &global,
+        &flags("--mode global --degree 4 --depth 5 --formats json --no-cache"),
+    );
     assert!(!stderr_of(&done).contains("by default"));
     assert!(global.join("model.json").is_file());
 }
@@ -1162,23 +1073,15 @@ fn run_defaults_to_detail_mode_and_says_so() {
 #[test]
 fn keep_defaults_follow_the_mode() {
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 300);
-    let header = |flags: &[&str]| {
+    let input = sphere_xyz(dir.path(), 300, "");
+    let header = |extra: &[&str]| {
         let done = bin()
             .arg("run")
             .arg(&input)
             .arg("-o")
             .arg(dir.path().join("out"))
-            .args([
-                "--formats",
-                "json",
-                "--no-cache",
-                "--depth",
-                "4",
-                "--degree",
-                "4",
-            ])
-            .args(flags)
+            .args(flags("--formats json --no-cache --depth 4 --degree 4"))
+            .args(extra)
             .output()
             .unwrap();
         assert!(done.status.success(), "{}", stderr_of(&done));
@@ -1213,15 +1116,10 @@ fn half_cylinder_xyz(dir: &Path, n_around: usize, n_up: usize) -> PathBuf {
 
 /// `run` with `--formats ply,json` and the extra flags; returns report.json and the mesh bytes.
 fn run_report(input: &Path, out: &Path, extra: &[&str]) -> (serde_json::Value, Vec<u8>) {
-    let done = bin()
-        .args(["run", input.to_str().unwrap(), "-o", out.to_str().unwrap()])
-        .args(["--formats", "ply,json", "--no-cache", "-q"])
-        .args(extra)
-        .output()
-        .unwrap();
-    assert!(done.status.success(), "{}", stderr_of(&done));
-    let report = serde_json::from_slice(&fs::read(out.join("report.json")).unwrap()).unwrap();
-    (report, fs::read(out.join("mesh.ply")).unwrap())
+    let mut flags = vec!["--formats", "ply,json", "--no-cache", "-q"];
+    flags.extend_from_slice(extra);
+    run_ok(input, out, &flags);
+    (read_report(out), fs::read(out.join("mesh.ply")).unwrap())
 }
 
 #[test]
@@ -1272,7 +1170,7 @@ fn a_closed_scan_is_not_trimmed() {
     // Every triangle of a sphere's mesh is supported: `--trim auto` gives the bytes of
     // `--trim off`, watertight.
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 3000);
+    let input = sphere_xyz(dir.path(), 3000, "");
     let flags = ["--depth", "5"];
     let (auto, auto_bytes) = run_report(&input, &dir.path().join("auto"), &flags);
     let (_, off_bytes) = run_report(
@@ -1307,21 +1205,11 @@ const BUN000_POISSON_CHAMFER: f64 = 1.026e-3;
 fn a_single_range_scan_becomes_a_clean_open_patch() {
     // One raw Stanford range scan (one side of the bunny): before trimming, 69% of the mesh's
     // area lay more than 1% of the diagonal from the data.
-    let data = Path::new(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../shared/data/bun000.ply"
-    ));
-    if !data.exists() {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "{} is absent and CI is set: this test needs the shared scans",
-            data.display()
-        );
-        eprintln!("skipped: {} is absent", data.display());
+    let Some(data) = shared("data/bun000.ply", "the range-scan patch check") else {
         return;
-    }
+    };
     let dir = tempfile::tempdir().unwrap();
-    let (report, _) = run_report(data, &dir.path().join("out"), &[]);
+    let (report, _) = run_report(&data, &dir.path().join("out"), &[]);
     let mesh = &report["mesh"];
     assert_eq!(mesh["non_manifold_edges"], 0, "{mesh}");
     assert_eq!(mesh["non_manifold_vertices"], 0, "{mesh}");
@@ -1339,7 +1227,7 @@ fn a_single_range_scan_becomes_a_clean_open_patch() {
 #[test]
 fn viewpoint_is_checked_and_turns_every_normal_toward_it() {
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 400);
+    let input = sphere_xyz(dir.path(), 400, "");
     let input = input.to_str().unwrap();
     for bad in ["1,2", "1,2,3,4", "a,0,0", "1e16,0,0", "0,nan,0"] {
         assert_usage_error(
@@ -1376,7 +1264,7 @@ fn viewpoint_is_checked_and_turns_every_normal_toward_it() {
 #[test]
 fn conf_files_and_several_scans_merge_and_bad_lines_name_the_line() {
     let dir = tempfile::tempdir().unwrap();
-    let input = sphere_xyz(dir.path(), 400);
+    let input = sphere_xyz(dir.path(), 400, "");
     let conf = dir.path().join("views.conf");
     // The same sphere twice, both with the identity pose.
     fs::write(
@@ -1444,7 +1332,7 @@ fn moments_part(chunk: &Path, out: &Path, flags: &[&str]) -> PathBuf {
 #[test]
 fn moments_parts_fit_like_the_whole_and_bad_parts_are_refused() {
     let dir = tempfile::tempdir().unwrap();
-    let whole = sphere_xyz(dir.path(), 600);
+    let whole = sphere_xyz(dir.path(), 600, "");
     let text = fs::read_to_string(&whole).unwrap();
     let lines: Vec<&str> = text.lines().skip(1).collect();
     let chunks: Vec<PathBuf> = (0..2)

@@ -9,28 +9,9 @@ use stablesurf::normals::delaunay::{
 use stablesurf::normals::{estimate_normals, NormalSource, NormalsError, NormalsParams};
 use stablesurf::PointCloud;
 
+use crate::fixtures::{quaternion_rotation, shared, Rng};
+
 // ---------------------------------------------------------------- helpers
-
-/// Deterministic generator (splitmix64) for the samples.
-struct Rng(u64);
-
-impl Rng {
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    fn uniform(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn gauss(&mut self) -> f64 {
-        let u1 = self.uniform().max(1e-300);
-        let u2 = self.uniform();
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-    }
-}
 
 fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
@@ -637,10 +618,6 @@ fn normals_do_not_depend_on_thread_count() {
 
 // ---------------------------------------------------------------- real data
 
-fn data_dir() -> std::path::PathBuf {
-    std::path::PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data"))
-}
-
 /// A minimal reader for the test files' PLY layouts (x y z first, then a face list of
 /// `uchar count, int indices`), binary little endian or ASCII.
 fn read_ply(path: &std::path::Path) -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
@@ -739,22 +716,15 @@ fn mesh_vertex_normals(points: &[[f64; 3]], faces: &[[u32; 3]]) -> Vec<[f64; 3]>
 
 #[test]
 fn real_scans_agree_with_their_meshes() {
-    let dir = data_dir();
-    if !dir.exists() {
-        println!("skipping: {} not found", dir.display());
-        return;
-    }
     for (file, min_agree) in [
         ("duck.ply", 0.99),
         ("patella_vhf_left.ply", 0.99),
         ("fertility.ply", 0.99),
         ("bunny_zipper.ply", 0.99),
     ] {
-        let path = dir.join(file);
-        if !path.exists() {
-            println!("skipping {file}: not found");
+        let Some(path) = shared(&format!("data/{file}"), "the mesh sign check") else {
             continue;
-        }
+        };
         let (points, faces) = read_ply(&path);
         let mut reference = mesh_vertex_normals(&points, &faces);
         // The sign of the enclosed volume says whether the file winds its faces outward.
@@ -906,44 +876,10 @@ fn large_faces_get_surface_samples_with_their_normals() {
     assert_eq!((out.surface_samples, out.cloud.points.len()), (0, 8));
 }
 
-/// The shared data folder; `None` when it is absent and `CI` is not set. With `CI` set, an
-/// absent folder is a failure, not a silent pass.
-fn shared_data_or_skip(what: &str) -> Option<std::path::PathBuf> {
-    let dir = data_dir();
-    if dir.join("bunny-scans").is_dir() {
-        return Some(dir);
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "{}/bunny-scans is absent and CI is set: {what} needs the shared scans",
-        dir.display()
-    );
-    eprintln!("notice: {} is absent; skipping {what}", dir.display());
-    None
-}
-
 /// p ↦ R(q)ᵀ·p + t for the unit quaternion q = (qx, qy, qz, qw), and n ↦ R(q)ᵀ·n: the
 /// convention of Stanford's `bun.conf` (see ../shared/data/SOURCES.md).
 fn conf_pose(t: [f64; 3], q: [f64; 4]) -> impl Fn([f64; 3], bool) -> [f64; 3] {
-    let l = q.iter().map(|c| c * c).sum::<f64>().sqrt();
-    let [x, y, z, w] = q.map(|c| c / l);
-    let r = [
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - z * w),
-            2.0 * (x * z + y * w),
-        ],
-        [
-            2.0 * (x * y + z * w),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - x * w),
-        ],
-        [
-            2.0 * (x * z - y * w),
-            2.0 * (y * z + x * w),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
-    ];
+    let r = quaternion_rotation(q[3], q[0], q[1], q[2]);
     move |p: [f64; 3], is_point: bool| {
         let mut out = [0, 1, 2].map(|i| (0..3).map(|k| r[k][i] * p[k]).sum::<f64>());
         if is_point {
@@ -958,10 +894,10 @@ fn conf_pose(t: [f64; 3], q: [f64; 4]) -> impl Fn([f64; 3], bool) -> [f64; 3] {
 /// area-weighted vertex normals of the zippered bunny (the nearest vertex) on ≥ 98% of points.
 #[test]
 fn range_scans_face_out_of_the_zippered_bunny() {
-    let Some(dir) = shared_data_or_skip("the range-scan normal check") else {
+    let Some(scan_dir) = shared("data/bunny-scans", "the range-scan normal check") else {
         return;
     };
-    let (zp, zf) = read_ply(&dir.join("bunny_zipper.ply"));
+    let (zp, zf) = read_ply(&scan_dir.parent().unwrap().join("bunny_zipper.ply"));
     let mut reference = mesh_vertex_normals(&zp, &zf);
     let n = zp.len() as f64;
     let centre = [0, 1, 2].map(|a| zp.iter().map(|p| p[a]).sum::<f64>() / n);
@@ -986,7 +922,7 @@ fn range_scans_face_out_of_the_zippered_bunny() {
     let tree =
         stablesurf::measure::PointTree::new(&used.iter().map(|&i| zp[i]).collect::<Vec<_>>())
             .unwrap();
-    let conf = std::fs::read_to_string(dir.join("bunny-scans/bun.conf")).unwrap();
+    let conf = std::fs::read_to_string(scan_dir.join("bun.conf")).unwrap();
     let mut scans = 0;
     for line in conf.lines() {
         let w: Vec<&str> = line.split_whitespace().collect();
@@ -995,7 +931,7 @@ fn range_scans_face_out_of_the_zippered_bunny() {
         }
         let v: Vec<f64> = w[2..9].iter().map(|x| x.parse().unwrap()).collect();
         let pose = conf_pose([v[0], v[1], v[2]], [v[3], v[4], v[5], v[6]]);
-        let path = dir.join("bunny-scans").join(w[1]);
+        let path = scan_dir.join(w[1]);
         let bytes = std::fs::read(&path).unwrap();
         let cloud = stablesurf::import::import_bytes(&bytes, &path).unwrap();
         let range = cloud.range.as_ref().expect("a range grid");
