@@ -152,6 +152,7 @@ impl PipelineConfig {
     /// assert_eq!(PipelineConfig::for_mode(Mode::Global).polygonize.guard_levels, 3);
     /// ```
     pub fn for_mode(mode: Mode) -> PipelineConfig {
+        let export = ExportParams::default();
         let global = PipelineConfig {
             mode: Mode::Global,
             outliers: OutlierParams::default(),
@@ -159,21 +160,11 @@ impl PipelineConfig {
             fit: FitParams::default(),
             detail: DetailParams::default(),
             polygonize: PolygonizeParams::default(),
-            keep: Keep::All,
-            trim: TrimParams::off(),
-            slices: crate::distance::SliceParams {
-                resolution: 128,
-                method: crate::distance::DistanceMethod::Exact,
-                ..Default::default()
-            },
-            gltf: Default::default(),
-            formats: vec![
-                OutputFormat::Glb,
-                OutputFormat::Ply,
-                OutputFormat::Exr,
-                OutputFormat::Png,
-                OutputFormat::Json,
-            ],
+            keep: export.keep,
+            trim: export.trim,
+            slices: export.slices,
+            gltf: export.gltf,
+            formats: export.formats,
         };
         match mode {
             Mode::Global => global,
@@ -198,6 +189,13 @@ impl PipelineConfig {
 impl PipelineConfig {
     /// The export stage's params: the formats, the components kept, the trim, the slices and
     /// the glTF options of this config.
+    ///
+    /// ```
+    /// use stablesurf::export::ExportParams;
+    /// use stablesurf::pipeline::{Mode, PipelineConfig};
+    /// let global = PipelineConfig::for_mode(Mode::Global);
+    /// assert_eq!(global.export_params(), ExportParams::default());
+    /// ```
     pub fn export_params(&self) -> ExportParams {
         ExportParams {
             formats: self.formats.clone(),

@@ -442,3 +442,137 @@ fn slice_images(params: &ExportParams, slices: &[Slice]) -> Result<Vec<OutputFil
         .collect::<Result<_, _>>()?;
     Ok(images.into_iter().flatten().collect())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::distance::Axis;
+    use crate::export::gltf::{GltfOptions, UpAxis};
+
+    fn key_bytes(params: &ExportParams) -> Vec<u8> {
+        serde_json::to_vec(params).unwrap()
+    }
+
+    /// The key bytes the stage has always had: a changed spelling would orphan every cache
+    /// entry of the export stage without a version bump.
+    #[test]
+    fn key_bytes_are_the_stage_recipe() {
+        let bytes = String::from_utf8(key_bytes(&ExportParams::default())).unwrap();
+        let trim = serde_json::to_string(&TrimParams::off()).unwrap();
+        let trim_value: serde_json::Value = serde_json::from_str(&trim).unwrap();
+        let expected = serde_json::json!({
+            "formats": ["Glb", "Ply", "Exr", "Png", "Json"],
+            "keep": "All",
+            "trim": trim_value,
+            "trim_version": trim::STAGE_VERSION,
+            "up": "Y",
+            "slices": {"axis": "z", "count": 16, "resolution": 128, "method": "exact"},
+        });
+        assert_eq!(bytes, serde_json::to_string(&expected).unwrap());
+    }
+
+    #[test]
+    fn same_params_same_key_and_each_change_differs() {
+        let base = ExportParams::default();
+        assert_eq!(key_bytes(&base), key_bytes(&base.clone()));
+        let changed = [
+            ExportParams {
+                formats: vec![OutputFormat::Ply],
+                ..base.clone()
+            },
+            ExportParams {
+                keep: Keep::Data,
+                ..base.clone()
+            },
+            ExportParams {
+                trim: TrimParams::default(),
+                ..base.clone()
+            },
+            ExportParams {
+                slices: SliceParams {
+                    axis: Axis::X,
+                    ..base.slices
+                },
+                ..base.clone()
+            },
+            ExportParams {
+                slices: SliceParams {
+                    count: 8,
+                    ..base.slices
+                },
+                ..base.clone()
+            },
+            ExportParams {
+                slices: SliceParams {
+                    resolution: 64,
+                    ..base.slices
+                },
+                ..base.clone()
+            },
+            ExportParams {
+                slices: SliceParams {
+                    method: DistanceMethod::Mesh,
+                    ..base.slices
+                },
+                ..base.clone()
+            },
+            ExportParams {
+                gltf: GltfOptions { up: UpAxis::Z },
+                ..base.clone()
+            },
+        ];
+        for (i, params) in changed.iter().enumerate() {
+            assert_ne!(key_bytes(params), key_bytes(&base), "change {i}");
+        }
+    }
+
+    #[test]
+    fn export_is_its_two_halves() {
+        let mesh = TriangleMesh {
+            positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            normals: vec![[0.0, 0.0, 1.0]; 3],
+            triangles: vec![[0, 1, 2]],
+        };
+        let sphere = crate::poly::ImplicitPolynomial {
+            degree: 2,
+            coefficients: vec![-1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0],
+            center: [0.0; 3],
+            scale: 1.0,
+        };
+        let model = Model::Global(crate::poly::ImplicitModel {
+            polynomial: sphere,
+            bounds: None,
+            fit: None,
+            diagnostics: None,
+        });
+        let params = ExportParams {
+            slices: SliceParams {
+                count: 2,
+                resolution: 8,
+                ..ExportParams::default().slices
+            },
+            ..ExportParams::default()
+        };
+        assert!(slices_from_model(&model, &params));
+        let whole = export(&model, &mesh, &mesh.positions, &params).unwrap();
+        let mut halves = export_mesh(&model, &mesh, &mesh.positions, &params).unwrap();
+        halves
+            .files
+            .extend(model_slices(&model, &params).unwrap().unwrap());
+        assert_eq!(whole, halves);
+        let names: Vec<&str> = whole.files.iter().map(|f| f.0.as_str()).collect();
+        assert_eq!(
+            names,
+            [
+                "model.json",
+                "mesh.glb",
+                "mesh.ply",
+                "preview.png",
+                "slices/slice_000.exr",
+                "slices/slice_000.png",
+                "slices/slice_001.exr",
+                "slices/slice_001.png",
+            ]
+        );
+    }
+}
