@@ -1,5 +1,5 @@
-//! The pipeline: import → normals → fit → polygonize, chained through the stage cache, then
-//! the exports. This is what `stablesurf run` calls.
+//! The pipeline: import → normals → fit (or detail) → polygonize → export, each stage's free
+//! function called through the stage cache. This is what `stablesurf run` calls.
 //!
 //! Input: a scan (file or the built-in sample), a [`PipelineConfig`] and a [`Cache`].
 //! Output: files in the output directory and a [`RunReport`].
