@@ -23,6 +23,7 @@ pub mod import;
 pub mod measure;
 pub mod merge;
 pub mod mesh;
+pub mod model;
 pub mod normals;
 pub mod outliers;
 pub mod outputs;

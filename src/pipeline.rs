@@ -1,5 +1,5 @@
-//! The pipeline: import → normals → fit → polygonize, chained through the stage cache, then
-//! the exports. This is what `stablesurf run` calls.
+//! The pipeline: import → normals → fit (or detail) → polygonize → export, each stage's free
+//! function called through the stage cache. This is what `stablesurf run` calls.
 //!
 //! Input: a scan (file or the built-in sample), a [`PipelineConfig`] and a [`Cache`].
 //! Output: files in the output directory and a [`RunReport`].
@@ -15,19 +15,21 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::cache::{self, Artifact, Cache, Key, OutputFiles};
-use crate::cloud::{Aabb, OrientedCloud, PointCloud};
-use crate::detail::{self, DetailParams, MpuModel};
-use crate::export::{self, ExportError};
+use crate::cloud::{OrientedCloud, PointCloud};
+use crate::detail::{self, DetailParams};
+use crate::export::{self, ExportError, ExportParams};
 use crate::fit::{self, FitParams};
 use crate::import;
-use crate::measure::{self, Accuracy};
-use crate::mesh::{self, MeshReport, TriangleMesh};
+use crate::measure::Accuracy;
+use crate::mesh::MeshReport;
 use crate::normals::{self, NormalsParams};
 use crate::outliers::{self, OutlierParams};
 use crate::outputs::OutputSet;
-use crate::poly::ImplicitModel;
-use crate::polygonize::{self, ImplicitFunction, PolygonizeParams};
+use crate::polygonize::{self, PolygonizeParams};
 use crate::trim::{self, TrimParams, TrimReport};
+
+pub use crate::export::{mesh_files, Keep, MeshFileOptions, MeshFormat, OutputFormat};
+pub use crate::model::{meshing_region, Mode, Model};
 
 /// The small real scan built into the binary: "Spot" the cow by Keenan Crane (CC0 1.0),
 /// 2,930 vertices, 5,856 triangles.
@@ -58,7 +60,7 @@ pub enum PipelineError {
     Trim(#[from] trim::TrimError),
     /// Writing an output failed.
     #[error("writing outputs failed")]
-    Export(#[from] ExportError),
+    Export(#[source] ExportError),
     /// Computing the distance slices failed.
     #[error("distance slices failed")]
     Distance(#[from] crate::distance::DistanceError),
@@ -82,222 +84,17 @@ pub enum PipelineError {
     Cache(#[from] cache::CacheError),
 }
 
-/// Which model the pipeline fits.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
-pub enum Mode {
-    /// One polynomial (the paper's compact, invariant descriptor).
-    #[default]
-    Global,
-    /// A multi-level partition of unity of local fits.
-    Detail,
-}
-
-/// The fitted model of a run: one polynomial, or the detail mode's blend of local fits.
-#[derive(Clone, Debug)]
-pub enum Model {
-    /// `--mode global`.
-    Global(ImplicitModel),
-    /// `--mode detail`.
-    Detail(MpuModel),
-}
-
-impl Model {
-    /// The mode that makes this kind of model.
-    pub fn mode(&self) -> Mode {
-        match self {
-            Model::Global(_) => Mode::Global,
-            Model::Detail(_) => Mode::Detail,
+/// The export stage's error under the stage that failed: the trim and the slices keep their own
+/// variants, every writer's error is [`PipelineError::Export`].
+impl From<ExportError> for PipelineError {
+    fn from(e: ExportError) -> Self {
+        match e {
+            ExportError::Trim(e) => PipelineError::Trim(e),
+            ExportError::Distance(e) => PipelineError::Distance(e),
+            ExportError::Unsupported(message) => PipelineError::Unsupported(message),
+            e => PipelineError::Export(e),
         }
     }
-
-    /// Reads a model file of either kind from its bytes: a `stablesurf.mpu` file (detail) by its
-    /// magic, else `model.json` (global). `path` names the file in errors.
-    ///
-    /// # Errors
-    /// [`ExportError`] when the bytes are not a valid model file of the kind they look like.
-    ///
-    /// ```
-    /// use std::path::Path;
-    /// use stablesurf::pipeline::Model;
-    /// let err = Model::from_bytes(b"{}", Path::new("m.json")).unwrap_err();
-    /// assert!(err.to_string().contains("m.json"));
-    /// ```
-    pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Model, ExportError> {
-        Ok(if export::mpu::is_mpu(bytes) {
-            Model::Detail(export::mpu::read_mpu(bytes, path)?)
-        } else {
-            Model::Global(export::model::read_model(bytes, path)?)
-        })
-    }
-
-    /// The model as a function to mesh and sign distances with.
-    pub fn function(&self) -> &dyn ImplicitFunction {
-        match self {
-            Model::Global(m) => &m.polynomial,
-            Model::Detail(m) => m,
-        }
-    }
-
-    /// The region the model is meshed in (input coordinates).
-    pub fn region(&self) -> Aabb {
-        match self {
-            Model::Global(m) => meshing_region(m),
-            Model::Detail(m) => m.region,
-        }
-    }
-
-    /// The model's settings and diagnostics, for `report.json`.
-    pub fn report(&self) -> serde_json::Value {
-        match self {
-            Model::Global(m) => {
-                serde_json::json!({ "mode": "global", "fit": m.fit, "diagnostics": m.diagnostics })
-            }
-            Model::Detail(m) => serde_json::json!({
-                "mode": "detail",
-                "diagnostics": m.diagnostics,
-            }),
-        }
-    }
-
-    /// The model file's name and bytes: `model.json` (global) or `model.mpu` (detail).
-    ///
-    /// # Errors
-    /// [`ExportError`] from the writer.
-    pub fn file(&self) -> Result<(&'static str, Vec<u8>), ExportError> {
-        let mut bytes = Vec::new();
-        match self {
-            Model::Global(m) => {
-                export::model::write_model(m, &mut bytes)?;
-                Ok(("model.json", bytes))
-            }
-            Model::Detail(m) => {
-                export::mpu::write_mpu(m, &mut bytes)?;
-                Ok(("model.mpu", bytes))
-            }
-        }
-    }
-}
-
-/// An output file kind of `run`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-pub enum OutputFormat {
-    /// `mesh.glb`.
-    Glb,
-    /// `mesh.gltf` + `mesh.bin`.
-    Gltf,
-    /// `mesh.ply` (binary, with normals and per-vertex quality).
-    Ply,
-    /// `slices/slice_NNN.exr` signed-distance slices.
-    Exr,
-    /// `preview.png` (a shaded render of the mesh) and `slices/slice_NNN.png` previews.
-    Png,
-    /// The model file (`model.json`, or `model.mpu` in detail mode) and `report.json`.
-    Json,
-}
-
-impl std::str::FromStr for OutputFormat {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, String> {
-        Ok(match s.trim() {
-            "glb" => OutputFormat::Glb,
-            "gltf" => OutputFormat::Gltf,
-            "ply" => OutputFormat::Ply,
-            "exr" => OutputFormat::Exr,
-            "png" => OutputFormat::Png,
-            "json" => OutputFormat::Json,
-            other => {
-                return Err(format!(
-                    "unknown output format '{other}' (choose from glb, gltf, ply, exr, png, json)"
-                ))
-            }
-        })
-    }
-}
-
-/// A mesh file format: `run`'s `mesh.glb`, `mesh.gltf` and `mesh.ply`, and the `-o` of
-/// `stablesurf mesh`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum MeshFormat {
-    /// Binary glTF, one file.
-    Glb,
-    /// glTF JSON and the binary buffer it refers to, `<stem>.bin` beside it.
-    Gltf,
-    /// PLY ([`export::ply`]).
-    Ply,
-}
-
-impl MeshFormat {
-    /// The format a file name's extension names, in any case: `.glb`, `.gltf` or `.ply`.
-    ///
-    /// ```
-    /// use std::path::Path;
-    /// use stablesurf::pipeline::MeshFormat;
-    /// assert_eq!(MeshFormat::from_path(Path::new("out/a.GLB")), Some(MeshFormat::Glb));
-    /// assert_eq!(MeshFormat::from_path(Path::new("a.obj")), None);
-    /// ```
-    pub fn from_path(path: &Path) -> Option<MeshFormat> {
-        let extension = path.extension()?.to_string_lossy().to_ascii_lowercase();
-        match extension.as_str() {
-            "glb" => Some(MeshFormat::Glb),
-            "gltf" => Some(MeshFormat::Gltf),
-            "ply" => Some(MeshFormat::Ply),
-            _ => None,
-        }
-    }
-}
-
-/// How [`mesh_files`] writes a mesh: the glTF options for glTF, the PLY options for PLY.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct MeshFileOptions<'a> {
-    /// Options of the glTF writers.
-    pub gltf: export::gltf::GltfOptions,
-    /// Options of the PLY writer (encoding, per-vertex quality).
-    pub ply: export::ply::PlyOptions<'a>,
-}
-
-/// The files of `mesh` in `format`, named after `name` (a file name such as `mesh.glb`), as
-/// (file name, bytes): `name` alone, or for glTF the buffer `<stem of name>.bin` first and
-/// then `name`, which refers to the buffer by that file name. The one mesh writer of `run` and
-/// `stablesurf mesh`; the caller puts the files where they belong.
-///
-/// # Errors
-/// [`ExportError`] from the writer (an empty or invalid mesh, a glTF over its size limit).
-///
-/// ```
-/// use stablesurf::pipeline::{mesh_files, MeshFileOptions, MeshFormat};
-/// use stablesurf::TriangleMesh;
-/// let mesh = TriangleMesh {
-///     positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
-///     normals: vec![[0.0, 0.0, 1.0]; 3],
-///     triangles: vec![[0, 1, 2]],
-/// };
-/// let opts = MeshFileOptions::default();
-/// let files = mesh_files(&mesh, MeshFormat::Gltf, "a.gltf", &opts).unwrap();
-/// let names: Vec<&str> = files.iter().map(|(name, _)| name.as_str()).collect();
-/// assert_eq!(names, ["a.bin", "a.gltf"]);
-/// ```
-pub fn mesh_files(
-    mesh: &TriangleMesh,
-    format: MeshFormat,
-    name: &str,
-    opts: &MeshFileOptions<'_>,
-) -> Result<Vec<(String, Vec<u8>)>, ExportError> {
-    let mut bytes = Vec::new();
-    match format {
-        MeshFormat::Glb => export::gltf::write_glb(mesh, &mut bytes, &opts.gltf)?,
-        MeshFormat::Gltf => {
-            let bin_name = Path::new(name)
-                .with_extension("bin")
-                .to_string_lossy()
-                .into_owned();
-            let mut bin = Vec::new();
-            export::gltf::write_gltf(mesh, &mut bytes, &mut bin, &bin_name, &opts.gltf)?;
-            return Ok(vec![(bin_name, bin), (name.to_string(), bytes)]);
-        }
-        MeshFormat::Ply => export::ply::write(mesh, &mut bytes, &opts.ply)?,
-    }
-    Ok(vec![(name.to_string(), bytes)])
 }
 
 /// Everything that decides what `run` computes and writes.
@@ -329,17 +126,6 @@ pub struct PipelineConfig {
     pub formats: Vec<OutputFormat>,
 }
 
-/// Which zero-set components the mesh keeps.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
-pub enum Keep {
-    /// Every component.
-    #[default]
-    All,
-    /// Only components with a data point within 2% of the data's diagonal, and no small closed
-    /// piece inside another ([`mesh::drop_small_nested_components`]).
-    Data,
-}
-
 impl PipelineConfig {
     /// The defaults of a `mode` run, the ones `stablesurf run --mode MODE` starts from: every
     /// stage's `…Params::default()`, 16 distance slices of 128² along z, every output format,
@@ -366,6 +152,7 @@ impl PipelineConfig {
     /// assert_eq!(PipelineConfig::for_mode(Mode::Global).polygonize.guard_levels, 3);
     /// ```
     pub fn for_mode(mode: Mode) -> PipelineConfig {
+        let export = ExportParams::default();
         let global = PipelineConfig {
             mode: Mode::Global,
             outliers: OutlierParams::default(),
@@ -373,21 +160,11 @@ impl PipelineConfig {
             fit: FitParams::default(),
             detail: DetailParams::default(),
             polygonize: PolygonizeParams::default(),
-            keep: Keep::All,
-            trim: TrimParams::off(),
-            slices: crate::distance::SliceParams {
-                resolution: 128,
-                method: crate::distance::DistanceMethod::Exact,
-                ..Default::default()
-            },
-            gltf: Default::default(),
-            formats: vec![
-                OutputFormat::Glb,
-                OutputFormat::Ply,
-                OutputFormat::Exr,
-                OutputFormat::Png,
-                OutputFormat::Json,
-            ],
+            keep: export.keep,
+            trim: export.trim,
+            slices: export.slices,
+            gltf: export.gltf,
+            formats: export.formats,
         };
         match mode {
             Mode::Global => global,
@@ -405,6 +182,27 @@ impl PipelineConfig {
                 },
                 ..global
             },
+        }
+    }
+}
+
+impl PipelineConfig {
+    /// The export stage's params: the formats, the components kept, the trim, the slices and
+    /// the glTF options of this config.
+    ///
+    /// ```
+    /// use stablesurf::export::ExportParams;
+    /// use stablesurf::pipeline::{Mode, PipelineConfig};
+    /// let global = PipelineConfig::for_mode(Mode::Global);
+    /// assert_eq!(global.export_params(), ExportParams::default());
+    /// ```
+    pub fn export_params(&self) -> ExportParams {
+        ExportParams {
+            formats: self.formats.clone(),
+            keep: self.keep,
+            trim: self.trim,
+            slices: self.slices,
+            gltf: self.gltf,
         }
     }
 }
@@ -526,11 +324,7 @@ const OUTLIERS_VERSION: u32 = 1;
 const NORMALS_VERSION: u32 = 4;
 const FIT_VERSION: u32 = 2;
 const POLYGONIZE_VERSION: u32 = 2;
-const EXPORT_VERSION: u32 = 5;
-
-/// With `Keep::Data`, closed pieces inside another piece and smaller than this share of the
-/// largest piece's area are left out ([`mesh::drop_small_nested_components`]).
-const NESTED_AREA_FRACTION: f64 = 0.01;
+// The export stage's version is `export::STAGE_VERSION`, beside its params.
 
 struct Ctx<'a> {
     /// The run's cache: the one asked for, or a disabled one when it cannot be written.
@@ -961,18 +755,6 @@ pub fn oriented_cloud(
     Ok(oriented)
 }
 
-/// The region a model is meshed in: its stored box, or the normalization sphere's cube.
-pub fn meshing_region(model: &ImplicitModel) -> Aabb {
-    model.bounds.unwrap_or_else(|| {
-        let p = &model.polynomial;
-        let r = 1.6 * p.scale;
-        Aabb {
-            min: [p.center[0] - r, p.center[1] - r, p.center[2] - r],
-            max: [p.center[0] + r, p.center[1] + r, p.center[2] + r],
-        }
-    })
-}
-
 /// Runs the whole pipeline and writes the outputs into `out_dir`.
 ///
 /// # Errors
@@ -994,17 +776,18 @@ pub fn run(
 
     let region = model.region();
     let polygonize_params = cache::params_bytes(&config.polygonize);
-    let export_params = export_params_bytes(config);
-    // The export stage's work splits in two: the slice files of a polynomial model need the
-    // model only, everything else needs the mesh. When the export stage is going to run, the
-    // slice files are made beside the meshing and then beside the mesh's outputs, so both cores
-    // stay busy; the export stage then assembles the parts (the same bytes it would compute on
-    // its own: each part depends on the same inputs alone). Its line counts from the end of the
-    // meshing.
+    let export_params = config.export_params();
+    let export_params_bytes = cache::params_bytes(&export_params);
+    // The export stage's work splits in two (see [`export`]): the slice files of a polynomial
+    // model need the model only, everything else needs the mesh. When the export stage is going
+    // to run, the slice files are made beside the meshing and then beside the mesh's outputs, so
+    // both cores stay busy; the export stage then assembles the parts (the same bytes as
+    // `export::export`: each part depends on the same inputs alone). Its line counts from the
+    // end of the meshing.
     let export_key = cache::stage_key(
         "export",
-        EXPORT_VERSION,
-        &export_params,
+        export::STAGE_VERSION,
+        &export_params_bytes,
         &cache::stage_key(
             "polygonize",
             POLYGONIZE_VERSION,
@@ -1013,11 +796,11 @@ pub fn run(
         ),
     );
     let export_runs = !cache.contains("export", &export_key);
-    let early_from_model = export_runs && slices_from_model(config, &model);
+    let early_from_model = export_runs && export::slices_from_model(&model, &export_params);
     let mut early_slices = None;
     let (polygonized, mut early_parts, export_start) = rayon::in_place_scope(|scope| {
         if early_from_model {
-            scope.spawn(|_| early_slices = model_slice_files(config, &model, &region));
+            scope.spawn(|_| early_slices = export::model_slices(&model, &export_params));
         }
         let polygonized = ctx.stage(
             "polygonize",
@@ -1039,14 +822,11 @@ pub fn run(
         let parts = match &polygonized {
             Ok((mesh, _)) if export_runs => {
                 ctx.observer.stage_started("export");
-                let with_slices = !early_from_model;
-                Some(mesh_parts(
-                    config,
+                Some(export::export_mesh(
                     &model,
-                    mesh.clone(),
-                    &cloud,
-                    &region,
-                    with_slices,
+                    mesh,
+                    &cloud.points,
+                    &export_params,
                 ))
             }
             _ => None,
@@ -1055,42 +835,30 @@ pub fn run(
     });
     let (mesh, mesh_key) = polygonized?;
 
-    // Everything after meshing (component filter, checks, accuracy, the bytes of every output
-    // file) is one more cached stage: a rerun with the same inputs only copies files out.
+    // Everything after meshing (component filter, trim, checks, accuracy, the bytes of every
+    // output file) is one more cached stage: a rerun with the same inputs only copies files out.
     let announced = early_parts.is_some().then_some(export_start);
     let (files, _) = ctx.stage_from(
         announced,
         "export",
-        EXPORT_VERSION,
-        &export_params,
+        export::STAGE_VERSION,
+        &export_params_bytes,
         &mesh_key,
         || {
-            // Made above, or here when that was skipped (an export entry found on disk that then
-            // failed to decode).
-            let parts = match early_parts.take() {
-                Some(parts) => parts?,
-                None => {
-                    let with_slices = early_slices.is_none();
-                    mesh_parts(config, &model, mesh, &cloud, &region, with_slices)?
+            // The parts made above, or the whole stage here when they were skipped (an export
+            // entry found on disk that then failed to decode).
+            let out = match early_parts.take() {
+                Some(parts) => {
+                    let mut out = parts?;
+                    if let Some(slices) = early_slices.take() {
+                        out.files.extend(slices?);
+                    }
+                    out
                 }
+                None => export::export(&model, &mesh, &cloud.points, &export_params)?,
             };
-            let slice_files = match (early_slices.take(), parts.slices) {
-                (Some(files), _) => files?,
-                (None, Some(files)) => files,
-                (None, None) => slice_files(config, &model, &parts.mesh, &region)?,
-            };
-            let mut files = parts.files;
-            files.extend(slice_files);
-            let figures = serde_json::json!({
-                "files": files.len(),
-                "bytes": files.iter().map(|f| f.1.len()).sum::<usize>(),
-                "dropped_components": parts.dropped,
-                "dropped_nested": parts.nested,
-                "trim": parts.trim,
-                "mesh": parts.report,
-                "accuracy": parts.accuracy,
-            });
-            Ok((OutputFiles(files), figures))
+            let figures = out.figures();
+            Ok((OutputFiles(out.files), figures))
         },
     )?;
     let figures = &ctx
@@ -1116,7 +884,7 @@ pub fn run(
     if nested > 0 {
         ctx.warn(format!(
             "left out {nested} small closed piece(s) inside the surface (each under {}% of the largest piece's area); --keep all keeps them",
-            100.0 * NESTED_AREA_FRACTION
+            100.0 * export::NESTED_AREA_FRACTION
         ));
     }
     let clipped = matches!(model, Model::Global(_)) && report_mesh.boundary_edges > 0;
@@ -1180,245 +948,4 @@ pub fn run(
     }
     outputs.commit()?;
     Ok(report)
-}
-
-/// Canonical bytes of everything that decides the output files besides the mesh and model.
-fn export_params_bytes(config: &PipelineConfig) -> Vec<u8> {
-    let formats: Vec<String> = config.formats.iter().map(|f| format!("{f:?}")).collect();
-    cache::params_bytes(&serde_json::json!({
-        "formats": formats,
-        "keep": format!("{:?}", config.keep),
-        "trim": config.trim,
-        "trim_version": trim::STAGE_VERSION,
-        "up": format!("{:?}", config.gltf.up),
-        "slices": {
-            "axis": config.slices.axis.name(),
-            "count": config.slices.count,
-            "resolution": config.slices.resolution,
-            "method": config.slices.method.name(),
-        },
-    }))
-}
-
-/// Output files as (name relative to the output directory, bytes).
-type Files = Vec<(String, Vec<u8>)>;
-
-/// What the export stage makes from the mesh: the mesh as kept (components far from the data
-/// dropped when asked), its checks, the accuracy figures, the mesh's output files and, when
-/// asked, the slice files.
-struct MeshParts {
-    mesh: TriangleMesh,
-    dropped: usize,
-    nested: usize,
-    trim: TrimReport,
-    report: MeshReport,
-    accuracy: Accuracy,
-    files: Files,
-    slices: Option<Files>,
-}
-
-/// The export stage's mesh part: the component filter, then the checks, the accuracy, the
-/// model, glTF, PLY (with its vertex quality) and preview files and, `with_slices`, the slice
-/// files ([`slice_files`]: the distance to the kept mesh for a detail model), all at once. The
-/// files come out in a fixed order whatever the thread count.
-fn mesh_parts(
-    config: &PipelineConfig,
-    model: &Model,
-    mut mesh: TriangleMesh,
-    cloud: &PointCloud,
-    region: &Aabb,
-    with_slices: bool,
-) -> Result<MeshParts, PipelineError> {
-    let data_diagonal = Aabb::from_points(&cloud.points).map_or(0.0, |b| b.diagonal());
-    let (mut dropped, mut nested) = (0, 0);
-    if config.keep == Keep::Data {
-        let (kept, n) = mesh::drop_components_far_from(&mesh, &cloud.points, 0.02 * data_diagonal);
-        (mesh, dropped) = (kept, n);
-        let (kept, n) = mesh::drop_small_nested_components(&mesh, NESTED_AREA_FRACTION);
-        (mesh, nested) = (kept, n);
-    }
-    // The trim stage: the surface the data supports (the mesh itself when all of it is).
-    let trimmed = trim::trim(&mesh, &cloud.points, &config.trim)?;
-    let trim_report = trimmed.report;
-    if trim_report.removed_triangles > 0 {
-        mesh = trimmed.mesh;
-    }
-    let want = |f| config.formats.contains(&f);
-    let one = |name: &str, bytes: Vec<u8>| -> Files { vec![(name.to_string(), bytes)] };
-    let m = &mesh;
-    let mesh_opts = MeshFileOptions {
-        gltf: config.gltf,
-        ..Default::default()
-    };
-    let json = || -> Result<Files, PipelineError> {
-        if !want(OutputFormat::Json) {
-            return Ok(Vec::new());
-        }
-        let (name, bytes) = model.file()?;
-        Ok(one(name, bytes))
-    };
-    let glb = || -> Result<Files, PipelineError> {
-        if !want(OutputFormat::Glb) {
-            return Ok(Vec::new());
-        }
-        Ok(mesh_files(m, MeshFormat::Glb, "mesh.glb", &mesh_opts)?)
-    };
-    let gltf = || -> Result<Files, PipelineError> {
-        if !want(OutputFormat::Gltf) {
-            return Ok(Vec::new());
-        }
-        Ok(mesh_files(m, MeshFormat::Gltf, "mesh.gltf", &mesh_opts)?)
-    };
-    let ply = || -> Result<Files, PipelineError> {
-        if !want(OutputFormat::Ply) {
-            return Ok(Vec::new());
-        }
-        let quality = export::ply::nearest_point_distances(&m.positions, &cloud.points)?;
-        let opts = MeshFileOptions {
-            ply: export::ply::PlyOptions {
-                quality: Some(&quality),
-                ..Default::default()
-            },
-            ..mesh_opts
-        };
-        Ok(mesh_files(m, MeshFormat::Ply, "mesh.ply", &opts)?)
-    };
-    let preview = || -> Result<Files, PipelineError> {
-        if !want(OutputFormat::Png) {
-            return Ok(Vec::new());
-        }
-        let params = crate::render::RenderParams {
-            up: config.gltf.up,
-            ..Default::default()
-        };
-        let image = crate::render::render(m, &params);
-        Ok(one(
-            "preview.png",
-            encode(&|w| export::png::write_rgb(&image, w))?,
-        ))
-    };
-    let slices = || with_slices.then(|| slice_files(config, model, m, region));
-    let (slices, ((report, accuracy), (json, ((glb, gltf), (ply, preview))))) =
-        rayon::join(slices, || {
-            rayon::join(
-                || {
-                    rayon::join(
-                        || mesh::check(m),
-                        || measure::accuracy(&cloud.points, m, data_diagonal),
-                    )
-                },
-                || {
-                    rayon::join(json, || {
-                        rayon::join(|| rayon::join(glb, gltf), || rayon::join(ply, preview))
-                    })
-                },
-            )
-        });
-    let slices = slices.transpose()?;
-    let mut files = Vec::new();
-    for part in [json?, glb?, gltf?, ply?, preview?] {
-        files.extend(part);
-    }
-    Ok(MeshParts {
-        mesh,
-        dropped,
-        nested,
-        trim: trim_report,
-        report,
-        accuracy,
-        files,
-        slices,
-    })
-}
-
-/// The bytes `f` writes.
-fn encode(f: &dyn Fn(&mut Vec<u8>) -> Result<(), ExportError>) -> Result<Vec<u8>, PipelineError> {
-    let mut bytes = Vec::new();
-    f(&mut bytes)?;
-    Ok(bytes)
-}
-
-/// The slice files when they can be made without the mesh (a polynomial model, a distance that
-/// is not the mesh's, and slices among the formats); `None` otherwise.
-fn model_slice_files(
-    config: &PipelineConfig,
-    model: &Model,
-    region: &Aabb,
-) -> Option<Result<Files, PipelineError>> {
-    match model {
-        Model::Global(m) if slices_from_model(config, model) => Some(
-            crate::distance::slices(&m.polynomial, region, &config.slices)
-                .map_err(Into::into)
-                .and_then(|slices| slice_images(config, &slices)),
-        ),
-        _ => None,
-    }
-}
-
-/// Whether the formats ask for slices (OpenEXR or their PNG previews).
-fn slices_wanted(config: &PipelineConfig) -> bool {
-    [OutputFormat::Exr, OutputFormat::Png]
-        .iter()
-        .any(|f| config.formats.contains(f))
-}
-
-/// Whether [`model_slice_files`] makes the slice files (from the model alone).
-fn slices_from_model(config: &PipelineConfig, model: &Model) -> bool {
-    slices_wanted(config)
-        && matches!(model, Model::Global(_))
-        && config.slices.method != crate::distance::DistanceMethod::Mesh
-}
-
-/// The slice files (OpenEXR and PNG, as the formats ask): from the model alone when it can
-/// ([`model_slice_files`]), else from the distance to `mesh`.
-fn slice_files(
-    config: &PipelineConfig,
-    model: &Model,
-    mesh: &TriangleMesh,
-    region: &Aabb,
-) -> Result<Files, PipelineError> {
-    if !slices_wanted(config) {
-        return Ok(Vec::new());
-    }
-    if let Some(files) = model_slice_files(config, model, region) {
-        return files;
-    }
-    match config.slices.method {
-        crate::distance::DistanceMethod::Mesh => {
-            let slices =
-                crate::distance::slices_from_mesh(model.function(), mesh, region, &config.slices)?;
-            slice_images(config, &slices)
-        }
-        method => Err(PipelineError::Unsupported(format!(
-            "{} distance slices need a global (polynomial) model; use --slice-distance mesh in detail mode",
-            method.name()
-        ))),
-    }
-}
-
-/// Encodes the slices as the formats ask, in parallel; the files come out in slice order.
-fn slice_images(
-    config: &PipelineConfig,
-    slices: &[crate::distance::Slice],
-) -> Result<Files, PipelineError> {
-    use rayon::prelude::*;
-    let want = |f| config.formats.contains(&f);
-    let images: Vec<Files> = slices
-        .par_iter()
-        .map(|slice| -> Result<Files, PipelineError> {
-            let mut files = Vec::new();
-            if want(OutputFormat::Exr) {
-                let bytes = encode(&|w| {
-                    export::exr::write_slice(slice, &export::exr::ExrOptions::default(), w)
-                })?;
-                files.push((format!("slices/slice_{:03}.exr", slice.index), bytes));
-            }
-            if want(OutputFormat::Png) {
-                let bytes = encode(&|w| export::png::write_preview(slice, w))?;
-                files.push((format!("slices/slice_{:03}.png", slice.index), bytes));
-            }
-            Ok(files)
-        })
-        .collect::<Result<_, _>>()?;
-    Ok(images.into_iter().flatten().collect())
 }

@@ -2,13 +2,15 @@
 //!
 //! Input: a [`TriangleMesh`](crate::TriangleMesh), the distance slices of
 //! [`distance::slices`](crate::distance::slices), or an [`ImplicitModel`](crate::ImplicitModel).
-//! Output: bytes in one format per module:
+//! Output: bytes. The stage function is [`export()`] (in `stage.rs`: the model and its mesh →
+//! every output file of `run`, with [`ExportParams`]); it calls one writer per format:
 //!
 //! - [`gltf`]: glTF 2.0 (`.glb`, or `.gltf` + `.bin`) for Blender and other viewers;
 //! - [`ply`]: PLY with normals and a per-vertex `quality` for MeshLab;
 //! - [`exr`]: one float32 OpenEXR image per distance slice, with its geometry in the header;
 //! - [`png`]: a colour preview of a distance slice with the zero contour drawn;
-//! - [`model`]: `model.json`, the polynomial and its fit record, and its reader.
+//! - [`model`]: `model.json`, the polynomial and its fit record, and its reader;
+//! - [`mpu`]: `model.mpu`, the detail model, and its reader.
 //!
 //! Every writer takes `&mut impl Write`; choosing a file is the caller's job. Files are written
 //! atomically with [`write_atomic`]: a temporary file in the same directory, renamed into place,
@@ -22,10 +24,18 @@ pub mod model;
 pub mod mpu;
 pub mod ply;
 pub mod png;
+mod stage;
+
+pub use stage::{
+    export, export_mesh, model_slices, slices_from_model, ExportOutput, ExportParams, Keep,
+    OutputFile, OutputFormat, NESTED_AREA_FRACTION, STAGE_VERSION,
+};
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::Path;
+
+use crate::mesh::TriangleMesh;
 
 /// Errors of the export stage.
 #[derive(Debug, thiserror::Error)]
@@ -77,6 +87,16 @@ pub enum ExportError {
     /// A distance slice cannot be written (its data does not match its resolution).
     #[error("slice cannot be exported: {0}")]
     InvalidSlice(String),
+    /// Trimming the mesh to its data failed (see [`crate::trim::TrimError`]).
+    #[error("trimming the mesh failed")]
+    Trim(#[from] crate::trim::TrimError),
+    /// Computing the distance slices failed (see [`crate::distance::DistanceError`]).
+    #[error("distance slices failed")]
+    Distance(#[from] crate::distance::DistanceError),
+    /// The slices asked for do not exist for this model (an `exact` or `taubin` distance of a
+    /// detail model); the message names the setting to use instead.
+    #[error("{0}")]
+    Unsupported(String),
 }
 
 /// Writes a file atomically: `write` fills a temporary file in the same directory, which is
@@ -129,4 +149,89 @@ pub(crate) fn remove_stale_temporaries(dir: &Path, names: impl Fn(&str) -> bool)
         let digits = !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit());
         (digits && names(file)).then(|| pid.parse().ok())?
     });
+}
+
+/// A mesh file format: `run`'s `mesh.glb`, `mesh.gltf` and `mesh.ply`, and the `-o` of
+/// `stablesurf mesh`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MeshFormat {
+    /// Binary glTF, one file.
+    Glb,
+    /// glTF JSON and the binary buffer it refers to, `<stem>.bin` beside it.
+    Gltf,
+    /// PLY ([`ply`]).
+    Ply,
+}
+
+impl MeshFormat {
+    /// The format a file name's extension names, in any case: `.glb`, `.gltf` or `.ply`.
+    ///
+    /// ```
+    /// use std::path::Path;
+    /// use stablesurf::export::MeshFormat;
+    /// assert_eq!(MeshFormat::from_path(Path::new("out/a.GLB")), Some(MeshFormat::Glb));
+    /// assert_eq!(MeshFormat::from_path(Path::new("a.obj")), None);
+    /// ```
+    pub fn from_path(path: &Path) -> Option<MeshFormat> {
+        let extension = path.extension()?.to_string_lossy().to_ascii_lowercase();
+        match extension.as_str() {
+            "glb" => Some(MeshFormat::Glb),
+            "gltf" => Some(MeshFormat::Gltf),
+            "ply" => Some(MeshFormat::Ply),
+            _ => None,
+        }
+    }
+}
+
+/// How [`mesh_files`] writes a mesh: the glTF options for glTF, the PLY options for PLY.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct MeshFileOptions<'a> {
+    /// Options of the glTF writers.
+    pub gltf: gltf::GltfOptions,
+    /// Options of the PLY writer (encoding, per-vertex quality).
+    pub ply: ply::PlyOptions<'a>,
+}
+
+/// The files of `mesh` in `format`, named after `name` (a file name such as `mesh.glb`), as
+/// (file name, bytes): `name` alone, or for glTF the buffer `<stem of name>.bin` first and
+/// then `name`, which refers to the buffer by that file name. The one mesh writer of `run` and
+/// `stablesurf mesh`; the caller puts the files where they belong.
+///
+/// # Errors
+/// [`ExportError`] from the writer (an empty or invalid mesh, a glTF over its size limit).
+///
+/// ```
+/// use stablesurf::export::{mesh_files, MeshFileOptions, MeshFormat};
+/// use stablesurf::TriangleMesh;
+/// let mesh = TriangleMesh {
+///     positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+///     normals: vec![[0.0, 0.0, 1.0]; 3],
+///     triangles: vec![[0, 1, 2]],
+/// };
+/// let opts = MeshFileOptions::default();
+/// let files = mesh_files(&mesh, MeshFormat::Gltf, "a.gltf", &opts).unwrap();
+/// let names: Vec<&str> = files.iter().map(|(name, _)| name.as_str()).collect();
+/// assert_eq!(names, ["a.bin", "a.gltf"]);
+/// ```
+pub fn mesh_files(
+    mesh: &TriangleMesh,
+    format: MeshFormat,
+    name: &str,
+    opts: &MeshFileOptions<'_>,
+) -> Result<Vec<(String, Vec<u8>)>, ExportError> {
+    let mut bytes = Vec::new();
+    match format {
+        MeshFormat::Glb => gltf::write_glb(mesh, &mut bytes, &opts.gltf)?,
+        MeshFormat::Gltf => {
+            let bin_name = Path::new(name)
+                .with_extension("bin")
+                .to_string_lossy()
+                .into_owned();
+            let mut bin = Vec::new();
+            gltf::write_gltf(mesh, &mut bytes, &mut bin, &bin_name, &opts.gltf)?;
+            return Ok(vec![(bin_name, bin), (name.to_string(), bytes)]);
+        }
+        MeshFormat::Ply => ply::write(mesh, &mut bytes, &opts.ply)?,
+    }
+    Ok(vec![(name.to_string(), bytes)])
 }

@@ -1,0 +1,125 @@
+//! The fitted model of a run, the artifact between the model stages (`fit`, `detail`) and the
+//! stages that use it (`polygonize`, `export`).
+//!
+//! Input: the output of [`fit::fit`](crate::fit::fit) (one polynomial) or of
+//! [`detail::fit_detail`](crate::detail::fit_detail) (a blend of local fits), or a model file.
+//! Output: a [`Model`], which gives the function to mesh, the region to mesh it in, its file and
+//! its report.
+
+use std::path::Path;
+
+use serde::Serialize;
+
+use crate::cloud::Aabb;
+use crate::detail::MpuModel;
+use crate::export::{self, ExportError};
+use crate::poly::ImplicitModel;
+use crate::polygonize::ImplicitFunction;
+
+/// Which model the pipeline fits.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub enum Mode {
+    /// One polynomial (the paper's compact, invariant descriptor).
+    #[default]
+    Global,
+    /// A multi-level partition of unity of local fits.
+    Detail,
+}
+
+/// The fitted model of a run: one polynomial, or the detail mode's blend of local fits.
+#[derive(Clone, Debug)]
+pub enum Model {
+    /// `--mode global`.
+    Global(ImplicitModel),
+    /// `--mode detail`.
+    Detail(MpuModel),
+}
+
+impl Model {
+    /// The mode that makes this kind of model.
+    pub fn mode(&self) -> Mode {
+        match self {
+            Model::Global(_) => Mode::Global,
+            Model::Detail(_) => Mode::Detail,
+        }
+    }
+
+    /// Reads a model file of either kind from its bytes: a `stablesurf.mpu` file (detail) by its
+    /// magic, else `model.json` (global). `path` names the file in errors.
+    ///
+    /// # Errors
+    /// [`ExportError`] when the bytes are not a valid model file of the kind they look like.
+    ///
+    /// ```
+    /// use std::path::Path;
+    /// use stablesurf::model::Model;
+    /// let err = Model::from_bytes(b"{}", Path::new("m.json")).unwrap_err();
+    /// assert!(err.to_string().contains("m.json"));
+    /// ```
+    pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Model, ExportError> {
+        Ok(if export::mpu::is_mpu(bytes) {
+            Model::Detail(export::mpu::read_mpu(bytes, path)?)
+        } else {
+            Model::Global(export::model::read_model(bytes, path)?)
+        })
+    }
+
+    /// The model as a function to mesh and sign distances with.
+    pub fn function(&self) -> &dyn ImplicitFunction {
+        match self {
+            Model::Global(m) => &m.polynomial,
+            Model::Detail(m) => m,
+        }
+    }
+
+    /// The region the model is meshed in (input coordinates).
+    pub fn region(&self) -> Aabb {
+        match self {
+            Model::Global(m) => meshing_region(m),
+            Model::Detail(m) => m.region,
+        }
+    }
+
+    /// The model's settings and diagnostics, for `report.json`.
+    pub fn report(&self) -> serde_json::Value {
+        match self {
+            Model::Global(m) => {
+                serde_json::json!({ "mode": "global", "fit": m.fit, "diagnostics": m.diagnostics })
+            }
+            Model::Detail(m) => serde_json::json!({
+                "mode": "detail",
+                "diagnostics": m.diagnostics,
+            }),
+        }
+    }
+
+    /// The model file's name and bytes: `model.json` (global) or `model.mpu` (detail).
+    ///
+    /// # Errors
+    /// [`ExportError`] from the writer.
+    pub fn file(&self) -> Result<(&'static str, Vec<u8>), ExportError> {
+        let mut bytes = Vec::new();
+        match self {
+            Model::Global(m) => {
+                export::model::write_model(m, &mut bytes)?;
+                Ok(("model.json", bytes))
+            }
+            Model::Detail(m) => {
+                export::mpu::write_mpu(m, &mut bytes)?;
+                Ok(("model.mpu", bytes))
+            }
+        }
+    }
+}
+
+/// The region a model is meshed in: its stored box, or the normalization sphere's cube.
+pub fn meshing_region(model: &ImplicitModel) -> Aabb {
+    model.bounds.unwrap_or_else(|| {
+        let p = &model.polynomial;
+        let r = 1.6 * p.scale;
+        Aabb {
+            min: [p.center[0] - r, p.center[1] - r, p.center[2] - r],
+            max: [p.center[0] + r, p.center[1] + r, p.center[2] + r],
+        }
+    })
+}
