@@ -322,12 +322,12 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
     let (mut vertices, triangles, edge_of): (Vec<extract::PlacedVertex>, Vec<[u32; 3]>, Vec<u32>) =
         match simplification {
             Simplification::None => (
-                extract::place_vertices(function, grid, &edges, &end_values, tolerance),
+                extract::place_vertices(function, grid, edges, end_values, tolerance),
                 triangles,
                 (0..edges.len() as u32).collect(),
             ),
             Simplification::EdgeCollapse => {
-                let (positions, sizes) = extract::approximate_vertices(grid, &edges, &end_values);
+                let (positions, sizes) = extract::approximate_vertices(grid, edges, end_values);
                 // The surviving vertices are placed inside the simplification, as soon as each is
                 // known to survive (see simplify::simplify).
                 let place = |v: u32| {
