@@ -49,7 +49,8 @@
 //!   runs right after the probe, before (c), being the cheapest decisive check (on the bunny
 //!   it rejects κ = 1.8e-2 … 5.6e-2 on its own).
 //!
-//! `STABLESURF_KAPPA_TRACE=1` prints each solve and check with its wall time to stderr.
+//! Each solve and check is logged with its wall time at the `trace` level of the `log` crate
+//! (target `stablesurf::fit::kappa`), a profiling aid that changes no decision.
 //!
 //! The shortcuts decide the same question as the meshes they replace, from the exact zero set;
 //! over the κ study (108 cases, both rules) and on the bunny they give the same κ as meshing
@@ -67,6 +68,8 @@ use super::solve;
 use super::system::{Normalization, System};
 use super::FitError;
 use crate::cloud::{Aabb, OrientedCloud};
+use crate::implicit::{Enclosure, GridValues, ImplicitFunction};
+use crate::numerics::UnionFind;
 use crate::poly::ImplicitPolynomial;
 
 /// The fallback κ when no grid value qualifies.
@@ -82,21 +85,9 @@ const CHECK_DEPTH: u32 = 6;
 /// Points used for the data pieces and the distance checks.
 const MAX_CHECK_POINTS: usize = 20_000;
 
-/// Whether `STABLESURF_KAPPA_TRACE` is set: the stable rule then prints each check's wall time
-/// to stderr (a profiling aid; it changes no decision).
-fn tracing() -> bool {
-    static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *ON.get_or_init(|| std::env::var_os("STABLESURF_KAPPA_TRACE").is_some())
-}
-
-/// Prints `what` and the wall time since `start` when tracing.
+/// Logs `what` and the wall time since `start` at the `trace` level.
 fn trace(start: std::time::Instant, what: std::fmt::Arguments) {
-    if tracing() {
-        eprintln!(
-            "kappa trace: {:>8.2} ms  {what}",
-            start.elapsed().as_secs_f64() * 1e3
-        );
-    }
+    log::trace!("{:>8.2} ms  {what}", start.elapsed().as_secs_f64() * 1e3);
 }
 
 /// The κ grid: 0, then 10^(−8 + i/4) for i = 0 … 32 (1e-8 … 1, four steps a decade).
@@ -318,7 +309,7 @@ impl DataPieces {
             .map(|p| norm.apply(*p))
             .collect();
         let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&points).ok()?;
-        let mut parent: Vec<u32> = (0..points.len() as u32).collect();
+        let mut sets = UnionFind::new(points.len());
         let k = std::num::NonZeroUsize::new(12).unwrap_or(std::num::NonZeroUsize::MIN);
         // The 12 nearest neighbours within NEAR_DATA, searched in parallel (the radius bound
         // prunes the search); the union-find pass is sequential. The components do not depend
@@ -338,10 +329,10 @@ impl DataPieces {
             .collect();
         for (i, neighbours) in near.iter().enumerate() {
             for &item in neighbours {
-                union(&mut parent, i as u32, item);
+                sets.union(i as u32, item);
             }
         }
-        let (labels, n_pieces) = compact_labels(&mut parent);
+        let (labels, n_pieces) = compact_labels(&mut sets);
         Some(DataPieces {
             tree,
             labels,
@@ -361,30 +352,12 @@ impl DataPieces {
     }
 }
 
-fn find(parent: &mut [u32], mut i: u32) -> u32 {
-    while parent[i as usize] != i {
-        let grand = parent[parent[i as usize] as usize];
-        parent[i as usize] = grand;
-        i = grand;
-    }
-    i
-}
-
-fn union(parent: &mut [u32], a: u32, b: u32) {
-    let (ra, rb) = (find(parent, a), find(parent, b));
-    if ra != rb {
-        // Smaller root wins: labels do not depend on visiting order details.
-        let (lo, hi) = if ra < rb { (ra, rb) } else { (rb, ra) };
-        parent[hi as usize] = lo;
-    }
-}
-
 /// Labels 0.. in order of first appearance, and their count.
-fn compact_labels(parent: &mut [u32]) -> (Vec<u32>, usize) {
+fn compact_labels(sets: &mut UnionFind) -> (Vec<u32>, usize) {
     let mut map = std::collections::HashMap::new();
-    let mut labels = Vec::with_capacity(parent.len());
-    for i in 0..parent.len() as u32 {
-        let root = find(parent, i);
+    let mut labels = Vec::with_capacity(sets.len());
+    for i in 0..sets.len() as u32 {
+        let root = sets.find(i);
         let next = map.len() as u32;
         labels.push(*map.entry(root).or_insert(next));
     }
@@ -519,13 +492,13 @@ impl FarCulled<'_> {
 }
 
 /// The enclosure [`FarCulled`] gives a discarded box.
-const DISCARDED: crate::polygonize::function::Enclosure = crate::polygonize::function::Enclosure {
+const DISCARDED: Enclosure = Enclosure {
     value: (f64::MIN_POSITIVE, f64::INFINITY),
     gradient: [(f64::NEG_INFINITY, f64::INFINITY); 3],
     value_error: 0.0,
 };
 
-impl crate::polygonize::ImplicitFunction for FarCulled<'_> {
+impl ImplicitFunction for FarCulled<'_> {
     fn value(&self, p: [f64; 3]) -> f64 {
         self.poly.value(p)
     }
@@ -545,7 +518,7 @@ impl crate::polygonize::ImplicitFunction for FarCulled<'_> {
         self.poly.gradient_bounds_on_box(b)
     }
 
-    fn enclosure_on_box(&self, b: &Aabb) -> crate::polygonize::function::Enclosure {
+    fn enclosure_on_box(&self, b: &Aabb) -> Enclosure {
         if self.certified_positive(b) {
             return DISCARDED;
         }
@@ -556,10 +529,7 @@ impl crate::polygonize::ImplicitFunction for FarCulled<'_> {
         &self,
         b: &Aabb,
         axes: &[[f64; 2]; 3],
-    ) -> (
-        crate::polygonize::function::Enclosure,
-        Option<crate::polygonize::function::GridValues>,
-    ) {
+    ) -> (Enclosure, Option<GridValues>) {
         if self.certified_positive(b) {
             return (DISCARDED, None);
         }
@@ -1176,7 +1146,6 @@ fn whole_faces(s_lo: f64, s_hi: f64) -> Vec<Frustum> {
 /// from the data where the box enclosures of [`shell_sign`] cannot (f grows like sⁿ there, and
 /// the box forms lose that cancellation). The verdict does not depend on the thread count.
 fn far_sign(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64) -> Shell {
-    use crate::polygonize::ImplicitFunction;
     use rayon::prelude::*;
     if !(s_lo > 0.0 && s_hi.is_finite()) {
         return Shell::Unknown;
@@ -1245,9 +1214,7 @@ fn far_sign(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64) -> Shell {
                 }
             })
             .collect();
-        if tracing() {
-            eprintln!("      far_sign {s_lo:.2}..{s_hi:.2} level {level}: {} frustums, {} by bernstein, {} split", cells.len(), by_bernstein.into_inner(), verdicts.iter().filter(|v| matches!(v, Verdict::Split)).count());
-        }
+        log::trace!("      far_sign {s_lo:.2}..{s_hi:.2} level {level}: {} frustums, {} by bernstein, {} split", cells.len(), by_bernstein.into_inner(), verdicts.iter().filter(|v| matches!(v, Verdict::Split)).count());
         if let Some(shell) = level_outcome(&verdicts, level == FAR_MAX_LEVEL) {
             return shell;
         }
@@ -1304,7 +1271,6 @@ const FAR_POSITIVE_RATIO: f64 = 0.25;
 /// "not proved" (the refinement limits were reached). Used only as a certificate that lets the
 /// mesher skip cells ([`FarCulled`]), so it may give up where [`far_sign`] would not.
 fn far_positive(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64, ratio: f64) -> bool {
-    use crate::polygonize::ImplicitFunction;
     use rayon::prelude::*;
     if !(s_lo > 0.0 && s_hi.is_finite()) || poly.coefficients.iter().any(|c| !c.is_finite()) {
         return false;
@@ -1314,9 +1280,7 @@ fn far_positive(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64, ratio: f64) -> 
     let mut total = 0usize;
     for level in 0..=2 * FAR_MAX_LEVEL {
         if cells.is_empty() {
-            if tracing() {
-                eprintln!("      far_positive {s_lo:.2}..{s_hi:.2} ratio {ratio}: {total} frustums, {level} levels");
-            }
+            log::trace!("      far_positive {s_lo:.2}..{s_hi:.2} ratio {ratio}: {total} frustums, {level} levels");
             return true;
         }
         if cells.len() > 4 * FAR_MAX_CELLS {
@@ -1366,11 +1330,7 @@ fn far_positive(poly: &ImplicitPolynomial, s_lo: f64, s_hi: f64, ratio: f64) -> 
             break;
         }
     }
-    if tracing() {
-        eprintln!(
-            "      far_positive {s_lo:.2}..{s_hi:.2} ratio {ratio}: {total} frustums, gave up"
-        );
-    }
+    log::trace!("      far_positive {s_lo:.2}..{s_hi:.2} ratio {ratio}: {total} frustums, gave up");
     false
 }
 
@@ -1381,12 +1341,11 @@ const SHELL_MAX_CELLS: usize = 40_000;
 
 /// The sign of f (normalized coordinates) on the shell [−outer, outer]³ minus the open box
 /// (−hole, hole)³: an octree over the outer box, level by level, drops the cells inside the
-/// hole and those whose guaranteed enclosure (the polygonize stage's Taylor form,
+/// hole and those whose guaranteed enclosure (the Taylor form of
 /// [`ImplicitFunction::bounds_on_box`]) is positive, and stops at the first cell centre in the
 /// shell where f < 0. The verdict does not depend on the thread count (each level is decided
 /// as a whole).
 fn shell_sign(poly: &ImplicitPolynomial, outer: f64, hole: f64) -> Shell {
-    use crate::polygonize::ImplicitFunction;
     use rayon::prelude::*;
     let mut cells: Vec<[f64; 3]> = vec![[0.0; 3]];
     let mut half = outer;
