@@ -25,7 +25,7 @@ pub mod measure;
 pub mod merge;
 pub mod mesh;
 pub mod normals;
-mod numerics;
+pub mod numerics;
 pub mod outliers;
 pub mod outputs;
 pub mod pipeline;

@@ -45,8 +45,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::measure::PointTree;
 use crate::mesh::{self, TriangleMesh, VertexTriangles};
-use crate::normals::neighbours::PointGrid;
-use crate::numerics::UnionFind;
+use crate::numerics::{PointGrid, UnionFind};
 use crate::vec3::{cross, dot, norm, sub};
 
 /// Version of this stage's algorithm: if you change anything that changes its output for the
