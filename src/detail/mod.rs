@@ -80,8 +80,8 @@ const PLANE_BELOW: usize = 5;
 /// facing each other across a thin gap, or a sharp crease) needs at least this many points to
 /// be fitted on its own (1.2 × the 20 coefficients of a cubic); with fewer it is grown like a
 /// sparse ball. With the 15 points that suffice on one sheet, a quadric through two facing
-/// sheets can join them by a bridge that no data point sees: the quadknot (1,440 points, genus
-/// 1) came out as genus 6 plus two small closed pieces in the gaps where the tube passes
+/// sheets can join them by a bridge that no data point sees: the quadknot (1,440 points,
+/// genus 1) came out as genus 6 plus two small closed pieces in the gaps where the tube passes
 /// itself; with this rule it is one piece of genus 1, and the other meshes of ../shared/data
 /// are unchanged in topology and within 0.5% in Chamfer distance.
 const FOLD_MIN_POINTS: usize = 24;
