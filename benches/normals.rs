@@ -132,8 +132,42 @@ fn cpu_time() -> std::time::Duration {
     std::time::Duration::from_millis(10 * ticks)
 }
 
+/// Collects the phase times that the crust normals log at the `debug` level (their messages
+/// read `crust normals phase NAME: T ms`).
+struct PhaseLog(std::sync::Mutex<Vec<(String, std::time::Duration)>>);
+
+impl log::Log for PhaseLog {
+    fn enabled(&self, metadata: &log::Metadata<'_>) -> bool {
+        metadata.target().starts_with("stablesurf::normals")
+    }
+
+    fn log(&self, record: &log::Record<'_>) {
+        let message = record.args().to_string();
+        let Some(rest) = message.strip_prefix("crust normals phase ") else {
+            return;
+        };
+        let Some((phase, ms)) = rest.rsplit_once(": ") else {
+            return;
+        };
+        let ms: f64 = ms.trim_end_matches(" ms").parse().unwrap_or(f64::NAN);
+        if let (Ok(mut times), Ok(d)) = (
+            self.0.lock(),
+            std::time::Duration::try_from_secs_f64(ms / 1e3),
+        ) {
+            times.push((phase.to_string(), d));
+        }
+    }
+
+    fn flush(&self) {}
+}
+
+static PHASE_LOG: PhaseLog = PhaseLog(std::sync::Mutex::new(Vec::new()));
+
 /// Per-phase wall times of the crust normals, best of three runs (by total time).
 fn phases() {
+    if log::set_logger(&PHASE_LOG).is_ok() {
+        log::set_max_level(log::LevelFilter::Debug);
+    }
     let mut cases: Vec<(String, Vec<[f64; 3]>)> = Vec::new();
     if let Some(points) = bunny() {
         cases.push(("bunny".into(), points));
@@ -146,20 +180,20 @@ fn phases() {
         cases.push((format!("torus {n}"), torus(n)));
     }
     for (name, points) in cases {
-        let mut best: Option<Vec<(&'static str, std::time::Duration)>> = None;
+        let mut best: Option<Vec<(String, std::time::Duration)>> = None;
         let runs: usize = std::env::var("NORMALS_PHASES_RUNS")
             .ok()
             .and_then(|s| s.parse().ok())
             .unwrap_or(3);
         for _ in 0..runs {
-            let mut times = Vec::new();
+            PHASE_LOG.0.lock().unwrap().clear();
             let start = std::time::Instant::now();
             let cpu = cpu_time();
-            stablesurf::normals::crust::crust_normals_timed(&points, &crust_params(), &mut times)
-                .unwrap();
-            times.push(("CPU time (all threads)", cpu_time() - cpu));
-            times.push(("TOTAL", start.elapsed()));
-            let total = |t: &Vec<(&'static str, std::time::Duration)>| t.last().map(|x| x.1);
+            stablesurf::normals::crust::crust_normals(&points, &crust_params()).unwrap();
+            let mut times = std::mem::take(&mut *PHASE_LOG.0.lock().unwrap());
+            times.push(("CPU time (all threads)".into(), cpu_time() - cpu));
+            times.push(("TOTAL".into(), start.elapsed()));
+            let total = |t: &Vec<(String, std::time::Duration)>| t.last().map(|x| x.1);
             if best.as_ref().is_none_or(|b| total(&times) < total(b)) {
                 best = Some(times);
             }

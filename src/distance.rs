@@ -55,10 +55,10 @@
 use rayon::prelude::*;
 
 use crate::cloud::Aabb;
+use crate::implicit::ImplicitFunction;
 use crate::measure::{dist, dist2, GridMeshDistance, PointTree};
 use crate::mesh::TriangleMesh;
 use crate::poly::{n_coefficients, ImplicitPolynomial};
-use crate::polygonize::ImplicitFunction;
 
 /// Highest polynomial degree the distance evaluator accepts.
 pub const MAX_DEGREE: u32 = 32;

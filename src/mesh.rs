@@ -13,6 +13,7 @@
 //! components (union–find over triangle edges), and [`drop_components_far_from`] removes the
 //! components that no data point comes near (`--keep data`).
 
+use crate::numerics::UnionFind;
 use crate::vec3::{cross, norm, sub};
 use serde::{Deserialize, Serialize};
 
@@ -144,30 +145,18 @@ impl VertexTriangles {
 /// ```
 pub fn component_labels(mesh: &TriangleMesh) -> (usize, Vec<u32>) {
     let n = mesh.positions.len();
-    let mut parent: Vec<u32> = (0..n as u32).collect();
-    fn find(parent: &mut [u32], mut i: u32) -> u32 {
-        while parent[i as usize] != i {
-            let grand = parent[parent[i as usize] as usize];
-            parent[i as usize] = grand;
-            i = grand;
-        }
-        i
-    }
+    // The smaller index is always the root, so labels follow vertex order.
+    let mut sets = UnionFind::new(n);
     for t in valid_triangles(mesh) {
         for (a, b) in [(t[0], t[1]), (t[1], t[2])] {
-            let (ra, rb) = (find(&mut parent, a), find(&mut parent, b));
-            if ra != rb {
-                // Keep the smaller index as root so labels follow vertex order.
-                let (lo, hi) = if ra < rb { (ra, rb) } else { (rb, ra) };
-                parent[hi as usize] = lo;
-            }
+            sets.union(a, b);
         }
     }
     let mut labels = vec![u32::MAX; n];
     let mut root_label = vec![u32::MAX; n];
     let mut count = 0u32;
     for (i, label) in labels.iter_mut().enumerate() {
-        let root = find(&mut parent, i as u32) as usize;
+        let root = sets.find(i as u32) as usize;
         if root_label[root] == u32::MAX {
             root_label[root] = count;
             count += 1;
@@ -222,7 +211,7 @@ pub fn check(mesh: &TriangleMesh) -> MeshReport {
     let mut boundary_edges = 0;
     let mut non_manifold_edges = 0;
     let mut orientation_consistent = true;
-    let mut parent: Vec<usize> = Vec::new();
+    let mut fans = UnionFind::default();
     // (w, slot of the triangle around v, whether w follows v in that triangle's winding).
     let mut spokes: Vec<(u32, usize, bool)> = Vec::new();
     for v in 0..n {
@@ -261,25 +250,16 @@ pub fn check(mesh: &TriangleMesh) -> MeshReport {
         if around.len() < 2 {
             continue;
         }
-        parent.clear();
-        parent.extend(0..around.len());
-        fn root(parent: &mut [usize], mut i: usize) -> usize {
-            while parent[i] != i {
-                parent[i] = parent[parent[i]];
-                i = parent[i];
-            }
-            i
-        }
+        fans.reset(around.len());
         for pair in spokes.windows(2) {
             if pair[0].0 == pair[1].0 {
-                let (a, b) = (root(&mut parent, pair[0].1), root(&mut parent, pair[1].1));
-                parent[a.max(b)] = a.min(b);
+                fans.union(pair[0].1 as u32, pair[1].1 as u32);
             }
         }
-        let fans = (0..around.len())
-            .filter(|&i| root(&mut parent, i) == i)
+        let n_fans = (0..around.len() as u32)
+            .filter(|&i| fans.find(i) == i)
             .count();
-        if fans > 1 {
+        if n_fans > 1 {
             non_manifold_vertices += 1;
         }
     }
@@ -346,14 +326,7 @@ pub fn boundary_loops(mesh: &TriangleMesh) -> usize {
 /// number of boundary loops of a manifold mesh.
 fn boundary_pieces(n_vertices: usize, triangles: &[[u32; 3]]) -> usize {
     let edges = boundary_edges(triangles);
-    let mut parent: Vec<u32> = (0..n_vertices as u32).collect();
-    fn root(parent: &mut [u32], mut i: u32) -> u32 {
-        while parent[i as usize] != i {
-            parent[i as usize] = parent[parent[i as usize] as usize];
-            i = parent[i as usize];
-        }
-        i
-    }
+    let mut sets = UnionFind::new(n_vertices);
     let mut pieces = 0usize;
     let mut on_boundary = vec![false; n_vertices];
     for &[a, b] in &edges {
@@ -363,9 +336,7 @@ fn boundary_pieces(n_vertices: usize, triangles: &[[u32; 3]]) -> usize {
                 pieces += 1;
             }
         }
-        let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
-        if ra != rb {
-            parent[ra.max(rb) as usize] = ra.min(rb);
+        if sets.union(a, b) {
             pieces -= 1;
         }
     }

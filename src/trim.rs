@@ -46,7 +46,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::measure::PointTree;
 use crate::mesh::{self, TriangleMesh, VertexTriangles};
-use crate::normals::neighbours::PointGrid;
+use crate::numerics::{PointGrid, UnionFind};
 use crate::vec3::{cross, dot, norm, sub};
 
 /// Version of this stage's algorithm: if you change anything that changes its output for the
@@ -546,7 +546,7 @@ fn remove_extra_fans(
     queue.sort_unstable();
     let mut head = 0;
     let mut local: Vec<u32> = Vec::new();
-    let mut parent: Vec<usize> = Vec::new();
+    let mut sets = UnionFind::default();
     while head < queue.len() {
         let v = queue[head];
         head += 1;
@@ -562,15 +562,7 @@ fn remove_extra_fans(
         if local.len() < 2 {
             continue;
         }
-        parent.clear();
-        parent.extend(0..local.len());
-        fn root(parent: &mut [usize], mut i: usize) -> usize {
-            while parent[i] != i {
-                parent[i] = parent[parent[i]];
-                i = parent[i];
-            }
-            i
-        }
+        sets.reset(local.len());
         // Two triangles around v are in one fan when they share an edge through v.
         for i in 0..local.len() {
             let ti = mesh.triangles[local[i] as usize];
@@ -578,12 +570,13 @@ fn remove_extra_fans(
                 let tj = mesh.triangles[other as usize];
                 let shared = ti.iter().filter(|&&w| w != v && tj.contains(&w)).count();
                 if shared > 0 {
-                    let (a, b) = (root(&mut parent, i), root(&mut parent, j));
-                    parent[a.max(b)] = a.min(b);
+                    sets.union(i as u32, j as u32);
                 }
             }
         }
-        let roots: Vec<usize> = (0..local.len()).map(|i| root(&mut parent, i)).collect();
+        let roots: Vec<usize> = (0..local.len() as u32)
+            .map(|i| sets.find(i) as usize)
+            .collect();
         let mut fans: Vec<usize> = roots.clone();
         fans.sort_unstable();
         fans.dedup();

@@ -8,7 +8,7 @@
 
 use std::io::Write;
 
-use stablesurf::polygonize::function::ImplicitFunction;
+use stablesurf::implicit::ImplicitFunction;
 use stablesurf::polygonize::shapes;
 use stablesurf::Aabb;
 

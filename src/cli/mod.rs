@@ -13,6 +13,7 @@ mod cache;
 mod config;
 mod fit;
 mod info;
+mod logger;
 mod mesh;
 mod moments;
 mod normals;
@@ -58,6 +59,7 @@ pub fn run(cli: Cli) -> Result<()> {
             .build_global()
             .with_context(|| format!("setting up the thread pool of -j {n}"))?;
     }
+    logger::install(cli.verbose);
     let verbosity = if cli.quiet {
         Verbosity::Quiet
     } else if cli.verbose > 0 {

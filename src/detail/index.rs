@@ -42,8 +42,7 @@
 //! alone (deterministic), so a decoded model evaluates bit-identically to the fitted one.
 
 use crate::cloud::Aabb;
-use crate::polygonize::function::Enclosure;
-use crate::polygonize::ImplicitFunction;
+use crate::implicit::{Enclosure, ImplicitFunction};
 
 use super::MpuCell;
 

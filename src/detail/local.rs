@@ -48,9 +48,10 @@
 //! Invariants: the returned polynomial has finite coefficients and scale > 0; a system that
 //! cannot be solved returns `None` (never a panic).
 
+use crate::implicit::ImplicitFunction;
 use crate::measure::dist;
+use crate::numerics::cholesky;
 use crate::poly::{n_coefficients, ImplicitPolynomial};
-use crate::polygonize::ImplicitFunction;
 
 /// One auxiliary off-surface point: its position (input coordinates) and target value (an
 /// estimate of its signed distance, input units).
@@ -515,41 +516,18 @@ fn factorial(k: usize) -> f64 {
 /// Solves the symmetric positive definite system whose upper triangle is in `a` (row-major
 /// `c × c`) with right-hand side `b`, by Cholesky. `None` when it is not positive definite.
 fn cholesky_solve(a: &mut [f64], b: &mut [f64], c: usize) -> Option<Vec<f64>> {
-    // Factor A = UᵀU in place (U upper).
+    // The factorization reads the lower triangle: mirror the upper one into it.
     for i in 0..c {
-        let mut d = a[i * c + i];
-        for k in 0..i {
-            d -= a[k * c + i] * a[k * c + i];
-        }
-        if !(d > 0.0 && d.is_finite()) {
-            return None;
-        }
-        let d = d.sqrt();
-        a[i * c + i] = d;
         for j in i + 1..c {
-            let mut v = a[i * c + j];
-            for k in 0..i {
-                v -= a[k * c + i] * a[k * c + j];
-            }
-            a[i * c + j] = v / d;
+            a[j * c + i] = a[i * c + j];
         }
     }
-    // Uᵀy = b.
-    for i in 0..c {
-        let mut v = b[i];
-        for k in 0..i {
-            v -= a[k * c + i] * b[k];
-        }
-        b[i] = v / a[i * c + i];
+    cholesky::factor(a, c, 0.0).ok()?;
+    // `factor` accepts an infinite pivot; a local fit with one has failed.
+    if (0..c).any(|i| !a[i * c + i].is_finite()) {
+        return None;
     }
-    // Ux = y.
-    for i in (0..c).rev() {
-        let mut v = b[i];
-        for k in i + 1..c {
-            v -= a[i * c + k] * b[k];
-        }
-        b[i] = v / a[i * c + i];
-    }
+    cholesky::solve(a, c, b);
     Some(b.to_vec())
 }
 

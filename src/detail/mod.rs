@@ -56,10 +56,10 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::cloud::{Aabb, OrientedCloud};
+#[cfg(doc)]
+use crate::implicit::ImplicitFunction;
 use crate::measure::dist2;
 use crate::poly::{n_coefficients, ImplicitPolynomial};
-#[cfg(doc)]
-use crate::polygonize::ImplicitFunction;
 
 use local::{fit_local, AuxPoint, Constraints};
 
@@ -437,7 +437,7 @@ impl Part {
 /// ```
 /// use stablesurf::detail::{fit_detail, DetailParams};
 /// use stablesurf::fit::study::{sample, Shape, Variant};
-/// use stablesurf::polygonize::ImplicitFunction;
+/// use stablesurf::implicit::ImplicitFunction;
 /// let cloud = sample(Shape::Sphere, Variant::Clean, 500, 1);
 /// let model = fit_detail(&cloud, &DetailParams::default()).unwrap();
 /// assert!(model.value([0.0, 0.0, 0.0]) < 0.0); // inside
@@ -575,7 +575,7 @@ fn validate_params(params: &DetailParams) -> Result<(), DetailError> {
 
 /// Largest and mean |f|/|∇f| of the blend over `points` (fixed chunks, ordered reduction).
 fn data_residuals(model: &MpuModel, points: &[[f64; 3]]) -> (f64, f64) {
-    use crate::polygonize::ImplicitFunction;
+    use crate::implicit::ImplicitFunction;
     let per_chunk: Vec<(f64, f64)> = points
         .par_chunks(4096)
         .map(|chunk| {

@@ -11,6 +11,8 @@ use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::evd::{self_adjoint_evd, self_adjoint_evd_scratch, ComputeEigenvectors};
 use faer::{Mat, Par};
 
+use crate::numerics::cholesky;
+
 /// Why a solve failed.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) enum SolveFailure {
@@ -35,10 +37,14 @@ pub(crate) fn solve_ridge(
     kappa: f64,
 ) -> Result<RidgeSolution, SolveFailure> {
     let c = rhs.len();
-    let (scaled, s) = scaled_matrix(gram, ridge, kappa, c);
-    let chol = cholesky(scaled, c)?;
+    let (mut chol, s) = scaled_matrix(gram, ridge, kappa, c);
+    // Relative pivot floor: a pivot this small means the scaled matrix is singular to working
+    // precision.
+    let floor = 1e-15 * c as f64;
+    cholesky::factor(&mut chol, c, floor)
+        .map_err(|column| SolveFailure::NotPositiveDefinite { column })?;
     let mut y: Vec<f64> = (0..c).map(|l| rhs[l] * s[l]).collect();
-    cholesky_solve(&chol, c, &mut y);
+    cholesky::solve(&chol, c, &mut y);
     let coefficients = (0..c).map(|l| y[l] * s[l]).collect();
     Ok(RidgeSolution { coefficients })
 }
@@ -71,52 +77,6 @@ pub(crate) fn scaled_matrix(
         }
     }
     (a, s)
-}
-
-/// In-place lower Cholesky factor (row-major, lower triangle valid) of a symmetric matrix.
-fn cholesky(mut a: Vec<f64>, c: usize) -> Result<Vec<f64>, SolveFailure> {
-    // Relative pivot floor: a pivot this small means the scaled matrix is singular to working
-    // precision.
-    let floor = 1e-15 * c as f64;
-    for j in 0..c {
-        let (head, tail) = a.split_at_mut(j * c);
-        let row_j = &mut tail[..c];
-        for k in 0..j {
-            let row_k = &head[k * c..k * c + c];
-            let mut sum = row_j[k];
-            for m in 0..k {
-                sum -= row_j[m] * row_k[m];
-            }
-            row_j[k] = sum / row_k[k];
-        }
-        let mut d = row_j[j];
-        for v in &row_j[..j] {
-            d -= v * v;
-        }
-        if d.is_nan() || d <= floor {
-            return Err(SolveFailure::NotPositiveDefinite { column: j });
-        }
-        row_j[j] = d.sqrt();
-    }
-    Ok(a)
-}
-
-/// Solves L Lᵀ y = b in place with the factor from [`cholesky`].
-fn cholesky_solve(l: &[f64], c: usize, y: &mut [f64]) {
-    for i in 0..c {
-        let mut sum = y[i];
-        for m in 0..i {
-            sum -= l[i * c + m] * y[m];
-        }
-        y[i] = sum / l[i * c + i];
-    }
-    for i in (0..c).rev() {
-        let mut sum = y[i];
-        for m in i + 1..c {
-            sum -= l[m * c + i] * y[m];
-        }
-        y[i] = sum / l[i * c + i];
-    }
 }
 
 /// Eigenvalues (ascending) and, if asked, eigenvectors (columns, c×c column-major) of a

@@ -149,7 +149,18 @@ fn circumcentre(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], d: &[f64; 3]) -> [f64;
 /// assert_eq!(c.triangles.len(), 8);
 /// ```
 pub fn crust(points: &[[f64; 3]]) -> Result<Crust, NormalsError> {
-    crust_timed(points, &mut Vec::new())
+    let mut times = Vec::new();
+    let crust = crust_timed(points, &mut times);
+    log_phases("crust", &times);
+    crust
+}
+
+/// Logs the wall time of each phase at the `debug` level, in phase order (a profiling aid:
+/// `-vv` on the command line, or a logger of the benches).
+fn log_phases(what: &str, times: &[(&'static str, std::time::Duration)]) {
+    for (phase, time) in times {
+        log::debug!("{what} phase {phase}: {:.1} ms", time.as_secs_f64() * 1e3);
+    }
 }
 
 /// Wall-clock laps of the phases, for [`crust_timed`] and [`crust_normals_timed`].
@@ -163,11 +174,8 @@ impl Laps {
     }
 }
 
-/// [`crust`], appending the wall time of its phases to `times`: a profiling aid for the benches.
-///
-/// # Errors
-/// As [`crust`].
-pub fn crust_timed(
+/// [`crust`], appending the wall time of its phases to `times`.
+fn crust_timed(
     points: &[[f64; 3]],
     times: &mut Vec<(&'static str, std::time::Duration)>,
 ) -> Result<Crust, NormalsError> {
@@ -473,15 +481,14 @@ pub fn crust_normals(
     points: &[[f64; 3]],
     params: &NormalsParams,
 ) -> Result<CrustNormals, NormalsError> {
-    crust_normals_timed(points, params, &mut Vec::new())
+    let mut times = Vec::new();
+    let normals = crust_normals_timed(points, params, &mut times);
+    log_phases("crust normals", &times);
+    normals
 }
 
-/// [`crust_normals`], appending the wall time of its phases to `times`: a profiling aid for the
-/// benches.
-///
-/// # Errors
-/// As [`crust_normals`].
-pub fn crust_normals_timed(
+/// [`crust_normals`], appending the wall time of its phases to `times`.
+fn crust_normals_timed(
     points: &[[f64; 3]],
     params: &NormalsParams,
     times: &mut Vec<(&'static str, std::time::Duration)>,

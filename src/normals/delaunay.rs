@@ -381,11 +381,8 @@ pub fn tetrahedralize(points: &[[f64; 3]]) -> Result<Tetrahedralization, Normals
 }
 
 /// [`tetrahedralize`], appending the wall time of its phases (checks, sort, insertion,
-/// compaction) to `times`: a profiling aid for the benches.
-///
-/// # Errors
-/// As [`tetrahedralize`].
-pub fn tetrahedralize_timed(
+/// compaction) to `times`.
+fn tetrahedralize_timed(
     points: &[[f64; 3]],
     times: &mut Vec<(&'static str, std::time::Duration)>,
 ) -> Result<Tetrahedralization, NormalsError> {

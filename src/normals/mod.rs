@@ -41,7 +41,6 @@
 pub mod crust;
 pub mod delaunay;
 pub mod faces;
-pub mod neighbours;
 pub mod orient;
 pub mod pca;
 

@@ -18,9 +18,9 @@
 
 use rayon::prelude::*;
 
-use crate::normals::neighbours::PointGrid;
 use crate::normals::vec3::{dot, normalized, sub};
 use crate::normals::NormalsParams;
+use crate::numerics::PointGrid;
 
 /// The neighbour index over the points (`None` when there are none or a coordinate is not
 /// finite).

@@ -57,9 +57,9 @@ use std::hash::BuildHasherDefault;
 
 use rayon::prelude::*;
 
-use super::function::ImplicitFunction;
 use super::grid::{pack, unpack, Grid, MultiplyHasher};
 use super::octree::{Cell, Octree};
+use crate::implicit::ImplicitFunction;
 use crate::vec3::norm;
 
 /// A lattice edge: the packed keys of its two ends, smaller one in the high half.

@@ -19,7 +19,7 @@
 //! # Algorithm
 //!
 //! 1. **Octree** ([`octree`]): starting from the region, a cell is discarded when a guaranteed
-//!    enclosure of f over it (the centred Taylor form, [`function`]) excludes 0, so no piece of
+//!    enclosure of f over it (the centred Taylor form, [`crate::implicit`]) excludes 0, so no piece of
 //!    the zero set is ever lost between samples; otherwise it is split until level `depth`, and
 //!    beyond that, up to `depth + guard_levels`, while Plantinga & Vegter's normal-variation test
 //!    on the gradient enclosure fails (the topology guard). Only cells near the zero set survive,
@@ -91,13 +91,12 @@
 //! ```
 
 mod extract;
-pub mod function;
 mod grid;
 mod octree;
 pub mod shapes;
 mod simplify;
 
-pub use function::ImplicitFunction;
+pub use crate::implicit::ImplicitFunction;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};

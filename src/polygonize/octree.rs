@@ -31,9 +31,9 @@ use std::hash::BuildHasherDefault;
 
 use rayon::prelude::*;
 
-use super::function::{Enclosure, GridValues, ImplicitFunction};
 use super::grid::{Grid, MultiplyHasher};
 use crate::cloud::Aabb;
+use crate::implicit::{Enclosure, GridValues, ImplicitFunction};
 
 /// Levels below which the children of a cell are processed in parallel (8³ = 512 tasks).
 const PARALLEL_LEVELS: u32 = 3;

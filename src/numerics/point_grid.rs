@@ -1,4 +1,5 @@
-//! Exact k-nearest-neighbour queries of the `normals` stage, on a uniform grid of buckets.
+//! Exact k-nearest-neighbour queries on a uniform grid of buckets, for the plane fits of the
+//! `normals` stage and the local sample spacings of `trim`.
 //!
 //! Input: the points (finite coordinates, any number up to `u32::MAX`). Output: for a point of
 //! the set, its k nearest neighbours, nearest first, ties in distance broken by the smaller
@@ -26,7 +27,7 @@
 
 use rayon::prelude::*;
 
-use crate::normals::vec3::sub;
+use crate::vec3::sub;
 
 /// Largest number of cells the grid may have, per point (the cell size grows to keep it).
 const CELLS_PER_POINT: usize = 2;
@@ -158,7 +159,7 @@ impl PointGrid {
                 let from = self.start[row + lo[0]] as usize;
                 let to = self.start[row + hi[0] + 1] as usize;
                 for (p, &item) in self.sorted[from..to].iter().zip(&self.items[from..to]) {
-                    let d = sub(p, &q);
+                    let d = sub(*p, q);
                     let d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
                     if d2 <= r2 {
                         keys.push(order_key(d2, item));
@@ -301,7 +302,7 @@ mod tests {
             .iter()
             .enumerate()
             .map(|(j, p)| {
-                let d = sub(p, &points[i]);
+                let d = sub(*p, points[i]);
                 order_key(d[0] * d[0] + d[1] * d[1] + d[2] * d[2], j as u32)
             })
             .collect();
