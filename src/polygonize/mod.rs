@@ -269,7 +269,8 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
         // A crossing survived every fallback position: an edge collapse made it on the very
         // positions it was judged on. The marching-tetrahedra mesh without collapses, its
         // vertices on their lattice edges, is embedded by construction (each triangle lies in
-        // its own tetrahedron), so the repair of step 5 always ends without crossings there.
+        // its own tetrahedron), so the repair of step 5 ends without crossings there (short of
+        // degenerate triangles, which `mesh::check` would still count).
         spent_before = done.vertices.iter().map(|v| v.evaluations).sum::<u64>();
         simplified = false;
         done = place_and_repair(
