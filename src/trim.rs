@@ -80,8 +80,9 @@ pub struct TrimParams {
     pub keep_area_share: f64,
     /// When the trim opens the mesh (a region reaches the boundary or exceeds
     /// `keep_area_share`), an enclosed unsupported region is removed too when it reaches deeper
-    /// than this many local spacings *and* deeper than `hole_depth_share`: some triangle's centroid lies that far
-    /// from its nearest data point, in that point's spacings. A hole of the scan up to about
+    /// than this many local spacings *and* deeper than `hole_depth_share`: the region's deepest
+    /// centroid, in its nearest data point's spacings, lies beyond this (the two depths are
+    /// each the region's largest, possibly at different triangles). A hole of the scan up to about
     /// 2 × 10 samples across is closed; the unseen underside of a single view, which the blend
     /// bulges out past the data, is not (bunny top view: 20–40 spacings deep, 7.9% of the
     /// diagonal). The sparse vertices of a closed mesh leave regions 5–10 spacings deep between
@@ -439,9 +440,9 @@ impl EdgeMap {
     }
 }
 
-/// Step 3: which triangles to remove, and how many unsupported regions are kept.
-/// How far an unsupported triangle's centroid (or the farthest of a region's) lies from the
-/// data.
+/// How far an unsupported triangle's centroid lies from the data; for a region, the largest of
+/// each over its triangles (taken separately: one triangle may give the spacings, another the
+/// distance).
 #[derive(Clone, Copy, Debug, Default)]
 struct Depth {
     /// In local spacings of the nearest data point.
@@ -450,6 +451,9 @@ struct Depth {
     distance: f64,
 }
 
+/// Step 3: which triangles to remove, and how many unsupported regions are kept. Whether a
+/// region opens the mesh is decided over the whole mesh: an opening in one piece lets deep
+/// enclosed regions go in every piece.
 fn unsupported_regions(
     mesh: &TriangleMesh,
     edges: &EdgeMap,

@@ -76,17 +76,20 @@ const PARALLEL_LEVELS: u32 = 3;
 /// the diagonal, with a quadric for every grown cell against a plane for these).
 const PLANE_BELOW: usize = 5;
 
-/// A ball whose normals fold (some point's normal more than 90° from their sum: two sheets
-/// facing each other across a thin gap, or a sharp crease) needs at least this many points to
-/// be fitted on its own (1.2 × the 20 coefficients of a cubic); with fewer it is grown like a
-/// sparse ball. With the 15 points that suffice on one sheet, a quadric through two facing
-/// sheets can join them by a bridge that no data point sees: the quadknot of ../shared/data
-/// (1,440 points, genus one) came out as genus 6 plus two small closed pieces in the gaps
-/// where the tube passes itself; with this rule it is one piece of genus 1, and the other
-/// meshes there are unchanged in topology and within 0.5% in Chamfer distance.
+/// A ball whose normals fold (some point's normal at 90° or more from their sum: two sheets
+/// facing each other across a thin gap, or a sharp crease) is fitted on its own and may be split
+/// only when it holds at least this many points (1.2 × the 20 coefficients of a cubic); with
+/// fewer it is treated as a grown cell: fitted at degree ≤ 2 to the `N_min` points nearest its
+/// centre, and never split. A quadric fitted to the 15–23 points of a folded ball, and its
+/// children fitted the same way, could join the two sheets by a bridge that no data point sees:
+/// the quadknot of ../shared/data (1,440 points, genus one) came out as genus 6 plus two small
+/// closed pieces in the gaps where the tube passes itself; with this rule it is one piece of
+/// genus 1, and the other meshes there are unchanged in topology and within 0.5% in Chamfer
+/// distance. At local degree 3 or 4, `N_min` (24 or 42) already covers the rule.
 const FOLD_MIN_POINTS: usize = 24;
 
-/// Whether some normal of `ball` points more than 90° away from the sum of them all.
+/// Whether some normal of `ball` points 90° or more away from the sum of them all (every normal
+/// does when they cancel out).
 fn normals_fold(normals: &[[f64; 3]], ball: &[u32]) -> bool {
     let mut sum = [0.0f64; 3];
     for &i in ball {
@@ -97,7 +100,7 @@ fn normals_fold(normals: &[[f64; 3]], ball: &[u32]) -> bool {
     }
     ball.iter().any(|&i| {
         let n = normals[i as usize];
-        n[0] * sum[0] + n[1] * sum[1] + n[2] * sum[2] < 0.0
+        n[0] * sum[0] + n[1] * sum[1] + n[2] * sum[2] <= 0.0
     })
 }
 
@@ -268,7 +271,8 @@ pub struct MpuCell {
     pub fit_radius: f64,
     /// Octree level of the cell (0 = root cube).
     pub level: u32,
-    /// Whether the ball was grown to reach enough points (such cells have degree ≤ 2).
+    /// Whether the ball was grown to reach enough points, or held too few for its folded normals
+    /// (see `FOLD_MIN_POINTS`); such cells have degree ≤ 2 and are never split.
     pub grown: bool,
     /// The local fit, with its own centre/scale normalization, scaled so that it is close to a
     /// signed distance in input units near its data (negative inside).

@@ -194,7 +194,8 @@ pub struct Polygonized {
     /// Number of function evaluations spent: point values, value-and-gradient evaluations, and
     /// box enclosures (of the value, or of value and gradient together), each counted once.
     /// Placements computed ahead for vertices a later collapse removes are not counted, so the
-    /// count does not depend on the scheduling.
+    /// count does not depend on the scheduling; when the mesh is made again without collapses
+    /// (step 5), the first attempt's placements are counted too.
     pub evaluations: u64,
     /// Number of surface leaves (octree cells the zero set may cross) that were triangulated.
     pub cells: usize,
@@ -250,6 +251,8 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
         extract::triangulate(function, &grid, &tree);
     let diagonal = region.diagonal();
     let tolerance = PROJECTION_TOLERANCE * diagonal;
+    // Kept for the rare remake without collapses (step 5): a copy of the index triples, about a
+    // tenth of the stage's peak memory.
     let fallback_triangles = match params.simplification {
         Simplification::EdgeCollapse => Some(triangles.clone()),
         Simplification::None => None,
