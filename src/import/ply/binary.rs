@@ -1,0 +1,592 @@
+//! The PLY binary body reader, little- and big-endian: body bytes and the [`Header`] and
+//! [`Plan`] → [`PointCloud`] (and a range grid's cells), with the element count that would make
+//! a bad body read when one would.
+
+use super::header::{Element, Header, PropertyType, Scalar};
+use super::Plan;
+use crate::cloud::PointCloud;
+use crate::import::{push_fan, ImportError};
+
+/// A capacity that a lying header count cannot blow up: at most one entry per remaining byte.
+fn capped_capacity(count: u64, remaining_bytes: usize) -> usize {
+    usize::try_from(count)
+        .unwrap_or(usize::MAX)
+        .min(remaining_bytes)
+}
+
+/// Reads one scalar at the start of `bytes`, or `None` when too few bytes remain.
+#[inline(always)]
+fn scalar_f64<const BIG: bool>(bytes: &[u8], ty: Scalar) -> Option<f64> {
+    macro_rules! get {
+        ($t:ty, $n:literal) => {{
+            let raw: [u8; $n] = bytes.get(..$n)?.try_into().ok()?;
+            if BIG {
+                <$t>::from_be_bytes(raw)
+            } else {
+                <$t>::from_le_bytes(raw)
+            }
+        }};
+    }
+    Some(match ty {
+        Scalar::I8 => f64::from(get!(i8, 1)),
+        Scalar::U8 => f64::from(get!(u8, 1)),
+        Scalar::I16 => f64::from(get!(i16, 2)),
+        Scalar::U16 => f64::from(get!(u16, 2)),
+        Scalar::I32 => f64::from(get!(i32, 4)),
+        Scalar::U32 => f64::from(get!(u32, 4)),
+        Scalar::F32 => f64::from(get!(f32, 4)),
+        Scalar::F64 => get!(f64, 8),
+    })
+}
+
+/// Reads one integer scalar at the start of `bytes` (list counts and indices).
+#[inline(always)]
+fn scalar_i64<const BIG: bool>(bytes: &[u8], ty: Scalar) -> Option<i64> {
+    macro_rules! get {
+        ($t:ty, $n:literal) => {{
+            let raw: [u8; $n] = bytes.get(..$n)?.try_into().ok()?;
+            i64::from(if BIG {
+                <$t>::from_be_bytes(raw)
+            } else {
+                <$t>::from_le_bytes(raw)
+            })
+        }};
+    }
+    Some(match ty {
+        Scalar::I8 => get!(i8, 1),
+        Scalar::U8 => get!(u8, 1),
+        Scalar::I16 => get!(i16, 2),
+        Scalar::U16 => get!(u16, 2),
+        Scalar::I32 => get!(i32, 4),
+        Scalar::U32 => get!(u32, 4),
+        // Float indices are refused by `Plan::new` and float counts by the header parser.
+        Scalar::F32 | Scalar::F64 => return None,
+    })
+}
+
+/// The values a binary walk collects from one entry.
+struct Wanted<'a> {
+    /// Property indices whose scalar values go to `values[slot]`.
+    scalars: &'a [(usize, usize)],
+    /// Property index of the list to collect.
+    list: Option<usize>,
+}
+
+/// Reads a binary body. On an error, when the body reads without error with one element count
+/// changed by up to 3, the error says so: that is what a wrong count in the header looks like
+/// (a vertex count one too large reads a face's bytes as a vertex and the faces out of place).
+pub(super) fn read_binary<const BIG: bool>(
+    body: &[u8],
+    header: &Header,
+    plan: &Plan,
+    path: &str,
+    cells: &mut Vec<u32>,
+) -> Result<PointCloud, ImportError> {
+    let error = match read_binary_body::<BIG>(body, header, plan, path, cells) {
+        Ok(cloud) => return Ok(cloud),
+        Err(error) => error,
+    };
+    let Some(hint) = count_hint::<BIG>(body, header, plan) else {
+        return Err(error);
+    };
+    Err(match error {
+        ImportError::Truncated { path, detail } => ImportError::Truncated {
+            path,
+            detail: format!("{detail}; {hint}"),
+        },
+        ImportError::BadBinary {
+            path,
+            element,
+            entry,
+            offset,
+            message,
+        } => ImportError::BadBinary {
+            path,
+            element,
+            entry,
+            offset,
+            message: format!("{message}; {hint}"),
+        },
+        ImportError::HeaderCountMismatch {
+            path,
+            what,
+            declared,
+            found,
+        } => ImportError::HeaderCountMismatch {
+            path,
+            what: format!("{what} ({hint})"),
+            declared,
+            found,
+        },
+        other => other,
+    })
+}
+
+/// Bodies larger than this get no [`count_hint`] (each try reads the whole body again).
+const HINT_MAX_BYTES: usize = 32 << 20;
+
+/// `the body reads without error with `element NAME N` instead of M: fix that count in the
+/// header` when changing one element's count by up to 3 makes the whole body read.
+fn count_hint<const BIG: bool>(body: &[u8], header: &Header, plan: &Plan) -> Option<String> {
+    if body.len() > HINT_MAX_BYTES {
+        return None;
+    }
+    for e in 0..header.elements.len() {
+        for delta in [-1i64, 1, -2, 2, -3, 3] {
+            let count = header.elements[e].count;
+            let Some(new) = count.checked_add_signed(delta) else {
+                continue;
+            };
+            let mut changed = header.clone();
+            changed.elements[e].count = new;
+            if read_binary_body::<BIG>(body, &changed, plan, "", &mut Vec::new()).is_ok() {
+                return Some(format!(
+                    "the body reads without error with `element {} {new}` instead of {count}: \
+                     fix that count in the header",
+                    header.elements[e].name
+                ));
+            }
+        }
+    }
+    None
+}
+
+/// The error for a face of a binary body that refers to a vertex the header does not declare.
+fn bad_index(
+    path: &str,
+    header: &Header,
+    element: &Element,
+    face: u64,
+    index: i64,
+    pos: usize,
+) -> ImportError {
+    let n = header.elements[header_vertex(header)].count;
+    bad_binary(
+        path,
+        header,
+        element,
+        face,
+        pos,
+        format!(
+            "face {face} refers to vertex {index}, but the header declares {n} vertices \
+             (0-based indices 0..{n}); fix or remove that face"
+        ),
+    )
+}
+
+/// A [`ImportError::BadBinary`] for `entry` of `element`, which starts at body byte `pos`.
+fn bad_binary(
+    path: &str,
+    header: &Header,
+    element: &Element,
+    entry: u64,
+    pos: usize,
+    message: String,
+) -> ImportError {
+    ImportError::BadBinary {
+        path: path.to_owned(),
+        element: element.name.clone(),
+        entry,
+        offset: (header.body_start + pos) as u64,
+        message,
+    }
+}
+
+/// Index of the `vertex` element (`Plan::new` has checked that there is one).
+fn header_vertex(header: &Header) -> usize {
+    header
+        .elements
+        .iter()
+        .position(|e| e.name == "vertex")
+        .unwrap_or(0)
+}
+
+/// The error for a face of fewer than three corners in a binary body.
+fn short_face(
+    path: &str,
+    header: &Header,
+    element: &Element,
+    face: u64,
+    corners: usize,
+    pos: usize,
+) -> ImportError {
+    bad_binary(
+        path,
+        header,
+        element,
+        face,
+        pos,
+        format!(
+            "face {face} has {corners} corner(s) and a face needs at least three; remove the \
+             face (or, if the counts in the header are wrong, the faces are read from the \
+             wrong bytes: fix the counts)"
+        ),
+    )
+}
+
+/// Reads a binary body; a range grid's cells go to `cells` (`u32::MAX` for an empty cell).
+fn read_binary_body<const BIG: bool>(
+    body: &[u8],
+    header: &Header,
+    plan: &Plan,
+    path: &str,
+    cells: &mut Vec<u32>,
+) -> Result<PointCloud, ImportError> {
+    let n_vertices = header.elements[plan.vertex].count;
+    let mut pos = 0;
+    let mut points = Vec::new();
+    let mut normals = plan.normals.map(|_| Vec::new());
+    let mut triangles = Vec::new();
+    for (e, element) in header.elements.iter().enumerate() {
+        let remaining = body.len() - pos;
+        let truncated = |entry: u64, at: usize| ImportError::Truncated {
+            path: path.to_owned(),
+            detail: format!(
+                "the body ends at byte {} of the file, inside `{}` entry {entry} (starting at \
+                 byte {}) of the {} the header declares",
+                header.body_start + body.len(),
+                element.name,
+                header.body_start + at,
+                element.count
+            ),
+        };
+        let stride = element.fixed_stride();
+        if let Some(stride) = stride {
+            let size = usize::try_from(element.count)
+                .ok()
+                .and_then(|n| n.checked_mul(stride))
+                .filter(|&size| size <= remaining)
+                .ok_or_else(|| {
+                    let whole = remaining.checked_div(stride).unwrap_or(0);
+                    truncated(whole as u64, pos + whole * stride)
+                })?;
+            let records = &body[pos..pos + size];
+            pos += size;
+            if e == plan.vertex && stride > 0 {
+                read_vertex_records::<BIG>(
+                    records,
+                    stride,
+                    element,
+                    plan,
+                    &mut points,
+                    &mut normals,
+                );
+            }
+            continue;
+        }
+        // The common face element, a single index list: read it without the general walk.
+        if let ([only], Some((f, _))) = (element.properties.as_slice(), plan.face) {
+            if let (true, PropertyType::List { count, item }) = (f == e, only.ty) {
+                pos = read_face_lists::<BIG>(
+                    body,
+                    pos,
+                    element.count,
+                    (count, item),
+                    n_vertices,
+                    &mut triangles,
+                )
+                .map_err(|error| match error {
+                    FaceError::Truncated { face, at } => truncated(face, at),
+                    FaceError::Index { face, index, at } => {
+                        bad_index(path, header, element, face, index, at)
+                    }
+                    FaceError::Short { face, corners, at } => {
+                        short_face(path, header, element, face, corners, at)
+                    }
+                })?;
+                continue;
+            }
+        }
+        // Elements with lists: walk each entry.
+        let mut slots = Vec::new();
+        let mut list = None;
+        if e == plan.vertex {
+            let wanted = plan.coords.iter().chain(plan.normals.iter().flatten());
+            slots = wanted.enumerate().map(|(slot, &p)| (p, slot)).collect();
+        } else if plan.face.is_some_and(|(f, _)| f == e) {
+            list = plan.face.map(|(_, p)| p);
+        } else if plan.grid.is_some_and(|(g, _)| g == e) {
+            list = plan.grid.map(|(_, p)| p);
+        }
+        let is_grid = plan.grid.is_some_and(|(g, _)| g == e);
+        let wanted = Wanted {
+            scalars: &slots,
+            list,
+        };
+        let mut values = [0.0; 6];
+        let mut polygon: Vec<i64> = Vec::new();
+        let mut polygon_u32: Vec<u32> = Vec::new();
+        if e == plan.vertex {
+            points.reserve(capped_capacity(element.count, remaining));
+        }
+        for entry in 0..element.count {
+            let start = pos;
+            pos = walk_entry::<BIG>(body, pos, element, &wanted, &mut values, &mut polygon)
+                .ok_or_else(|| truncated(entry, start))?;
+            if e == plan.vertex {
+                points.push([values[0], values[1], values[2]]);
+                if let Some(n) = normals.as_mut() {
+                    n.push([values[3], values[4], values[5]]);
+                }
+            } else if is_grid {
+                cells.push(match polygon.as_slice() {
+                    [] => u32::MAX,
+                    [v] => match u32::try_from(*v) {
+                        Ok(i) if u64::from(i) < n_vertices => i,
+                        _ => return Err(bad_index(path, header, element, entry, *v, start)),
+                    },
+                    more => {
+                        return Err(bad_binary(
+                            path,
+                            header,
+                            element,
+                            entry,
+                            start,
+                            format!(
+                                "range_grid cell {entry} holds {} vertex indices; a range grid \
+                                 cell holds 0 or 1",
+                                more.len()
+                            ),
+                        ))
+                    }
+                });
+            } else if list.is_some() {
+                if polygon.len() < 3 {
+                    return Err(short_face(
+                        path,
+                        header,
+                        element,
+                        entry,
+                        polygon.len(),
+                        start,
+                    ));
+                }
+                polygon_u32.clear();
+                for &v in &polygon {
+                    match u32::try_from(v) {
+                        Ok(i) if u64::from(i) < n_vertices => polygon_u32.push(i),
+                        _ => return Err(bad_index(path, header, element, entry, v, start)),
+                    }
+                }
+                push_fan(&mut triangles, &polygon_u32);
+            }
+        }
+    }
+    if pos < body.len() {
+        // More bytes than the header accounts for: a count is too small (or bytes were
+        // appended; the format has no terminator, so even a trailing newline is an error). Say
+        // where, and how many bytes remain, in the units of the last element when it has a
+        // fixed size.
+        let last = header.elements.last();
+        let extra = body.len() - pos;
+        let at = header.body_start + pos;
+        return Err(match last.and_then(|l| l.fixed_stride().map(|s| (l, s))) {
+            Some((last, stride)) if stride > 0 && extra.is_multiple_of(stride) => {
+                ImportError::HeaderCountMismatch {
+                    path: path.to_owned(),
+                    what: format!(
+                        "`{}` entries (the last one ends at byte {at} of the file and {extra} \
+                         more bytes follow)",
+                        last.name
+                    ),
+                    declared: last.count,
+                    found: last.count.saturating_add((extra / stride) as u64),
+                }
+            }
+            _ => ImportError::BadBinary {
+                path: path.to_owned(),
+                element: last.map_or(String::new(), |l| l.name.clone()),
+                entry: last.map_or(0, |l| l.count),
+                offset: at as u64,
+                message: format!(
+                    "{extra} bytes follow the last entry the header declares (the body is {} \
+                     bytes, the header's counts account for {pos}); fix the counts in the \
+                     header or remove the extra bytes",
+                    body.len()
+                ),
+            },
+        });
+    }
+    Ok(PointCloud {
+        points,
+        normals,
+        triangles,
+        range: None,
+    })
+}
+
+/// Why [`read_face_lists`] stopped.
+enum FaceError {
+    /// The body ended in this face entry, which starts at body byte `at` (or its list length
+    /// was negative).
+    Truncated { face: u64, at: usize },
+    /// This face, at body byte `at`, has an index outside `0..n_vertices`.
+    Index { face: u64, index: i64, at: usize },
+    /// This face, at body byte `at`, has fewer than three corners.
+    Short {
+        face: u64,
+        corners: usize,
+        at: usize,
+    },
+}
+
+/// The fast path for a face element whose only property is its index list. Returns the position
+/// after the element.
+fn read_face_lists<const BIG: bool>(
+    body: &[u8],
+    mut pos: usize,
+    n_faces: u64,
+    (count_ty, item_ty): (Scalar, Scalar),
+    n_vertices: u64,
+    triangles: &mut Vec<[u32; 3]>,
+) -> Result<usize, FaceError> {
+    let (count_size, item_size) = (count_ty.size(), item_ty.size());
+    let smallest_triangle = count_size + 3 * item_size;
+    triangles.reserve(capped_capacity(
+        n_faces,
+        (body.len() - pos) / smallest_triangle,
+    ));
+    let mut polygon: Vec<u32> = Vec::new();
+    for face in 0..n_faces {
+        let at = pos;
+        let truncated = FaceError::Truncated { face, at };
+        let Some(n) = body
+            .get(pos..)
+            .and_then(|b| scalar_i64::<BIG>(b, count_ty))
+            .and_then(|n| usize::try_from(n).ok())
+        else {
+            return Err(truncated);
+        };
+        pos += count_size;
+        let Some(items) = n
+            .checked_mul(item_size)
+            .and_then(|size| body.get(pos..pos.checked_add(size)?))
+        else {
+            return Err(truncated);
+        };
+        if n < 3 {
+            return Err(FaceError::Short {
+                face,
+                corners: n,
+                at,
+            });
+        }
+        pos += items.len();
+        if n == 3 {
+            // Triangles, the common case, skip the polygon buffer.
+            let mut triangle = [0u32; 3];
+            for (slot, chunk) in triangle.iter_mut().zip(items.chunks_exact(item_size)) {
+                let index =
+                    scalar_i64::<BIG>(chunk, item_ty).ok_or(FaceError::Truncated { face, at })?;
+                *slot = match u32::try_from(index) {
+                    Ok(i) if u64::from(i) < n_vertices => i,
+                    _ => return Err(FaceError::Index { face, index, at }),
+                };
+            }
+            triangles.push(triangle);
+            continue;
+        }
+        polygon.clear();
+        for chunk in items.chunks_exact(item_size) {
+            let index =
+                scalar_i64::<BIG>(chunk, item_ty).ok_or(FaceError::Truncated { face, at })?;
+            match u32::try_from(index) {
+                Ok(i) if u64::from(i) < n_vertices => polygon.push(i),
+                _ => return Err(FaceError::Index { face, index, at }),
+            }
+        }
+        push_fan(triangles, &polygon);
+    }
+    Ok(pos)
+}
+
+/// The fast path: a vertex element without lists, read at fixed offsets of each record.
+fn read_vertex_records<const BIG: bool>(
+    records: &[u8],
+    stride: usize,
+    element: &Element,
+    plan: &Plan,
+    points: &mut Vec<[f64; 3]>,
+    normals: &mut Option<Vec<[f64; 3]>>,
+) {
+    let mut offsets = Vec::with_capacity(element.properties.len());
+    let mut offset = 0;
+    for p in &element.properties {
+        offsets.push(offset);
+        if let PropertyType::Scalar(s) = p.ty {
+            offset += s.size();
+        }
+    }
+    let field = |p: usize| -> (usize, Scalar) {
+        match element.properties[p].ty {
+            PropertyType::Scalar(s) => (offsets[p], s),
+            // `Plan::new` only accepts scalar coordinates and this path only lists-free elements.
+            PropertyType::List { .. } => (0, Scalar::U8),
+        }
+    };
+    let xyz = plan.coords.map(field);
+    let n_records = records.len() / stride;
+    points.reserve(n_records);
+    // Every offset plus its size is within the stride, so the reads below cannot fail; the
+    // `unwrap_or(NaN)` is never taken and keeps this path free of panics.
+    let read = |r: &[u8], (o, s): (usize, Scalar)| -> f64 {
+        r.get(o..)
+            .and_then(|b| scalar_f64::<BIG>(b, s))
+            .unwrap_or(f64::NAN)
+    };
+    // Written out rather than with `array::map`, which profiling showed was not inlined here.
+    for record in records.chunks_exact(stride) {
+        points.push([
+            read(record, xyz[0]),
+            read(record, xyz[1]),
+            read(record, xyz[2]),
+        ]);
+    }
+    if let (Some(out), Some(n)) = (normals.as_mut(), plan.normals) {
+        let n = n.map(field);
+        out.reserve(n_records);
+        for record in records.chunks_exact(stride) {
+            out.push([read(record, n[0]), read(record, n[1]), read(record, n[2])]);
+        }
+    }
+}
+
+/// Walks one binary entry from `pos`, storing wanted scalars and the wanted list.
+/// Returns the position after the entry, or `None` when the body ends first.
+fn walk_entry<const BIG: bool>(
+    body: &[u8],
+    mut pos: usize,
+    element: &Element,
+    wanted: &Wanted<'_>,
+    values: &mut [f64; 6],
+    list_out: &mut Vec<i64>,
+) -> Option<usize> {
+    for (p, property) in element.properties.iter().enumerate() {
+        let rest = body.get(pos..)?;
+        match property.ty {
+            PropertyType::Scalar(s) => {
+                if let Some(&(_, slot)) = wanted.scalars.iter().find(|(q, _)| *q == p) {
+                    values[slot] = scalar_f64::<BIG>(rest, s)?;
+                } else if rest.len() < s.size() {
+                    return None;
+                }
+                pos += s.size();
+            }
+            PropertyType::List { count, item } => {
+                let n = scalar_i64::<BIG>(rest, count)?;
+                let n = usize::try_from(n).ok()?;
+                pos += count.size();
+                let size = n.checked_mul(item.size())?;
+                let items = body.get(pos..pos.checked_add(size)?)?;
+                if wanted.list == Some(p) {
+                    list_out.clear();
+                    for chunk in items.chunks_exact(item.size()) {
+                        list_out.push(scalar_i64::<BIG>(chunk, item)?);
+                    }
+                }
+                pos += size;
+            }
+        }
+    }
+    Some(pos)
+}
