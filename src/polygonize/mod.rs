@@ -195,7 +195,7 @@ pub struct Polygonized {
     /// box enclosures (of the value, or of value and gradient together), each counted once.
     /// Placements computed ahead for vertices a later collapse removes are not counted, so the
     /// count does not depend on the scheduling; when the mesh is made again without collapses
-    /// (step 5), the first attempt's placements are counted too.
+    /// (step 5), the first attempt's placements and the repeated extraction are counted too.
     pub evaluations: u64,
     /// Number of surface leaves (octree cells the zero set may cross) that were triangulated.
     pub cells: usize,
@@ -251,12 +251,6 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
         extract::triangulate(function, &grid, &tree);
     let diagonal = region.diagonal();
     let tolerance = PROJECTION_TOLERANCE * diagonal;
-    // Kept for the rare remake without collapses (step 5): a copy of the index triples, about a
-    // tenth of the stage's peak memory.
-    let fallback_triangles = match params.simplification {
-        Simplification::EdgeCollapse => Some(triangles.clone()),
-        Simplification::None => None,
-    };
     let mut simplified = params.simplification == Simplification::EdgeCollapse;
     let mut done = place_and_repair(
         function,
@@ -268,13 +262,16 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
         tolerance,
     );
     let mut spent_before = 0;
-    if let (true, Some(triangles)) = (done.crossings_left, fallback_triangles) {
+    if done.crossings_left && simplified {
         // A crossing survived every fallback position: an edge collapse made it on the very
         // positions it was judged on. The marching-tetrahedra mesh without collapses, its
         // vertices on their lattice edges, is embedded by construction (each triangle lies in
         // its own tetrahedron), so the repair of step 5 ends without crossings there (short of
         // degenerate triangles, which `mesh::check` would still count).
-        spent_before = done.vertices.iter().map(|v| v.evaluations).sum::<u64>();
+        // The extraction is deterministic, so it is run again here rather than its triangles
+        // kept (a copy) on every run for this rare case.
+        let (_, _, triangles, again) = extract::triangulate(function, &grid, &tree);
+        spent_before = again + done.vertices.iter().map(|v| v.evaluations).sum::<u64>();
         simplified = false;
         done = place_and_repair(
             function,
