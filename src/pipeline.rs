@@ -322,7 +322,7 @@ const MERGE_VERSION: u32 = 1;
 /// through it when it leaves points out.
 const OUTLIERS_VERSION: u32 = 1;
 const NORMALS_VERSION: u32 = 4;
-const FIT_VERSION: u32 = 2;
+const FIT_VERSION: u32 = 3;
 const POLYGONIZE_VERSION: u32 = 2;
 // The export stage's version is `export::STAGE_VERSION`, beside its params.
 
@@ -497,7 +497,7 @@ fn orient_stages(
     ctx: &mut Ctx<'_>,
     source: &ScanSource,
     config: &PipelineConfig,
-) -> Result<(PointCloud, OrientedCloud, Key), PipelineError> {
+) -> Result<(Oriented, Key), PipelineError> {
     match views_of(source)? {
         Some(views) => merged_views(ctx, &views, config),
         None => {
@@ -517,14 +517,14 @@ fn merged_views(
     ctx: &mut Ctx<'_>,
     views: &[import::conf::View],
     config: &PipelineConfig,
-) -> Result<(PointCloud, OrientedCloud, Key), PipelineError> {
+) -> Result<(Oriented, Key), PipelineError> {
     let mut oriented = Vec::with_capacity(views.len());
     let mut keys = Vec::new();
     for view in views {
         let bytes = read_bytes(&view.path)?;
-        let (_, cloud, key) = oriented_scan(ctx, bytes, &view.path, config)?;
+        let (view_cloud, key) = oriented_scan(ctx, bytes, &view.path, config)?;
         keys.extend_from_slice(key.hex().as_bytes());
-        oriented.push((cloud, view.pose));
+        oriented.push((view_cloud.cloud, view.pose));
     }
     let poses: Vec<crate::merge::Pose> = views.iter().map(|v| v.pose).collect();
     let (merged, key) = ctx.stage(
@@ -544,22 +544,23 @@ fn merged_views(
             Ok((merged, figures))
         },
     )?;
-    let cloud = PointCloud {
-        points: merged.points.clone(),
-        normals: Some(merged.normals.clone()),
-        ..Default::default()
-    };
-    Ok((cloud, merged, key))
+    let n_input = merged.points.len();
+    Ok((
+        Oriented {
+            cloud: merged,
+            n_input,
+        },
+        key,
+    ))
 }
 
-/// One scan through import, outlier removal and normals; returns the cloud, the oriented cloud
-/// and the latter's key.
+/// One scan through import, outlier removal and normals; returns the oriented cloud and its key.
 fn oriented_scan(
     ctx: &mut Ctx<'_>,
     bytes: Vec<u8>,
     path: &Path,
     config: &PipelineConfig,
-) -> Result<(PointCloud, OrientedCloud, Key), PipelineError> {
+) -> Result<(Oriented, Key), PipelineError> {
     let (cloud, cloud_key) = ctx.stage(
         "import",
         IMPORT_VERSION,
@@ -608,28 +609,50 @@ fn oriented_scan(
         },
     )?;
     ctx.warn_figures();
-    Ok((cloud, oriented, oriented_key))
+    let n_input = cloud.points.len();
+    Ok((
+        Oriented {
+            cloud: oriented,
+            n_input,
+        },
+        oriented_key,
+    ))
 }
 
 /// Imports, estimates normals and fits: the part of the pipeline shared by `run` and `fit`.
-/// Returns the input cloud, the oriented cloud, the model and its key.
+/// Returns the oriented cloud, the model and its key.
 fn fit_stages(
     ctx: &mut Ctx<'_>,
     source: &ScanSource,
     config: &PipelineConfig,
-) -> Result<(PointCloud, OrientedCloud, Model, Key), PipelineError> {
-    let (cloud, oriented, oriented_key) = orient_stages(ctx, source, config)?;
-    model_stages(ctx, cloud, oriented, oriented_key, config)
+) -> Result<(Oriented, Model, Key), PipelineError> {
+    let (oriented, oriented_key) = orient_stages(ctx, source, config)?;
+    let (model, model_key) = model_stages(ctx, &oriented.cloud, oriented_key, config)?;
+    Ok((oriented, model, model_key))
+}
+
+/// The oriented cloud and how many of its points are the input's: they come first (after
+/// outlier removal, in input order), the points the normals stage adds on large faces follow.
+/// The input points are what the outputs' accuracy is measured against.
+struct Oriented {
+    cloud: OrientedCloud,
+    n_input: usize,
+}
+
+impl Oriented {
+    /// The input points.
+    fn input_points(&self) -> &[[f64; 3]] {
+        &self.cloud.points[..self.n_input]
+    }
 }
 
 /// The global fit or the detail fit of the oriented cloud.
 fn model_stages(
     ctx: &mut Ctx<'_>,
-    cloud: PointCloud,
-    oriented: OrientedCloud,
+    oriented: &OrientedCloud,
     oriented_key: Key,
     config: &PipelineConfig,
-) -> Result<(PointCloud, OrientedCloud, Model, Key), PipelineError> {
+) -> Result<(Model, Key), PipelineError> {
     let (model, model_key) = match config.mode {
         Mode::Global => {
             let (model, key) = ctx.stage(
@@ -638,7 +661,7 @@ fn model_stages(
                 &cache::params_bytes(&config.fit),
                 &oriented_key,
                 || {
-                    let model = fit::fit(&oriented, &config.fit)?;
+                    let model = fit::fit(oriented, &config.fit)?;
                     let figures = serde_json::json!({
                         "degree": model.polynomial.degree,
                         "kappa": model.fit.as_ref().map(|f| f.kappa),
@@ -660,7 +683,7 @@ fn model_stages(
                 &cache::params_bytes(&config.detail),
                 &oriented_key,
                 || {
-                    let model = detail::fit_detail(&oriented, &config.detail)?;
+                    let model = detail::fit_detail(oriented, &config.detail)?;
                     let d = &model.diagnostics;
                     let figures = serde_json::json!({
                         "cells": d.cells,
@@ -675,7 +698,7 @@ fn model_stages(
             (Model::Detail(model), key)
         }
     };
-    Ok((cloud, oriented, model, model_key))
+    Ok((model, model_key))
 }
 
 /// The cloud without the points far outside the bulk of the data ([`outliers`]), and its key;
@@ -732,9 +755,9 @@ pub fn fit_model(
     observer: &mut dyn Observer,
 ) -> Result<(Model, OrientedCloud, Vec<StageRecord>), PipelineError> {
     let mut ctx = Ctx::new(cache, observer)?;
-    let (_, oriented, model, _) = fit_stages(&mut ctx, source, config)?;
+    let (oriented, model, _) = fit_stages(&mut ctx, source, config)?;
     ctx.finish_puts();
-    Ok((model, oriented, ctx.stages))
+    Ok((model, oriented.cloud, ctx.stages))
 }
 
 /// The oriented points a fit would see (import, outliers unless kept, normals), without
@@ -749,10 +772,10 @@ pub fn oriented_cloud(
     observer: &mut dyn Observer,
 ) -> Result<OrientedCloud, PipelineError> {
     let mut ctx = Ctx::new(cache, observer)?;
-    let (_, oriented, _) = orient_stages(&mut ctx, source, config)?;
+    let (oriented, _) = orient_stages(&mut ctx, source, config)?;
     ctx.warn_figures();
     ctx.finish_puts();
-    Ok(oriented)
+    Ok(oriented.cloud)
 }
 
 /// Runs the whole pipeline and writes the outputs into `out_dir`.
@@ -772,7 +795,11 @@ pub fn run(
     let mut ctx = Ctx::new(cache, observer)?;
     let cache = &ctx.cache.clone();
     let input_name = source.name();
-    let (cloud, _oriented, model, model_key) = fit_stages(&mut ctx, source, config)?;
+    let (mut oriented, model, model_key) = fit_stages(&mut ctx, source, config)?;
+    // From here on only the input points are needed (the accuracy is measured against them).
+    oriented.cloud.normals = Vec::new();
+    oriented.cloud.weights = None;
+    let points = oriented.input_points();
 
     let region = model.region();
     let polygonize_params = cache::params_bytes(&config.polygonize);
@@ -822,12 +849,7 @@ pub fn run(
         let parts = match &polygonized {
             Ok((mesh, _)) if export_runs => {
                 ctx.observer.stage_started("export");
-                Some(export::export_mesh(
-                    &model,
-                    mesh,
-                    &cloud.points,
-                    &export_params,
-                ))
+                Some(export::export_mesh(&model, mesh, points, &export_params))
             }
             _ => None,
         };
@@ -855,7 +877,7 @@ pub fn run(
                     }
                     out
                 }
-                None => export::export(&model, &mesh, &cloud.points, &export_params)?,
+                None => export::export(&model, &mesh, points, &export_params)?,
             };
             let figures = out.figures();
             Ok((OutputFiles(out.files), figures))

@@ -821,9 +821,11 @@ pub struct FitDiagnostics {
     /// Certified containment radius R in normalized units (the zero set lies in |p̂| < R),
     /// when the leading form is positive.
     pub containment_radius: Option<f64>,
-    /// Mean first-order distance |f|/|∇f| from the data points to the zero set, input units.
+    /// Mean first-order distance |f|/|∇f| from the data points to the zero set, input units
+    /// (over every k-th point past [`crate::measure::ACCURACY_POINTS`] points).
     pub mean_distance: f64,
-    /// Maximum first-order distance |f|/|∇f| from the data points to the zero set, input units.
+    /// Maximum first-order distance |f|/|∇f| from the data points to the zero set, input units
+    /// (over the same points as `mean_distance`).
     pub max_distance: f64,
     /// `mean_distance` divided by the data's bounding-box diagonal.
     pub mean_distance_relative: f64,

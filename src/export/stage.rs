@@ -35,7 +35,7 @@ use crate::trim::{self, TrimParams, TrimReport};
 /// The export stage's version. If you change any input to this stage's key (the fields of
 /// [`ExportParams`] or how they are written), or anything that changes its output for the same
 /// input and params, bump `STAGE_VERSION`.
-pub const STAGE_VERSION: u32 = 5;
+pub const STAGE_VERSION: u32 = 6;
 
 /// With [`Keep::Data`], closed pieces inside another piece and smaller than this share of the
 /// largest piece's area are left out ([`mesh::drop_small_nested_components`]).
@@ -305,6 +305,8 @@ pub fn export_mesh(
         mesh = Cow::Owned(trimmed.mesh);
     }
     let m: &TriangleMesh = &mesh;
+    // One index of the data points for every nearest-point query below.
+    let data = measure::PointIndex::new(points);
     let with_slices = !slices_from_model(model, params);
     let one = |name: &str, bytes: Vec<u8>| vec![(name.to_string(), bytes)];
     let mesh_opts = MeshFileOptions {
@@ -334,7 +336,16 @@ pub fn export_mesh(
         if !params.wants(OutputFormat::Ply) {
             return Ok(Vec::new());
         }
-        let quality = ply::nearest_point_distances(&m.positions, points)?;
+        let index = data.as_ref().ok_or_else(|| {
+            ExportError::InvalidMesh(
+                "no finite input point to measure vertex quality against".into(),
+            )
+        })?;
+        let quality: Vec<f32> = index
+            .distances(&m.positions)
+            .into_iter()
+            .map(|d| d as f32)
+            .collect();
         let opts = MeshFileOptions {
             ply: ply::PlyOptions {
                 quality: Some(&quality),
@@ -362,7 +373,11 @@ pub fn export_mesh(
                 || {
                     rayon::join(
                         || mesh::check(m),
-                        || measure::accuracy(points, m, data_diagonal),
+                        || {
+                            data.as_ref().map_or_else(Default::default, |index| {
+                                measure::accuracy(index, m, data_diagonal)
+                            })
+                        },
                     )
                 },
                 || {

@@ -761,8 +761,10 @@ fn solve_qr(
 }
 
 /// Mean and maximum of the first-order distance |f|/|∇f| at the points (input units), summed in
-/// fixed chunks in a fixed order. Points where ∇f = 0 are skipped.
+/// fixed chunks in a fixed order; past [`crate::measure::ACCURACY_POINTS`] points, at every k-th
+/// (the rule of the run's accuracy). Points where ∇f = 0 are skipped.
 fn first_order_distances(poly: &ImplicitPolynomial, points: &[[f64; 3]]) -> (f64, f64) {
+    let points = crate::measure::every_kth(points, crate::measure::ACCURACY_POINTS);
     let partials: Vec<(f64, f64, usize)> = points
         .par_chunks(4096)
         .map(|chunk| {

@@ -44,6 +44,7 @@ pub mod faces;
 pub mod orient;
 pub mod pca;
 
+use std::borrow::Cow;
 use std::str::FromStr;
 
 use rayon::prelude::*;
@@ -343,7 +344,7 @@ pub fn estimate_normals(
                     out.crust_triangles = r
                         .triangles
                         .iter()
-                        .map(|t| t.map(|v| dedup.first[v as usize]))
+                        .map(|t| t.map(|v| dedup.first(v)))
                         .collect();
                     r.normals
                 }
@@ -383,19 +384,17 @@ pub fn estimate_normals(
                     n_points: cloud.points.len(),
                 });
             }
-            let unique_given: Vec<[f64; 3]> =
-                dedup.first.iter().map(|&i| given[i as usize]).collect();
+            let unique_given: Cow<[[f64; 3]]> = match &dedup.first {
+                Some(first) => first.iter().map(|&i| given[i as usize]).collect(),
+                None => Cow::Borrowed(given),
+            };
             let (normals, warnings) = faces::input_normals(&dedup.unique, &unique_given, params);
             out.warnings.extend(warnings);
             normals
         }
     };
     let mut points = cloud.points.clone();
-    let mut normals: Vec<[f64; 3]> = dedup
-        .of_point
-        .iter()
-        .map(|&u| unique_normals[u as usize])
-        .collect();
+    let mut normals = dedup.expand(unique_normals);
     // Samples on large faces (a mesh, never a range grid) follow the input points.
     out.surface_samples = samples.0.len();
     points.extend(samples.0);
@@ -477,34 +476,66 @@ fn has_area(points: &[[f64; 3]], t: &[u32; 3]) -> bool {
     vec3::norm(&vec3::cross(&u, &w)) > 1e-12 * vec3::norm(&u) * vec3::norm(&w)
 }
 
-/// The distinct points of a cloud, in order of first occurrence.
-struct Dedup {
+/// The distinct points of a cloud, in order of first occurrence. A cloud without repeated
+/// points (the usual case, and the one that matters at scale) is borrowed as it is, with no
+/// index maps.
+struct Dedup<'a> {
     /// Distinct points.
-    unique: Vec<[f64; 3]>,
-    /// For each distinct point, the index of its first occurrence in the input.
-    first: Vec<u32>,
-    /// For each input point, its index in `unique`.
-    of_point: Vec<u32>,
+    unique: Cow<'a, [[f64; 3]]>,
+    /// For each distinct point, the index of its first occurrence in the input; `None` when
+    /// every point is distinct (the identity).
+    first: Option<Vec<u32>>,
+    /// For each input point, its index in `unique`; `None` when every point is distinct.
+    of_point: Option<Vec<u32>>,
 }
 
-impl Dedup {
-    fn new(points: &[[f64; 3]]) -> Dedup {
+impl<'a> Dedup<'a> {
+    fn new(points: &'a [[f64; 3]]) -> Dedup<'a> {
         // `+ 0.0` turns -0.0 into 0.0 so that both compare equal, as they do as numbers.
-        let key = |i: u32| points[i as usize].map(|c| (c + 0.0).to_bits());
-        let mut order: Vec<u32> = (0..points.len() as u32).collect();
-        // The keys (bits, index) are distinct, so any sort gives this one order.
-        order.par_sort_unstable_by_key(|&i| (key(i), i));
-        let mut first_of = vec![0u32; points.len()];
+        let key = |i: usize| points[i].map(|c| (c + 0.0).to_bits());
+        // Equal points have equal hashes: sorting (hash, index) pairs brings every group of
+        // twins together, first occurrence first, and a run of equal hashes (almost always a
+        // single point) is split by the keys themselves.
+        let mut keyed: Vec<(u64, u32)> = (0..points.len())
+            .into_par_iter()
+            .map(|i| (mix(key(i)), i as u32))
+            .collect();
+        keyed.par_sort_unstable();
+        // (point, its first occurrence) for every repeated point.
+        let mut twins: Vec<(u32, u32)> = Vec::new();
         let mut start = 0;
-        while start < order.len() {
+        while start < keyed.len() {
             let mut end = start + 1;
-            while end < order.len() && key(order[end]) == key(order[start]) {
+            while end < keyed.len() && keyed[end].0 == keyed[start].0 {
                 end += 1;
             }
-            for &i in &order[start..end] {
-                first_of[i as usize] = order[start];
+            if end > start + 1 {
+                // A run of equal hashes: its points sorted by (key, index) fall into groups of
+                // twins, each led by its first occurrence.
+                let mut run: Vec<u32> = keyed[start..end].iter().map(|e| e.1).collect();
+                run.sort_unstable_by_key(|&i| (key(i as usize), i));
+                let mut lead = 0;
+                for w in 1..run.len() {
+                    if key(run[w] as usize) != key(run[lead] as usize) {
+                        lead = w;
+                    } else {
+                        twins.push((run[w], run[lead]));
+                    }
+                }
             }
             start = end;
+        }
+        drop(keyed);
+        if twins.is_empty() {
+            return Dedup {
+                unique: Cow::Borrowed(points),
+                first: None,
+                of_point: None,
+            };
+        }
+        let mut first_of: Vec<u32> = (0..points.len() as u32).collect();
+        for (i, f) in twins {
+            first_of[i as usize] = f;
         }
         let mut unique = Vec::new();
         let mut first = Vec::new();
@@ -519,9 +550,22 @@ impl Dedup {
             }
         }
         Dedup {
-            unique,
-            first,
-            of_point,
+            unique: Cow::Owned(unique),
+            first: Some(first),
+            of_point: Some(of_point),
+        }
+    }
+
+    /// The input index of distinct point `u`'s first occurrence.
+    fn first(&self, u: u32) -> u32 {
+        self.first.as_ref().map_or(u, |f| f[u as usize])
+    }
+
+    /// One value per input point from one value per distinct point.
+    fn expand<T: Copy>(&self, per_unique: Vec<T>) -> Vec<T> {
+        match &self.of_point {
+            Some(of_point) => of_point.iter().map(|&u| per_unique[u as usize]).collect(),
+            None => per_unique,
         }
     }
 
@@ -532,15 +576,31 @@ impl Dedup {
             .map(|(index, t)| {
                 let mut r = [0u32; 3];
                 for k in 0..3 {
-                    r[k] = *self
-                        .of_point
-                        .get(t[k] as usize)
-                        .ok_or(NormalsError::BadTriangle { index })?;
+                    let v = t[k] as usize;
+                    if v >= self.n_points() {
+                        return Err(NormalsError::BadTriangle { index });
+                    }
+                    r[k] = self.of_point.as_ref().map_or(v as u32, |o| o[v]);
                 }
                 Ok(r)
             })
             .collect()
     }
+
+    /// How many input points there are.
+    fn n_points(&self) -> usize {
+        self.of_point.as_ref().map_or(self.unique.len(), Vec::len)
+    }
+}
+
+/// A 64-bit mix of a point's coordinate bits (equal points, equal values), for [`Dedup`].
+fn mix(k: [u64; 3]) -> u64 {
+    let mut h = 0x9e37_79b9_7f4a_7c15u64;
+    for c in k {
+        h = (h ^ c).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        h ^= h >> 31;
+    }
+    h.wrapping_mul(0x94d0_49bb_1331_11eb) ^ (h >> 29)
 }
 
 /// The crate's vector helpers ([`crate::vec3`]) by reference, as the submodules call them, with
@@ -683,7 +743,36 @@ mod tests {
         ];
         let d = Dedup::new(&pts);
         assert_eq!(d.unique.len(), 3);
-        assert_eq!(d.first, vec![0, 1, 4]);
-        assert_eq!(d.of_point, vec![0, 1, 0, 1, 2]);
+        assert_eq!(d.first, Some(vec![0, 1, 4]));
+        assert_eq!(d.of_point, Some(vec![0, 1, 0, 1, 2]));
+        assert_eq!(d.expand(vec!['a', 'b', 'c']), vec!['a', 'b', 'a', 'b', 'c']);
+    }
+
+    #[test]
+    fn dedup_agrees_with_a_quadratic_search_and_borrows_distinct_clouds() {
+        // 3,000 points drawn from 40 values (each repeated many times, in scrambled order).
+        let pts: Vec<[f64; 3]> = (0..3000u64)
+            .map(|i| {
+                let v = (i * 7919 % 40) as f64;
+                [v, -v * 0.5, if v == 0.0 { -0.0 } else { 1.0 }]
+            })
+            .collect();
+        let d = Dedup::new(&pts);
+        let same = |a: &[f64; 3], b: &[f64; 3]| (0..3).all(|k| a[k] == b[k]);
+        let first_of = |i: usize| (0..=i).find(|&j| same(&pts[j], &pts[i])).unwrap() as u32;
+        let first: Vec<u32> = (0..pts.len())
+            .filter(|&i| first_of(i) as usize == i)
+            .map(|i| i as u32)
+            .collect();
+        assert_eq!(first.len(), 40);
+        assert_eq!(d.first.as_ref(), Some(&first));
+        let of_point = d.of_point.as_ref().unwrap();
+        for i in 0..pts.len() {
+            assert_eq!(first[of_point[i] as usize], first_of(i));
+        }
+        let distinct: Vec<[f64; 3]> = (0..500).map(|i| [i as f64, 0.0, 1.0]).collect();
+        let d = Dedup::new(&distinct);
+        assert!(matches!(d.unique, Cow::Borrowed(_)) && d.first.is_none() && d.of_point.is_none());
+        assert_eq!(d.first(7), 7);
     }
 }
