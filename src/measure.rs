@@ -601,7 +601,7 @@ const LEAF_POINTS: usize = 16;
 
 /// A node of [`PointTree`]: a split (children at `index + 1` and `right`) or a leaf (`axis` =
 /// [`LEAF`], its points in block `start` of [`PointTree::blocks`]).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 struct KdNode {
     /// Tight bounding box of the node's points.
     lo: [f64; 3],
@@ -618,7 +618,7 @@ const LEAF: u32 = 3;
 /// The points of one leaf, coordinate by coordinate, so that a query computes the distances to
 /// all of them at once (vector lanes); the unused slots hold +∞, whose distance is never below
 /// any bound.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 struct LeafBlock {
     coords: [[f64; LEAF_POINTS]; 3],
     /// Index of each point in the input slice.
@@ -684,9 +684,7 @@ impl PointTree {
             .enumerate()
             .map(|(i, &p)| (p, i as u32))
             .collect();
-        let mut nodes = Vec::with_capacity(2 * points.len() / LEAF_POINTS + 1);
-        let mut blocks = Vec::with_capacity(2 * points.len() / LEAF_POINTS + 1);
-        build_node(&mut entries, &mut nodes, &mut blocks);
+        let (nodes, blocks) = build_subtree(&mut entries);
         Some(PointTree { nodes, blocks })
     }
 
@@ -810,14 +808,55 @@ fn box_dist2(q: [f64; 3], n: &KdNode) -> f64 {
     gap(0).powi(2) + gap(1).powi(2) + gap(2).powi(2)
 }
 
-/// Builds the subtree over `entries` (points with their input indices, reordered in place) at
-/// the end of `nodes`, and its leaves' blocks at the end of `blocks`.
-fn build_node(
-    entries: &mut [([f64; 3], u32)],
-    nodes: &mut Vec<KdNode>,
-    blocks: &mut Vec<LeafBlock>,
-) {
-    let at = nodes.len();
+/// Subtrees of more points than this are built in parallel by [`build_subtree`].
+const PARALLEL_SUBTREE: usize = 1 << 16;
+
+/// The nodes and leaf blocks of the subtree over `entries`, numbered from 0, laid out exactly
+/// as [`build_node`] lays them out; the two halves of a large subtree are built in parallel and
+/// joined with their indices shifted, so the tree does not depend on the thread count.
+fn build_subtree(entries: &mut [([f64; 3], u32)]) -> (Vec<KdNode>, Vec<LeafBlock>) {
+    if entries.len() <= PARALLEL_SUBTREE {
+        let mut nodes = Vec::with_capacity(2 * entries.len() / LEAF_POINTS + 1);
+        let mut blocks = Vec::with_capacity(2 * entries.len() / LEAF_POINTS + 1);
+        build_node(entries, &mut nodes, &mut blocks);
+        return (nodes, blocks);
+    }
+    let (lo, hi) = tight_box(entries);
+    let (axis, split, mid) = median_split(entries, lo, hi);
+    let (left, right) = entries.split_at_mut(mid);
+    let ((left_nodes, left_blocks), (right_nodes, right_blocks)) =
+        rayon::join(|| build_subtree(left), || build_subtree(right));
+    let right_at = 1 + left_nodes.len();
+    let mut nodes = Vec::with_capacity(right_at + right_nodes.len());
+    nodes.push(KdNode {
+        lo,
+        hi,
+        split,
+        axis: axis as u32,
+        right: right_at as u32,
+        start: 0,
+    });
+    let shift = |node: &KdNode, nodes_before: usize, blocks_before: usize| {
+        let mut node = *node;
+        if node.axis != LEAF {
+            node.right += nodes_before as u32;
+        }
+        node.start += blocks_before as u32;
+        node
+    };
+    nodes.extend(left_nodes.iter().map(|n| shift(n, 1, 0)));
+    nodes.extend(
+        right_nodes
+            .iter()
+            .map(|n| shift(n, right_at, left_blocks.len())),
+    );
+    let mut blocks = left_blocks;
+    blocks.extend(right_blocks);
+    (nodes, blocks)
+}
+
+/// The tight box of `entries`' points.
+fn tight_box(entries: &[([f64; 3], u32)]) -> ([f64; 3], [f64; 3]) {
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
     for (p, _) in entries.iter() {
@@ -826,6 +865,33 @@ fn build_node(
             hi[a] = hi[a].max(p[a]);
         }
     }
+    (lo, hi)
+}
+
+/// Splits `entries` at the median of the box's widest axis (reordering them): the axis, the
+/// split value and the index of the first entry of the right half.
+fn median_split(
+    entries: &mut [([f64; 3], u32)],
+    lo: [f64; 3],
+    hi: [f64; 3],
+) -> (usize, f64, usize) {
+    let axis = (0..3)
+        .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
+        .unwrap_or(0);
+    let mid = entries.len() / 2;
+    entries.select_nth_unstable_by(mid, |a, b| a.0[axis].total_cmp(&b.0[axis]));
+    (axis, entries[mid].0[axis], mid)
+}
+
+/// Builds the subtree over `entries` (points with their input indices, reordered in place) at
+/// the end of `nodes`, and its leaves' blocks at the end of `blocks`.
+fn build_node(
+    entries: &mut [([f64; 3], u32)],
+    nodes: &mut Vec<KdNode>,
+    blocks: &mut Vec<LeafBlock>,
+) {
+    let at = nodes.len();
+    let (lo, hi) = tight_box(entries);
     nodes.push(KdNode {
         lo,
         hi,
@@ -848,12 +914,7 @@ fn build_node(
         blocks.push(block);
         return;
     }
-    let axis = (0..3)
-        .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])))
-        .unwrap_or(0);
-    let mid = entries.len() / 2;
-    entries.select_nth_unstable_by(mid, |a, b| a.0[axis].total_cmp(&b.0[axis]));
-    let split = entries[mid].0[axis];
+    let (axis, split, mid) = median_split(entries, lo, hi);
     let (left, right) = entries.split_at_mut(mid);
     build_node(left, nodes, blocks);
     let right_at = nodes.len();
@@ -1135,6 +1196,23 @@ mod tests {
         let a = accuracy(&index, &mesh, 100.0);
         assert!(a.data_to_mesh.max < 1e-12 && a.data_to_mesh.samples == data.len());
         assert!((a.chamfer_relative - 0.5 * a.mesh_to_data.mean_relative).abs() < 1e-15);
+    }
+
+    #[test]
+    fn the_parallel_tree_build_lays_out_the_serial_tree() {
+        // 300,000 scattered points: four levels of parallel splits above the serial subtrees.
+        let mut x = 12345u64;
+        let mut next = || {
+            x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let entries: Vec<([f64; 3], u32)> = (0..300_000u32)
+            .map(|i| ([next(), next() * 2.0, next() * 0.5], i))
+            .collect();
+        let (mut serial_nodes, mut serial_blocks) = (Vec::new(), Vec::new());
+        build_node(&mut entries.clone(), &mut serial_nodes, &mut serial_blocks);
+        let (nodes, blocks) = build_subtree(&mut entries.clone());
+        assert!(nodes == serial_nodes && blocks == serial_blocks);
     }
 
     #[test]

@@ -16,6 +16,7 @@
 //! re-oriented by [`crate::normals::orient`] and each connected piece is turned outward;
 //! otherwise they are kept and only a whole cloud whose normals point in is turned.
 
+use std::borrow::Cow;
 use std::collections::VecDeque;
 
 use rayon::prelude::*;
@@ -337,6 +338,12 @@ fn fill_missing(points: &[[f64; 3]], normals: &mut [Option<[f64; 3]>], params: &
 /// shows in a sample of this size as well as in all points.
 const CHECK_SAMPLE: usize = 50_000;
 
+/// Points among which the sign check looks for the sample's neighbours, at most (every
+/// ⌈N / this⌉-th point): a million points of a scan are as dense as a million-point scan,
+/// where neighbours on one sheet lie a spacing apart, and indexing ten times more only costs
+/// time.
+const CHECK_NEIGHBOURS_FROM: usize = 1_000_000;
+
 /// Unit outward normals from the file's normals. Returns the normals and warnings.
 ///
 /// Zero or non-finite normals are replaced by plane fits. The signs are checked on a sample of
@@ -345,7 +352,8 @@ const CHECK_SAMPLE: usize = 50_000;
 /// Neighbours across a thin part or a sharp edge also have opposite normals, rightly: their
 /// offset runs along the normals (the fandisk's and the duck's vertex normals: 1.7% and 1.8% of
 /// all neighbour pairs disagree in sign, and propagating them anew broke correct normals into
-/// sheets). Above 1% of the sampled pairs, or with any replaced normal, the normals are
+/// sheets). The sample's neighbours are searched among at most [`CHECK_NEIGHBOURS_FROM`]
+/// points (every k-th). Above 1% of the sampled pairs, or with any replaced normal, the normals are
 /// propagated anew over the neighbour graph of all points and each connected piece is turned
 /// outward; otherwise they are kept, and only the whole cloud is turned outward if its
 /// normals point in (no graph of all points: a million given normals cost one pass).
@@ -356,16 +364,21 @@ pub fn input_normals(
 ) -> (Vec<[f64; 3]>, Vec<String>) {
     let mut warnings = Vec::new();
     let n = points.len();
-    let index = pca::build_index(points);
-    let neighbours = |i: usize| match &index {
-        Some(index) => pca::nearest(index, points, i, params.k_neighbours),
-        None => Vec::new(),
-    };
     let mut normals: Vec<Option<[f64; 3]>> = given
         .iter()
         .map(|g| normalized(g).filter(|_| g.iter().all(|c| c.is_finite())))
         .collect();
     let bad: Vec<usize> = (0..n).filter(|&i| normals[i].is_none()).collect();
+    // An index of all points only when plane fits need their neighbours.
+    let index = if bad.is_empty() {
+        None
+    } else {
+        pca::build_index(points)
+    };
+    let neighbours = |i: usize| match &index {
+        Some(index) => pca::nearest(index, points, i, params.k_neighbours),
+        None => Vec::new(),
+    };
     let fits: Vec<[f64; 3]> = bad
         .par_iter()
         .map(|&i| pca::plane_normal(points, i, &neighbours(i)))
@@ -383,27 +396,54 @@ pub fn input_normals(
             "{n_bad} input normals are zero or not finite; used pca plane fits there"
         ));
     }
-    let step = n.div_ceil(CHECK_SAMPLE).max(1);
-    let sample: Vec<usize> = (0..n).step_by(step).collect();
+    // The check's points: all of them, or every k-th of a large cloud, with their own index
+    // (the full one when plane fits needed it anyway).
+    let check_step = if n_bad > 0 {
+        1
+    } else {
+        n.div_ceil(CHECK_NEIGHBOURS_FROM).max(1)
+    };
+    let (check_points, check_normals): (Cow<[[f64; 3]]>, Cow<[[f64; 3]]>) = if check_step > 1 {
+        (
+            points.iter().step_by(check_step).copied().collect(),
+            normals.iter().step_by(check_step).copied().collect(),
+        )
+    } else {
+        (Cow::Borrowed(points), Cow::Borrowed(&normals))
+    };
+    let check_index = match index {
+        Some(index) if check_step == 1 => Some(index),
+        _ => pca::build_index(&check_points),
+    };
+    let m = check_points.len();
+    let step = m.div_ceil(CHECK_SAMPLE).max(1);
+    let sample: Vec<usize> = (0..m).step_by(step).collect();
     let (pairs, disagree) = sample
         .par_iter()
         .map(|&i| {
             let (mut pairs, mut disagree) = (0usize, 0usize);
-            for j in neighbours(i) {
+            let near = match &check_index {
+                Some(index) => pca::nearest(index, &check_points, i, params.k_neighbours),
+                None => Vec::new(),
+            };
+            for j in near {
                 let j = j as usize;
-                let d = sub(&points[j], &points[i]);
+                let d = sub(&check_points[j], &check_points[i]);
                 let reach = 0.5 * crate::normals::vec3::norm(&d);
-                if dot(&normals[i], &d).abs() > reach || dot(&normals[j], &d).abs() > reach {
+                if dot(&check_normals[i], &d).abs() > reach
+                    || dot(&check_normals[j], &d).abs() > reach
+                {
                     continue;
                 }
                 pairs += 1;
-                if dot(&normals[i], &normals[j]) < 0.0 {
+                if dot(&check_normals[i], &check_normals[j]) < 0.0 {
                     disagree += 1;
                 }
             }
             (pairs, disagree)
         })
         .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    drop((check_points, check_normals, check_index));
     let flipped = if n_bad > 0 || disagree * 100 > pairs {
         if n_bad == 0 {
             warnings.push(format!(
