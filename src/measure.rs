@@ -1203,7 +1203,9 @@ mod tests {
         // 300,000 scattered points: four levels of parallel splits above the serial subtrees.
         let mut x = 12345u64;
         let mut next = || {
-            x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (x >> 11) as f64 / (1u64 << 53) as f64
         };
         let entries: Vec<([f64; 3], u32)> = (0..300_000u32)

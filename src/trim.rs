@@ -223,24 +223,36 @@ pub fn trim(
     let grid = PointGrid::new(points).ok_or(TrimError::NoData)?;
     let tree = PointTree::new(points).ok_or(TrimError::NoData)?;
     let diagonal = crate::cloud::Aabb::from_points(points).map_or(0.0, |b| b.diagonal());
-    let spacing = local_spacing(&grid, points, params.spacing_neighbours);
     let areas: Vec<f64> = mesh
         .triangles
         .iter()
         .map(|t| triangle_area(&mesh.positions, *t))
         .collect();
-    // Per triangle: the distance from its centroid to the nearest data point, in that point's
-    // local spacings, when that point does not support it; `None` when supported.
-    let unsupported: Vec<Option<Depth>> = mesh
+    // Per triangle: the distance from its centroid to the nearest data point, and that point.
+    let nearest: Vec<(f64, usize)> = mesh
         .triangles
         .par_iter()
         .map(|t| {
             let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
             let centroid = [0, 1, 2].map(|k| (a[k] + b[k] + c[k]) / 3.0);
             let (d2, j) = tree.nearest(centroid);
-            let d = d2.sqrt();
-            (d > params.support_factor * spacing[j]).then_some(Depth {
-                spacings: d / spacing[j],
+            (d2.sqrt(), j)
+        })
+        .collect();
+    // The local spacing at those points only (a dense scan has many more points than the mesh
+    // has triangles).
+    let mut wanted: Vec<u32> = nearest.iter().map(|&(_, j)| j as u32).collect();
+    wanted.sort_unstable();
+    wanted.dedup();
+    let spacing_of = local_spacing(&grid, points, params.spacing_neighbours, &wanted);
+    let spacing = |j: usize| spacing_of[wanted.binary_search(&(j as u32)).unwrap_or(0)];
+    // In the nearest point's local spacings, when that point does not support the triangle;
+    // `None` when supported.
+    let unsupported: Vec<Option<Depth>> = nearest
+        .iter()
+        .map(|&(d, j)| {
+            (d > params.support_factor * spacing(j)).then_some(Depth {
+                spacings: d / spacing(j),
                 distance: d,
             })
         })
@@ -357,32 +369,42 @@ fn triangle_area(positions: &[[f64; 3]], t: [u32; 3]) -> f64 {
     0.5 * norm(cross(sub(b, a), sub(c, a)))
 }
 
-/// The local spacing at every point (step 1 of the module docs).
-fn local_spacing(grid: &PointGrid, points: &[[f64; 3]], k: usize) -> Vec<f64> {
+/// The local spacing (step 1 of the module docs) at each of the points `wanted` (indices into
+/// `points`, sorted, distinct), in their order.
+fn local_spacing(grid: &PointGrid, points: &[[f64; 3]], k: usize, wanted: &[u32]) -> Vec<f64> {
     let k = k.min(points.len().saturating_sub(1));
     if k == 0 {
-        return vec![0.0; points.len()];
+        return vec![0.0; wanted.len()];
     }
-    let neighbours = grid.all_nearest(points, k);
-    let dist = |i: usize, j: u32| norm(sub(points[i], points[j as usize]));
+    let knn = |i: usize| grid.nearest(points, i, k, 0.0, &mut Vec::new()).0;
+    let neighbours: Vec<Vec<u32>> = wanted.par_iter().map(|&i| knn(i as usize)).collect();
     // Each point's distance to its nearest neighbour at a positive distance (0 when all its k
-    // neighbours coincide with it).
-    let nearest: Vec<f64> = neighbours
+    // neighbours coincide with it), for the wanted points and their neighbours.
+    let mut around: Vec<u32> = wanted
+        .iter()
+        .copied()
+        .chain(neighbours.iter().flatten().copied())
+        .collect();
+    around.sort_unstable();
+    around.dedup();
+    let dist = |i: usize, j: u32| norm(sub(points[i], points[j as usize]));
+    let nearest: Vec<f64> = around
         .par_iter()
-        .enumerate()
-        .map(|(i, list)| {
-            list.iter()
-                .map(|&j| dist(i, j))
+        .map(|&i| {
+            knn(i as usize)
+                .iter()
+                .map(|&j| dist(i as usize, j))
                 .find(|&d| d > 0.0)
                 .unwrap_or(0.0)
         })
         .collect();
-    neighbours
+    let nearest_of = |j: u32| nearest[around.binary_search(&j).unwrap_or(0)];
+    wanted
         .par_iter()
-        .enumerate()
-        .map(|(i, list)| {
-            let mut values: Vec<f64> = std::iter::once(nearest[i])
-                .chain(list.iter().map(|&j| nearest[j as usize]))
+        .zip(&neighbours)
+        .map(|(&i, list)| {
+            let mut values: Vec<f64> = std::iter::once(nearest_of(i))
+                .chain(list.iter().map(|&j| nearest_of(j)))
                 .collect();
             values.sort_unstable_by(f64::total_cmp);
             values[values.len() / 2]
@@ -898,6 +920,60 @@ fn compact(mesh: &TriangleMesh, triangles: &[[u32; 3]]) -> TriangleMesh {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_spacing_at_some_points_is_the_spacing_computed_at_all() {
+        // A jittered sheet with doubled points (coincident neighbours) and a denser strip.
+        let mut points = Vec::new();
+        let mut x = 7u64;
+        let mut next = || {
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (x >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for i in 0..3000 {
+            let p = [
+                next(),
+                next() * if i % 3 == 0 { 0.2 } else { 1.0 },
+                0.01 * next(),
+            ];
+            points.push(p);
+            if i % 7 == 0 {
+                points.push(p);
+            }
+        }
+        let grid = PointGrid::new(&points).unwrap();
+        let k = 8;
+        // The median over each point and its k neighbours of their nearest positive distances,
+        // from the neighbour lists of all points.
+        let lists = grid.all_nearest(&points, k);
+        let dist = |i: usize, j: u32| norm(sub(points[i], points[j as usize]));
+        let nearest: Vec<f64> = (0..points.len())
+            .map(|i| {
+                lists[i]
+                    .iter()
+                    .map(|&j| dist(i, j))
+                    .find(|&d| d > 0.0)
+                    .unwrap_or(0.0)
+            })
+            .collect();
+        let all: Vec<f64> = (0..points.len())
+            .map(|i| {
+                let mut v: Vec<f64> = std::iter::once(nearest[i])
+                    .chain(lists[i].iter().map(|&j| nearest[j as usize]))
+                    .collect();
+                v.sort_unstable_by(f64::total_cmp);
+                v[v.len() / 2]
+            })
+            .collect();
+        let wanted: Vec<u32> = (0..points.len() as u32).step_by(5).collect();
+        let some = local_spacing(&grid, &points, k, &wanted);
+        for (w, s) in wanted.iter().zip(&some) {
+            assert_eq!(*s, all[*w as usize], "point {w}");
+        }
+        assert!(some.iter().all(|&s| s > 0.0));
+    }
 
     /// A flat grid of n × n squares over [0, 1]², two triangles each, counter-clockwise from +z.
     fn grid(n: usize) -> TriangleMesh {
