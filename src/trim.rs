@@ -367,22 +367,22 @@ fn local_spacing(grid: &PointGrid, points: &[[f64; 3]], k: usize) -> Vec<f64> {
     let dist = |i: usize, j: u32| norm(sub(points[i], points[j as usize]));
     // Each point's distance to its nearest neighbour at a positive distance (0 when all its k
     // neighbours coincide with it).
-    let nearest: Vec<f64> = neighbours
-        .par_iter()
-        .enumerate()
-        .map(|(i, list)| {
-            list.iter()
+    let nearest: Vec<f64> = (0..points.len())
+        .into_par_iter()
+        .map(|i| {
+            neighbours
+                .row(i)
+                .iter()
                 .map(|&j| dist(i, j))
                 .find(|&d| d > 0.0)
                 .unwrap_or(0.0)
         })
         .collect();
-    neighbours
-        .par_iter()
-        .enumerate()
-        .map(|(i, list)| {
+    (0..points.len())
+        .into_par_iter()
+        .map(|i| {
             let mut values: Vec<f64> = std::iter::once(nearest[i])
-                .chain(list.iter().map(|&j| nearest[j as usize]))
+                .chain(neighbours.row(i).iter().map(|&j| nearest[j as usize]))
                 .collect();
             values.sort_unstable_by(f64::total_cmp);
             values[values.len() / 2]

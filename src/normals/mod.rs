@@ -490,19 +490,24 @@ struct Dedup {
 impl Dedup {
     fn new(points: &[[f64; 3]]) -> Dedup {
         // `+ 0.0` turns -0.0 into 0.0 so that both compare equal, as they do as numbers.
-        let key = |i: u32| points[i as usize].map(|c| (c + 0.0).to_bits());
-        let mut order: Vec<u32> = (0..points.len() as u32).collect();
+        // The keys sit next to their indices, so that the sort compares without looking up
+        // the points.
+        let mut order: Vec<([u64; 3], u32)> = points
+            .par_iter()
+            .enumerate()
+            .map(|(i, p)| (p.map(|c| (c + 0.0).to_bits()), i as u32))
+            .collect();
         // The keys (bits, index) are distinct, so any sort gives this one order.
-        order.par_sort_unstable_by_key(|&i| (key(i), i));
+        order.par_sort_unstable();
         let mut first_of = vec![0u32; points.len()];
         let mut start = 0;
         while start < order.len() {
             let mut end = start + 1;
-            while end < order.len() && key(order[end]) == key(order[start]) {
+            while end < order.len() && order[end].0 == order[start].0 {
                 end += 1;
             }
-            for &i in &order[start..end] {
-                first_of[i as usize] = order[start];
+            for &(_, i) in &order[start..end] {
+                first_of[i as usize] = order[start].1;
             }
             start = end;
         }
