@@ -951,7 +951,8 @@ mod tests {
         let dist = |i: usize, j: u32| norm(sub(points[i], points[j as usize]));
         let nearest: Vec<f64> = (0..points.len())
             .map(|i| {
-                lists[i]
+                lists
+                    .row(i)
                     .iter()
                     .map(|&j| dist(i, j))
                     .find(|&d| d > 0.0)
@@ -961,7 +962,7 @@ mod tests {
         let all: Vec<f64> = (0..points.len())
             .map(|i| {
                 let mut v: Vec<f64> = std::iter::once(nearest[i])
-                    .chain(lists[i].iter().map(|&j| nearest[j as usize]))
+                    .chain(lists.row(i).iter().map(|&j| nearest[j as usize]))
                     .collect();
                 v.sort_unstable_by(f64::total_cmp);
                 v[v.len() / 2]

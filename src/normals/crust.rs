@@ -500,8 +500,9 @@ fn crust_normals_timed(
         || crust_timed(points, times),
         || {
             let clock = std::time::Instant::now();
-            let knn = pca::knn(points, params.k_neighbours);
-            let (fits, noisy) = pca::adaptive_normals(points, &knn, params.max_k_neighbours);
+            let (index, knn) = pca::knn_with_index(points, params.k_neighbours);
+            let (fits, noisy) =
+                pca::adaptive_normals(points, index.as_ref(), &knn, params.max_k_neighbours);
             (knn, fits, noisy, clock.elapsed())
         },
     );

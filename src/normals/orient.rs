@@ -20,23 +20,53 @@
 //! along p − c. Each connected piece's farthest points from its centroid (the farthest 2%, at
 //! least 8) vote with n·(p − c)/|p − c|; a negative sum flips the piece.
 
-use std::cmp::Reverse;
-use std::collections::BinaryHeap;
-
 use rayon::prelude::*;
 
 use crate::normals::vec3::{dot, norm, scale, sub};
+use crate::numerics::{Neighbours, PointGrid};
 
-/// Symmetric neighbour graph in compressed rows: `(neighbour, penalty)` per entry.
+/// Points per block of graph rows.
+const BLOCK: usize = 4096;
+
+/// Symmetric neighbour graph in compressed rows, with the edge weights of the spanning tree, in
+/// blocks of [`BLOCK`] rows (built in parallel and kept as built, without a copy into one
+/// array). Points are numbered in the sweep order of [`orient_consistently`].
 struct Graph {
-    start: Vec<usize>,
-    entries: Vec<(u32, f64)>,
+    blocks: Vec<GraphBlock>,
 }
 
-fn build_graph(n: usize, triangles: &[[u32; 3]], knn: &[Vec<u32>]) -> Graph {
+struct GraphBlock {
+    /// `start[r]..start[r + 1]` are the entries of the block's row r.
+    start: Vec<u32>,
+    /// The neighbour of each entry.
+    neighbour: Vec<u32>,
+    /// The weight of each entry, penalty + 1 − |nᵢ·nⱼ| ≥ 0, as its bits (for non-negative
+    /// values their order is the numbers').
+    weight: Vec<u64>,
+}
+
+impl Graph {
+    /// The neighbours and weights of point `u`'s row.
+    fn row(&self, u: usize) -> (&[u32], &[u64]) {
+        let block = &self.blocks[u / BLOCK];
+        let r = u % BLOCK;
+        let range = block.start[r] as usize..block.start[r + 1] as usize;
+        (&block.neighbour[range.clone()], &block.weight[range])
+    }
+}
+
+/// The graph over points renumbered by `rank` (`perm` its inverse), `normals` in the new
+/// numbering, triangles and k-nearest lists in the input's.
+fn build_graph(
+    normals: &[[f64; 3]],
+    perm: &[u32],
+    rank: &[u32],
+    triangles: &[[u32; 3]],
+    knn: &Neighbours,
+) -> Graph {
+    let n = normals.len();
     let knn_penalty = u32::from(!triangles.is_empty());
-    // Who names whom: the triangles at each point, and the points whose k-nearest lists hold
-    // it, in compressed rows.
+    // The triangles at each point (input numbering), in compressed rows.
     let (tri_start, tri_rows) = rows_by_point(
         n,
         triangles.iter().enumerate().flat_map(|(t, tri)| {
@@ -45,30 +75,38 @@ fn build_graph(n: usize, triangles: &[[u32; 3]], knn: &[Vec<u32>]) -> Graph {
                 .map(move |&v| (v, t as u32))
         }),
     );
-    let (named_start, named_by) = rows_by_point(
-        n,
-        knn.iter().enumerate().flat_map(|(i, list)| {
-            list.iter()
-                .filter(move |&&j| j as usize != i && (j as usize) < n)
-                .map(move |&j| (j, i as u32))
-        }),
-    );
+    // The k-nearest lists renumbered (u32::MAX for an entry out of range), and the points whose
+    // lists name each point.
+    let stride = knn.stride();
+    let mut near = vec![u32::MAX; n * stride];
+    near.par_chunks_mut(stride.max(1))
+        .enumerate()
+        .for_each(|(u, row)| {
+            for (slot, &j) in row.iter_mut().zip(knn.row(perm[u] as usize)) {
+                if (j as usize) < n {
+                    *slot = rank[j as usize];
+                }
+            }
+        });
+    let (named_start, named_by) = named_by(n, stride, &near);
     // Each point's row: its crust neighbours (penalty 0), its k nearest and the points that
     // count it among theirs (penalty 1 when there is a crust), each neighbour once with its
     // smallest penalty. The rows are independent, so they are built in parallel; the order
-    // inside a row does not matter to the spanning tree (see `orient_consistently`).
-    // Per block of points: the entries of its rows, and each row's length.
-    type Block = (Vec<(u32, f64)>, Vec<usize>);
-    const BLOCK: usize = 4096;
-    let rows: Vec<Block> = (0..n.div_ceil(BLOCK))
+    // inside a row does not matter to the spanning tree (see `orient_consistently`). Edge
+    // weights do not depend on the signs (|nᵢ·nⱼ|, the same bits either way round), so they
+    // are computed here.
+    let blocks: Vec<GraphBlock> = (0..n.div_ceil(BLOCK))
         .into_par_iter()
         .map(|b| {
             let block = b * BLOCK..((b + 1) * BLOCK).min(n);
-            let mut entries = Vec::new();
-            let mut lengths = Vec::with_capacity(block.len());
+            let mut start = Vec::with_capacity(block.len() + 1);
+            start.push(0u32);
+            let mut neighbour = Vec::new();
+            let mut weight = Vec::new();
             let mut row: Vec<(u32, u32)> = Vec::new();
-            for v in block {
+            for u in block {
                 row.clear();
+                let v = perm[u] as usize;
                 for &t in &tri_rows[tri_start[v]..tri_start[v + 1]] {
                     let tri = triangles[t as usize];
                     for k in 0..3 {
@@ -77,38 +115,64 @@ fn build_graph(n: usize, triangles: &[[u32; 3]], knn: &[Vec<u32>]) -> Graph {
                             continue;
                         }
                         if a == v {
-                            row.push((b as u32, 0));
+                            row.push((rank[b], 0));
                         } else if b == v {
-                            row.push((a as u32, 0));
+                            row.push((rank[a], 0));
                         }
                     }
                 }
-                for &j in knn[v]
+                for &j in near[u * stride..(u + 1) * stride]
                     .iter()
-                    .chain(&named_by[named_start[v]..named_start[v + 1]])
+                    .chain(&named_by[named_start[u]..named_start[u + 1]])
                 {
-                    if j as usize != v && (j as usize) < n {
+                    if j as usize != u && (j as usize) < n {
                         row.push((j, knn_penalty));
                     }
                 }
                 row.sort_unstable();
                 row.dedup_by_key(|e| e.0);
-                entries.extend(row.iter().map(|&(j, p)| (j, f64::from(p))));
-                lengths.push(row.len());
+                for &(j, penalty) in &row {
+                    let w = f64::from(penalty) + 1.0
+                        - dot(&normals[u], &normals[j as usize]).abs().min(1.0);
+                    neighbour.push(j);
+                    weight.push(w.max(0.0).to_bits());
+                }
+                start.push(neighbour.len() as u32);
             }
-            (entries, lengths)
+            GraphBlock {
+                start,
+                neighbour,
+                weight,
+            }
         })
         .collect();
-    let mut start = Vec::with_capacity(n + 1);
-    start.push(0);
-    let mut entries = Vec::with_capacity(rows.iter().map(|r| r.0.len()).sum());
-    for (block, lengths) in rows {
-        for length in lengths {
-            start.push(start.last().copied().unwrap_or(0) + length);
+    Graph { blocks }
+}
+
+/// For each of the `n` points, the points whose rows of `near` (rows of `stride`, entries
+/// `n` and above ignored) name it, in increasing order, in compressed rows (a counting sort):
+/// row starts and points.
+fn named_by(n: usize, stride: usize, near: &[u32]) -> (Vec<usize>, Vec<u32>) {
+    let mut start = vec![0usize; n + 1];
+    for &j in near {
+        if (j as usize) < n {
+            start[j as usize + 1] += 1;
         }
-        entries.extend(block);
     }
-    Graph { start, entries }
+    for i in 0..n {
+        start[i + 1] += start[i];
+    }
+    let mut fill = start.clone();
+    let mut by = vec![0u32; start[n]];
+    for (i, list) in near.chunks_exact(stride.max(1)).enumerate() {
+        for &j in list {
+            if (j as usize) < n {
+                by[fill[j as usize]] = i as u32;
+                fill[j as usize] += 1;
+            }
+        }
+    }
+    (start, by)
 }
 
 /// The values of `pairs` (point, value) grouped by point (each point below `n`) in compressed
@@ -131,9 +195,102 @@ fn rows_by_point(n: usize, pairs: impl Iterator<Item = (u32, u32)>) -> (Vec<usiz
     (start, rows)
 }
 
-impl Graph {
-    fn neighbours(&self, i: usize) -> &[(u32, f64)] {
-        &self.entries[self.start[i]..self.start[i + 1]]
+/// Not in the frontier (see [`Frontier`]).
+const OUTSIDE: u32 = u32::MAX;
+
+/// The points next to the growing tree, in a 4-ary min-heap by (weight, input index) with each
+/// point's heap position: one entry per point, lowered in place when a shorter edge reaches it
+/// (Prim's algorithm with decrease-key). Entries are (weight bits, input index, sweep index).
+struct Frontier {
+    heap: Vec<(u64, u32, u32)>,
+    /// Each point's index in `heap` (by sweep index), or [`OUTSIDE`].
+    position: Vec<u32>,
+}
+
+impl Frontier {
+    fn new(n: usize) -> Frontier {
+        Frontier {
+            heap: Vec::new(),
+            position: vec![OUTSIDE; n],
+        }
+    }
+
+    /// The weight at which point `u` (sweep index) waits in the frontier, if it does.
+    fn weight_of(&self, u: usize) -> Option<u64> {
+        let at = self.position[u];
+        (at != OUTSIDE).then(|| self.heap[at as usize].0)
+    }
+
+    /// Adds point `u` (input index `id`) at weight `w`, or lowers it to `w` (never raises it).
+    fn offer(&mut self, u: u32, id: u32, w: u64) {
+        let at = match self.position[u as usize] {
+            OUTSIDE => {
+                self.heap.push((w, id, u));
+                self.heap.len() - 1
+            }
+            at => {
+                let at = at as usize;
+                self.heap[at].0 = self.heap[at].0.min(w);
+                at
+            }
+        };
+        self.sift_up(at);
+    }
+
+    /// Removes and returns the least entry's sweep index.
+    fn pop(&mut self) -> Option<u32> {
+        let last = self.heap.pop()?;
+        let top = if self.heap.is_empty() {
+            last
+        } else {
+            let top = std::mem::replace(&mut self.heap[0], last);
+            self.sift_down(0);
+            top
+        };
+        self.position[top.2 as usize] = OUTSIDE;
+        Some(top.2)
+    }
+
+    fn sift_up(&mut self, mut at: usize) {
+        let entry = self.heap[at];
+        while at > 0 {
+            let parent = (at - 1) / 4;
+            let above = self.heap[parent];
+            if above <= entry {
+                break;
+            }
+            self.heap[at] = above;
+            self.position[above.2 as usize] = at as u32;
+            at = parent;
+        }
+        self.heap[at] = entry;
+        self.position[entry.2 as usize] = at as u32;
+    }
+
+    fn sift_down(&mut self, mut at: usize) {
+        let entry = self.heap[at];
+        let len = self.heap.len();
+        loop {
+            let first = 4 * at + 1;
+            if first >= len {
+                break;
+            }
+            let mut child = first;
+            for c in first + 1..(first + 4).min(len) {
+                if self.heap[c] < self.heap[child] {
+                    child = c;
+                }
+            }
+            let below = self.heap[child];
+            if below >= entry {
+                break;
+            }
+            self.heap[at] = below;
+            self.position[below.2 as usize] = at as u32;
+            at = child;
+        }
+        self.heap[at] = entry;
+        self.position[entry.2 as usize] = at as u32;
     }
 }
 
@@ -143,59 +300,74 @@ pub fn orient_consistently(
     points: &[[f64; 3]],
     normals: &mut [[f64; 3]],
     triangles: &[[u32; 3]],
-    knn: &[Vec<u32>],
+    knn: &Neighbours,
 ) -> Vec<u32> {
-    let n = points.len();
-    let graph = build_graph(n, triangles, knn);
-    // Edge weights do not depend on the signs (|nᵢ·nⱼ|), so they are computed up front, in
-    // parallel, with the same arithmetic as at the time of the push. Non-negative f64 order
-    // equals the order of their bit patterns.
-    let weights: Vec<u64> = (0..n)
-        .into_par_iter()
-        .flat_map_iter(|i| {
-            let normals = &*normals;
-            graph.neighbours(i).iter().map(move |&(j, penalty)| {
-                let w = penalty + 1.0 - dot(&normals[i], &normals[j as usize]).abs().min(1.0);
-                w.max(0.0).to_bits()
-            })
-        })
-        .collect();
+    let n = points.len().min(normals.len());
+    // The work runs on the points renumbered in the grid's cell order (`perm[u]` is the input
+    // index of sweep index u, `rank` the inverse), so that the tree's front, which advances
+    // across the surface, reads nearby memory; every choice below still compares input
+    // indices, so the tree does not depend on the numbering.
+    let perm: Vec<u32> = match PointGrid::new(&points[..n]) {
+        Some(grid) => grid.order().to_vec(),
+        None => (0..n as u32).collect(),
+    };
+    let mut rank = vec![0u32; n];
+    for (u, &v) in perm.iter().enumerate() {
+        rank[v as usize] = u as u32;
+    }
+    let mut local: Vec<[f64; 3]> = perm.par_iter().map(|&v| normals[v as usize]).collect();
+    let graph = build_graph(&local, &perm, &rank, triangles, knn);
+    // Prim's algorithm from the lowest unlabelled point (input index): the next point to join
+    // is always the frontier's least (weight, point), through `from`, the tree point of its
+    // least (weight, from) edge to the tree (an offer replaces the standing one only when its
+    // (weight, from) is smaller). This is the tree of the lazy form with a heap of
+    // (weight, point, from) entries that skips points already in the tree: a waiting point's
+    // least entry is its least (weight, from), so both pop the same sequence. Whether an offer
+    // replaces depends on that point's entry alone, and the order is by (weight, point), all
+    // distinct: the order of a row's entries changes nothing.
     let mut label = vec![u32::MAX; n];
-    // The smallest (weight, from) pushed so far for each point: a push that does not improve
-    // on it would only be popped after that one and skipped, so it is left out. The popped
-    // sequence, hence the tree, is the same as with every push. Whether a neighbour j of the
-    // popped point is pushed depends on j's entry alone, and the heap orders by (weight, j,
-    // from), all distinct: the order of a row's entries changes nothing.
-    let mut best: Vec<(u64, u32)> = vec![(u64::MAX, u32::MAX); n];
-    let mut heap: BinaryHeap<Reverse<(u64, u32, u32)>> = BinaryHeap::new();
+    let mut from = vec![u32::MAX; n];
+    let mut frontier = Frontier::new(n);
     let mut n_pieces = 0u32;
-    for root in 0..n {
-        if label[root] != u32::MAX {
+    for (root, &r) in rank.iter().enumerate() {
+        let r = r as usize;
+        if label[r] != u32::MAX {
             continue;
         }
-        heap.clear();
-        heap.push(Reverse((0, root as u32, root as u32)));
-        while let Some(Reverse((_, to, from))) = heap.pop() {
+        frontier.offer(r as u32, root as u32, 0);
+        from[r] = r as u32;
+        while let Some(to) = frontier.pop() {
             let to = to as usize;
-            if label[to] != u32::MAX {
-                continue;
-            }
             label[to] = n_pieces;
-            if dot(&normals[to], &normals[from as usize]) < 0.0 {
-                normals[to] = scale(&normals[to], -1.0);
+            let parent = from[to] as usize;
+            if dot(&local[to], &local[parent]) < 0.0 {
+                local[to] = scale(&local[to], -1.0);
             }
-            let row = graph.start[to]..graph.start[to + 1];
-            for (&(j, _), &w) in graph.entries[row.clone()].iter().zip(&weights[row]) {
-                let candidate = (w, to as u32);
-                if label[j as usize] == u32::MAX && candidate < best[j as usize] {
-                    best[j as usize] = candidate;
-                    heap.push(Reverse((w, j, to as u32)));
+            let id = perm[to];
+            let (neighbours, weights) = graph.row(to);
+            for (&j, &w) in neighbours.iter().zip(weights) {
+                let j = j as usize;
+                if label[j] != u32::MAX {
+                    continue;
+                }
+                let better = match frontier.weight_of(j) {
+                    None => true,
+                    Some(standing) => (w, id) < (standing, perm[from[j] as usize]),
+                };
+                if better {
+                    from[j] = to as u32;
+                    frontier.offer(j as u32, perm[j], w);
                 }
             }
         }
         n_pieces += 1;
     }
-    label
+    let mut out = vec![0u32; n];
+    for (u, &v) in perm.iter().enumerate() {
+        normals[v as usize] = local[u];
+        out[v as usize] = label[u];
+    }
+    out
 }
 
 /// Turns each connected piece (`label` from [`orient_consistently`]) outward by the
@@ -251,8 +423,99 @@ pub fn orient_outward(
     points: &[[f64; 3]],
     normals: &mut [[f64; 3]],
     triangles: &[[u32; 3]],
-    knn: &[Vec<u32>],
+    knn: &Neighbours,
 ) {
     let label = orient_consistently(points, normals, triangles, knn);
     orient_outward_pieces(points, normals, &label);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::cmp::Reverse;
+    use std::collections::{BTreeMap, BinaryHeap};
+
+    /// The spanning-tree orientation written plainly: the symmetric k-nearest graph as a map,
+    /// a lazy heap of (weight, point, from) entries, input numbering throughout.
+    fn reference(points: &[[f64; 3]], normals: &mut [[f64; 3]], knn: &Neighbours) -> Vec<u32> {
+        let n = points.len();
+        let mut rows: Vec<BTreeMap<u32, u64>> = vec![BTreeMap::new(); n];
+        for i in 0..n {
+            for &j in knn.row(i) {
+                let w = 1.0 - dot(&normals[i], &normals[j as usize]).abs().min(1.0);
+                rows[i].insert(j, w.max(0.0).to_bits());
+                rows[j as usize].insert(i as u32, w.max(0.0).to_bits());
+            }
+        }
+        let mut label = vec![u32::MAX; n];
+        let mut pieces = 0;
+        for root in 0..n {
+            if label[root] != u32::MAX {
+                continue;
+            }
+            let mut heap = BinaryHeap::from([Reverse((0u64, root as u32, root as u32))]);
+            while let Some(Reverse((_, to, from))) = heap.pop() {
+                let to = to as usize;
+                if label[to] != u32::MAX {
+                    continue;
+                }
+                label[to] = pieces;
+                if dot(&normals[to], &normals[from as usize]) < 0.0 {
+                    normals[to] = scale(&normals[to], -1.0);
+                }
+                for (&j, &w) in &rows[to] {
+                    if label[j as usize] == u32::MAX {
+                        heap.push(Reverse((w, j, to as u32)));
+                    }
+                }
+            }
+            pieces += 1;
+        }
+        label
+    }
+
+    #[test]
+    fn tree_matches_the_plain_lazy_prim_with_ties_and_several_pieces() {
+        // Two lattice patches (many equal distances and equal weights) far apart, the normals
+        // taken from a few directions with random signs, points in a shuffled order.
+        let mut seed = 11u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            seed >> 33
+        };
+        let mut points: Vec<[f64; 3]> = Vec::new();
+        for offset in [0.0, 100.0] {
+            for i in 0..20 {
+                for j in 0..15 {
+                    points.push([offset + i as f64, j as f64, ((i + j) % 3) as f64 * 0.5]);
+                }
+            }
+        }
+        for i in (1..points.len()).rev() {
+            points.swap(i, next() as usize % (i + 1));
+        }
+        let directions = [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.8, -0.6]];
+        let normals: Vec<[f64; 3]> = (0..points.len())
+            .map(|_| {
+                let d = directions[next() as usize % 3];
+                if next() % 2 == 0 {
+                    d
+                } else {
+                    scale(&d, -1.0)
+                }
+            })
+            .collect();
+        for k in [4, 8] {
+            let knn = PointGrid::new(&points).unwrap().all_nearest(&points, k);
+            let mut expected = normals.clone();
+            let expected_label = reference(&points, &mut expected, &knn);
+            let mut got = normals.clone();
+            let label = orient_consistently(&points, &mut got, &[], &knn);
+            assert_eq!(label, expected_label, "k {k}");
+            assert_eq!(got, expected, "k {k}");
+            assert_eq!(label.iter().max(), Some(&1), "two pieces, k {k}");
+        }
+    }
 }

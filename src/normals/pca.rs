@@ -20,7 +20,7 @@ use rayon::prelude::*;
 
 use crate::normals::vec3::{dot, normalized, sub};
 use crate::normals::NormalsParams;
-use crate::numerics::PointGrid;
+use crate::numerics::{Neighbours, PointGrid};
 
 /// The neighbour index over the points (`None` when there are none or a coordinate is not
 /// finite).
@@ -35,10 +35,18 @@ pub fn nearest(index: &PointGrid, points: &[[f64; 3]], i: usize, k: usize) -> Ve
 
 /// The k nearest neighbours of every point (the point itself excluded), nearest first, ties
 /// by index.
-pub fn knn(points: &[[f64; 3]], k: usize) -> Vec<Vec<u32>> {
+pub fn knn(points: &[[f64; 3]], k: usize) -> Neighbours {
+    knn_with_index(points, k).1
+}
+
+/// [`knn`], and the neighbour index it used (for [`adaptive_normals`]).
+pub fn knn_with_index(points: &[[f64; 3]], k: usize) -> (Option<PointGrid>, Neighbours) {
     match build_index(points) {
-        Some(index) => index.all_nearest(points, k),
-        None => vec![Vec::new(); points.len()],
+        Some(index) => {
+            let neighbours = index.all_nearest(points, k);
+            (Some(index), neighbours)
+        }
+        None => (None, Neighbours::empty(points.len())),
     }
 }
 
@@ -105,6 +113,7 @@ pub fn adaptive_plane_fit(
     neighbours: &[u32],
     max_k: usize,
     keys: &mut Vec<u128>,
+    wide: &mut Vec<u32>,
 ) -> ([f64; 3], usize) {
     let (first_normal, first_thickness) = plane_fit(points, i, neighbours);
     let (mut normal, mut thickness) = (first_normal, first_thickness);
@@ -121,7 +130,8 @@ pub fn adaptive_plane_fit(
     }) * 1.5
         * max_k as f64
         / k0 as f64;
-    let (wide, _) = index.nearest(points, i, max_k, r2, keys);
+    wide.clear();
+    index.nearest_into(points, i, max_k, r2, keys, wide);
     // The fits of the prefixes 2k₀, 4k₀, … in one pass: the moments of the offsets from point i
     // (which is in every neighbourhood, at offset 0), and at each prefix the covariance
     // Σ d dᵀ − (Σ d)(Σ d)ᵀ / count. The offsets are of the neighbourhood's size, so the
@@ -167,26 +177,32 @@ pub fn adaptive_plane_fit(
 }
 
 /// Plane-fit normals with the adaptive neighbourhood, in parallel; also returns, per point,
-/// whether its neighbourhood had to grow (the data is noisy at the k₀ scale there).
+/// whether its neighbourhood had to grow (the data is noisy at the k₀ scale there). `index` is
+/// the one `neighbours` came from ([`knn_with_index`]).
 pub fn adaptive_normals(
     points: &[[f64; 3]],
-    neighbours: &[Vec<u32>],
+    index: Option<&PointGrid>,
+    neighbours: &Neighbours,
     max_k: usize,
 ) -> (Vec<[f64; 3]>, Vec<bool>) {
-    let Some(index) = build_index(points) else {
+    let Some(index) = index else {
         return (
             (0..points.len())
-                .map(|i| plane_normal(points, i, &neighbours[i]))
+                .map(|i| plane_normal(points, i, neighbours.row(i)))
                 .collect(),
             vec![false; points.len()],
         );
     };
     let fits: Vec<([f64; 3], bool)> = (0..points.len())
         .into_par_iter()
-        .map_init(Vec::new, |keys, i| {
-            let (n, k) = adaptive_plane_fit(&index, points, i, &neighbours[i], max_k, keys);
-            (n, k > neighbours[i].len())
-        })
+        .map_init(
+            || (Vec::new(), Vec::new()),
+            |(keys, wide), i| {
+                let near = neighbours.row(i);
+                let (n, k) = adaptive_plane_fit(index, points, i, near, max_k, keys, wide);
+                (n, k > near.len())
+            },
+        )
         .collect();
     fits.into_iter().unzip()
 }
@@ -261,8 +277,10 @@ fn smallest_eigen(mut a: [[f64; 3]; 3]) -> ([f64; 3], f64, f64) {
 
 /// The `pca` source: adaptive plane fits, oriented consistently and outward.
 pub fn pca_normals(points: &[[f64; 3]], params: &NormalsParams) -> Vec<[f64; 3]> {
-    let neighbours = knn(points, params.k_neighbours);
-    let (mut normals, _) = adaptive_normals(points, &neighbours, params.max_k_neighbours);
+    let (index, neighbours) = knn_with_index(points, params.k_neighbours);
+    let (mut normals, _) =
+        adaptive_normals(points, index.as_ref(), &neighbours, params.max_k_neighbours);
+    drop(index);
     crate::normals::orient::orient_outward(points, &mut normals, &[], &neighbours);
     normals
 }

@@ -10,5 +10,5 @@ pub(crate) mod cholesky;
 pub mod point_grid;
 pub(crate) mod union_find;
 
-pub use point_grid::PointGrid;
+pub use point_grid::{Neighbours, PointGrid};
 pub(crate) use union_find::UnionFind;

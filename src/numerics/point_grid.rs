@@ -127,6 +127,12 @@ impl PointGrid {
         })
     }
 
+    /// The input indices of the points in cell order: nearby points mostly close together (an
+    /// order for cache-friendly sweeps over a cloud).
+    pub fn order(&self) -> &[u32] {
+        &self.items
+    }
+
     /// Number of points.
     pub fn len(&self) -> usize {
         self.items.len()
@@ -183,9 +189,40 @@ impl PointGrid {
         hint2: f64,
         keys: &mut Vec<u128>,
     ) -> (Vec<u32>, f64) {
+        let farthest = self.nearest_keys(points, i, k, hint2, keys);
+        (listed(keys, i, k).collect(), farthest)
+    }
+
+    /// [`PointGrid::nearest`], the answer appended to `out` (no allocation once `out` and
+    /// `keys` have grown); returns the same hint.
+    pub fn nearest_into(
+        &self,
+        points: &[[f64; 3]],
+        i: usize,
+        k: usize,
+        hint2: f64,
+        keys: &mut Vec<u128>,
+        out: &mut Vec<u32>,
+    ) -> f64 {
+        let farthest = self.nearest_keys(points, i, k, hint2, keys);
+        out.extend(listed(keys, i, k));
+        farthest
+    }
+
+    /// Leaves in `keys` the [`order_key`]s of the k + 1 nearest points (i included), sorted;
+    /// returns the squared distance of the last.
+    fn nearest_keys(
+        &self,
+        points: &[[f64; 3]],
+        i: usize,
+        k: usize,
+        hint2: f64,
+        keys: &mut Vec<u128>,
+    ) -> f64 {
+        keys.clear();
         let want = (k + 1).min(self.len());
         if want == 0 {
-            return (Vec::new(), 0.0);
+            return 0.0;
         }
         let q = points[i];
         let mut r2 = if hint2 > 0.0 && hint2.is_finite() {
@@ -211,49 +248,113 @@ impl PointGrid {
             }
         }
         let want = want.min(keys.len());
+        if want == 0 {
+            return 0.0;
+        }
         if want < keys.len() {
             keys.select_nth_unstable(want - 1);
             keys.truncate(want);
         }
         keys.sort_unstable();
-        let farthest = keys.last().map_or(0.0, |&key| distance_of_key(key));
-        let list = keys
-            .iter()
-            .map(|&key| key as u32)
-            .filter(|&j| j as usize != i)
-            .take(k)
-            .collect();
-        (list, farthest)
+        keys.last().map_or(0.0, |&key| distance_of_key(key))
     }
 
     /// The `k` nearest neighbours of every point of `points` (the points the grid was made
-    /// of), as [`PointGrid::nearest`] gives them.
-    pub fn all_nearest(&self, points: &[[f64; 3]], k: usize) -> Vec<Vec<u32>> {
+    /// of), as [`PointGrid::nearest`] gives them, in one flat array.
+    pub fn all_nearest(&self, points: &[[f64; 3]], k: usize) -> Neighbours {
+        let n = points.len();
+        // Every answer has this length (k + 1 keys, or all n, less point i or the farthest).
+        let stride = k.min(n.saturating_sub(1));
         // In cell order, so that each query's hint is the answer of a point next to it.
-        let blocks: Vec<Vec<(u32, Vec<u32>)>> = self
+        let blocks: Vec<Vec<u32>> = self
             .items
             .par_chunks(BLOCK)
             .map(|block| {
                 let mut keys = Vec::new();
                 let mut hint2 = 0.0;
-                block
-                    .iter()
-                    .map(|&i| {
-                        let (list, farthest) =
-                            self.nearest(points, i as usize, k, hint2, &mut keys);
-                        // A little more than the neighbour's radius, so that most queries need
-                        // one pass.
-                        hint2 = farthest * 1.3;
-                        (i, list)
-                    })
-                    .collect()
+                let mut lists = Vec::with_capacity(block.len() * stride);
+                for &i in block {
+                    let row = lists.len();
+                    let farthest =
+                        self.nearest_into(points, i as usize, k, hint2, &mut keys, &mut lists);
+                    // Never shorter (see `stride`); kept rectangular whatever happens.
+                    lists.resize(row + stride, i);
+                    // A little more than the neighbour's radius, so that most queries need
+                    // one pass.
+                    hint2 = farthest * 1.3;
+                }
+                lists
             })
             .collect();
-        let mut out = vec![Vec::new(); points.len()];
-        for (i, list) in blocks.into_iter().flatten() {
-            out[i as usize] = list;
+        let mut list = vec![0u32; n * stride];
+        if stride > 0 {
+            for (block, lists) in self.items.chunks(BLOCK).zip(&blocks) {
+                for (&i, row) in block.iter().zip(lists.chunks_exact(stride)) {
+                    let i = i as usize;
+                    list[i * stride..(i + 1) * stride].copy_from_slice(row);
+                }
+            }
         }
-        out
+        Neighbours { stride, n, list }
+    }
+}
+
+/// The neighbours named in sorted `keys`, point `i` left out, at most `k`.
+fn listed(keys: &[u128], i: usize, k: usize) -> impl Iterator<Item = u32> + '_ {
+    keys.iter()
+        .map(|&key| key as u32)
+        .filter(move |&j| j as usize != i)
+        .take(k)
+}
+
+/// The k nearest neighbours of every point, nearest first, in one flat array of rows of equal
+/// length (one allocation instead of one per point).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Neighbours {
+    /// Length of every row.
+    stride: usize,
+    /// Number of rows (points).
+    n: usize,
+    /// Row i is `list[i * stride..(i + 1) * stride]`.
+    list: Vec<u32>,
+}
+
+impl Neighbours {
+    /// `n` empty rows.
+    pub fn empty(n: usize) -> Neighbours {
+        Neighbours {
+            stride: 0,
+            n,
+            list: Vec::new(),
+        }
+    }
+
+    /// Number of rows (points).
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    /// Whether there are no rows.
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    /// Length of every row.
+    pub fn stride(&self) -> usize {
+        self.stride
+    }
+
+    /// The neighbours of point `i`, nearest first (empty for `i` out of range).
+    pub fn row(&self, i: usize) -> &[u32] {
+        if i >= self.n {
+            return &[];
+        }
+        &self.list[i * self.stride..(i + 1) * self.stride]
+    }
+
+    /// All rows, one after the other.
+    pub fn flat(&self) -> &[u32] {
+        &self.list
     }
 }
 
@@ -361,7 +462,7 @@ mod tests {
                     .chain(points.len().saturating_sub(60)..points.len());
                 for i in checked {
                     let expected = brute(points, i, k);
-                    assert_eq!(all[i], expected, "all_nearest, point {i}, k {k}");
+                    assert_eq!(all.row(i), expected, "all_nearest, point {i}, k {k}");
                     for hint2 in [1e-12, 0.3, 1e9] {
                         let (list, _) = grid.nearest(points, i, k, hint2, &mut keys);
                         assert_eq!(list, expected, "point {i}, k {k}, hint {hint2}");
@@ -405,7 +506,14 @@ mod tests {
         assert_eq!(list, vec![1, 2]);
         let one = [[5.0, 5.0, 5.0]];
         let grid = PointGrid::new(&one).unwrap();
-        assert_eq!(grid.all_nearest(&one, 4), vec![Vec::<u32>::new()]);
+        let all = grid.all_nearest(&one, 4);
+        assert_eq!((all.len(), all.stride(), all.row(0)), (1, 0, &[][..]));
+        let all = PointGrid::new(&points).unwrap().all_nearest(&points, 16);
+        assert_eq!((all.len(), all.stride()), (3, 2));
+        assert_eq!(
+            [all.row(0), all.row(1), all.row(2)],
+            [[1, 2], [0, 2], [0, 1]]
+        );
         assert!(PointGrid::new(&[]).is_none());
         assert!(PointGrid::new(&[[f64::NAN, 0.0, 0.0]]).is_none());
     }
