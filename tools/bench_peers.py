@@ -432,10 +432,17 @@ def main():
         scan_rows = bench_scans.run(a.bin, work / "scans")
         scan_lines = bench_scans.section(a.bin, scan_rows, a.out, work / "scans")
     total = time.perf_counter() - start
+    sys.path.insert(0, str(HERE))
+    import bench_scale
+
+    scale = bench_scale.existing_section(a.out)  # tools/bench_scale.py's section, kept as it is
     write_doc(a, rows, baseline, total)
     if scan_lines:
         with open(a.out, "a") as f:
             f.write("\n".join(scan_lines) + "\n")
+    if scale:
+        with open(a.out, "a") as f:
+            f.write("\n" + scale)
     (Path(a.out).with_suffix(".json")).write_text(json.dumps({"rows": rows, "scans": scan_rows, "baseline": baseline, "total_wall_s": total}, indent=1, default=str))
     print(a.out)
 
