@@ -366,53 +366,25 @@ pub fn drop_components_far_from(
     points: &[[f64; 3]],
     max_distance: f64,
 ) -> (TriangleMesh, usize) {
-    use rayon::prelude::*;
+    let distances = crate::measure::nearest_point_distances(&mesh.positions, points)
+        .unwrap_or_else(|| vec![f64::INFINITY; mesh.positions.len()]);
+    drop_components_by_distance(mesh, &distances, max_distance)
+}
+
+/// [`drop_components_far_from`] given each vertex's distance to the nearest data point
+/// (`vertex_distances`, one per vertex; NaN counts as far): a component is kept when one of its
+/// vertices lies within `max_distance`.
+pub fn drop_components_by_distance(
+    mesh: &TriangleMesh,
+    vertex_distances: &[f64],
+    max_distance: f64,
+) -> (TriangleMesh, usize) {
     let (n_components, labels) = component_labels(mesh);
-    // Hash the vertices into cubes of side max_distance; a point's near vertices lie in the 27
-    // cubes around it.
-    let cell = if max_distance > 0.0 && max_distance.is_finite() {
-        max_distance
-    } else {
-        1.0
-    };
-    let key = |p: [f64; 3]| p.map(|c| (c / cell).floor() as i64);
-    let mut buckets: std::collections::HashMap<[i64; 3], Vec<u32>> =
-        std::collections::HashMap::new();
-    for (i, &p) in mesh.positions.iter().enumerate() {
-        if p.iter().all(|c| c.is_finite()) {
-            buckets.entry(key(p)).or_default().push(i as u32);
-        }
-    }
-    let r2 = max_distance * max_distance;
-    let near: Vec<Vec<u32>> = points
-        .par_chunks(4096)
-        .map(|chunk| {
-            let mut found = Vec::new();
-            for &q in chunk {
-                if !q.iter().all(|c| c.is_finite()) {
-                    continue;
-                }
-                let k = key(q);
-                for d in 0..27 {
-                    let offset = [d % 3 - 1, (d / 3) % 3 - 1, d / 9 - 1];
-                    let kk = [0, 1, 2].map(|a| k[a] + offset[a]);
-                    for &i in buckets.get(&kk).into_iter().flatten() {
-                        let p = mesh.positions[i as usize];
-                        let d2: f64 = (0..3).map(|a| (p[a] - q[a]).powi(2)).sum();
-                        if d2 <= r2 {
-                            found.push(labels[i as usize]);
-                        }
-                    }
-                }
-            }
-            found.sort_unstable();
-            found.dedup();
-            found
-        })
-        .collect();
     let mut keep = vec![false; n_components];
-    for label in near.into_iter().flatten() {
-        keep[label as usize] = true;
+    for (&label, &d) in labels.iter().zip(vertex_distances) {
+        if d <= max_distance {
+            keep[label as usize] = true;
+        }
     }
     let dropped = keep.iter().filter(|&&k| !k).count();
     (keep_components(mesh, &labels, &keep), dropped)

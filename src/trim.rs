@@ -376,8 +376,7 @@ fn local_spacing(grid: &PointGrid, points: &[[f64; 3]], k: usize, wanted: &[u32]
     if k == 0 {
         return vec![0.0; wanted.len()];
     }
-    let knn = |i: usize| grid.nearest(points, i, k, 0.0, &mut Vec::new()).0;
-    let neighbours: Vec<Vec<u32>> = wanted.par_iter().map(|&i| knn(i as usize)).collect();
+    let neighbours = nearest_lists(grid, points, k, wanted);
     // Each point's distance to its nearest neighbour at a positive distance (0 when all its k
     // neighbours coincide with it), for the wanted points and their neighbours.
     let mut around: Vec<u32> = wanted
@@ -388,11 +387,11 @@ fn local_spacing(grid: &PointGrid, points: &[[f64; 3]], k: usize, wanted: &[u32]
     around.sort_unstable();
     around.dedup();
     let dist = |i: usize, j: u32| norm(sub(points[i], points[j as usize]));
-    let nearest: Vec<f64> = around
+    let nearest: Vec<f64> = nearest_lists(grid, points, k, &around)
         .par_iter()
-        .map(|&i| {
-            knn(i as usize)
-                .iter()
+        .zip(&around)
+        .map(|(list, &i)| {
+            list.iter()
                 .map(|&j| dist(i as usize, j))
                 .find(|&d| d > 0.0)
                 .unwrap_or(0.0)
@@ -410,6 +409,32 @@ fn local_spacing(grid: &PointGrid, points: &[[f64; 3]], k: usize, wanted: &[u32]
             values[values.len() / 2]
         })
         .collect()
+}
+
+/// The k nearest neighbours of each of the points `of` (indices into `points`), in their order.
+/// The queries run in Z order, each starting from a radius a little above its predecessor's
+/// (the answers do not depend on it, only the work: a grid cell of a surface scan holds many
+/// points).
+fn nearest_lists(grid: &PointGrid, points: &[[f64; 3]], k: usize, of: &[u32]) -> Vec<Vec<u32>> {
+    let coords: Vec<[f64; 3]> = of.iter().map(|&i| points[i as usize]).collect();
+    let order = crate::measure::spatial_order(&coords);
+    let found: Vec<(u32, Vec<u32>)> = order
+        .par_chunks(256)
+        .flat_map_iter(|chunk| {
+            let (mut keys, mut hint2) = (Vec::new(), 0.0);
+            chunk.iter().map(move |&o| {
+                let (list, farthest) =
+                    grid.nearest(points, of[o as usize] as usize, k, hint2, &mut keys);
+                hint2 = farthest * 1.3;
+                (o, list)
+            })
+        })
+        .collect();
+    let mut out = vec![Vec::new(); of.len()];
+    for (o, list) in found {
+        out[o as usize] = list;
+    }
+    out
 }
 
 /// The triangles on each undirected edge, in compressed rows over the sorted edges.

@@ -290,10 +290,16 @@ pub fn export_mesh(
     params: &ExportParams,
 ) -> Result<ExportOutput, ExportError> {
     let data_diagonal = Aabb::from_points(points).map_or(0.0, |b| b.diagonal());
+    // One index of the data points for every nearest-point query below.
+    let data = measure::PointIndex::new(points);
     let mut mesh = Cow::Borrowed(mesh);
     let (mut dropped_components, mut dropped_nested) = (0, 0);
     if params.keep == Keep::Data {
-        let (kept, n) = mesh::drop_components_far_from(&mesh, points, 0.02 * data_diagonal);
+        let distances = data.as_ref().map_or_else(
+            || vec![f64::INFINITY; mesh.positions.len()],
+            |index| index.distances(&mesh.positions),
+        );
+        let (kept, n) = mesh::drop_components_by_distance(&mesh, &distances, 0.02 * data_diagonal);
         (mesh, dropped_components) = (Cow::Owned(kept), n);
         let (kept, n) = mesh::drop_small_nested_components(&mesh, NESTED_AREA_FRACTION);
         (mesh, dropped_nested) = (Cow::Owned(kept), n);
@@ -305,8 +311,6 @@ pub fn export_mesh(
         mesh = Cow::Owned(trimmed.mesh);
     }
     let m: &TriangleMesh = &mesh;
-    // One index of the data points for every nearest-point query below.
-    let data = measure::PointIndex::new(points);
     let with_slices = !slices_from_model(model, params);
     let one = |name: &str, bytes: Vec<u8>| vec![(name.to_string(), bytes)];
     let mesh_opts = MeshFileOptions {
