@@ -403,13 +403,15 @@ pub fn input_normals(
     } else {
         n.div_ceil(CHECK_NEIGHBOURS_FROM).max(1)
     };
-    let (check_points, check_normals): (Cow<[[f64; 3]]>, Cow<[[f64; 3]]>) = if check_step > 1 {
+    let every_kth =
+        |v: &[[f64; 3]]| -> Vec<[f64; 3]> { v.iter().step_by(check_step).copied().collect() };
+    let (check_points, check_normals) = if check_step > 1 {
         (
-            points.iter().step_by(check_step).copied().collect(),
-            normals.iter().step_by(check_step).copied().collect(),
+            Cow::Owned(every_kth(points)),
+            Cow::Owned(every_kth(&normals)),
         )
     } else {
-        (Cow::Borrowed(points), Cow::Borrowed(&normals))
+        (Cow::Borrowed(points), Cow::Borrowed(&normals[..]))
     };
     let check_index = match index {
         Some(index) if check_step == 1 => Some(index),
