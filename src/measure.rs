@@ -811,48 +811,97 @@ fn box_dist2(q: [f64; 3], n: &KdNode) -> f64 {
 /// Subtrees of more points than this are built in parallel by [`build_subtree`].
 const PARALLEL_SUBTREE: usize = 1 << 16;
 
-/// The nodes and leaf blocks of the subtree over `entries`, numbered from 0, laid out exactly
-/// as [`build_node`] lays them out; the two halves of a large subtree are built in parallel and
-/// joined with their indices shifted, so the tree does not depend on the thread count.
+/// The nodes and leaf blocks of the tree over `entries`, laid out exactly as [`build_node`] lays
+/// them out. Both arrays are sized once ([`tree_size`]: the shape depends on the count alone)
+/// and the two halves of a large subtree fill their parts of them in parallel, so the tree does
+/// not depend on the thread count and no part is copied twice.
 fn build_subtree(entries: &mut [([f64; 3], u32)]) -> (Vec<KdNode>, Vec<LeafBlock>) {
+    let (n_nodes, n_blocks) = tree_size(entries.len());
+    let empty_node = KdNode {
+        lo: [0.0; 3],
+        hi: [0.0; 3],
+        split: 0.0,
+        axis: LEAF,
+        right: 0,
+        start: 0,
+    };
+    let empty_block = LeafBlock {
+        coords: [[f64::INFINITY; LEAF_POINTS]; 3],
+        items: [u32::MAX; LEAF_POINTS],
+    };
+    let mut nodes = vec![empty_node; n_nodes];
+    let mut blocks = vec![empty_block; n_blocks];
+    build_into(entries, &mut nodes, &mut blocks, 0, 0);
+    (nodes, blocks)
+}
+
+/// How many nodes and leaf blocks the tree over `n` points has.
+fn tree_size(n: usize) -> (usize, usize) {
+    fn size(n: usize, memo: &mut Vec<(usize, (usize, usize))>) -> (usize, usize) {
+        if n <= LEAF_POINTS {
+            return (1, 1);
+        }
+        if let Some(&(_, s)) = memo.iter().find(|(m, _)| *m == n) {
+            return s;
+        }
+        let (a, b) = (size(n / 2, memo), size(n - n / 2, memo));
+        let s = (1 + a.0 + b.0, a.1 + b.1);
+        memo.push((n, s));
+        s
+    }
+    // Each level has at most two distinct counts, so the memo stays short.
+    size(n, &mut Vec::new())
+}
+
+/// Fills `nodes` and `blocks` (exactly the subtree's size) with the subtree over `entries`,
+/// whose first node and block have the indices `node_base` and `block_base` in the tree.
+fn build_into(
+    entries: &mut [([f64; 3], u32)],
+    nodes: &mut [KdNode],
+    blocks: &mut [LeafBlock],
+    node_base: usize,
+    block_base: usize,
+) {
     if entries.len() <= PARALLEL_SUBTREE {
-        let mut nodes = Vec::with_capacity(2 * entries.len() / LEAF_POINTS + 1);
-        let mut blocks = Vec::with_capacity(2 * entries.len() / LEAF_POINTS + 1);
-        build_node(entries, &mut nodes, &mut blocks);
-        return (nodes, blocks);
+        let mut local_nodes = Vec::with_capacity(nodes.len());
+        let mut local_blocks = Vec::with_capacity(blocks.len());
+        build_node(entries, &mut local_nodes, &mut local_blocks);
+        for (dst, node) in nodes.iter_mut().zip(local_nodes) {
+            *dst = node;
+            if node.axis != LEAF {
+                dst.right += node_base as u32;
+            }
+            dst.start += block_base as u32;
+        }
+        blocks.copy_from_slice(&local_blocks);
+        return;
     }
     let (lo, hi) = tight_box(entries);
     let (axis, split, mid) = median_split(entries, lo, hi);
-    let (left, right) = entries.split_at_mut(mid);
-    let ((left_nodes, left_blocks), (right_nodes, right_blocks)) =
-        rayon::join(|| build_subtree(left), || build_subtree(right));
-    let right_at = 1 + left_nodes.len();
-    let mut nodes = Vec::with_capacity(right_at + right_nodes.len());
-    nodes.push(KdNode {
+    let (left_nodes_n, left_blocks_n) = tree_size(mid);
+    nodes[0] = KdNode {
         lo,
         hi,
         split,
         axis: axis as u32,
-        right: right_at as u32,
-        start: 0,
-    });
-    let shift = |node: &KdNode, nodes_before: usize, blocks_before: usize| {
-        let mut node = *node;
-        if node.axis != LEAF {
-            node.right += nodes_before as u32;
-        }
-        node.start += blocks_before as u32;
-        node
+        right: (node_base + 1 + left_nodes_n) as u32,
+        start: block_base as u32,
     };
-    nodes.extend(left_nodes.iter().map(|n| shift(n, 1, 0)));
-    nodes.extend(
-        right_nodes
-            .iter()
-            .map(|n| shift(n, right_at, left_blocks.len())),
+    let (left, right) = entries.split_at_mut(mid);
+    let (left_nodes, right_nodes) = nodes[1..].split_at_mut(left_nodes_n);
+    let (left_blocks, right_blocks) = blocks.split_at_mut(left_blocks_n);
+    rayon::join(
+        || build_into(left, left_nodes, left_blocks, node_base + 1, block_base),
+        || {
+            build_into(
+                right,
+                right_nodes,
+                right_blocks,
+                node_base + 1 + left_nodes_n,
+                block_base + left_blocks_n,
+            )
+        },
     );
-    let mut blocks = left_blocks;
-    blocks.extend(right_blocks);
-    (nodes, blocks)
 }
 
 /// The tight box of `entries`' points.

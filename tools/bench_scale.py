@@ -11,8 +11,8 @@ Inputs: clean tori with exact normals (binary PLY, float x y z nx ny nz), one pe
 `torus_N.ply` in the work folder and reused from there when it holds N points).
 
 Per size, each in its own child process, in this order:
-  - global:       stablesurf run FILE -o DIR --mode global --no-cache -q --formats json
-  - detail:       stablesurf run FILE -o DIR --no-cache -q --formats json (the default mode),
+  - global:       stablesurf run FILE -o DIR --mode global --no-cache -q (every default output)
+  - detail:       stablesurf run FILE -o DIR --no-cache -q (the default mode),
                   for N <= --detail-max (default 3M)
   - global, pca:  the global run with --normals pca, for N <= --pca-max (default 1M)
   - Poisson d8:   Open3D create_from_point_cloud_poisson(depth=8) on the same file, written as a
@@ -141,7 +141,7 @@ def run_child(cmd, env=None, timeout=TIMEOUT):
 
 
 def stablesurf_cmd(bin_path, inp, out, mode):
-    cmd = [str(bin_path), "run", str(inp), "-o", str(out), "--no-cache", "-q", "--formats", "json"]
+    cmd = [str(bin_path), "run", str(inp), "-o", str(out), "--no-cache", "-q"]
     if mode != "detail":
         cmd += ["--mode", "global"]
     if mode == "global, --normals pca":
@@ -276,11 +276,10 @@ def section(results, meta):
     d.append(
         "How time and memory grow with the number of points N. Inputs: clean tori with exact normals "
         "(`bench_peers_inputs DIR --big N`, binary PLY). Each run is its own child process: *global* is "
-        "`stablesurf run FILE -o DIR --mode global --no-cache -q --formats json`, *detail* the same without "
+        "`stablesurf run FILE -o DIR --mode global --no-cache -q`, *detail* the same without "
         "`--mode` (the default mode), *global, --normals pca* the global run with normals from k-nearest-"
-        "neighbour planes instead of the file's; all threads (default `-j`). Only `model.json` and "
-        "`report.json` are written, so no mesh file is written (the export stage still checks the mesh and "
-        "measures its accuracy). "
+        "neighbour planes instead of the file's; all threads (default `-j`). Every default output is "
+        "written (model, glTF, PLY, preview, report and the distance slices), as a user's run writes them. "
         + (f"*{POISSON}* is Open3D's `create_from_point_cloud_poisson(depth=8)` on the same file, written as "
            f"a PLY, whole Python process with `OMP_WAIT_POLICY=passive` (Python start-up and `import open3d` "
            f"alone: {meta['baseline']:.2f} CPU-s), as in `tools/bench_peers`. " if meta.get("baseline") is not None
