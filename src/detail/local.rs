@@ -235,9 +235,10 @@ pub(crate) fn fit_local(
             }
         }
     }
+    let aux_w = aux_weight(ball, measure);
     for &(p, t) in aux {
         monomials(n, norm(p), &mut mon);
-        add_row(&mon, t / s, 1.0, &mut ata, &mut atb);
+        add_row(&mon, t / s, aux_w, &mut ata, &mut atb);
     }
     // 3. Ridge term κD, D_ll = β_{|α|}/T_α (paper 6.18).
     let mut l = 0;
@@ -365,10 +366,11 @@ fn fit_quadric(
             }
         }
     }
+    let aux_w = aux_weight(ball, measure);
     for &(p, t) in aux {
         let m = quadric_monomials(norm(p));
-        add_packed(&mut ata, &m, 1.0);
-        let target = t / s;
+        add_packed(&mut ata, &m, aux_w);
+        let target = aux_w * t / s;
         for l in 0..10 {
             atb[l] += m[l] * target;
         }
@@ -464,6 +466,19 @@ fn fit_quadric(
         },
         max_error,
     })
+}
+
+/// The weight of the auxiliary rows: the fitted points over the measured ones (1 when the
+/// ball is fitted whole). The rows of an [`even_subsample`] stand for the whole ball, so the
+/// auxiliary rows keep the share they have among all its rows; at weight 1 they outweighed a
+/// subsample of a dense ball and pulled its zero set off the data (a 20k-point sphere, one
+/// cell: mean signed radial error +3.1e-6 of the diagonal against +5.9e-9 fitted whole).
+fn aux_weight(ball: &[u32], measure: &[u32]) -> f64 {
+    if measure.len() > ball.len() && !ball.is_empty() {
+        ball.len() as f64 / measure.len() as f64
+    } else {
+        1.0
+    }
 }
 
 /// A ball holding more points than this is fitted on [`even_subsample`] of them, the error
