@@ -376,22 +376,25 @@ fn local_spacing(grid: &PointGrid, points: &[[f64; 3]], k: usize, wanted: &[u32]
     if k == 0 {
         return vec![0.0; wanted.len()];
     }
-    let neighbours = nearest_lists(grid, points, k, wanted);
+    let neighbours = grid.nearest_of(points, wanted, k);
     // Each point's distance to its nearest neighbour at a positive distance (0 when all its k
     // neighbours coincide with it), for the wanted points and their neighbours.
     let mut around: Vec<u32> = wanted
         .iter()
         .copied()
-        .chain(neighbours.iter().flatten().copied())
+        .chain(neighbours.flat().iter().copied())
         .collect();
     around.sort_unstable();
     around.dedup();
     let dist = |i: usize, j: u32| norm(sub(points[i], points[j as usize]));
-    let nearest: Vec<f64> = nearest_lists(grid, points, k, &around)
+    let around_neighbours = grid.nearest_of(points, &around, k);
+    let nearest: Vec<f64> = around
         .par_iter()
-        .zip(&around)
-        .map(|(list, &i)| {
-            list.iter()
+        .enumerate()
+        .map(|(r, &i)| {
+            around_neighbours
+                .row(r)
+                .iter()
                 .map(|&j| dist(i as usize, j))
                 .find(|&d| d > 0.0)
                 .unwrap_or(0.0)
@@ -400,41 +403,15 @@ fn local_spacing(grid: &PointGrid, points: &[[f64; 3]], k: usize, wanted: &[u32]
     let nearest_of = |j: u32| nearest[around.binary_search(&j).unwrap_or(0)];
     wanted
         .par_iter()
-        .zip(&neighbours)
-        .map(|(&i, list)| {
+        .enumerate()
+        .map(|(r, &i)| {
             let mut values: Vec<f64> = std::iter::once(nearest_of(i))
-                .chain(list.iter().map(|&j| nearest_of(j)))
+                .chain(neighbours.row(r).iter().map(|&j| nearest_of(j)))
                 .collect();
             values.sort_unstable_by(f64::total_cmp);
             values[values.len() / 2]
         })
         .collect()
-}
-
-/// The k nearest neighbours of each of the points `of` (indices into `points`), in their order.
-/// The queries run in Z order, each starting from a radius a little above its predecessor's
-/// (the answers do not depend on it, only the work: a grid cell of a surface scan holds many
-/// points).
-fn nearest_lists(grid: &PointGrid, points: &[[f64; 3]], k: usize, of: &[u32]) -> Vec<Vec<u32>> {
-    let coords: Vec<[f64; 3]> = of.iter().map(|&i| points[i as usize]).collect();
-    let order = crate::measure::spatial_order(&coords);
-    let found: Vec<(u32, Vec<u32>)> = order
-        .par_chunks(256)
-        .flat_map_iter(|chunk| {
-            let (mut keys, mut hint2) = (Vec::new(), 0.0);
-            chunk.iter().map(move |&o| {
-                let (list, farthest) =
-                    grid.nearest(points, of[o as usize] as usize, k, hint2, &mut keys);
-                hint2 = farthest * 1.3;
-                (o, list)
-            })
-        })
-        .collect();
-    let mut out = vec![Vec::new(); of.len()];
-    for (o, list) in found {
-        out[o as usize] = list;
-    }
-    out
 }
 
 /// The triangles on each undirected edge, in compressed rows over the sorted edges.
@@ -950,13 +927,8 @@ mod tests {
     fn the_spacing_at_some_points_is_the_spacing_computed_at_all() {
         // A jittered sheet with doubled points (coincident neighbours) and a denser strip.
         let mut points = Vec::new();
-        let mut x = 7u64;
-        let mut next = || {
-            x = x
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (x >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::fit::study::Lcg::new(7);
+        let mut next = || rng.uniform();
         for i in 0..3000 {
             let p = [
                 next(),

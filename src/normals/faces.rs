@@ -21,6 +21,7 @@ use std::collections::VecDeque;
 
 use rayon::prelude::*;
 
+use crate::measure::every_kth;
 use crate::normals::vec3::{add, dot, normalized, scale, sub, triangle_normal};
 use crate::normals::{orient, pca, NormalsError, NormalsParams};
 
@@ -398,23 +399,16 @@ pub fn input_normals(
     }
     // The check's points: all of them, or every k-th of a large cloud, with their own index
     // (the full one when plane fits needed it anyway).
-    let check_step = if n_bad > 0 {
-        1
-    } else {
-        n.div_ceil(CHECK_NEIGHBOURS_FROM).max(1)
-    };
-    let every_kth =
-        |v: &[[f64; 3]]| -> Vec<[f64; 3]> { v.iter().step_by(check_step).copied().collect() };
-    let (check_points, check_normals) = if check_step > 1 {
-        (
-            Cow::Owned(every_kth(points)),
-            Cow::Owned(every_kth(&normals)),
-        )
-    } else {
+    let (check_points, check_normals) = if n_bad > 0 {
         (Cow::Borrowed(points), Cow::Borrowed(&normals[..]))
+    } else {
+        (
+            every_kth(points, CHECK_NEIGHBOURS_FROM),
+            every_kth(&normals, CHECK_NEIGHBOURS_FROM),
+        )
     };
     let check_index = match index {
-        Some(index) if check_step == 1 => Some(index),
+        Some(index) if check_points.len() == n => Some(index),
         _ => pca::build_index(&check_points),
     };
     let m = check_points.len();

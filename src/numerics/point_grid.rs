@@ -262,18 +262,49 @@ impl PointGrid {
     /// The `k` nearest neighbours of every point of `points` (the points the grid was made
     /// of), as [`PointGrid::nearest`] gives them, in one flat array.
     pub fn all_nearest(&self, points: &[[f64; 3]], k: usize) -> Neighbours {
-        let n = points.len();
-        // Every answer has this length (k + 1 keys, or all n, less point i or the farthest).
-        let stride = k.min(n.saturating_sub(1));
         // In cell order, so that each query's hint is the answer of a point next to it.
-        let blocks: Vec<Vec<u32>> = self
-            .items
+        self.nearest_in_order(points, k, &self.items, |i| i)
+    }
+
+    /// The `k` nearest neighbours of the points `of` (indices into `points`, the points the
+    /// grid was made of), as [`PointGrid::nearest`] gives them: row r holds those of `of[r]`.
+    pub fn nearest_of(&self, points: &[[f64; 3]], of: &[u32], k: usize) -> Neighbours {
+        // The rows queried in cell order, as in `all_nearest`.
+        let cell = |i: u32| {
+            let p = points[i as usize];
+            let c = [0, 1, 2].map(|a| self.cell_of(p[a], a));
+            c[0] + self.dims[0] * (c[1] + self.dims[1] * c[2])
+        };
+        let mut keyed: Vec<(usize, u32)> = (0..of.len() as u32)
+            .map(|r| (cell(of[r as usize]), r))
+            .collect();
+        keyed.par_sort_unstable();
+        let rows: Vec<u32> = keyed.into_iter().map(|(_, r)| r).collect();
+        self.nearest_in_order(points, k, &rows, |r| of[r as usize])
+    }
+
+    /// The `k` nearest neighbours of point `point_of(r)` in row r, for every r of `rows` (a
+    /// permutation of 0..rows.len()), queried in that order so that each query starts from the
+    /// radius of the one before it.
+    fn nearest_in_order(
+        &self,
+        points: &[[f64; 3]],
+        k: usize,
+        rows: &[u32],
+        point_of: impl Fn(u32) -> u32 + Sync,
+    ) -> Neighbours {
+        let n = rows.len();
+        // Every answer has this length (k + 1 keys, or all points, less the point itself or the
+        // farthest).
+        let stride = k.min(self.len().saturating_sub(1));
+        let blocks: Vec<Vec<u32>> = rows
             .par_chunks(BLOCK)
             .map(|block| {
                 let mut keys = Vec::new();
                 let mut hint2 = 0.0;
                 let mut lists = Vec::with_capacity(block.len() * stride);
-                for &i in block {
+                for &r in block {
+                    let i = point_of(r);
                     let row = lists.len();
                     let farthest =
                         self.nearest_into(points, i as usize, k, hint2, &mut keys, &mut lists);
@@ -288,10 +319,10 @@ impl PointGrid {
             .collect();
         let mut list = vec![0u32; n * stride];
         if stride > 0 {
-            for (block, lists) in self.items.chunks(BLOCK).zip(&blocks) {
-                for (&i, row) in block.iter().zip(lists.chunks_exact(stride)) {
-                    let i = i as usize;
-                    list[i * stride..(i + 1) * stride].copy_from_slice(row);
+            for (block, lists) in rows.chunks(BLOCK).zip(&blocks) {
+                for (&r, row) in block.iter().zip(lists.chunks_exact(stride)) {
+                    let r = r as usize;
+                    list[r * stride..(r + 1) * stride].copy_from_slice(row);
                 }
             }
         }
