@@ -182,6 +182,15 @@ pub fn component_labels(mesh: &TriangleMesh) -> (usize, Vec<u32>) {
 /// assert_eq!((r.euler_characteristic, r.components, r.boundary_edges), (2, 1, 0));
 /// ```
 pub fn check(mesh: &TriangleMesh) -> MeshReport {
+    check_with(mesh, false)
+}
+
+/// [`check`], without the exact crossing test when `known_embedded`: the caller vouches that no
+/// triangle of `mesh` crosses another, because [`intersecting_triangles`] found none on it or on
+/// a mesh it came from by removing triangles and adding ones tested against the rest (as
+/// [`crate::polygonize::Polygonized::embedded`] says of a polygonized mesh, and the component
+/// filter and the trim keep). `self_intersecting_faces` is then 0.
+pub fn check_with(mesh: &TriangleMesh, known_embedded: bool) -> MeshReport {
     let n = mesh.positions.len();
     let triangles: Vec<[u32; 3]> = valid_triangles(mesh).collect();
     let degenerate_faces = mesh.triangles.len() - triangles.len();
@@ -287,7 +296,11 @@ pub fn check(mesh: &TriangleMesh) -> MeshReport {
             && non_manifold_edges == 0
             && non_manifold_vertices == 0
             && degenerate_faces == 0,
-        self_intersecting_faces: self_intersecting_faces(mesh),
+        self_intersecting_faces: if known_embedded {
+            0
+        } else {
+            self_intersecting_faces(mesh)
+        },
     }
 }
 

@@ -338,6 +338,13 @@ struct Ctx<'a> {
 }
 
 impl<'a> Ctx<'a> {
+    /// The figures of the stage recorded last (null when none is).
+    fn last_figures(&self) -> &serde_json::Value {
+        self.stages
+            .last()
+            .map_or(&serde_json::Value::Null, |s| &s.figures)
+    }
+
     /// Readies the cache: a folder that is not a stablesurf cache is an error; one that cannot
     /// be created or written is a warning, and the run goes on without it.
     fn new(cache: &Cache, observer: &'a mut dyn Observer) -> Result<Self, PipelineError> {
@@ -825,7 +832,7 @@ pub fn run(
     let export_runs = !cache.contains("export", &export_key);
     let early_from_model = export_runs && export::slices_from_model(&model, &export_params);
     let mut early_slices = None;
-    let (polygonized, mut early_parts, export_start) = rayon::in_place_scope(|scope| {
+    let (polygonized, mut early_parts, export_start, embedded) = rayon::in_place_scope(|scope| {
         if early_from_model {
             scope.spawn(|_| early_slices = export::model_slices(&model, &export_params));
         }
@@ -841,19 +848,27 @@ pub fn run(
                     "triangles": out.mesh.triangles.len(),
                     "evaluations": out.evaluations,
                     "simplified": out.simplified,
+                    "embedded": out.embedded,
                 });
                 Ok((out.mesh, figures))
             },
         );
         let export_start = Instant::now();
+        let embedded = polygonized.is_ok() && ctx.last_figures()["embedded"] == true;
         let parts = match &polygonized {
             Ok((mesh, _)) if export_runs => {
                 ctx.observer.stage_started("export");
-                Some(export::export_mesh(&model, mesh, points, &export_params))
+                Some(export::export_mesh(
+                    &model,
+                    mesh,
+                    embedded,
+                    points,
+                    &export_params,
+                ))
             }
             _ => None,
         };
-        (polygonized, parts, export_start)
+        (polygonized, parts, export_start, embedded)
     });
     let (mesh, mesh_key) = polygonized?;
 
@@ -877,17 +892,13 @@ pub fn run(
                     }
                     out
                 }
-                None => export::export(&model, &mesh, points, &export_params)?,
+                None => export::export(&model, &mesh, embedded, points, &export_params)?,
             };
             let figures = out.figures();
             Ok((OutputFiles(out.files), figures))
         },
     )?;
-    let figures = &ctx
-        .stages
-        .last()
-        .map(|s| s.figures.clone())
-        .unwrap_or_default();
+    let figures = &ctx.last_figures().clone();
     let report_mesh: MeshReport =
         serde_json::from_value(figures["mesh"].clone()).unwrap_or_default();
     let accuracy: Accuracy =

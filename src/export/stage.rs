@@ -204,6 +204,10 @@ impl ExportOutput {
 /// The export stage: keeps the components `params.keep` asks for, trims the mesh to its data,
 /// checks it, measures it against `points`, and encodes every file the formats ask for.
 ///
+/// `known_embedded` passes on what the meshing proved: no triangle of `mesh` crosses another
+/// ([`crate::polygonize::Polygonized::embedded`]); the check then counts no self-intersecting
+/// face without testing again ([`mesh::check_with`]). Pass `false` for any other mesh.
+///
 /// # Errors
 /// [`ExportError`] from a writer or the trim; [`ExportError::Distance`] when the slices cannot
 /// be computed; [`ExportError::Unsupported`] for `exact` or `taubin` slices of a detail model.
@@ -227,7 +231,7 @@ impl ExportOutput {
 /// let model = ImplicitModel { polynomial: plane, bounds: None, fit: None, diagnostics: None };
 /// let model = Model::Global(model);
 /// let params = ExportParams { formats: vec![OutputFormat::Ply], ..Default::default() };
-/// let out = export(&model, &mesh, &mesh.positions, &params).unwrap();
+/// let out = export(&model, &mesh, false, &mesh.positions, &params).unwrap();
 /// assert_eq!(out.files.len(), 1);
 /// assert_eq!(out.files[0].0, "mesh.ply");
 /// assert_eq!(out.mesh.boundary_edges, 3);
@@ -235,12 +239,13 @@ impl ExportOutput {
 pub fn export(
     model: &Model,
     mesh: &TriangleMesh,
+    known_embedded: bool,
     points: &[[f64; 3]],
     params: &ExportParams,
 ) -> Result<ExportOutput, ExportError> {
     let (slices, out) = rayon::join(
         || model_slices(model, params),
-        || export_mesh(model, mesh, points, params),
+        || export_mesh(model, mesh, known_embedded, points, params),
     );
     let mut out = out?;
     if let Some(files) = slices {
@@ -286,6 +291,7 @@ pub fn model_slices(
 pub fn export_mesh(
     model: &Model,
     mesh: &TriangleMesh,
+    known_embedded: bool,
     points: &[[f64; 3]],
     params: &ExportParams,
 ) -> Result<ExportOutput, ExportError> {
@@ -376,7 +382,9 @@ pub fn export_mesh(
             rayon::join(
                 || {
                     rayon::join(
-                        || mesh::check(m),
+                        // The component filter and the trim only take triangles away or add
+                        // ones tested against the rest: an embedded mesh stays embedded.
+                        || mesh::check_with(m, known_embedded),
                         || {
                             data.as_ref().map_or_else(Default::default, |index| {
                                 measure::accuracy(index, m, data_diagonal)
@@ -573,8 +581,8 @@ mod tests {
             ..ExportParams::default()
         };
         assert!(slices_from_model(&model, &params));
-        let whole = export(&model, &mesh, &mesh.positions, &params).unwrap();
-        let mut halves = export_mesh(&model, &mesh, &mesh.positions, &params).unwrap();
+        let whole = export(&model, &mesh, false, &mesh.positions, &params).unwrap();
+        let mut halves = export_mesh(&model, &mesh, false, &mesh.positions, &params).unwrap();
         halves
             .files
             .extend(model_slices(&model, &params).unwrap().unwrap());

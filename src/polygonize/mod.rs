@@ -211,6 +211,10 @@ pub struct Polygonized {
     /// Largest |f|/|∇f| over the vertices, divided by the region's diagonal (0 for an empty
     /// mesh; infinite if a vertex sits where ∇f = 0 and f ≠ 0).
     pub max_projection_residual: f64,
+    /// Whether the exact test of step 5 ([`crate::mesh::intersecting_triangles`]) found no
+    /// triangle crossing another in the final mesh: its last round tested every pair that could
+    /// have changed, or a full test ran. `false` only when a crossing survived every fallback.
+    pub embedded: bool,
 }
 
 /// Meshes the zero set of `function` inside `region` (input coordinates).
@@ -283,7 +287,11 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
             tolerance,
         );
     }
-    let Repaired { vertices, mesh, .. } = done;
+    let Repaired {
+        vertices,
+        mesh,
+        crossings_left,
+    } = done;
     let max_residual = vertices.iter().map(|v| v.residual).fold(0.0, f64::max);
     Ok(Polygonized {
         mesh,
@@ -296,6 +304,7 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
         guard_splits: tree.guard_splits,
         max_level: tree.leaves.iter().map(|c| c.level).max().unwrap_or(0),
         max_projection_residual: max_residual / diagonal,
+        embedded: !crossings_left,
     })
 }
 
@@ -305,7 +314,7 @@ struct Repaired {
     vertices: Vec<extract::PlacedVertex>,
     mesh: TriangleMesh,
     /// Whether some triangle still crosses another with all its vertices at their last
-    /// fallback position.
+    /// fallback position (when `false`, the exact test found no crossing in the final mesh).
     crossings_left: bool,
 }
 

@@ -577,6 +577,8 @@ fn no_triangle_crosses_another() {
                 "depth {depth} {simplification:?}"
             );
             assert_eq!(self_intersecting_faces(&out.mesh), 0);
+            // What the meshing proved is what the full test finds.
+            assert!(out.embedded, "depth {depth} {simplification:?}");
         }
     }
 }
