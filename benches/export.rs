@@ -71,6 +71,7 @@ fn bench_export(c: &mut Criterion) {
         let opts = PlyOptions {
             encoding: PlyEncoding::BinaryLittleEndian,
             quality: Some(&quality),
+            units: None,
         };
         b.iter(|| {
             buf.clear();

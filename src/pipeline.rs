@@ -122,6 +122,8 @@ pub struct PipelineConfig {
     pub slices: crate::distance::SliceParams,
     /// glTF options.
     pub gltf: export::gltf::GltfOptions,
+    /// The unit of the input coordinates (`--units`; see [`ExportParams::units`]).
+    pub units: Option<export::units::LengthUnit>,
     /// Which files to write.
     pub formats: Vec<OutputFormat>,
 }
@@ -164,6 +166,7 @@ impl PipelineConfig {
             trim: export.trim,
             slices: export.slices,
             gltf: export.gltf,
+            units: export.units,
             formats: export.formats,
         };
         match mode {
@@ -203,6 +206,7 @@ impl PipelineConfig {
             trim: self.trim,
             slices: self.slices,
             gltf: self.gltf,
+            units: self.units,
         }
     }
 }
@@ -287,6 +291,10 @@ pub struct RunReport {
     /// data's diagonal: data → mesh, mesh → data by area, and the share of the mesh's area far
     /// from every data point.
     pub accuracy: Accuracy,
+    /// The unit of the input coordinates when `--units` named one (distances in this report
+    /// are in input units).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub units: Option<export::units::LengthUnit>,
     /// Files written, relative to the output directory.
     pub outputs: Vec<String>,
     /// Every warning the run printed.
@@ -969,6 +977,7 @@ pub fn run(
         trim: trim_report,
         mesh: report_mesh,
         accuracy,
+        units: config.units,
         outputs: names,
         warnings: ctx.warnings,
         seconds: 0.0,

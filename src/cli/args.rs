@@ -291,6 +291,21 @@ pub enum UpArg {
     Z,
 }
 
+/// `--units`: the unit of the input coordinates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum UnitsArg {
+    /// Millimetres.
+    Mm,
+    /// Centimetres.
+    Cm,
+    /// Metres.
+    M,
+    /// Inches.
+    In,
+    /// Feet.
+    Ft,
+}
+
 /// Cache options.
 #[derive(Debug, Args, Clone)]
 pub struct CacheOpts {
@@ -323,6 +338,16 @@ pub struct RunArgs {
     /// glTF up axis.
     #[arg(long, value_enum, default_value_t = UpArg::Y)]
     pub up: UpArg,
+    /// Unit of the input coordinates: the glTF is written in metres (glTF's unit, so Blender
+    /// shows the true size), PLY, OpenEXR and report.json record the unit; without it
+    /// coordinates are written unchanged.
+    #[arg(
+        long,
+        value_enum,
+        value_name = "mm|cm|m|in|ft",
+        hide_possible_values = true
+    )]
+    pub units: Option<UnitsArg>,
     /// Which zero-set components to keep: data (drop pieces with no data point within 2% of the
     /// diagonal; the default in detail mode) or all (the default in global mode).
     #[arg(long, value_enum)]
@@ -468,6 +493,15 @@ pub struct MeshArgs {
     /// glTF up axis.
     #[arg(long, value_enum, default_value_t = UpArg::Y)]
     pub up: UpArg,
+    /// Unit of the model's coordinates: a glTF is written in metres, a PLY records the unit;
+    /// without it coordinates are written unchanged.
+    #[arg(
+        long,
+        value_enum,
+        value_name = "mm|cm|m|in|ft",
+        hide_possible_values = true
+    )]
+    pub units: Option<UnitsArg>,
     #[command(flatten)]
     #[allow(missing_docs)]
     pub mesh: MeshOpts,

@@ -9,7 +9,7 @@ use anyhow::{Context, Result};
 use stablesurf::cache::Cache;
 use stablesurf::detail::DetailParams;
 use stablesurf::distance::{Axis, DistanceMethod};
-use stablesurf::export::{self, gltf::UpAxis};
+use stablesurf::export::{self, gltf::UpAxis, units::LengthUnit};
 use stablesurf::fit::{self, FitMethod, KappaRule};
 use stablesurf::normals::{NormalSource, NormalsParams};
 use stablesurf::pipeline::{Keep, Mode, Model, OutputFormat, PipelineConfig};
@@ -20,7 +20,8 @@ use stablesurf::{import, Aabb, PointCloud};
 
 use super::args::{
     AxisArg, CacheOpts, DetailOpts, DistanceArg, FitOpts, FormatArg, KappaRuleArg, KeepArg,
-    MeshOpts, MethodArg, ModeArg, NormalsOpts, RunArgs, SourceArg, TrimArg, UpArg, ViewArg,
+    MeshOpts, MethodArg, ModeArg, NormalsOpts, RunArgs, SourceArg, TrimArg, UnitsArg, UpArg,
+    ViewArg,
 };
 use super::usage;
 
@@ -84,6 +85,18 @@ impl From<ViewArg> for View {
             ViewArg::Front => View::Front,
             ViewArg::Top => View::Top,
             ViewArg::Side => View::Side,
+        }
+    }
+}
+
+impl From<UnitsArg> for LengthUnit {
+    fn from(units: UnitsArg) -> LengthUnit {
+        match units {
+            UnitsArg::Mm => LengthUnit::Mm,
+            UnitsArg::Cm => LengthUnit::Cm,
+            UnitsArg::M => LengthUnit::M,
+            UnitsArg::In => LengthUnit::In,
+            UnitsArg::Ft => LengthUnit::Ft,
         }
     }
 }
@@ -223,6 +236,7 @@ pub fn run_config(args: &RunArgs) -> Result<PipelineConfig> {
         }
     }
     config.gltf.up = args.up.into();
+    config.units = args.units.map(Into::into);
     // The count and resolution are within range::SLICE_COUNT and range::SLICE_RESOLUTION.
     config.slices.count = args.slices.slice_count;
     config.slices.resolution = args.slices.slice_resolution;

@@ -32,13 +32,17 @@ pub fn mesh(args: MeshArgs, verbosity: Verbosity) -> Result<()> {
         .with_context(|| format!("meshing {}", args.model.display()))?
         .mesh;
     let opts = MeshFileOptions {
-        gltf: export::gltf::GltfOptions { up: args.up.into() },
+        gltf: export::gltf::GltfOptions {
+            up: args.up.into(),
+            units: args.units.map(Into::into),
+        },
         ply: export::ply::PlyOptions {
             encoding: if args.ascii {
                 export::ply::PlyEncoding::Ascii
             } else {
                 export::ply::PlyEncoding::BinaryLittleEndian
             },
+            units: args.units.map(Into::into),
             ..Default::default()
         },
     };

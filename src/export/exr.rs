@@ -19,7 +19,7 @@
 //! | `sliceCount`            | int    | K                                                      |
 //! | `signConvention`        | string | `negative inside`                                      |
 //! | `distanceMethod`        | string | `exact` or `taubin`                                    |
-//! | `distanceUnits`         | string | `input units`                                          |
+//! | `distanceUnits`         | string | `input units`, or the unit's symbol with `--units`     |
 //!
 //! `gridToWorld` is the transpose of [`Slice::grid_to_world`] (which uses column vectors), so
 //! Imath's `M44d::multVecMatrix` maps (col, row, k) to the input-space pixel centre. `m44d` and
@@ -56,6 +56,9 @@ pub enum ExrCompression {
 pub struct ExrOptions {
     /// Pixel compression; default ZIP.
     pub compression: ExrCompression,
+    /// The unit of the input coordinates, written as `distanceUnits` (the distances and the
+    /// geometry stay in input units); `None` writes `input units`.
+    pub units: Option<crate::export::units::LengthUnit>,
 }
 
 /// What `gridToWorldConvention` says.
@@ -165,7 +168,7 @@ fn encode(slice: &Slice, opts: &ExrOptions) -> Result<Vec<u8>, ExportError> {
     );
     set(
         "distanceUnits",
-        AttributeValue::Text(Text::from("input units")),
+        AttributeValue::Text(Text::from(opts.units.map_or("input units", |u| u.symbol()))),
     );
 
     let compression = match opts.compression {
@@ -309,7 +312,15 @@ mod tests {
         let slice = sphere_slice(Axis::X);
         for compression in [ExrCompression::Zip, ExrCompression::Piz] {
             let mut bytes = Vec::new();
-            write_slice(&slice, &ExrOptions { compression }, &mut bytes).unwrap();
+            write_slice(
+                &slice,
+                &ExrOptions {
+                    compression,
+                    ..Default::default()
+                },
+                &mut bytes,
+            )
+            .unwrap();
             let image = read_image(&bytes).unwrap();
             let layer = &image.layer_data;
             assert_eq!(layer.size, Vec2(20, 20));

@@ -14,10 +14,11 @@
 //! counter-clockwise-from-outside winding, which is glTF's front face. The output is
 //! deterministic: the same mesh and options give the same bytes.
 //!
-//! glTF is +Y up (and in metres). A scan from a Z-up device appears lying on its back in Blender;
+//! glTF is +Y up and in metres. A scan from a Z-up device appears lying on its back in Blender;
 //! [`UpAxis::Z`] rotates it upright with the proper rotation (x, y, z) ↦ (x, z, −y) applied to
 //! positions and normals, which Blender's importer maps back to the original (x, y, z) in its own
-//! Z-up frame. Units are written unchanged.
+//! Z-up frame. With [`GltfOptions::units`] the positions are scaled to metres (a millimetre scan
+//! by 0.001); without, they are written unchanged (a scan in metres needs no unit).
 
 use std::borrow::Cow;
 use std::collections::BTreeMap;
@@ -27,6 +28,7 @@ use gltf_json as json;
 use json::validation::Checked::Valid;
 use json::validation::USize64;
 
+use crate::export::units::LengthUnit;
 use crate::export::ExportError;
 use crate::mesh::TriangleMesh;
 
@@ -46,6 +48,9 @@ pub enum UpAxis {
 pub struct GltfOptions {
     /// Which input axis points up; default [`UpAxis::Y`] (no change).
     pub up: UpAxis,
+    /// The unit of the input coordinates: positions are scaled to metres, glTF's unit. `None`
+    /// (the default) writes them unchanged.
+    pub units: Option<LengthUnit>,
 }
 
 /// The largest index a `u16` index buffer may hold: 65535 is the primitive-restart value.
@@ -113,7 +118,8 @@ pub fn write_glb(
 ///     triangles: vec![[0, 1, 2]],
 /// };
 /// let (mut json, mut bin) = (Vec::new(), Vec::new());
-/// write_gltf(&mesh, &mut json, &mut bin, "mesh.bin", &GltfOptions { up: UpAxis::Z }).unwrap();
+/// let opts = GltfOptions { up: UpAxis::Z, ..Default::default() };
+/// write_gltf(&mesh, &mut json, &mut bin, "mesh.bin", &opts).unwrap();
 /// let text = String::from_utf8(json).unwrap();
 /// assert!(text.contains("\"uri\": \"mesh.bin\"") && text.contains("\"generator\": \"stablesurf\""));
 /// assert_eq!(bin.len(), 3 * 12 + 3 * 12 + 8); // positions, normals, u16 indices padded to 4
@@ -168,8 +174,9 @@ fn encode(
     let index_size = if use_u16 { 2 } else { 4 };
     let index_bytes = mesh.triangles.len() * 3 * index_size;
     let mut bin = Vec::with_capacity(2 * position_bytes + index_bytes.next_multiple_of(4));
+    let scale = opts.units.map_or(1.0, LengthUnit::metres);
     for p in &mesh.positions {
-        let q = orient(*p, opts.up).map(|c| c as f32);
+        let q = orient(*p, opts.up).map(|c| (c * scale) as f32);
         for a in 0..3 {
             min[a] = min[a].min(q[a]);
             max[a] = max[a].max(q[a]);
@@ -408,7 +415,15 @@ mod tests {
     fn z_up_rotates_to_y_up() {
         assert_eq!(orient([1.0, 2.0, 3.0], UpAxis::Z), [1.0, 3.0, -2.0]);
         let mut glb = Vec::new();
-        write_glb(&triangle(), &mut glb, &GltfOptions { up: UpAxis::Z }).unwrap();
+        write_glb(
+            &triangle(),
+            &mut glb,
+            &GltfOptions {
+                up: UpAxis::Z,
+                ..Default::default()
+            },
+        )
+        .unwrap();
         let parsed = gltf::Gltf::from_slice(&glb).unwrap();
         let prim = parsed
             .document

@@ -10,7 +10,9 @@
 //! - [`exr`]: one float32 OpenEXR image per distance slice, with its geometry in the header;
 //! - [`png`]: a colour preview of a distance slice with the zero contour drawn;
 //! - [`model`]: `model.json`, the polynomial and its fit record, and its reader;
-//! - [`mpu`]: `model.mpu`, the detail model, and its reader.
+//! - [`mpu`]: `model.mpu`, the detail model, and its reader;
+//! - [`units`]: the input's length unit (`--units`), which glTF is scaled by and the others
+//!   record.
 //!
 //! Every writer takes `&mut impl Write`; choosing a file is the caller's job. Files are written
 //! atomically with [`write_atomic`]: a temporary file in the same directory, renamed into place,
@@ -25,6 +27,7 @@ pub mod mpu;
 pub mod ply;
 pub mod png;
 mod stage;
+pub mod units;
 
 pub use stage::{
     export, export_mesh, model_slices, slices_from_model, ExportOutput, ExportParams, Keep,

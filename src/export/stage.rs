@@ -24,6 +24,7 @@ use std::borrow::Cow;
 
 use serde::Serialize;
 
+use super::gltf::GltfOptions;
 use super::{exr, mesh_files, ply, png, ExportError, MeshFileOptions, MeshFormat};
 use crate::cloud::Aabb;
 use crate::distance::{DistanceMethod, Slice, SliceParams};
@@ -106,8 +107,12 @@ pub struct ExportParams {
     pub trim: TrimParams,
     /// The distance slices: axis, count, resolution (pixels per side) and distance method.
     pub slices: SliceParams,
-    /// The glTF options; their up axis also turns the preview render.
+    /// The glTF options; their up axis also turns the preview render. Their `units` is
+    /// replaced by [`ExportParams::units`].
     pub gltf: super::gltf::GltfOptions,
+    /// The unit of the input coordinates (`--units`): glTF is scaled to metres, PLY and OpenEXR
+    /// record it; `None` (the default) leaves every file as without units.
+    pub units: Option<super::units::LengthUnit>,
 }
 
 impl Default for ExportParams {
@@ -130,6 +135,7 @@ impl Default for ExportParams {
                 ..Default::default()
             },
             gltf: Default::default(),
+            units: None,
         }
     }
 }
@@ -149,7 +155,7 @@ impl ExportParams {
 impl Serialize for ExportParams {
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
         let formats: Vec<String> = self.formats.iter().map(|f| format!("{f:?}")).collect();
-        serde_json::json!({
+        let value = serde_json::json!({
             "formats": formats,
             "keep": format!("{:?}", self.keep),
             "trim": self.trim,
@@ -161,8 +167,13 @@ impl Serialize for ExportParams {
                 "resolution": self.slices.resolution,
                 "method": self.slices.method.name(),
             },
-        })
-        .serialize(serializer)
+        });
+        // Only a run with a unit has the key, so the keys of runs without stay as they were.
+        let mut value = value;
+        if let Some(units) = self.units {
+            value["units"] = serde_json::Value::from(units.symbol());
+        }
+        value.serialize(serializer)
     }
 }
 
@@ -320,7 +331,10 @@ pub fn export_mesh(
     let with_slices = !slices_from_model(model, params);
     let one = |name: &str, bytes: Vec<u8>| vec![(name.to_string(), bytes)];
     let mesh_opts = MeshFileOptions {
-        gltf: params.gltf,
+        gltf: GltfOptions {
+            units: params.units,
+            ..params.gltf
+        },
         ..Default::default()
     };
     let json = || -> Result<Vec<OutputFile>, ExportError> {
@@ -359,6 +373,7 @@ pub fn export_mesh(
         let opts = MeshFileOptions {
             ply: ply::PlyOptions {
                 quality: Some(&quality),
+                units: params.units,
                 ..Default::default()
             },
             ..mesh_opts
@@ -457,7 +472,16 @@ fn slice_images(params: &ExportParams, slices: &[Slice]) -> Result<Vec<OutputFil
         .map(|slice| -> Result<Vec<OutputFile>, ExportError> {
             let mut files = Vec::new();
             if params.wants(OutputFormat::Exr) {
-                let bytes = encode(&|w| exr::write_slice(slice, &exr::ExrOptions::default(), w))?;
+                let bytes = encode(&|w| {
+                    exr::write_slice(
+                        slice,
+                        &exr::ExrOptions {
+                            units: params.units,
+                            ..Default::default()
+                        },
+                        w,
+                    )
+                })?;
                 files.push((format!("slices/slice_{:03}.exr", slice.index), bytes));
             }
             if params.wants(OutputFormat::Png) {
@@ -544,7 +568,10 @@ mod tests {
                 ..base.clone()
             },
             ExportParams {
-                gltf: GltfOptions { up: UpAxis::Z },
+                gltf: GltfOptions {
+                    up: UpAxis::Z,
+                    ..Default::default()
+                },
                 ..base.clone()
             },
         ];

@@ -1528,3 +1528,62 @@ fn moments_parts_fit_like_the_whole_and_bad_parts_are_refused() {
     assert_eq!(out.status.code(), Some(2), "{}", stderr_of(&out));
     assert!(stderr_of(&out).contains("--kappa"), "{}", stderr_of(&out));
 }
+
+/// The extent of the positions of a `.glb` written by `run` (its POSITION accessor's min/max).
+fn glb_extent(path: &Path) -> [f64; 3] {
+    let bytes = fs::read(path).unwrap();
+    let len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    let json: serde_json::Value = serde_json::from_slice(&bytes[20..20 + len]).unwrap();
+    let accessor = &json["accessors"][0];
+    std::array::from_fn(|a| {
+        accessor["max"][a].as_f64().unwrap() - accessor["min"][a].as_f64().unwrap()
+    })
+}
+
+#[test]
+fn units_scale_the_gltf_to_metres_and_are_recorded() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 2000, "");
+    let (plain, mm) = (dir.path().join("plain"), dir.path().join("mm"));
+    let common = flags("--mode global --degree 2 --formats glb,ply,exr,json --no-cache -q");
+    run_ok(&input, &plain, &common);
+    run_ok(&input, &mm, &[&common[..], &["--units", "mm"]].concat());
+    // The sphere has radius 2 input units: 4 mm across is 0.004 m in the glTF (f32 values).
+    let (a, b) = (
+        glb_extent(&plain.join("mesh.glb")),
+        glb_extent(&mm.join("mesh.glb")),
+    );
+    for axis in 0..3 {
+        assert!((a[axis] - 4.0).abs() < 0.05, "{a:?}");
+        assert!(
+            (b[axis] - 0.001 * a[axis]).abs() < 1e-6 * a[axis],
+            "{a:?} {b:?}"
+        );
+    }
+    // PLY coordinates stay in input units; the header and the report say which.
+    let ply_mm = fs::read(mm.join("mesh.ply")).unwrap();
+    let ply_plain = fs::read(plain.join("mesh.ply")).unwrap();
+    let header = |b: &[u8]| String::from_utf8_lossy(&b[..200]).into_owned();
+    assert!(header(&ply_mm).contains("comment units mm\n"));
+    assert!(!header(&ply_plain).contains("units"));
+    assert_eq!(
+        ply_mm.len(),
+        ply_plain.len() + "comment units mm\n".len(),
+        "only the comment differs in size"
+    );
+    assert_eq!(read_report(&mm)["units"], "mm");
+    assert!(read_report(&plain).get("units").is_none());
+    // OpenEXR's distanceUnits attribute: a string attribute, its length then its bytes.
+    let exr = fs::read(mm.join("slices/slice_000.exr")).unwrap();
+    let attribute = [&b"distanceUnits\0string\0"[..], &2u32.to_le_bytes(), b"mm"].concat();
+    assert!(exr.windows(attribute.len()).any(|w| w == attribute));
+    // A unit that is not one of the five is a usage error.
+    let bad = bin()
+        .args(["run", "-o"])
+        .arg(dir.path().join("bad"))
+        .args(["--units", "km"])
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(2), "{}", stderr_of(&bad));
+    assert!(!dir.path().join("bad").exists());
+}

@@ -26,6 +26,7 @@ use stablesurf::export::gltf::{write_glb, write_gltf, GltfOptions, UpAxis};
 use stablesurf::export::model::{read_model, write_model};
 use stablesurf::export::ply::{self, nearest_point_distances, PlyEncoding, PlyOptions};
 use stablesurf::export::png::write_preview;
+use stablesurf::export::units::LengthUnit;
 use stablesurf::export::{write_atomic, ExportError};
 use stablesurf::{ImplicitModel, ImplicitPolynomial, TriangleMesh};
 
@@ -136,14 +137,23 @@ where
 #[test]
 fn gltf_passes_the_khronos_validator() {
     let dir = tempfile::tempdir().unwrap();
-    // 2 400 vertices (u16 indices) and 75 000 vertices (u32 indices).
+    // 2 400 vertices (u16 indices) and 75 000 vertices (u32 indices, Z up, millimetres scaled
+    // to metres).
     let cases = [
-        ("small", torus_mesh(60, 40, 1.0, 0.3), UpAxis::Y),
-        ("large", torus_mesh(300, 250, 2.0, 0.5), UpAxis::Z),
+        ("small", torus_mesh(60, 40, 1.0, 0.3), UpAxis::Y, None),
+        (
+            "large",
+            torus_mesh(300, 250, 2.0, 0.5),
+            UpAxis::Z,
+            Some(LengthUnit::Mm),
+        ),
     ];
     let mut files = Vec::new();
-    for (name, mesh, up) in &cases {
-        let opts = GltfOptions { up: *up };
+    for (name, mesh, up, units) in &cases {
+        let opts = GltfOptions {
+            up: *up,
+            units: *units,
+        };
         let glb = dir.path().join(format!("{name}.glb"));
         write_file(&glb, |w| write_glb(mesh, w, &opts));
         let gltf = dir.path().join(format!("{name}.gltf"));
@@ -199,9 +209,11 @@ fn ply_passes_plyfile_and_meshlab() {
 
     for encoding in [PlyEncoding::BinaryLittleEndian, PlyEncoding::Ascii] {
         let path = dir.path().join(format!("mesh-{encoding:?}.ply"));
+        // The unit's comment line must not bother the readers either.
         let opts = PlyOptions {
             encoding,
             quality: Some(&quality),
+            units: (encoding == PlyEncoding::Ascii).then_some(LengthUnit::Mm),
         };
         write_file(&path, |w| ply::write(&mesh, w, &opts));
         let Some(mut command) = validator("ply") else {
