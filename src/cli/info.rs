@@ -4,8 +4,9 @@
 use std::io::Write;
 
 use anyhow::{Context, Result};
-use stablesurf::import;
+use stablesurf::fit::moments::PartialMoments;
 use stablesurf::pipeline::Model;
+use stablesurf::{export, import};
 
 use super::args::InfoArgs;
 
@@ -13,8 +14,15 @@ use super::args::InfoArgs;
 pub fn info(args: InfoArgs) -> Result<()> {
     let bytes =
         std::fs::read(&args.file).with_context(|| format!("reading {}", args.file.display()))?;
-    let looks_like_model = bytes.iter().find(|b| !b.is_ascii_whitespace()) == Some(&b'{');
-    let value = if looks_like_model || stablesurf::export::mpu::is_mpu(&bytes) {
+    let looks_like_json = bytes.iter().find(|b| !b.is_ascii_whitespace()) == Some(&b'{');
+    let named = |what: &str| format!("reading {} as {what}", args.file.display());
+    let value = if bytes.starts_with(b"glTF") || (looks_like_json && is_gltf_json(&bytes)) {
+        export::gltf::read_info(&bytes).with_context(|| named("glTF"))?
+    } else if bytes.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
+        export::exr::read_info(&bytes).with_context(|| named("OpenEXR"))?
+    } else if bytes.starts_with(b"SSMOMENT") {
+        moments_info(&bytes).with_context(|| named("a moments file"))?
+    } else if looks_like_json || export::mpu::is_mpu(&bytes) {
         match Model::from_bytes(&bytes, &args.file)? {
             Model::Detail(model) => serde_json::json!({
                 "format": "stablesurf.mpu",
@@ -48,4 +56,43 @@ pub fn info(args: InfoArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Whether JSON text is a glTF asset (it has an `asset` object) rather than a model file.
+fn is_gltf_json(bytes: &[u8]) -> bool {
+    serde_json::from_slice::<serde_json::Value>(bytes)
+        .is_ok_and(|v| v.get("asset").is_some_and(serde_json::Value::is_object))
+}
+
+/// What a `stablesurf moments` file holds: its pass, point count and, for the moments of the
+/// fit itself, the degree, ε and frame.
+fn moments_info(bytes: &[u8]) -> Result<serde_json::Value> {
+    Ok(match PartialMoments::from_bytes(bytes)? {
+        PartialMoments::Center {
+            n_points, bounds, ..
+        } => serde_json::json!({
+            "format": "stablesurf.moments",
+            "pass": "center",
+            "points": n_points,
+            "box": bounds,
+        }),
+        PartialMoments::Scale {
+            n_points, center, ..
+        } => serde_json::json!({
+            "format": "stablesurf.moments",
+            "pass": "scale",
+            "points": n_points,
+            "center": center,
+        }),
+        PartialMoments::System(s) => serde_json::json!({
+            "format": "stablesurf.moments",
+            "pass": "system",
+            "points": s.n_points,
+            "degree": s.degree,
+            "epsilon": s.epsilon,
+            "center": s.frame.center,
+            "scale": s.frame.scale,
+            "box": s.bounds,
+        }),
+    })
 }

@@ -259,6 +259,61 @@ pub fn read_samples(bytes: &[u8]) -> Result<Vec<f32>, ExportError> {
     }
 }
 
+/// What `stablesurf info` shows of an OpenEXR image: its size, its channels, the range of its
+/// first channel and the slice attributes [`write_slice`] writes (whichever are present).
+///
+/// # Errors
+/// [`ExportError::Format`] when the bytes are not a readable OpenEXR image.
+pub fn read_info(bytes: &[u8]) -> Result<serde_json::Value, ExportError> {
+    use exr::meta::attribute::AttributeValue as A;
+    let image = read_image(bytes)
+        .map_err(|e| ExportError::Format(format!("not a readable OpenEXR image: {e}")))?;
+    let layer = &image.layer_data;
+    let channels: Vec<String> = layer
+        .channel_data
+        .list
+        .iter()
+        .map(|c| c.name.to_string())
+        .collect();
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    if let Some(FlatSamples::F32(v)) = layer.channel_data.list.first().map(|c| &c.sample_data) {
+        for &x in v.iter().filter(|x| x.is_finite()) {
+            lo = lo.min(f64::from(x));
+            hi = hi.max(f64::from(x));
+        }
+    }
+    let mut info = serde_json::json!({
+        "format": "openexr",
+        "width": layer.size.0,
+        "height": layer.size.1,
+        "channels": channels,
+        "min": lo.is_finite().then_some(lo),
+        "max": hi.is_finite().then_some(hi),
+    });
+    let doubles = |bytes: &[u8]| -> Vec<f64> {
+        bytes
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().unwrap_or([0; 8])))
+            .collect()
+    };
+    let mut names: Vec<_> = layer.attributes.other.iter().collect();
+    names.sort_by_key(|(name, _)| name.to_string());
+    for (name, value) in names {
+        let value = match value {
+            A::Text(t) => serde_json::Value::from(t.to_string()),
+            A::I32(i) => serde_json::Value::from(*i),
+            A::F32(x) => serde_json::Value::from(*x),
+            A::F64(x) => serde_json::Value::from(*x),
+            A::Custom { kind, bytes } if kind == "v3d" || kind == "m44d" => {
+                serde_json::Value::from(doubles(bytes))
+            }
+            _ => continue,
+        };
+        info[name.to_string()] = value;
+    }
+    Ok(info)
+}
+
 /// The first valid layer of an OpenEXR image with all its channels and attributes, read with
 /// the `exr` crate (for [`read_samples`] and the tests).
 fn read_image(

@@ -149,6 +149,48 @@ pub fn write_gltf(
     bin_out.write_all(&bin).map_err(ExportError::Write)
 }
 
+/// What `stablesurf info` shows of a glTF asset (`.glb`, or `.gltf` JSON; its buffers are not
+/// read): the generator, and per mesh primitive its vertex and triangle counts, its POSITION
+/// bounds and whether it has normals, all from the JSON.
+///
+/// # Errors
+/// [`ExportError::Format`] when the bytes are not a glTF 2.0 asset the `gltf` crate accepts.
+pub fn read_info(bytes: &[u8]) -> Result<serde_json::Value, ExportError> {
+    let asset = gltf::Gltf::from_slice(bytes)
+        .map_err(|e| ExportError::Format(format!("not a readable glTF 2.0 asset: {e}")))?;
+    let mut primitives = Vec::new();
+    let (mut vertices, mut triangles) = (0, 0);
+    for mesh in asset.meshes() {
+        for primitive in mesh.primitives() {
+            let position = primitive.get(&gltf::Semantic::Positions);
+            let n = position.as_ref().map_or(0, |a| a.count());
+            let corners = primitive.indices().map_or(n, |a| a.count());
+            let t = if primitive.mode() == gltf::mesh::Mode::Triangles {
+                corners / 3
+            } else {
+                0
+            };
+            vertices += n;
+            triangles += t;
+            primitives.push(serde_json::json!({
+                "vertices": n,
+                "triangles": t,
+                "normals": primitive.get(&gltf::Semantic::Normals).is_some(),
+                "min": position.as_ref().and_then(|a| a.min()),
+                "max": position.as_ref().and_then(|a| a.max()),
+            }));
+        }
+    }
+    Ok(serde_json::json!({
+        "format": if bytes.starts_with(b"glTF") { "glb" } else { "gltf" },
+        "generator": asset.document.as_json().asset.generator,
+        "version": asset.document.as_json().asset.version,
+        "vertices": vertices,
+        "triangles": triangles,
+        "primitives": primitives,
+    }))
+}
+
 /// Applies the up-axis rotation to a vector.
 fn orient(v: [f64; 3], up: UpAxis) -> [f64; 3] {
     match up {

@@ -1587,3 +1587,63 @@ fn units_scale_the_gltf_to_metres_and_are_recorded() {
     assert_eq!(bad.status.code(), Some(2), "{}", stderr_of(&bad));
     assert!(!dir.path().join("bad").exists());
 }
+
+#[test]
+fn info_reads_what_the_tool_writes() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = sphere_xyz(dir.path(), 2000, "");
+    let out = dir.path().join("out");
+    run_ok(
+        &input,
+        &out,
+        &flags("--mode global --degree 2 --formats glb,gltf,exr,json --no-cache -q"),
+    );
+    let info = |file: &Path| -> serde_json::Value {
+        let done = bin().arg("info").arg(file).arg("--json").output().unwrap();
+        assert!(
+            done.status.success(),
+            "{}: {}",
+            file.display(),
+            stderr_of(&done)
+        );
+        serde_json::from_slice(&done.stdout).unwrap()
+    };
+    let report = read_report(&out);
+    for name in ["mesh.glb", "mesh.gltf"] {
+        let i = info(&out.join(name));
+        assert_eq!(i["generator"], "stablesurf");
+        assert_eq!(i["vertices"], report["mesh"]["vertices"], "{name}");
+        assert_eq!(i["triangles"], report["mesh"]["faces"], "{name}");
+        assert_eq!(i["primitives"][0]["normals"], true);
+    }
+    let slice = info(&out.join("slices/slice_000.exr"));
+    assert_eq!(slice["format"], "openexr");
+    assert_eq!(slice["sliceIndex"], 0);
+    assert_eq!(slice["signConvention"], "negative inside");
+    assert_eq!(slice["voxelSize"].as_array().map(Vec::len), Some(3));
+    assert_eq!(info(&out.join("model.json"))["degree"], 2);
+    let part = dir.path().join("part.moments");
+    let done = bin()
+        .arg("moments")
+        .arg(&input)
+        .arg("-o")
+        .arg(&part)
+        .output()
+        .unwrap();
+    assert!(done.status.success(), "{}", stderr_of(&done));
+    let m = info(&part);
+    assert_eq!(
+        (m["format"].as_str(), m["points"].as_u64()),
+        (Some("stablesurf.moments"), Some(2000))
+    );
+    // A damaged file of a known kind is an error naming the file, not a misread.
+    let broken = dir.path().join("broken.glb");
+    fs::write(&broken, b"glTF\x02\x00\x00\x00garbage").unwrap();
+    let done = bin().arg("info").arg(&broken).output().unwrap();
+    assert_eq!(done.status.code(), Some(1));
+    assert!(
+        stderr_of(&done).contains("broken.glb"),
+        "{}",
+        stderr_of(&done)
+    );
+}
