@@ -927,7 +927,7 @@ mod tests {
     fn the_spacing_at_some_points_is_the_spacing_computed_at_all() {
         // A jittered sheet with doubled points (coincident neighbours) and a denser strip.
         let mut points = Vec::new();
-        let mut rng = crate::fit::study::Lcg::new(7);
+        let mut rng = crate::numerics::Lcg::new(7);
         let mut next = || rng.uniform();
         for i in 0..3000 {
             let p = [
