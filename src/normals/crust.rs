@@ -142,7 +142,7 @@ fn circumcentre(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], d: &[f64; 3]) -> [f64;
 /// Fewer than 5 distinct points, a non-finite coordinate, or all points on a line or a plane.
 ///
 /// ```
-/// use stablesurf::normals::crust::crust;
+/// use stablesurf::testing::crust;
 /// // The 6 vertices of an octahedron: its crust is its 8 faces.
 /// let pts = [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]];
 /// let c = crust(&pts).unwrap();

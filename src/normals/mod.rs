@@ -38,11 +38,11 @@
 //! the area-weighted normals of the file's faces after making their winding consistent, `input`
 //! the file's normals.
 
-pub mod crust;
-pub mod delaunay;
-pub mod faces;
-pub mod orient;
-pub mod pca;
+pub(crate) mod crust;
+pub(crate) mod delaunay;
+pub(crate) mod faces;
+pub(crate) mod orient;
+pub(crate) mod pca;
 
 use std::borrow::Cow;
 use std::str::FromStr;

@@ -173,7 +173,7 @@ fn count_distinct(points: &[[f64; 3]]) -> usize {
 /// Fewer than 5 distinct points, a non-finite coordinate, or all points on a line or a plane.
 ///
 /// ```
-/// use stablesurf::normals::delaunay::tetrahedralize;
+/// use stablesurf::testing::tetrahedralize;
 /// let cube: Vec<[f64; 3]> = (0..8)
 ///     .map(|i| [(i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64])
 ///     .collect();
