@@ -7,5 +7,6 @@
 
 pub use crate::normals::crust::{crust, crust_normals, Crust, CrustNormals};
 pub use crate::normals::delaunay::{
-    face_vertices, insphere, orient3d, tetrahedralize, Tetrahedralization, NO_NEIGHBOUR,
+    face_vertices, tetrahedralize, Tetrahedralization, NO_NEIGHBOUR,
 };
+pub use crate::numerics::predicates::{insphere, orient3d};

@@ -7,9 +7,10 @@
 //! [`Tetrahedralization`](super::Tetrahedralization) without the enclosing tetrahedron's vertices.
 
 use super::order::{brio_order, Rng};
-use super::predicates::{insphere, orient3d, perturbed_inside};
+use super::perturbation::perturbed_inside;
 use super::{Tetrahedralization, NO_NEIGHBOUR};
 use crate::normals::NormalsError;
+use crate::numerics::predicates::{insphere, orient3d};
 
 /// Asks the processor to bring the cache line of `r` in: a hint, with no effect on results.
 #[inline(always)]

@@ -54,22 +54,23 @@
 //! tetrahedra whose circumsphere is about that large can be missing, which changes nothing for
 //! the crust.
 //!
-//! The parts: [`predicates`] (the exact, filtered predicates and the symbolic perturbation),
-//! [`order`] (the BRIO/Hilbert insertion order), [`insert`] (the insertion state and the walk,
+//! The parts: [`perturbation`] (the symbolic perturbation over the exact, filtered predicates of
+//! [`crate::numerics::predicates`]), [`order`] (the BRIO/Hilbert insertion order), [`insert`] (the insertion state and the walk,
 //! cavity and cone), [`union`] (faces among a first batch of points, and across
 //! triangulations).
 
 use rayon::prelude::*;
 
 use crate::normals::NormalsError;
+// Also the path by which the mesh's intersection tests reach the predicate.
+pub(crate) use crate::numerics::predicates::orient3d;
 
 mod insert;
 mod order;
-mod predicates;
+mod perturbation;
 mod union;
 
 pub(crate) use insert::{Delaunay, Keep};
-pub use predicates::{insphere, orient3d};
 pub(crate) use union::{faces_among_union, KeyedPoints};
 
 /// Marks "no neighbour" in [`Tetrahedralization::neighbours`] (a convex-hull face).

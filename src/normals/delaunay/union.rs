@@ -12,7 +12,7 @@ use rayon::prelude::*;
 #[cfg(test)]
 use super::insert::Tet;
 use super::insert::{Delaunay, ENCLOSING_KEY};
-use super::predicates::inside;
+use super::perturbation::inside;
 use super::{face_vertices, NO_NEIGHBOUR};
 
 /// A vertex of a triangulation by caller index, with its position.

@@ -1,10 +1,10 @@
-//! The exact geometric predicates of the Delaunay tetrahedralization: `orient3d` and `insphere`
-//! (Shewchuk's adaptive exact predicates, the `robust` crate, behind a semi-static filter), and
-//! the symbolic perturbation that decides exactly co-spherical configurations.
+//! Exact geometric predicates: `orient3d` and `insphere` (Shewchuk's adaptive exact predicates,
+//! the `robust` crate) behind a semi-static filter that takes the sign wherever Shewchuk's own
+//! first stage would have.
 //!
-//! Input: point coordinates (for the perturbation, also the points' caller indices). Output: the
-//! sign of the determinant, never wrong because of rounding; a co-spherical configuration is
-//! decided as if each point were lifted by an infinitesimal amount growing with its index.
+//! Input: point coordinates. Output: the determinant's sign, never wrong because of rounding (the
+//! value is the filter's or the exact predicate's). Used by the normals stage's Delaunay
+//! tetrahedralization and by the mesh's exact intersection tests.
 
 #[inline]
 fn c3(p: &[f64; 3]) -> robust::Coord3D<f64> {
@@ -112,38 +112,4 @@ pub fn insphere(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], d: &[f64; 3], e: &[f64
 #[inline(never)]
 fn insphere_exact(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], d: &[f64; 3], e: &[f64; 3]) -> f64 {
     robust::insphere(c3(a), c3(b), c3(c), c3(d), c3(e))
-}
-
-/// Whether `p` (caller index `key`) is strictly inside the perturbed circumsphere of the
-/// positive tet `q` (caller indices `keys`): the exact insphere sign, and for an exactly
-/// co-spherical configuration the symbolic perturbation ([`perturbed_inside`]). The same
-/// decision the insertion makes, so it can be asked of points in different triangulations.
-pub(super) fn inside(q: &[[f64; 3]; 4], keys: [u32; 4], p: &[f64; 3], key: u32) -> bool {
-    let s = insphere(&q[0], &q[1], &q[2], &q[3], p);
-    if s != 0.0 {
-        return s > 0.0;
-    }
-    perturbed_inside(q, keys, p, key)
-}
-
-/// The symbolic perturbation for an exactly co-spherical configuration: the point with the
-/// largest caller index is lifted most. Lifting the new point `p` (caller index `key`) puts it
-/// outside; lifting tet vertex j (caller index `keys[j]`) moves the sphere towards the side of
-/// the opposite face where vertex j is, so p is inside when it is on that side.
-#[cold]
-pub(super) fn perturbed_inside(q: &[[f64; 3]; 4], keys: [u32; 4], p: &[f64; 3], key: u32) -> bool {
-    let mut order = [0usize, 1, 2, 3, 4].map(|j| (if j == 4 { key } else { keys[j] }, j));
-    order.sort_unstable_by_key(|x| std::cmp::Reverse(x.0));
-    for (_, j) in order {
-        if j == 4 {
-            return false;
-        }
-        let mut r = *q;
-        r[j] = *p;
-        let o = orient3d(&r[0], &r[1], &r[2], &r[3]);
-        if o != 0.0 {
-            return o > 0.0;
-        }
-    }
-    false
 }
