@@ -325,11 +325,7 @@ fn read_block(
             break;
         };
         let entry = index - layout.start;
-        let malformed = |message: String| ImportError::Malformed {
-            path: path.to_owned(),
-            line: line_number,
-            message,
-        };
+        let malformed = |message: String| ImportError::malformed(path, line_number, message);
         let mut tokens = line.split_ascii_whitespace();
         for (p, property) in element.properties.iter().enumerate() {
             let mut next = |what: &str| {
