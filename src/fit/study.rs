@@ -206,26 +206,33 @@ pub fn sample(shape: Shape, variant: Variant, n_points: usize, seed: u64) -> Ori
                 }
             }
         }
-        Variant::Cut => {
-            let key = |p: &[f64; 3]| p[0] + 0.3 * p[1] + 0.2 * p[2];
-            let mut keys: Vec<f64> = cloud.points.iter().map(key).collect();
-            keys.sort_by(f64::total_cmp);
-            let threshold = keys[(keys.len() * 85 / 100).min(keys.len().saturating_sub(1))];
-            let (points, normals): (Vec<_>, Vec<_>) = cloud
-                .points
-                .iter()
-                .zip(&cloud.normals)
-                .filter(|(p, _)| key(p) < threshold)
-                .map(|(p, n)| (*p, *n))
-                .unzip();
-            cloud = OrientedCloud {
-                points,
-                normals,
-                weights: None,
-            };
-        }
+        Variant::Cut => cloud = cut_away(&cloud),
     }
     cloud
+}
+
+/// The [`Variant::Cut`] degradation: `cloud` without the 15% of its points with the largest
+/// x + 0.3y + 0.2z (weights dropped).
+pub fn cut_away(cloud: &OrientedCloud) -> OrientedCloud {
+    let key = |p: &[f64; 3]| p[0] + 0.3 * p[1] + 0.2 * p[2];
+    let mut keys: Vec<f64> = cloud.points.iter().map(key).collect();
+    keys.sort_by(f64::total_cmp);
+    let threshold = keys
+        .get((keys.len() * 85 / 100).min(keys.len().saturating_sub(1)))
+        .copied()
+        .unwrap_or(f64::INFINITY);
+    let (points, normals) = cloud
+        .points
+        .iter()
+        .zip(&cloud.normals)
+        .filter(|(p, _)| key(p) < threshold)
+        .map(|(p, n)| (*p, *n))
+        .unzip();
+    OrientedCloud {
+        points,
+        normals,
+        weights: None,
+    }
 }
 
 /// The judge's verdict on one fit.
