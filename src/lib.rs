@@ -28,7 +28,7 @@ pub mod merge;
 pub mod mesh;
 pub mod model;
 pub mod normals;
-pub mod numerics;
+pub(crate) mod numerics;
 pub mod outliers;
 pub mod outputs;
 pub mod pipeline;
