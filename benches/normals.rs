@@ -11,8 +11,8 @@
 use std::hint::black_box;
 
 use criterion::{criterion_group, BenchmarkId, Criterion};
-use stablesurf::normals::delaunay::tetrahedralize;
 use stablesurf::normals::{estimate_normals, NormalSource, NormalsParams};
+use stablesurf::testing::{crust_normals, tetrahedralize};
 use stablesurf::PointCloud;
 
 /// Random points on a torus (R = 1, r = 0.4), uniform in area (rejection on θ), reproducible.
@@ -189,7 +189,7 @@ fn phases() {
             PHASE_LOG.0.lock().unwrap().clear();
             let start = std::time::Instant::now();
             let cpu = cpu_time();
-            stablesurf::normals::crust::crust_normals(&points, &crust_params()).unwrap();
+            crust_normals(&points, &crust_params()).unwrap();
             let mut times = std::mem::take(&mut *PHASE_LOG.0.lock().unwrap());
             times.push(("CPU time (all threads)".into(), cpu_time() - cpu));
             times.push(("TOTAL".into(), start.elapsed()));

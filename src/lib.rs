@@ -9,7 +9,9 @@
 //! ```
 //!
 //! Each stage is a free function from its input artifact and a `…Params` struct to its output
-//! artifact; [`pipeline`] chains them through the content-addressed [`cache`].
+//! artifact; [`pipeline`] chains them through the content-addressed [`cache`]. The stage
+//! functions, their params, artifacts and errors are re-exported here; the modules hold the
+//! rest (formats, diagnostics, lower-level entry points).
 #![warn(missing_docs)]
 
 pub mod cache;
@@ -26,16 +28,40 @@ pub mod merge;
 pub mod mesh;
 pub mod model;
 pub mod normals;
-pub mod numerics;
+pub(crate) mod numerics;
 pub mod outliers;
 pub mod outputs;
 pub mod pipeline;
 pub mod poly;
 pub mod polygonize;
 pub mod render;
+#[doc(hidden)]
+pub mod testing;
 pub mod trim;
 mod vec3;
 
+// The artifacts passed between the stages.
 pub use cloud::{Aabb, OrientedCloud, PointCloud};
+pub use detail::MpuModel;
+pub use implicit::ImplicitFunction;
+pub use import::Scan;
 pub use mesh::TriangleMesh;
+pub use model::{Mode, Model};
 pub use poly::{ImplicitModel, ImplicitPolynomial};
+
+// The stages (see the table in docs/ARCHITECTURE.md for their order), each with its params
+// and its error.
+pub use detail::{fit_detail, DetailError, DetailParams};
+pub use distance::{slices, DistanceError, Slice, SliceParams};
+pub use export::{export, ExportError, ExportOutput, ExportParams};
+pub use fit::{fit, FitError, FitParams};
+pub use import::{import_scan_bytes, read_scan, ImportError};
+pub use merge::{merge_views, Pose};
+pub use normals::{estimate_normals, NormalsError, NormalsParams};
+pub use outliers::{remove_outliers, OutlierParams};
+pub use polygonize::{polygonize, PolygonizeError, PolygonizeParams};
+pub use trim::{trim, TrimError, TrimParams};
+
+// The whole run, through the cache.
+pub use cache::{Cache, CacheError};
+pub use pipeline::{run, PipelineConfig, PipelineError, RunReport};

@@ -13,8 +13,8 @@ use serde::Serialize;
 use crate::cloud::Aabb;
 use crate::detail::MpuModel;
 use crate::export::{self, ExportError};
+use crate::implicit::ImplicitFunction;
 use crate::poly::ImplicitModel;
-use crate::polygonize::ImplicitFunction;
 
 /// Which model the pipeline fits.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]

@@ -30,7 +30,7 @@ use std::time::Instant;
 
 use image::{Rgb, RgbImage};
 use rayon::prelude::*;
-use stablesurf::fit::study::{assess, sample, Assessment, Lcg, Shape, Variant};
+use stablesurf::fit::study::{assess, cut_away, sample, Assessment, Lcg, Shape, Variant};
 use stablesurf::fit::{fit, FitMethod, FitParams, Kappa, KappaRule};
 use stablesurf::normals::{estimate_normals, NormalsParams};
 use stablesurf::polygonize::{polygonize, PolygonizeParams};
@@ -207,27 +207,7 @@ fn degrade(cloud: &OrientedCloud, variant: Variant, seed: u64) -> OrientedCloud 
                 weights: None,
             }
         }
-        Variant::Cut => {
-            let key = |p: &[f64; 3]| p[0] + 0.3 * p[1] + 0.2 * p[2];
-            let mut keys: Vec<f64> = cloud.points.iter().map(key).collect();
-            keys.sort_by(f64::total_cmp);
-            let threshold = keys
-                .get((keys.len() * 85 / 100).min(keys.len().saturating_sub(1)))
-                .copied()
-                .unwrap_or(f64::INFINITY);
-            let (points, normals) = cloud
-                .points
-                .iter()
-                .zip(&cloud.normals)
-                .filter(|(p, _)| key(p) < threshold)
-                .map(|(p, n)| (*p, *n))
-                .unzip();
-            OrientedCloud {
-                points,
-                normals,
-                weights: None,
-            }
-        }
+        Variant::Cut => cut_away(cloud),
     }
 }
 

@@ -434,6 +434,12 @@ mod tests {
         }
     }
 
+    /// The first primitive of the first mesh of a parsed glTF.
+    fn first_primitive(parsed: &gltf::Gltf) -> gltf::Primitive<'_> {
+        let mut meshes = parsed.document.meshes();
+        meshes.next().unwrap().primitives().next().unwrap()
+    }
+
     #[test]
     fn glb_parses_back_with_gltf_crate() {
         let mut glb = Vec::new();
@@ -467,14 +473,7 @@ mod tests {
         )
         .unwrap();
         let parsed = gltf::Gltf::from_slice(&glb).unwrap();
-        let prim = parsed
-            .document
-            .meshes()
-            .next()
-            .unwrap()
-            .primitives()
-            .next()
-            .unwrap();
+        let prim = first_primitive(&parsed);
         assert_eq!(prim.bounding_box().min, [0.0, 0.0, -2.0]);
         assert_eq!(prim.bounding_box().max, [1.0, 3.0, 0.0]);
     }
@@ -512,14 +511,7 @@ mod tests {
         let mut glb = Vec::new();
         write_glb(&mesh, &mut glb, &GltfOptions::default()).unwrap();
         let parsed = gltf::Gltf::from_slice(&glb).unwrap();
-        let prim = parsed
-            .document
-            .meshes()
-            .next()
-            .unwrap()
-            .primitives()
-            .next()
-            .unwrap();
+        let prim = first_primitive(&parsed);
         assert_eq!(
             prim.indices().unwrap().data_type(),
             gltf::accessor::DataType::U32

@@ -19,6 +19,7 @@
 //! reproducible.
 
 use crate::cloud::OrientedCloud;
+pub use crate::numerics::Lcg;
 use crate::poly::ImplicitPolynomial;
 
 /// A synthetic shape of the study.
@@ -121,35 +122,6 @@ impl Variant {
     }
 }
 
-/// A deterministic generator (64-bit LCG, top bits).
-#[derive(Clone, Debug)]
-pub struct Lcg(u64);
-
-impl Lcg {
-    /// A generator from a seed.
-    pub fn new(seed: u64) -> Lcg {
-        Lcg(seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407))
-    }
-
-    /// Uniform in [0, 1).
-    pub fn uniform(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    /// Standard normal (Box–Muller).
-    pub fn normal(&mut self) -> f64 {
-        let u1 = self.uniform().max(1e-300);
-        let u2 = self.uniform();
-        (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
-    }
-}
-
 /// `n_points` points on `shape` with exact unit outward normals, degraded by `variant`.
 pub fn sample(shape: Shape, variant: Variant, n_points: usize, seed: u64) -> OrientedCloud {
     let mut rng = Lcg::new(seed ^ (shape as u64) << 8);
@@ -234,26 +206,33 @@ pub fn sample(shape: Shape, variant: Variant, n_points: usize, seed: u64) -> Ori
                 }
             }
         }
-        Variant::Cut => {
-            let key = |p: &[f64; 3]| p[0] + 0.3 * p[1] + 0.2 * p[2];
-            let mut keys: Vec<f64> = cloud.points.iter().map(key).collect();
-            keys.sort_by(f64::total_cmp);
-            let threshold = keys[(keys.len() * 85 / 100).min(keys.len().saturating_sub(1))];
-            let (points, normals): (Vec<_>, Vec<_>) = cloud
-                .points
-                .iter()
-                .zip(&cloud.normals)
-                .filter(|(p, _)| key(p) < threshold)
-                .map(|(p, n)| (*p, *n))
-                .unzip();
-            cloud = OrientedCloud {
-                points,
-                normals,
-                weights: None,
-            };
-        }
+        Variant::Cut => cloud = cut_away(&cloud),
     }
     cloud
+}
+
+/// The [`Variant::Cut`] degradation: `cloud` without the 15% of its points with the largest
+/// x + 0.3y + 0.2z (weights dropped).
+pub fn cut_away(cloud: &OrientedCloud) -> OrientedCloud {
+    let key = |p: &[f64; 3]| p[0] + 0.3 * p[1] + 0.2 * p[2];
+    let mut keys: Vec<f64> = cloud.points.iter().map(key).collect();
+    keys.sort_by(f64::total_cmp);
+    let threshold = keys
+        .get((keys.len() * 85 / 100).min(keys.len().saturating_sub(1)))
+        .copied()
+        .unwrap_or(f64::INFINITY);
+    let (points, normals) = cloud
+        .points
+        .iter()
+        .zip(&cloud.normals)
+        .filter(|(p, _)| key(p) < threshold)
+        .map(|(p, n)| (*p, *n))
+        .unzip();
+    OrientedCloud {
+        points,
+        normals,
+        weights: None,
+    }
 }
 
 /// The judge's verdict on one fit.

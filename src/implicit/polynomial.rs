@@ -757,25 +757,11 @@ fn accumulate(lo: &mut f64, hi: &mut f64, b: f64, e: [usize; 3]) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::poly::n_coefficients;
+    use crate::poly::test_support::random_polynomial;
 
     /// A pseudo-random degree-`n` polynomial with a non-trivial normalization.
     fn random_poly(n: u32, seed: u64) -> ImplicitPolynomial {
-        let mut state = seed;
-        let coefficients = (0..n_coefficients(n))
-            .map(|_| {
-                state = state
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                ((state >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-            })
-            .collect();
-        ImplicitPolynomial {
-            degree: n,
-            coefficients,
-            center: [0.3, -0.2, 0.5],
-            scale: 1.7,
-        }
+        random_polynomial(n, seed, [0.3, -0.2, 0.5], 1.7)
     }
 
     #[test]

@@ -55,11 +55,7 @@ pub fn read_conf(bytes: &[u8], path: &Path) -> Result<Vec<View>, ImportError> {
     let mut views = Vec::new();
     while let Some(line) = lines.next_line(&name) {
         let (number, text) = line?;
-        let malformed = |message: String| ImportError::Malformed {
-            path: name.clone(),
-            line: number,
-            message,
-        };
+        let malformed = |message: String| ImportError::malformed(&name, number, message);
         let words: Vec<&str> = text.split_ascii_whitespace().collect();
         let (numbers, file) = match words.as_slice() {
             [] => continue,

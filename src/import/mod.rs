@@ -215,6 +215,17 @@ pub enum ImportError {
     },
 }
 
+impl ImportError {
+    /// An [`ImportError::Malformed`] for line `line` of the file `path`.
+    pub(crate) fn malformed(path: &str, line: usize, message: String) -> ImportError {
+        ImportError::Malformed {
+            path: path.to_owned(),
+            line,
+            message,
+        }
+    }
+}
+
 /// The on-disk format of a scan.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ScanFormat {

@@ -54,11 +54,7 @@ pub(crate) fn read(
     let mut n_faces = 0usize;
     while let Some(line) = lines.next_line(path) {
         let (line_number, text) = line?;
-        let malformed = |message: String| ImportError::Malformed {
-            path: path.to_owned(),
-            line: line_number,
-            message,
-        };
+        let malformed = |message: String| ImportError::malformed(path, line_number, message);
         let text = text.split('#').next().unwrap_or("");
         let mut tokens = text.split_ascii_whitespace();
         match tokens.next() {
@@ -227,11 +223,7 @@ fn resolve(
     face: usize,
     path: &str,
 ) -> Result<u32, ImportError> {
-    let malformed = |message: String| ImportError::Malformed {
-        path: path.to_owned(),
-        line,
-        message,
-    };
+    let malformed = |message: String| ImportError::malformed(path, line, message);
     let value: i64 = token
         .parse()
         .map_err(|_| malformed(format!("`{token}` is not a {what} index")))?;

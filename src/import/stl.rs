@@ -177,11 +177,7 @@ pub(crate) fn read_ascii(bytes: &[u8], path: &str) -> Result<PointCloud, ImportE
     let mut endsolid_line: Option<usize> = None;
     while let Some(line) = lines.next_line(path) {
         let (line_number, text) = line?;
-        let malformed = |message: String| ImportError::Malformed {
-            path: path.to_owned(),
-            line: line_number,
-            message,
-        };
+        let malformed = |message: String| ImportError::malformed(path, line_number, message);
         let mut tokens = text.split_ascii_whitespace();
         let Some(keyword) = tokens.next() else {
             continue;

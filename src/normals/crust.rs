@@ -142,7 +142,7 @@ fn circumcentre(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], d: &[f64; 3]) -> [f64;
 /// Fewer than 5 distinct points, a non-finite coordinate, or all points on a line or a plane.
 ///
 /// ```
-/// use stablesurf::normals::crust::crust;
+/// use stablesurf::testing::crust;
 /// // The 6 vertices of an octahedron: its crust is its 8 faces.
 /// let pts = [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, -1.0]];
 /// let c = crust(&pts).unwrap();
@@ -583,14 +583,7 @@ mod tests {
         // Points of a Fibonacci sphere are all on the convex hull: the crust is the hull, 2n − 4
         // triangles, every vertex in a planar fan.
         let n = 500;
-        let points: Vec<[f64; 3]> = (0..n)
-            .map(|i| {
-                let z = 1.0 - (2.0 * i as f64 + 1.0) / n as f64;
-                let r = (1.0 - z * z).sqrt();
-                let a = i as f64 * 2.399_963_229_728_653;
-                [r * a.cos(), r * a.sin(), z]
-            })
-            .collect();
+        let points = crate::normals::test_support::fibonacci_sphere(n);
         let c = crust(&points).unwrap();
         assert_eq!(c.triangles.len(), 2 * n - 4);
         assert!(c.on_hull.iter().all(|&h| h));

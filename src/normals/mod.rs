@@ -38,11 +38,11 @@
 //! the area-weighted normals of the file's faces after making their winding consistent, `input`
 //! the file's normals.
 
-pub mod crust;
-pub mod delaunay;
-pub mod faces;
-pub mod orient;
-pub mod pca;
+pub(crate) mod crust;
+pub(crate) mod delaunay;
+pub(crate) mod faces;
+pub(crate) mod orient;
+pub(crate) mod pca;
 
 use std::borrow::Cow;
 use std::str::FromStr;
@@ -643,8 +643,26 @@ pub(crate) mod vec3 {
     }
 }
 
+/// Point sets for the tests of this stage's modules.
+#[cfg(test)]
+pub(crate) mod test_support {
+    /// `n` points of the unit sphere along a Fibonacci spiral (golden-angle steps in longitude,
+    /// equal steps in z).
+    pub(crate) fn fibonacci_sphere(n: usize) -> Vec<[f64; 3]> {
+        (0..n)
+            .map(|i| {
+                let z = 1.0 - (2.0 * i as f64 + 1.0) / n as f64;
+                let r = (1.0 - z * z).sqrt();
+                let a = i as f64 * 2.399_963_229_728_653;
+                [r * a.cos(), r * a.sin(), z]
+            })
+            .collect()
+    }
+}
+
 #[cfg(test)]
 mod tests {
+    use super::test_support::fibonacci_sphere;
     use super::*;
 
     #[test]
@@ -666,14 +684,7 @@ mod tests {
     /// faces over them.
     fn sphere_with_degenerate_faces(n: usize) -> PointCloud {
         let m = 200;
-        let mut points: Vec<[f64; 3]> = (0..m)
-            .map(|i| {
-                let z = 1.0 - (2.0 * i as f64 + 1.0) / m as f64;
-                let r = (1.0 - z * z).sqrt();
-                let a = i as f64 * 2.399_963_229_728_653;
-                [r * a.cos(), r * a.sin(), z]
-            })
-            .collect();
+        let mut points = fibonacci_sphere(m);
         let mut triangles = Vec::new();
         for f in 0..n {
             let p = points[f % m];

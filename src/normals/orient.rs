@@ -259,12 +259,10 @@ impl Frontier {
             if above <= entry {
                 break;
             }
-            self.heap[at] = above;
-            self.position[above.2 as usize] = at as u32;
+            self.place(at, above);
             at = parent;
         }
-        self.heap[at] = entry;
-        self.position[entry.2 as usize] = at as u32;
+        self.place(at, entry);
     }
 
     fn sift_down(&mut self, mut at: usize) {
@@ -285,10 +283,15 @@ impl Frontier {
             if below >= entry {
                 break;
             }
-            self.heap[at] = below;
-            self.position[below.2 as usize] = at as u32;
+            self.place(at, below);
             at = child;
         }
+        self.place(at, entry);
+    }
+
+    /// Puts `entry` at heap index `at` and records that position.
+    #[inline(always)]
+    fn place(&mut self, at: usize, entry: (u64, u32, u32)) {
         self.heap[at] = entry;
         self.position[entry.2 as usize] = at as u32;
     }

@@ -207,11 +207,6 @@ pub fn adaptive_normals(
     fits.into_iter().unzip()
 }
 
-/// Unit eigenvector of the smallest eigenvalue of a symmetric 3×3 matrix (cyclic Jacobi).
-pub fn smallest_eigenvector(a: [[f64; 3]; 3]) -> [f64; 3] {
-    smallest_eigen(a).0
-}
-
 /// Unit eigenvector of the smallest eigenvalue, that eigenvalue and the middle one.
 // Index loops read best for the 3×3 rotations.
 #[allow(clippy::needless_range_loop)]
@@ -285,14 +280,19 @@ pub fn pca_normals(points: &[[f64; 3]], params: &NormalsParams) -> Vec<[f64; 3]>
     normals
 }
 
-/// Cosine of the angle between two unit vectors, clamped (helper for tests and callers).
-pub fn abs_cos(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    dot(a, b).abs().min(1.0)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Unit eigenvector of the smallest eigenvalue of a symmetric 3×3 matrix (cyclic Jacobi).
+    fn smallest_eigenvector(a: [[f64; 3]; 3]) -> [f64; 3] {
+        smallest_eigen(a).0
+    }
+
+    /// Cosine of the angle between two unit vectors, clamped.
+    fn abs_cos(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+        dot(a, b).abs().min(1.0)
+    }
 
     #[test]
     fn jacobi_finds_smallest_axis() {

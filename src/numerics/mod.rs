@@ -1,14 +1,18 @@
 //! Shared numerical kernels that several stages use: a union-find over indices, a dense
-//! Cholesky factorization with its triangular solves, and a grid index for exact k-nearest
-//! neighbour queries.
+//! Cholesky factorization with its triangular solves, a grid index for exact k-nearest
+//! neighbour queries, exact orientation and insphere predicates, and a deterministic
+//! pseudo-random generator for synthetic data and tests.
 //!
 //! This module belongs to no stage; stages import these kernels from here instead of keeping
 //! copies of their own. Each kernel is sequential and performs its floating-point operations in
 //! a fixed order, so its results do not depend on the caller or the thread count.
 
 pub(crate) mod cholesky;
+mod lcg;
 pub mod point_grid;
+pub(crate) mod predicates;
 pub(crate) mod union_find;
 
+pub use lcg::Lcg;
 pub use point_grid::{Neighbours, PointGrid};
 pub(crate) use union_find::UnionFind;

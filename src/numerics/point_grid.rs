@@ -138,11 +138,6 @@ impl PointGrid {
         self.items.len()
     }
 
-    /// Whether there are no points (never, for a grid [`PointGrid::new`] made).
-    pub fn is_empty(&self) -> bool {
-        self.items.is_empty()
-    }
-
     /// The cell coordinate of `x` along `axis`, clamped to the grid.
     fn cell_of(&self, x: f64, axis: usize) -> usize {
         let c = (x - self.origin[axis]) / self.cell;
@@ -361,13 +356,9 @@ impl Neighbours {
     }
 
     /// Number of rows (points).
+    #[cfg(test)]
     pub fn len(&self) -> usize {
         self.n
-    }
-
-    /// Whether there are no rows.
-    pub fn is_empty(&self) -> bool {
-        self.n == 0
     }
 
     /// Length of every row.

@@ -3,10 +3,8 @@
 //! analytic shapes (sphere, torus, a genus-2 "eight") with and without noise; sign agreement with
 //! the original meshes of real scans; clear errors on degenerate input.
 
-use stablesurf::normals::delaunay::{
-    face_vertices, insphere, orient3d, tetrahedralize, NO_NEIGHBOUR,
-};
 use stablesurf::normals::{estimate_normals, NormalSource, NormalsError, NormalsParams};
+use stablesurf::testing::{face_vertices, insphere, orient3d, tetrahedralize, NO_NEIGHBOUR};
 use stablesurf::PointCloud;
 
 use crate::fixtures::{quaternion_rotation, shared, Rng};

@@ -3,7 +3,7 @@
 //! errors of a reader going line by line.
 
 use super::header::{Header, PropertyType};
-use super::Plan;
+use super::{vertex_index, Plan};
 use crate::cloud::PointCloud;
 use crate::import::{push_fan, ImportError, Lines};
 
@@ -11,10 +11,7 @@ use crate::import::{push_fan, ImportError, Lines};
 /// `n_points` is the header's vertex count, which the vertex element matches once it is read
 /// (the face element may come first).
 fn to_index(value: i64, face: u64, n_points: u64, path: &str) -> Result<u32, ImportError> {
-    match u32::try_from(value) {
-        Ok(index) if u64::from(index) < n_points => Ok(index),
-        _ => Err(index_error(value, face, n_points, path)),
-    }
+    vertex_index(value, n_points).ok_or_else(|| index_error(value, face, n_points, path))
 }
 
 /// The error for face `face` using the out-of-range index `value`.
@@ -35,7 +32,8 @@ pub(super) fn read_ascii(
     path: &str,
     cells: &mut Vec<u32>,
 ) -> Result<PointCloud, ImportError> {
-    match read_ascii_entries(body, header, plan, path, cells) {
+    let block_bytes = (body.len() >= ASCII_PARALLEL_BYTES).then_some(ASCII_BLOCK);
+    match read_ascii_blocks(body, header, plan, path, block_bytes, cells) {
         Ok(cloud) => Ok(cloud),
         // A count that disagrees with the number of lines explains most parse errors (the next
         // element's lines are read as this one's), so report that instead when it is the case.
@@ -99,8 +97,7 @@ fn entry_layouts(header: &Header, plan: &Plan) -> Vec<EntryLayout> {
         let is_vertex = e == plan.vertex;
         let mut slot_of = vec![None; element.properties.len()];
         if is_vertex {
-            let wanted = plan.coords.iter().chain(plan.normals.iter().flatten());
-            for (slot, &p) in wanted.enumerate() {
+            for (p, slot) in plan.vertex_slots() {
                 slot_of[p] = Some(slot);
             }
         }
@@ -111,8 +108,8 @@ fn entry_layouts(header: &Header, plan: &Plan) -> Vec<EntryLayout> {
             slot_of,
             is_vertex,
             normals: is_vertex && plan.normals.is_some(),
-            face_list: plan.face.filter(|(f, _)| *f == e).map(|(_, p)| p),
-            grid_list: plan.grid.filter(|(g, _)| *g == e).map(|(_, p)| p),
+            face_list: plan.face_list(e),
+            grid_list: plan.grid_list(e),
         });
         start = end;
     }
@@ -149,19 +146,9 @@ struct BlockOutput {
 /// line: the first block's first error; else, when the lines ran out, the line that is not
 /// UTF-8 or the missing entries; else the first line after the last entry; else the line that
 /// is not UTF-8.
-fn read_ascii_entries(
-    body: &[u8],
-    header: &Header,
-    plan: &Plan,
-    path: &str,
-    cells: &mut Vec<u32>,
-) -> Result<PointCloud, ImportError> {
-    let block_bytes = (body.len() >= ASCII_PARALLEL_BYTES).then_some(ASCII_BLOCK);
-    read_ascii_blocks(body, header, plan, path, block_bytes, cells)
-}
-
-/// [`read_ascii_entries`] with blocks of `block_bytes` read in parallel, or one block read on
-/// the calling thread when `None`. A range grid's cells go to `cells`.
+///
+/// Blocks are `block_bytes` long and read in parallel, or the body is one block read on the
+/// calling thread when `None`. A range grid's cells go to `cells`.
 fn read_ascii_blocks(
     body: &[u8],
     header: &Header,
@@ -338,11 +325,7 @@ fn read_block(
             break;
         };
         let entry = index - layout.start;
-        let malformed = |message: String| ImportError::Malformed {
-            path: path.to_owned(),
-            line: line_number,
-            message,
-        };
+        let malformed = |message: String| ImportError::malformed(path, line_number, message);
         let mut tokens = line.split_ascii_whitespace();
         for (p, property) in element.properties.iter().enumerate() {
             let mut next = |what: &str| {

@@ -3,7 +3,7 @@
 //! a bad body read when one would.
 
 use super::header::{Element, Header, PropertyType, Scalar};
-use super::Plan;
+use super::{vertex_index, Plan};
 use crate::cloud::PointCloud;
 use crate::import::{push_fan, ImportError};
 
@@ -301,14 +301,11 @@ fn read_binary_body<const BIG: bool>(
         let mut slots = Vec::new();
         let mut list = None;
         if e == plan.vertex {
-            let wanted = plan.coords.iter().chain(plan.normals.iter().flatten());
-            slots = wanted.enumerate().map(|(slot, &p)| (p, slot)).collect();
-        } else if plan.face.is_some_and(|(f, _)| f == e) {
-            list = plan.face.map(|(_, p)| p);
-        } else if plan.grid.is_some_and(|(g, _)| g == e) {
-            list = plan.grid.map(|(_, p)| p);
+            slots = plan.vertex_slots().collect();
+        } else {
+            list = plan.face_list(e).or(plan.grid_list(e));
         }
-        let is_grid = plan.grid.is_some_and(|(g, _)| g == e);
+        let is_grid = plan.grid_list(e).is_some();
         let wanted = Wanted {
             scalars: &slots,
             list,
@@ -331,10 +328,8 @@ fn read_binary_body<const BIG: bool>(
             } else if is_grid {
                 cells.push(match polygon.as_slice() {
                     [] => u32::MAX,
-                    [v] => match u32::try_from(*v) {
-                        Ok(i) if u64::from(i) < n_vertices => i,
-                        _ => return Err(bad_index(path, header, element, entry, *v, start)),
-                    },
+                    [v] => vertex_index(*v, n_vertices)
+                        .ok_or_else(|| bad_index(path, header, element, entry, *v, start))?,
                     more => {
                         return Err(bad_binary(
                             path,
@@ -363,10 +358,10 @@ fn read_binary_body<const BIG: bool>(
                 }
                 polygon_u32.clear();
                 for &v in &polygon {
-                    match u32::try_from(v) {
-                        Ok(i) if u64::from(i) < n_vertices => polygon_u32.push(i),
-                        _ => return Err(bad_index(path, header, element, entry, v, start)),
-                    }
+                    polygon_u32.push(
+                        vertex_index(v, n_vertices)
+                            .ok_or_else(|| bad_index(path, header, element, entry, v, start))?,
+                    );
                 }
                 push_fan(&mut triangles, &polygon_u32);
             }
@@ -478,10 +473,8 @@ fn read_face_lists<const BIG: bool>(
             for (slot, chunk) in triangle.iter_mut().zip(items.chunks_exact(item_size)) {
                 let index =
                     scalar_i64::<BIG>(chunk, item_ty).ok_or(FaceError::Truncated { face, at })?;
-                *slot = match u32::try_from(index) {
-                    Ok(i) if u64::from(i) < n_vertices => i,
-                    _ => return Err(FaceError::Index { face, index, at }),
-                };
+                *slot =
+                    vertex_index(index, n_vertices).ok_or(FaceError::Index { face, index, at })?;
             }
             triangles.push(triangle);
             continue;
@@ -490,10 +483,11 @@ fn read_face_lists<const BIG: bool>(
         for chunk in items.chunks_exact(item_size) {
             let index =
                 scalar_i64::<BIG>(chunk, item_ty).ok_or(FaceError::Truncated { face, at })?;
-            match u32::try_from(index) {
-                Ok(i) if u64::from(i) < n_vertices => polygon.push(i),
-                _ => return Err(FaceError::Index { face, index, at }),
-            }
+            polygon.push(vertex_index(index, n_vertices).ok_or(FaceError::Index {
+                face,
+                index,
+                at,
+            })?);
         }
         push_fan(triangles, &polygon);
     }

@@ -167,7 +167,32 @@ struct Plan {
     grid: Option<(usize, usize)>,
 }
 
+/// `value` as a vertex index, when it is one of the `n_vertices` the header declares.
+#[inline(always)]
+fn vertex_index(value: i64, n_vertices: u64) -> Option<u32> {
+    u32::try_from(value)
+        .ok()
+        .filter(|&index| u64::from(index) < n_vertices)
+}
+
 impl Plan {
+    /// The vertex element's values to read, as (property index, slot): x, y, z go to slots 0..3,
+    /// nx, ny, nz (when read) to 3..6.
+    fn vertex_slots(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        let wanted = self.coords.iter().chain(self.normals.iter().flatten());
+        wanted.enumerate().map(|(slot, &p)| (p, slot))
+    }
+
+    /// The index-list property to read when element `e` is the face element.
+    fn face_list(&self, e: usize) -> Option<usize> {
+        self.face.filter(|&(f, _)| f == e).map(|(_, p)| p)
+    }
+
+    /// The index-list property to read when element `e` is the range grid element.
+    fn grid_list(&self, e: usize) -> Option<usize> {
+        self.grid.filter(|&(g, _)| g == e).map(|(_, p)| p)
+    }
+
     fn new(header: &Header, path: &str) -> Result<Plan, ImportError> {
         let layout = |message: String| ImportError::BadLayout {
             path: path.to_owned(),

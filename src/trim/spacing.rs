@@ -1,0 +1,61 @@
+//! Step 1 of the trim: the local spacing of the data at the points that need it, the median over
+//! a point and its k nearest neighbours of each one's distance to its nearest non-coincident
+//! neighbour.
+//!
+//! Input: the data points, their bucket grid and the points wanted. Output: one spacing per
+//! wanted point, in input units.
+
+use rayon::prelude::*;
+
+use crate::numerics::PointGrid;
+use crate::vec3::{norm, sub};
+
+/// The local spacing (step 1 of the module docs) at each of the points `wanted` (indices into
+/// `points`, sorted, distinct), in their order.
+pub(super) fn local_spacing(
+    grid: &PointGrid,
+    points: &[[f64; 3]],
+    k: usize,
+    wanted: &[u32],
+) -> Vec<f64> {
+    let k = k.min(points.len().saturating_sub(1));
+    if k == 0 {
+        return vec![0.0; wanted.len()];
+    }
+    let neighbours = grid.nearest_of(points, wanted, k);
+    // Each point's distance to its nearest neighbour at a positive distance (0 when all its k
+    // neighbours coincide with it), for the wanted points and their neighbours.
+    let mut around: Vec<u32> = wanted
+        .iter()
+        .copied()
+        .chain(neighbours.flat().iter().copied())
+        .collect();
+    around.sort_unstable();
+    around.dedup();
+    let dist = |i: usize, j: u32| norm(sub(points[i], points[j as usize]));
+    let around_neighbours = grid.nearest_of(points, &around, k);
+    let nearest: Vec<f64> = around
+        .par_iter()
+        .enumerate()
+        .map(|(r, &i)| {
+            around_neighbours
+                .row(r)
+                .iter()
+                .map(|&j| dist(i as usize, j))
+                .find(|&d| d > 0.0)
+                .unwrap_or(0.0)
+        })
+        .collect();
+    let nearest_of = |j: u32| nearest[around.binary_search(&j).unwrap_or(0)];
+    wanted
+        .par_iter()
+        .enumerate()
+        .map(|(r, &i)| {
+            let mut values: Vec<f64> = std::iter::once(nearest_of(i))
+                .chain(neighbours.row(r).iter().map(|&j| nearest_of(j)))
+                .collect();
+            values.sort_unstable_by(f64::total_cmp);
+            values[values.len() / 2]
+        })
+        .collect()
+}
