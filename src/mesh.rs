@@ -540,10 +540,10 @@ fn ray_parity_inside(p: [f64; 3], triangles: &[[u32; 3]], positions: &[[f64; 3]]
 // Self-intersections.
 
 /// Exact orientation of `d` against the plane of `a, b, c` (Shewchuk's adaptive predicate behind
-/// a semi-static filter, [`crate::normals::delaunay::orient3d`]; its sign is exact).
+/// a semi-static filter, [`crate::numerics::predicates::orient3d`]; its sign is exact).
 #[inline(always)]
 fn orient3d(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3], d: &[f64; 3]) -> f64 {
-    crate::normals::delaunay::orient3d(a, b, c, d)
+    crate::numerics::predicates::orient3d(a, b, c, d)
 }
 
 /// The sign of a number as −1, 0 or 1.

@@ -62,8 +62,7 @@
 use rayon::prelude::*;
 
 use crate::normals::NormalsError;
-// Also the path by which the mesh's intersection tests reach the predicate.
-pub(crate) use crate::numerics::predicates::orient3d;
+use crate::numerics::predicates::orient3d;
 
 mod insert;
 mod order;
