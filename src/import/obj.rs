@@ -214,6 +214,7 @@ pub(crate) fn read(
         normals,
         triangles,
         range: None,
+        ..Default::default()
     })
 }
 
