@@ -15,9 +15,10 @@
 //! ```text
 //! bytes ──▶ starts with "ply\n"?            ─▶ ply.rs  (ascii, binary LE, binary BE)
 //!       ──▶ starts with "LASF"?             ─▶ las.rs  (LAS, LAZ)
+//!       ──▶ a "# .PCD" or VERSION/FIELDS line? ─▶ pcd.rs  (ascii, binary)
 //!       ──▶ 84 + 50·n == len (n at byte 80)? ─▶ stl.rs  binary (even if it starts with "solid")
 //!       ──▶ starts with "solid" + "facet"?   ─▶ stl.rs  ascii
-//!       ──▶ extension .obj .stl .ply .las .laz .xyz .pts .txt .csv
+//!       ──▶ extension .obj .stl .ply .las .laz .pcd .xyz .pts .txt .csv
 //!       ──▶ no known extension: text whose lines start with `v ` is OBJ, numeric text is XYZ
 //! ```
 //!
@@ -49,6 +50,7 @@
 pub mod conf;
 mod las;
 mod obj;
+mod pcd;
 mod ply;
 pub mod range;
 mod stl;
@@ -80,8 +82,8 @@ pub enum ImportError {
     },
     /// Neither the content nor the extension tells the format.
     #[error(
-        "{path}: unknown scan format: no ply, stl or las signature and the extension is not one \
-         of .ply .obj .stl .las .laz .xyz .pts .txt .csv; rename the file with the extension of \
+        "{path}: unknown scan format: no ply, stl, las or pcd signature and the extension is not \
+         one of .ply .obj .stl .las .laz .pcd .xyz .pts .txt .csv; rename the file with the extension of \
          its format"
     )]
     UnknownFormat {
@@ -239,6 +241,10 @@ pub enum ScanFormat {
     Las,
     /// LAS compressed with LASzip.
     Laz,
+    /// Point Cloud Library PCD, ascii body.
+    PcdAscii,
+    /// Point Cloud Library PCD, binary body.
+    PcdBinary,
 }
 
 impl ScanFormat {
@@ -260,6 +266,8 @@ impl ScanFormat {
             ScanFormat::Xyz => "xyz",
             ScanFormat::Las => "las",
             ScanFormat::Laz => "laz",
+            ScanFormat::PcdAscii => "pcd-ascii",
+            ScanFormat::PcdBinary => "pcd-binary",
         }
     }
 }
@@ -397,6 +405,7 @@ pub fn read_scan_bytes_as(
         ScanFormat::StlBinary => Detected::StlBinary,
         ScanFormat::Xyz => Detected::Xyz,
         ScanFormat::Las | ScanFormat::Laz => Detected::Las,
+        ScanFormat::PcdAscii | ScanFormat::PcdBinary => Detected::Pcd,
     };
     read_detected(bytes, &name, detected)
 }
@@ -416,6 +425,10 @@ fn read_detected(bytes: &[u8], name: &str, detected: Detected) -> Result<Scan, I
         Detected::Obj => (ScanFormat::Obj, obj::read(bytes, name, &mut notices)?),
         Detected::Xyz => (ScanFormat::Xyz, xyz::read(bytes, name, &mut notices)?),
         Detected::Las => las::read(bytes, name, &mut notices)?,
+        Detected::Pcd => match pcd::read(bytes, name, &mut notices)? {
+            (true, cloud) => (ScanFormat::PcdBinary, cloud),
+            (false, cloud) => (ScanFormat::PcdAscii, cloud),
+        },
     };
     Ok(Scan {
         format,
@@ -601,6 +614,7 @@ enum Detected {
     Obj,
     Xyz,
     Las,
+    Pcd,
 }
 
 /// Chooses the reader: content signatures first, then the extension, then a look at the text.
@@ -610,6 +624,9 @@ fn detect_format(bytes: &[u8], path: &Path) -> Option<Detected> {
     }
     if bytes.starts_with(b"LASF") {
         return Some(Detected::Las);
+    }
+    if pcd::looks_like_pcd(bytes) {
+        return Some(Detected::Pcd);
     }
     if stl::is_binary_size(bytes) {
         return Some(Detected::StlBinary);
@@ -629,6 +646,7 @@ fn detect_format(bytes: &[u8], path: &Path) -> Option<Detected> {
         Some("xyz" | "pts" | "txt" | "csv") => return Some(Detected::Xyz),
         // No signature, so the las reader reports what the file starts with.
         Some("las" | "laz") => return Some(Detected::Las),
+        Some("pcd") => return Some(Detected::Pcd),
         _ => {}
     }
     sniff_text(bytes)
