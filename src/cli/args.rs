@@ -305,7 +305,7 @@ pub struct CacheOpts {
 /// `stablesurf run`.
 #[derive(Debug, Args)]
 pub struct RunArgs {
-    /// Scan file (PLY, OBJ, STL, XYZ/PTS, LAS/LAZ, PCD); a Stanford .conf registration file (its scans, moved by
+    /// Scan file (PLY, OBJ, STL, XYZ/PTS, LAS/LAZ, E57, PCD); a Stanford .conf registration file (its scans, moved by
     /// their poses); or several scans of one object in one frame. Each scan gets its normals in
     /// its own frame before the merge. Without any, a small built-in sample scan is used.
     pub input: Vec<PathBuf>,

@@ -6,19 +6,22 @@
 //! [`import_bytes`], which the pipeline uses.
 //!
 //! Invariants of a validated cloud: at least one point, every coordinate finite, every triangle
-//! index `< points.len()`, and `normals` (when present) holds one entry per point. Points are
-//! never merged, reordered or rescaled, except that STL corners are welded by exact position
-//! (an STL file stores every triangle corner separately).
+//! index `< points.len()`, `normals`, `colours` and `intensity` (when present) hold one entry
+//! per point, and `scans` (when present) count every point. Points are never merged, reordered
+//! or rescaled, except that STL corners are welded by exact position (an STL file stores every
+//! triangle corner separately), and points that a format marks as having no position (a PCD's
+//! NaN points, an E57's invalid ones) are dropped with a notice.
 //!
 //! # Formats and how they are chosen
 //!
 //! ```text
 //! bytes ──▶ starts with "ply\n"?            ─▶ ply.rs  (ascii, binary LE, binary BE)
 //!       ──▶ starts with "LASF"?             ─▶ las.rs  (LAS, LAZ)
+//!       ──▶ starts with "ASTM-E57"?         ─▶ e57.rs  (every scan, moved by its pose)
 //!       ──▶ a "# .PCD" or VERSION/FIELDS line? ─▶ pcd.rs  (ascii, binary)
 //!       ──▶ 84 + 50·n == len (n at byte 80)? ─▶ stl.rs  binary (even if it starts with "solid")
 //!       ──▶ starts with "solid" + "facet"?   ─▶ stl.rs  ascii
-//!       ──▶ extension .obj .stl .ply .las .laz .pcd .xyz .pts .txt .csv
+//!       ──▶ extension .obj .stl .ply .las .laz .e57 .pcd .xyz .pts .txt .csv
 //!       ──▶ no known extension: text whose lines start with `v ` is OBJ, numeric text is XYZ
 //! ```
 //!
@@ -48,6 +51,7 @@
 //! `stablesurf info` prints them from [`ScanInfo::notices`].
 
 pub mod conf;
+mod e57;
 mod las;
 mod obj;
 mod pcd;
@@ -82,8 +86,8 @@ pub enum ImportError {
     },
     /// Neither the content nor the extension tells the format.
     #[error(
-        "{path}: unknown scan format: no ply, stl, las or pcd signature and the extension is not \
-         one of .ply .obj .stl .las .laz .pcd .xyz .pts .txt .csv; rename the file with the extension of \
+        "{path}: unknown scan format: no ply, stl, las, e57 or pcd signature and the extension \
+         is not one of .ply .obj .stl .las .laz .e57 .pcd .xyz .pts .txt .csv; rename the file with the extension of \
          its format"
     )]
     UnknownFormat {
@@ -241,6 +245,8 @@ pub enum ScanFormat {
     Las,
     /// LAS compressed with LASzip.
     Laz,
+    /// ASTM E57 (one or more registered scans).
+    E57,
     /// Point Cloud Library PCD, ascii body.
     PcdAscii,
     /// Point Cloud Library PCD, binary body.
@@ -266,6 +272,7 @@ impl ScanFormat {
             ScanFormat::Xyz => "xyz",
             ScanFormat::Las => "las",
             ScanFormat::Laz => "laz",
+            ScanFormat::E57 => "e57",
             ScanFormat::PcdAscii => "pcd-ascii",
             ScanFormat::PcdBinary => "pcd-binary",
         }
@@ -405,6 +412,7 @@ pub fn read_scan_bytes_as(
         ScanFormat::StlBinary => Detected::StlBinary,
         ScanFormat::Xyz => Detected::Xyz,
         ScanFormat::Las | ScanFormat::Laz => Detected::Las,
+        ScanFormat::E57 => Detected::E57,
         ScanFormat::PcdAscii | ScanFormat::PcdBinary => Detected::Pcd,
     };
     read_detected(bytes, &name, detected)
@@ -425,6 +433,7 @@ fn read_detected(bytes: &[u8], name: &str, detected: Detected) -> Result<Scan, I
         Detected::Obj => (ScanFormat::Obj, obj::read(bytes, name, &mut notices)?),
         Detected::Xyz => (ScanFormat::Xyz, xyz::read(bytes, name, &mut notices)?),
         Detected::Las => las::read(bytes, name, &mut notices)?,
+        Detected::E57 => (ScanFormat::E57, e57::read(bytes, name, &mut notices)?),
         Detected::Pcd => match pcd::read(bytes, name, &mut notices)? {
             (true, cloud) => (ScanFormat::PcdBinary, cloud),
             (false, cloud) => (ScanFormat::PcdAscii, cloud),
@@ -614,6 +623,7 @@ enum Detected {
     Obj,
     Xyz,
     Las,
+    E57,
     Pcd,
 }
 
@@ -624,6 +634,9 @@ fn detect_format(bytes: &[u8], path: &Path) -> Option<Detected> {
     }
     if bytes.starts_with(b"LASF") {
         return Some(Detected::Las);
+    }
+    if bytes.starts_with(b"ASTM-E57") {
+        return Some(Detected::E57);
     }
     if pcd::looks_like_pcd(bytes) {
         return Some(Detected::Pcd);
@@ -647,6 +660,7 @@ fn detect_format(bytes: &[u8], path: &Path) -> Option<Detected> {
         // No signature, so the las reader reports what the file starts with.
         Some("las" | "laz") => return Some(Detected::Las),
         Some("pcd") => return Some(Detected::Pcd),
+        Some("e57") => return Some(Detected::E57),
         _ => {}
     }
     sniff_text(bytes)

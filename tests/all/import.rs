@@ -1463,3 +1463,182 @@ fn las_and_laz_written_by_laspy_read_and_mesh() {
         assert_eq!(line["points"], 3000);
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// E57, written by the `e57` crate's own writer
+
+/// The rotation matrix of the unit quaternion (w, x, y, z).
+fn rotation(q: [f64; 4]) -> [[f64; 3]; 3] {
+    crate::fixtures::quaternion_rotation(q[0], q[1], q[2], q[3])
+}
+
+/// One scan to write: its points in the common frame, its pose's quaternion (w, x, y, z) and
+/// its scanner's position (the pose's translation).
+type E57Scan = (Vec<[f64; 3]>, [f64; 4], [f64; 3]);
+
+/// Writes `path`: one scan per [`E57Scan`], each stored in its own frame
+/// (p_local = Rᵀ(p − sensor)) with the pose that moves it back, and with colour and intensity.
+fn write_e57(path: &Path, scans: &[E57Scan]) {
+    use e57::{
+        Quaternion, Record, RecordDataType, RecordName, RecordValue, Transform, Translation,
+    };
+    let mut writer = e57::E57Writer::from_file(path, "test-file").unwrap();
+    for (index, (points, q, sensor)) in scans.iter().enumerate() {
+        let prototype = vec![
+            Record::CARTESIAN_X_F64,
+            Record::CARTESIAN_Y_F64,
+            Record::CARTESIAN_Z_F64,
+            Record {
+                name: RecordName::ColorRed,
+                data_type: RecordDataType::U8,
+            },
+            Record {
+                name: RecordName::ColorGreen,
+                data_type: RecordDataType::U8,
+            },
+            Record {
+                name: RecordName::ColorBlue,
+                data_type: RecordDataType::U8,
+            },
+            Record {
+                name: RecordName::Intensity,
+                data_type: RecordDataType::F32,
+            },
+        ];
+        let mut scan = writer
+            .add_pointcloud(&format!("scan-{index}"), prototype)
+            .unwrap();
+        scan.set_transform(Some(Transform {
+            rotation: Quaternion {
+                w: q[0],
+                x: q[1],
+                y: q[2],
+                z: q[3],
+            },
+            translation: Translation {
+                x: sensor[0],
+                y: sensor[1],
+                z: sensor[2],
+            },
+        }));
+        let r = rotation(*q);
+        for (i, p) in points.iter().enumerate() {
+            let d = [0, 1, 2].map(|a| p[a] - sensor[a]);
+            let local = [0, 1, 2].map(|c| (0..3).map(|a| r[a][c] * d[a]).sum::<f64>());
+            scan.add_point(vec![
+                RecordValue::Double(local[0]),
+                RecordValue::Double(local[1]),
+                RecordValue::Double(local[2]),
+                RecordValue::Integer(255),
+                RecordValue::Integer(index as i64),
+                RecordValue::Integer((i % 256) as i64),
+                RecordValue::Single(i as f32 * 0.5),
+            ])
+            .unwrap();
+        }
+        scan.finalize().unwrap();
+    }
+    writer.finalize().unwrap();
+}
+
+/// Two scans of the inside of a sphere of radius 5 (a room), from two scanners inside it with
+/// different poses: the points come back in the common frame, each scan's scanner is its pose's
+/// translation, and the normals face each scan's own scanner (inwards), where a cloud without
+/// the scanners gets outward normals.
+#[test]
+fn e57_scans_from_the_e57_writer_come_back_in_the_common_frame_facing_their_scanners() {
+    let n = 4000;
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let sphere: Vec<[f64; 3]> = (0..n)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let r = (1.0 - z * z).sqrt();
+            let t = golden * i as f64;
+            [5.0 * r * t.cos(), 5.0 * r * t.sin(), 5.0 * z]
+        })
+        .collect();
+    let (a, b): (Vec<[f64; 3]>, Vec<[f64; 3]>) = sphere.iter().partition(|p| p[0] > 0.0);
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    let sensors = [[1.0, 0.0, 0.5], [-1.0, 0.5, 0.0]];
+    let scans = vec![
+        (a.clone(), [h, 0.0, 0.0, h], sensors[0]),
+        (b.clone(), [0.5, 0.5, 0.5, 0.5], sensors[1]),
+    ];
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("room.e57");
+    write_e57(&path, &scans);
+
+    let scan = read_scan(&path).unwrap();
+    assert_eq!(scan.format, ScanFormat::E57);
+    let cloud = &scan.cloud;
+    let expected: Vec<[f64; 3]> = a.iter().chain(&b).copied().collect();
+    assert_eq!(cloud.points.len(), n);
+    for (p, q) in cloud.points.iter().zip(&expected) {
+        for c in 0..3 {
+            assert!((p[c] - q[c]).abs() < 1e-9, "{p:?} vs {q:?}");
+        }
+    }
+    let origins = cloud.scans.as_ref().unwrap();
+    assert_eq!(origins.len(), 2);
+    assert_eq!(
+        (origins[0].sensor, origins[0].n_points),
+        (sensors[0], a.len())
+    );
+    assert_eq!(
+        (origins[1].sensor, origins[1].n_points),
+        (sensors[1], b.len())
+    );
+    let colours = cloud.colours.as_ref().unwrap();
+    assert_eq!(colours[0], [65535, 0, 0]);
+    assert_eq!(colours[a.len() + 3], [65535, 257, 3 * 257]);
+    assert_eq!(cloud.intensity.as_ref().unwrap()[a.len() + 3], 1.5);
+    assert!(scan.notices.is_empty(), "{:?}", scan.notices);
+
+    // Normals face each point's own scanner: inwards, against the outward orientation that the
+    // same points get without scanners.
+    let params = stablesurf::normals::NormalsParams::default();
+    let with = stablesurf::normals::estimate_normals(cloud, &params).unwrap();
+    let mut plain = cloud.clone();
+    plain.scans = None;
+    let without = stablesurf::normals::estimate_normals(&plain, &params).unwrap();
+    let dot = |u: &[f64; 3], v: &[f64; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+    for (i, (p, nrm)) in with
+        .cloud
+        .points
+        .iter()
+        .zip(&with.cloud.normals)
+        .enumerate()
+    {
+        let s = sensors[usize::from(i >= a.len())];
+        let to_sensor = [s[0] - p[0], s[1] - p[1], s[2] - p[2]];
+        assert!(dot(nrm, &to_sensor) > 0.0, "point {i}");
+        assert!(dot(nrm, p) < 0.0, "point {i} faces inwards");
+    }
+    let outward = without
+        .cloud
+        .points
+        .iter()
+        .zip(&without.cloud.normals)
+        .filter(|(p, nrm)| dot(nrm, p) > 0.0)
+        .count();
+    assert_eq!(outward, n, "without scanners the normals point outwards");
+
+    // `stablesurf info` lists the scans.
+    let out = crate::fixtures::bin()
+        .args(["info", "--json"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", crate::fixtures::stderr_of(&out));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["format"], "e57");
+    assert_eq!(json["points"], n);
+    assert_eq!(json["scans"][1]["sensor"][1], 0.5);
+    assert_eq!(json["has_colours"], true);
+    assert_eq!(json["has_intensity"], true);
+
+    // A cut file is an error that names it.
+    let bytes = std::fs::read(&path).unwrap();
+    let e = err(&bytes[..bytes.len() / 2], "cut.e57");
+    assert!(e.to_string().contains("e57"), "{e}");
+}
