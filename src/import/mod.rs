@@ -432,8 +432,11 @@ fn read_detected(bytes: &[u8], name: &str, detected: Detected) -> Result<Scan, I
         Detected::StlAscii => (ScanFormat::StlAscii, stl::read_ascii(bytes, name)?),
         Detected::Obj => (ScanFormat::Obj, obj::read(bytes, name, &mut notices)?),
         Detected::Xyz => (ScanFormat::Xyz, xyz::read(bytes, name, &mut notices)?),
-        Detected::Las => las::read(bytes, name, &mut notices)?,
-        Detected::E57 => (ScanFormat::E57, e57::read(bytes, name, &mut notices)?),
+        Detected::Las => guarded(name, "las", || las::read(bytes, name, &mut notices))?,
+        Detected::E57 => (
+            ScanFormat::E57,
+            guarded(name, "e57", || e57::read(bytes, name, &mut notices))?,
+        ),
         Detected::Pcd => match pcd::read(bytes, name, &mut notices)? {
             (true, cloud) => (ScanFormat::PcdBinary, cloud),
             (false, cloud) => (ScanFormat::PcdAscii, cloud),
@@ -444,6 +447,49 @@ fn read_detected(bytes: &[u8], name: &str, detected: Detected) -> Result<Scan, I
         cloud,
         notices,
         range_grid,
+    })
+}
+
+thread_local! {
+    /// Set while [`guarded`] runs a third-party reader: its panics are errors, not messages.
+    static QUIET_PANICS: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Runs a reader built on a third-party crate (las/laz, e57), turning a panic on malformed bytes
+/// (the laz decompressor indexes out of range on some corrupt files) into an
+/// [`ImportError::BadLayout`] that names the file. The panic hook installed here stays silent
+/// for such panics only, on the thread that runs the reader, and hands every other panic to the
+/// hook that was there before.
+fn guarded<T>(
+    path: &str,
+    what: &str,
+    read: impl FnOnce() -> Result<T, ImportError>,
+) -> Result<T, ImportError> {
+    static HOOK: std::sync::Once = std::sync::Once::new();
+    HOOK.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !QUIET_PANICS.with(std::cell::Cell::get) {
+                previous(info);
+            }
+        }));
+    });
+    QUIET_PANICS.with(|q| q.set(true));
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(read));
+    QUIET_PANICS.with(|q| q.set(false));
+    result.unwrap_or_else(|payload| {
+        let cause = payload
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_default();
+        Err(ImportError::BadLayout {
+            path: path.to_owned(),
+            message: format!(
+                "the {what} reader failed on malformed data ({cause}): the file is corrupt; \
+                 export the scan again"
+            ),
+        })
     })
 }
 
