@@ -196,9 +196,9 @@ pub struct NormalsParams {
     pub surface_samples: bool,
     /// The sensor's position in the input's coordinates: every normal, whatever its source, is
     /// turned to face it (n flipped where n·(v − p) < 0). Default `None` (left out of the cache
-    /// key then, so keys of runs without it are unchanged). Without it, a cloud of several
-    /// registered scans ([`PointCloud::scans`], from an E57 file) turns each point's normal to
-    /// face its own scan's scanner instead.
+    /// key then, so keys of runs without it are unchanged). Without it, a cloud of registered
+    /// scans ([`PointCloud::scans`], from an E57 file or a PCD's `VIEWPOINT`) turns each
+    /// point's normal to face its own scan's scanner instead.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub viewpoint: Option<[f64; 3]>,
 }
