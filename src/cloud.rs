@@ -4,7 +4,10 @@
 //! [`OrientedCloud`] (points with unit outward normals), plus the axis-aligned box [`Aabb`].
 //!
 //! Invariants: every index in `triangles` is `< points.len()`; when `normals` is present it has
-//! one entry per point, and so have a range surface's `falloff` and an oriented cloud's `weights`. All coordinates are in the input file's frame and units, as `f64`.
+//! one entry per point, and so have a range surface's `falloff`, a cloud's `colours` and
+//! `intensity`, and an oriented cloud's `weights`; a cloud's `scans` count its points in order
+//! (their `n_points` sum to `points.len()`). All coordinates are in the input file's frame and
+//! units, as `f64`.
 
 use serde::{Deserialize, Serialize};
 
@@ -22,11 +25,35 @@ pub struct PointCloud {
     /// Set when `triangles` were made from a range scan's grid: they are then an open surface
     /// wound so that their normals face the scanner, not a closed mesh. `None` for any other file.
     pub range: Option<RangeSurface>,
+    /// Per-point colour as 16-bit RGB (65535 is full intensity; a file's 8-bit colours are
+    /// scaled by 257 and LAS colours are kept as stored), or `None` when the file has none.
+    /// Carried through outlier removal; the surface stages do not use it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub colours: Option<Vec<[u16; 3]>>,
+    /// Per-point return intensity in the file's own units (LAS: 0–65535; PTS: as written;
+    /// E57: as stored, before the file's limits would normalize it), or `None` when the file
+    /// has none. Carried through outlier removal; the surface stages do not use it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub intensity: Option<Vec<f32>>,
+    /// For a file of several registered scans (E57): where each scan's scanner stood and how
+    /// many consecutive points are its, in file order. The normals stage turns each point's
+    /// normal to face its own scan's scanner. `None` for a file without scanner positions.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scans: Option<Vec<ScanOrigin>>,
 }
 
 impl PointCloud {
     /// Version of this artifact's layout; bump it whenever a field changes.
-    pub const FORMAT_VERSION: u32 = 2;
+    pub const FORMAT_VERSION: u32 = 3;
+}
+
+/// One registered scan of a multi-scan file: its scanner's position and its share of the points.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ScanOrigin {
+    /// The scanner's position in the cloud's frame (the translation of the scan's pose).
+    pub sensor: [f64; 3],
+    /// How many consecutive points of the cloud this scan gave.
+    pub n_points: usize,
 }
 
 /// What a range grid tells about its samples beyond their positions.

@@ -267,6 +267,9 @@ fn without(cloud: &PointCloud, removed: &[usize]) -> (PointCloud, usize) {
         normals,
         triangles,
         range,
+        colours,
+        intensity,
+        scans,
     } = cloud;
     const GONE: u32 = u32::MAX;
     let mut new_index = vec![0_u32; points.len()];
@@ -305,12 +308,40 @@ fn without(cloud: &PointCloud, removed: &[usize]) -> (PointCloud, usize) {
             .map(|i| r.falloff[i])
             .collect(),
     });
+    let colours = colours
+        .as_ref()
+        .map(|c| (0..c.len()).filter(|&i| keep(i)).map(|i| c[i]).collect());
+    let intensity = intensity
+        .as_ref()
+        .map(|v| (0..v.len()).filter(|&i| keep(i)).map(|i| v[i]).collect());
+    // A scan's points are consecutive, so its new count is its old one less the removed points
+    // in its run.
+    let scans = scans.as_ref().map(|scans| {
+        let mut start = 0;
+        scans
+            .iter()
+            .map(|s| {
+                let end = start + s.n_points;
+                let n_points = (start..end.min(new_index.len()))
+                    .filter(|&i| keep(i))
+                    .count();
+                start = end;
+                crate::cloud::ScanOrigin {
+                    sensor: s.sensor,
+                    n_points,
+                }
+            })
+            .collect()
+    });
     (
         PointCloud {
             points,
             normals,
             triangles: kept_triangles,
             range,
+            colours,
+            intensity,
+            scans,
         },
         removed_faces,
     )
@@ -449,14 +480,36 @@ mod tests {
             [101, 150, 199], // shifts by 2
             [199, 0, 50],
         ];
+        let n = points.len();
         let c = PointCloud {
             points,
             normals: Some(normals),
             triangles,
             range: None,
+            colours: Some((0..n).map(|i| [i as u16, 0, 0]).collect()),
+            intensity: Some((0..n).map(|i| i as f32).collect()),
+            // Two scans: 0..150 (holding both outliers) and 150..200.
+            scans: Some(vec![
+                crate::cloud::ScanOrigin {
+                    sensor: [5.0, 0.0, 0.0],
+                    n_points: 150,
+                },
+                crate::cloud::ScanOrigin {
+                    sensor: [-5.0, 0.0, 0.0],
+                    n_points: 50,
+                },
+            ]),
         };
         let split = remove_outliers(&c, &OutlierParams::default());
         assert_eq!(split.removed_indices, vec![3, 100]);
+        let out = split.cloud.as_ref();
+        let colours = out.colours.as_ref().unwrap();
+        let intensity = out.intensity.as_ref().unwrap();
+        assert_eq!((colours[3][0], intensity[3]), (4, 4.0));
+        assert_eq!((colours[197][0], intensity[197]), (199, 199.0));
+        let scans = out.scans.as_ref().unwrap();
+        assert_eq!((scans[0].n_points, scans[1].n_points), (148, 50));
+        assert_eq!(scans[1].sensor, [-5.0, 0.0, 0.0]);
         assert_eq!((split.removed, split.removed_faces), (2, 2));
         let out = split.cloud.as_ref();
         assert_eq!(out.points.len(), 198);

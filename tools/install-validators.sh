@@ -2,6 +2,7 @@
 # Installs the external validators that tests/all/export.rs runs on stablesurf's output files:
 #   - the Khronos glTF-Validator (npm package gltf-validator) into tools/validate/node_modules,
 #   - plyfile, pymeshlab (MeshLab) and the OpenEXR Python bindings into tools/validate/.venv,
+#     with laspy and lazrs, which write the LAS and LAZ files tests/all/import.rs reads,
 #   - the Debian libraries pymeshlab loads (OpenGL, X11, fontconfig, GLib).
 # Safe to rerun: each step is skipped when already done. Needs node/npm and python3 (>= 3.9);
 # the apt step needs root (or sudo) and is skipped when the libraries are already present.
@@ -30,14 +31,14 @@ fi
 if [[ ! -x "$validate/.venv/bin/python" ]]; then
     python3 -m venv "$validate/.venv"
 fi
-if ! "$validate/.venv/bin/python" -c "import plyfile, pymeshlab, OpenEXR, numpy" 2>/dev/null; then
+if ! "$validate/.venv/bin/python" -c "import plyfile, pymeshlab, OpenEXR, numpy, laspy, lazrs" 2>/dev/null; then
     echo "install-validators: installing Python validators into $validate/.venv" >&2
     "$validate/.venv/bin/pip" install --quiet --disable-pip-version-check -r "$validate/requirements.txt"
 fi
 "$validate/.venv/bin/python" -c "
 import sys
 from importlib.metadata import version
-print('install-validators:', ', '.join(f'{p} {version(p)}' for p in ('plyfile', 'pymeshlab', 'OpenEXR', 'numpy')), file=sys.stderr)
+print('install-validators:', ', '.join(f'{p} {version(p)}' for p in ('plyfile', 'pymeshlab', 'OpenEXR', 'numpy', 'laspy', 'lazrs')), file=sys.stderr)
 "
 
 # 3. The Khronos glTF-Validator from npm, pinned by package-lock.json.

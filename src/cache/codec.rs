@@ -16,7 +16,7 @@
 //! length, checksum, trailing bytes) makes [`decode_entry`] return `None`, which the cache
 //! treats as a miss.
 
-use crate::cloud::{OrientedCloud, PointCloud, RangeSurface};
+use crate::cloud::{OrientedCloud, PointCloud, RangeSurface, ScanOrigin};
 use crate::mesh::TriangleMesh;
 use crate::poly::ImplicitModel;
 
@@ -177,6 +177,20 @@ impl<'a> Reader<'a> {
         self.vec::<4, _>(|c| f32::from_le_bytes(*c))
     }
 
+    fn vec3_u16(&mut self) -> Option<Vec<[u16; 3]>> {
+        self.vec::<6, _>(|c| [0, 1, 2].map(|a| u16::from_le_bytes([c[2 * a], c[2 * a + 1]])))
+    }
+
+    /// `None` (the field absent) after a 0 byte, `read`'s value after a 1 byte; any other byte
+    /// is malformed (`Some(None)` is returned as the outer `None`).
+    fn optional<T>(&mut self, read: impl FnOnce(&mut Self) -> Option<T>) -> Option<Option<T>> {
+        match self.take(1)?[0] {
+            0 => Some(None),
+            1 => Some(Some(read(self)?)),
+            _ => None,
+        }
+    }
+
     fn bytes(&mut self) -> Option<&'a [u8]> {
         let n = usize::try_from(self.u64()?).ok()?;
         self.take(n)
@@ -187,6 +201,15 @@ fn put_vec3_f64(out: &mut Vec<u8>, v: &[[f64; 3]]) {
     out.extend_from_slice(&(v.len() as u64).to_le_bytes());
     for p in v {
         for c in p {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+}
+
+fn put_vec3_u16(out: &mut Vec<u8>, v: &[[u16; 3]]) {
+    out.extend_from_slice(&(v.len() as u64).to_le_bytes());
+    for t in v {
+        for c in t {
             out.extend_from_slice(&c.to_le_bytes());
         }
     }
@@ -227,6 +250,21 @@ impl Artifact for PointCloud {
             }
             put_f32s(out, &range.falloff);
         }
+        out.push(u8::from(self.colours.is_some()));
+        if let Some(colours) = &self.colours {
+            put_vec3_u16(out, colours);
+        }
+        out.push(u8::from(self.intensity.is_some()));
+        if let Some(intensity) = &self.intensity {
+            put_f32s(out, intensity);
+        }
+        out.push(u8::from(self.scans.is_some()));
+        if let Some(scans) = &self.scans {
+            put_vec3_f64(out, &scans.iter().map(|s| s.sensor).collect::<Vec<_>>());
+            for s in scans {
+                out.extend_from_slice(&(s.n_points as u64).to_le_bytes());
+            }
+        }
     }
 
     fn decode_payload(r: &mut Reader<'_>) -> Option<Self> {
@@ -256,11 +294,28 @@ impl Artifact for PointCloud {
             }
             _ => return None,
         };
+        let colours = r.optional(Reader::vec3_u16)?;
+        let intensity = r.optional(Reader::f32s)?;
+        let scans = r.optional(|r| {
+            let sensors = r.vec3_f64()?;
+            sensors
+                .into_iter()
+                .map(|sensor| {
+                    Some(ScanOrigin {
+                        sensor,
+                        n_points: usize::try_from(r.u64()?).ok()?,
+                    })
+                })
+                .collect::<Option<Vec<_>>>()
+        })?;
         Some(PointCloud {
             points,
             normals,
             triangles,
             range,
+            colours,
+            intensity,
+            scans,
         })
     }
 }
@@ -391,6 +446,18 @@ mod tests {
                 sensor: Some([0.0, 0.2, 1.3]),
                 falloff: vec![0.25, 1.0],
             }),
+            colours: Some(vec![[0, 65535, 257], [1, 2, 3]]),
+            intensity: Some(vec![0.5, 1e30]),
+            scans: Some(vec![
+                ScanOrigin {
+                    sensor: [1.0, -2.0, 0.5],
+                    n_points: 1,
+                },
+                ScanOrigin {
+                    sensor: [0.0; 3],
+                    n_points: 1,
+                },
+            ]),
         }
     }
 
@@ -414,6 +481,12 @@ mod tests {
     fn round_trip_is_exact() {
         let c = cloud();
         assert_eq!(decode::<PointCloud>(&encode(&c)), Some(c.clone()));
+        // Every optional field absent.
+        let plain = PointCloud {
+            points: c.points.clone(),
+            ..Default::default()
+        };
+        assert_eq!(decode::<PointCloud>(&encode(&plain)), Some(plain));
         let entry = decode_as::<PointCloud>(&encode(&c), &id("import")).unwrap();
         assert_eq!(entry.meta["figures"]["n"], 2);
         assert_eq!(entry.value, c);

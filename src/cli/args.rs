@@ -320,9 +320,10 @@ pub struct CacheOpts {
 /// `stablesurf run`.
 #[derive(Debug, Args)]
 pub struct RunArgs {
-    /// Scan file (PLY, OBJ, STL, XYZ); a Stanford .conf registration file (its scans, moved by
-    /// their poses); or several scans of one object in one frame. Each scan gets its normals in
-    /// its own frame before the merge. Without any, a small built-in sample scan is used.
+    /// Scan file (PLY, OBJ, STL, XYZ/PTS, LAS/LAZ, E57, PCD); a Stanford .conf registration
+    /// file (its scans, moved by their poses); or several scans of one object in one frame. Each
+    /// scan gets its normals in its own frame before the merge. Without any, a small built-in
+    /// sample scan is used.
     pub input: Vec<PathBuf>,
     /// Output directory (created if missing).
     #[arg(short, long, value_name = "OUT_DIR")]

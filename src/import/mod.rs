@@ -6,17 +6,22 @@
 //! [`import_bytes`], which the pipeline uses.
 //!
 //! Invariants of a validated cloud: at least one point, every coordinate finite, every triangle
-//! index `< points.len()`, and `normals` (when present) holds one entry per point. Points are
-//! never merged, reordered or rescaled, except that STL corners are welded by exact position
-//! (an STL file stores every triangle corner separately).
+//! index `< points.len()`, `normals`, `colours` and `intensity` (when present) hold one entry
+//! per point, and `scans` (when present) count every point. Points are never merged, reordered
+//! or rescaled, except that STL corners are welded by exact position (an STL file stores every
+//! triangle corner separately), and points that a format marks as having no position (a PCD's
+//! NaN points, an E57's invalid ones) are dropped with a notice.
 //!
 //! # Formats and how they are chosen
 //!
 //! ```text
 //! bytes ──▶ starts with "ply\n"?            ─▶ ply.rs  (ascii, binary LE, binary BE)
+//!       ──▶ starts with "LASF"?             ─▶ las.rs  (LAS, LAZ)
+//!       ──▶ starts with "ASTM-E57"?         ─▶ e57.rs  (every scan, moved by its pose)
+//!       ──▶ a "# .PCD" or VERSION/FIELDS line? ─▶ pcd.rs  (ascii, binary)
 //!       ──▶ 84 + 50·n == len (n at byte 80)? ─▶ stl.rs  binary (even if it starts with "solid")
 //!       ──▶ starts with "solid" + "facet"?   ─▶ stl.rs  ascii
-//!       ──▶ extension .obj .stl .ply .xyz .pts .txt .csv
+//!       ──▶ extension .obj .stl .ply .las .laz .e57 .pcd .xyz .pts .txt .csv
 //!       ──▶ no known extension: text whose lines start with `v ` is OBJ, numeric text is XYZ
 //! ```
 //!
@@ -41,12 +46,15 @@
 //! parses is an [`ImportError::NoPointFound`] that says what the file looks like (NUL bytes, or
 //! its first non-blank line), not an empty cloud.
 //!
-//! What a reader reads but does not keep is named in [`Scan::notices`] (for example the
-//! intensity and colour columns of a 7-column .pts file, or a PLY's `confidence` property), and
+//! What a reader reads but does not keep is named in [`Scan::notices`] (for example the extra
+//! columns of a 5-column point list, or a PLY's `confidence` property), and
 //! `stablesurf info` prints them from [`ScanInfo::notices`].
 
 pub mod conf;
+mod e57;
+mod las;
 mod obj;
+mod pcd;
 mod ply;
 pub mod range;
 mod stl;
@@ -57,7 +65,7 @@ use std::path::Path;
 
 use serde::Serialize;
 
-use crate::cloud::{Aabb, PointCloud};
+use crate::cloud::{Aabb, PointCloud, ScanOrigin};
 
 /// Errors of the import stage. Each message names the file, the problem and what to change.
 #[derive(Debug, thiserror::Error)]
@@ -78,8 +86,9 @@ pub enum ImportError {
     },
     /// Neither the content nor the extension tells the format.
     #[error(
-        "{path}: unknown scan format: no ply or stl signature and the extension is not one of \
-         .ply .obj .stl .xyz .pts .txt .csv; rename the file with the extension of its format"
+        "{path}: unknown scan format: no ply, stl, las, e57 or pcd signature and the extension \
+         is not one of .ply .obj .stl .las .laz .e57 .pcd .xyz .pts .txt .csv; rename the file with the extension of \
+         its format"
     )]
     UnknownFormat {
         /// The file.
@@ -243,6 +252,16 @@ pub enum ScanFormat {
     StlBinary,
     /// XYZ point list (also .pts, .txt, .csv).
     Xyz,
+    /// ASPRS LAS.
+    Las,
+    /// LAS compressed with LASzip.
+    Laz,
+    /// ASTM E57 (one or more registered scans).
+    E57,
+    /// Point Cloud Library PCD, ascii body.
+    PcdAscii,
+    /// Point Cloud Library PCD, binary body.
+    PcdBinary,
 }
 
 impl ScanFormat {
@@ -262,6 +281,11 @@ impl ScanFormat {
             ScanFormat::StlAscii => "stl-ascii",
             ScanFormat::StlBinary => "stl-binary",
             ScanFormat::Xyz => "xyz",
+            ScanFormat::Las => "las",
+            ScanFormat::Laz => "laz",
+            ScanFormat::E57 => "e57",
+            ScanFormat::PcdAscii => "pcd-ascii",
+            ScanFormat::PcdBinary => "pcd-binary",
         }
     }
 }
@@ -279,8 +303,8 @@ pub struct Scan {
     pub format: ScanFormat,
     /// What the file holds.
     pub cloud: PointCloud,
-    /// What the reader read but did not keep, one sentence each (e.g. "columns 4 to 7 of each
-    /// line (intensity, r, g, b in the .pts layout) are not read: the cloud keeps x y z").
+    /// What the reader read but did not keep, one sentence each (e.g. "columns 4 to 5 of each
+    /// line (intensity, quality) are not read: the cloud keeps x y z only").
     /// Empty when the cloud holds everything the file does. A caller should print them.
     pub notices: Vec<String>,
     /// What triangulating the file's range grid did, when it has one (see [`range`]).
@@ -298,6 +322,13 @@ pub struct ScanInfo {
     pub triangles: usize,
     /// Whether the file stores normals.
     pub has_normals: bool,
+    /// Whether the cloud keeps a colour per point (see [`PointCloud::colours`]).
+    pub has_colours: bool,
+    /// Whether the cloud keeps an intensity per point (see [`PointCloud::intensity`]).
+    pub has_intensity: bool,
+    /// The registered scans of a multi-scan file (E57): each scanner's position and point count.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scans: Option<Vec<ScanOrigin>>,
     /// Bounding box of the finite points (NaN, printed as JSON `null`, when there is none).
     pub bbox_min: [f64; 3],
     /// Bounding box of the finite points (NaN, printed as JSON `null`, when there is none).
@@ -391,6 +422,9 @@ pub fn read_scan_bytes_as(
         ScanFormat::StlAscii => Detected::StlAscii,
         ScanFormat::StlBinary => Detected::StlBinary,
         ScanFormat::Xyz => Detected::Xyz,
+        ScanFormat::Las | ScanFormat::Laz => Detected::Las,
+        ScanFormat::E57 => Detected::E57,
+        ScanFormat::PcdAscii | ScanFormat::PcdBinary => Detected::Pcd,
     };
     read_detected(bytes, &name, detected)
 }
@@ -409,12 +443,64 @@ fn read_detected(bytes: &[u8], name: &str, detected: Detected) -> Result<Scan, I
         Detected::StlAscii => (ScanFormat::StlAscii, stl::read_ascii(bytes, name)?),
         Detected::Obj => (ScanFormat::Obj, obj::read(bytes, name, &mut notices)?),
         Detected::Xyz => (ScanFormat::Xyz, xyz::read(bytes, name, &mut notices)?),
+        Detected::Las => guarded(name, "las", || las::read(bytes, name, &mut notices))?,
+        Detected::E57 => (
+            ScanFormat::E57,
+            guarded(name, "e57", || e57::read(bytes, name, &mut notices))?,
+        ),
+        Detected::Pcd => match pcd::read(bytes, name, &mut notices)? {
+            (true, cloud) => (ScanFormat::PcdBinary, cloud),
+            (false, cloud) => (ScanFormat::PcdAscii, cloud),
+        },
     };
     Ok(Scan {
         format,
         cloud,
         notices,
         range_grid,
+    })
+}
+
+thread_local! {
+    /// Set while [`guarded`] runs a third-party reader: its panics are errors, not messages.
+    static QUIET_PANICS: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Runs a reader built on a third-party crate (las/laz, e57), turning a panic on malformed bytes
+/// (the laz decompressor indexes out of range on some corrupt files) into an
+/// [`ImportError::BadLayout`] that names the file. The panic hook installed here stays silent
+/// for such panics only, on the thread that runs the reader, and hands every other panic to the
+/// hook that was there before.
+fn guarded<T>(
+    path: &str,
+    what: &str,
+    read: impl FnOnce() -> Result<T, ImportError>,
+) -> Result<T, ImportError> {
+    static HOOK: std::sync::Once = std::sync::Once::new();
+    HOOK.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !QUIET_PANICS.with(std::cell::Cell::get) {
+                previous(info);
+            }
+        }));
+    });
+    QUIET_PANICS.with(|q| q.set(true));
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(read));
+    QUIET_PANICS.with(|q| q.set(false));
+    result.unwrap_or_else(|payload| {
+        let cause = payload
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_default();
+        Err(ImportError::BadLayout {
+            path: path.to_owned(),
+            message: format!(
+                "the {what} reader failed on malformed data ({cause}): the file is corrupt; \
+                 export the scan again"
+            ),
+        })
     })
 }
 
@@ -443,9 +529,9 @@ pub fn import_bytes(bytes: &[u8], path: &Path) -> Result<PointCloud, ImportError
 /// ```
 /// use std::path::Path;
 /// use stablesurf::import::import_scan_bytes;
-/// let scan = import_scan_bytes(b"1\n0 0 0 7 255 0 0\n", Path::new("a.pts")).unwrap();
+/// let scan = import_scan_bytes(b"0 0 0 7 255\n", Path::new("a.txt")).unwrap();
 /// assert_eq!(scan.cloud.points.len(), 1);
-/// assert!(scan.notices[0].contains("intensity, r, g, b"), "{:?}", scan.notices);
+/// assert!(scan.notices[0].contains("columns 4 to 5"), "{:?}", scan.notices);
 /// ```
 ///
 /// # Errors
@@ -500,6 +586,28 @@ fn validate(cloud: &PointCloud, path: &str) -> Result<(), ImportError> {
             });
         }
     }
+    // The readers make these one per point; this catches clouds built elsewhere.
+    let per_point = [
+        ("colours", cloud.colours.as_ref().map(Vec::len)),
+        ("intensities", cloud.intensity.as_ref().map(Vec::len)),
+        (
+            "points in its scans",
+            cloud
+                .scans
+                .as_ref()
+                .map(|s| s.iter().map(|s| s.n_points).sum()),
+        ),
+    ];
+    for (what, n) in per_point {
+        if let Some(n) = n.filter(|&n| n != n_points) {
+            return Err(ImportError::BadLayout {
+                path: path.to_owned(),
+                message: format!(
+                    "the cloud has {n} {what} for {n_points} points; give one per point"
+                ),
+            });
+        }
+    }
     Ok(())
 }
 
@@ -534,6 +642,9 @@ pub fn scan_info(scan: &Scan) -> ScanInfo {
         points: cloud.points.len(),
         triangles: cloud.triangles.len(),
         has_normals: cloud.normals.is_some(),
+        has_colours: cloud.colours.is_some(),
+        has_intensity: cloud.intensity.is_some(),
+        scans: cloud.scans.clone(),
         bbox_min: bbox.map_or([f64::NAN; 3], |b| b.min),
         bbox_max: bbox.map_or([f64::NAN; 3], |b| b.max),
         duplicate_points,
@@ -568,12 +679,24 @@ enum Detected {
     StlAscii,
     Obj,
     Xyz,
+    Las,
+    E57,
+    Pcd,
 }
 
 /// Chooses the reader: content signatures first, then the extension, then a look at the text.
 fn detect_format(bytes: &[u8], path: &Path) -> Option<Detected> {
     if bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n") {
         return Some(Detected::Ply);
+    }
+    if bytes.starts_with(b"LASF") {
+        return Some(Detected::Las);
+    }
+    if bytes.starts_with(b"ASTM-E57") {
+        return Some(Detected::E57);
+    }
+    if pcd::looks_like_pcd(bytes) {
+        return Some(Detected::Pcd);
     }
     if stl::is_binary_size(bytes) {
         return Some(Detected::StlBinary);
@@ -591,6 +714,10 @@ fn detect_format(bytes: &[u8], path: &Path) -> Option<Detected> {
         // Neither signature matched, so the binary reader reports the size mismatch.
         Some("stl") => return Some(Detected::StlBinary),
         Some("xyz" | "pts" | "txt" | "csv") => return Some(Detected::Xyz),
+        // No signature, so the las reader reports what the file starts with.
+        Some("las" | "laz") => return Some(Detected::Las),
+        Some("pcd") => return Some(Detected::Pcd),
+        Some("e57") => return Some(Detected::E57),
         _ => {}
     }
     sniff_text(bytes)
@@ -782,6 +909,7 @@ mod tests {
             normals: None,
             triangles: vec![[0, 1, 2]],
             range: None,
+            ..Default::default()
         };
         assert!(validate(&ok, "f").is_ok());
         let mut bad = ok.clone();

@@ -210,6 +210,7 @@ pub(crate) fn read(
         normals,
         triangles,
         range: None,
+        ..Default::default()
     })
 }
 

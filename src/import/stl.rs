@@ -147,6 +147,7 @@ pub(crate) fn read_binary(bytes: &[u8], path: &str) -> Result<PointCloud, Import
         normals: None,
         triangles,
         range: None,
+        ..Default::default()
     })
 }
 
@@ -264,6 +265,7 @@ pub(crate) fn read_ascii(bytes: &[u8], path: &str) -> Result<PointCloud, ImportE
         normals: None,
         triangles,
         range: None,
+        ..Default::default()
     })
 }
 

@@ -6,13 +6,15 @@
 //! Each data line is `x y z` or `x y z nx ny nz`, the numbers separated by spaces, tabs or commas.
 //! Empty lines and `#` comments (whole lines or line ends) are skipped. Two common preambles are
 //! accepted: a first line holding a single whole number (the point count of Leica .pts files,
-//! which must then match), and a first line of column names such as `x,y,z` (csv). Lines with
-//! other column counts (4, 5, 7 or more: intensity, colour) keep x, y, z and ignore the rest,
-//! but every line must have the same number of columns, because a change in mid-file means a
-//! corrupt or concatenated file. [`PointCloud`] has no place for intensity or colour, so the
-//! ignored columns are named in a notice (with the names the column names line gives, else the
-//! Leica .pts names `intensity r g b` for 4 and 7 columns), which `stablesurf info` prints.
-//! Six columns are read as normals whatever the extension, as before.
+//! which must then match), and a first line of column names such as `x,y,z` (csv). Every line
+//! must have the same number of columns, because a change in mid-file means a corrupt or
+//! concatenated file. Six columns are read as normals whatever the extension. Four and seven
+//! columns are the Leica .pts layout `x y z intensity [r g b]` in a .pts file, or in any file
+//! whose column names line says so (`x y z intensity r g b`, also `i`, `red`, …): intensity is
+//! kept as written and colour as 16-bit (each 0–255 value times 257; colour columns with a
+//! value outside 0–255 are not read, with a notice). Other column counts keep x, y, z and
+//! ignore the rest; the ignored columns are named in a notice (with the names the column names
+//! line gives), which `stablesurf info` prints.
 //!
 //! A file in which no point parses is an error that says what the file looks like (NUL bytes,
 //! or its first non-blank line), never an empty cloud: text garbage, a zero-filled file or a
@@ -38,6 +40,11 @@ pub(crate) fn read(
     let mut stated_count: Option<(u64, usize)> = None;
     let mut first_data_line = true;
     let mut values: Vec<f64> = Vec::with_capacity(8);
+    // The .pts layout's extra columns, filled once the column count says they are there.
+    let mut intensity: Vec<f32> = Vec::new();
+    let mut colours: Vec<[u16; 3]> = Vec::new();
+    let mut colour_out_of_range: Option<usize> = None;
+    let mut pts_layout = false;
     while let Some(line) = lines.next_line(path) {
         let (line_number, text) = line?;
         let text = text.split('#').next().unwrap_or("");
@@ -105,7 +112,11 @@ pub(crate) fn read(
             )));
         }
         match columns {
-            None => columns = Some((values.len(), line_number)),
+            None => {
+                columns = Some((values.len(), line_number));
+                pts_layout = matches!(values.len(), 4 | 7)
+                    && is_pts_layout(values.len(), path, column_names.as_ref());
+            }
             Some((n, first)) if n != values.len() => {
                 return Err(malformed(format!(
                     "{} columns here but {n} on line {first}; every line needs the same columns",
@@ -117,6 +128,16 @@ pub(crate) fn read(
         points.push([values[0], values[1], values[2]]);
         if values.len() == 6 {
             normals.push([values[3], values[4], values[5]]);
+        }
+        if pts_layout {
+            intensity.push(values[3] as f32);
+            if values.len() == 7 {
+                let rgb = [values[4], values[5], values[6]];
+                if colour_out_of_range.is_none() && !rgb.iter().all(|c| (0.0..=255.0).contains(c)) {
+                    colour_out_of_range = Some(line_number);
+                }
+                colours.push(rgb.map(|c| (c.clamp(0.0, 255.0).round() as u16) * 257));
+            }
         }
     }
     if points.is_empty() {
@@ -146,8 +167,15 @@ pub(crate) fn read(
             detail,
         });
     }
-    if let Some((n, _)) = columns.filter(|&(n, _)| n != 3 && n != 6) {
+    if let Some((n, _)) = columns.filter(|&(n, _)| n != 3 && n != 6 && !pts_layout) {
         notices.push(ignored_columns(n, column_names.as_ref(), path));
+    }
+    if let Some(line) = colour_out_of_range {
+        colours.clear();
+        notices.push(format!(
+            "columns 5 to 7 (r, g, b in the .pts layout) are not read: line {line} holds a \
+             value outside 0–255; the cloud keeps x y z and intensity"
+        ));
     }
     if let Some((declared, line)) = stated_count {
         if declared != points.len() as u64 {
@@ -163,9 +191,27 @@ pub(crate) fn read(
     Ok(PointCloud {
         points,
         normals,
-        triangles: Vec::new(),
-        range: None,
+        colours: (!colours.is_empty()).then_some(colours),
+        intensity: pts_layout.then_some(intensity),
+        ..Default::default()
     })
+}
+
+/// Whether an `n`-column file (4 or 7) is in the .pts layout `x y z intensity [r g b]`: its
+/// extension is .pts, or its column names line names those columns.
+fn is_pts_layout(n: usize, path: &str, names: Option<&(usize, String)>) -> bool {
+    let Some((_, line)) = names else {
+        return path.to_ascii_lowercase().ends_with(".pts");
+    };
+    let words: Vec<String> = line
+        .split(|c: char| c.is_ascii_whitespace() || c == ',')
+        .filter(|t| !t.is_empty())
+        .map(str::to_ascii_lowercase)
+        .collect();
+    let is = |i: usize, names: &[&str]| words.get(i).is_some_and(|w| names.contains(&w.as_str()));
+    words.len() == n
+        && is(3, &["intensity", "i"])
+        && (n == 4 || (is(4, &["r", "red"]) && is(5, &["g", "green"]) && is(6, &["b", "blue"])))
 }
 
 /// The notice for the columns after x y z that an `n`-column file has and the cloud does not
@@ -224,11 +270,9 @@ mod tests {
         .unwrap();
         assert_eq!(cloud.points.len(), 2);
         assert!(cloud.normals.is_none());
-        assert_eq!(
-            notices,
-            ["columns 4 to 7 of each line (intensity, r, g, b in the .pts layout) are not read: \
-              the cloud keeps x y z only"]
-        );
+        assert!(notices.is_empty(), "{notices:?}");
+        assert_eq!(cloud.intensity, Some(vec![10.0, 11.0]));
+        assert_eq!(cloud.colours, Some(vec![[65535, 0, 0], [0, 65535, 0]]));
         assert!(matches!(
             read(b"3\n1 2 3\n", "t.pts", &mut Vec::new()),
             Err(ImportError::HeaderCountMismatch {
@@ -237,6 +281,28 @@ mod tests {
                 ..
             })
         ));
+    }
+
+    #[test]
+    fn pts_layout_keeps_intensity_and_colour() {
+        let mut notices = Vec::new();
+        let cloud = read(b"0 0 0 -3.5\n1 0 0 7\n", "a.PTS", &mut notices).unwrap();
+        assert_eq!(cloud.intensity, Some(vec![-3.5, 7.0]));
+        assert!(cloud.colours.is_none() && notices.is_empty());
+        // Named columns select the layout in any file; unnamed 7 columns in a .txt do not.
+        let csv = b"X,Y,Z,Intensity,Red,Green,Blue\n0,0,0,1,1,2,255\n";
+        let cloud = read(csv, "a.csv", &mut notices).unwrap();
+        assert_eq!(cloud.colours, Some(vec![[257, 514, 65535]]));
+        assert!(notices.is_empty());
+        let cloud = read(b"0 0 0 1 1 2 3\n", "a.txt", &mut notices).unwrap();
+        assert!(cloud.colours.is_none() && cloud.intensity.is_none());
+        assert_eq!(notices.len(), 1);
+        // A colour value outside 0–255 drops the colour columns, not the file.
+        notices.clear();
+        let cloud = read(b"0 0 0 1 1 2 3\n1 0 0 1 1 2 300\n", "a.pts", &mut notices).unwrap();
+        assert!(cloud.colours.is_none());
+        assert_eq!(cloud.intensity, Some(vec![1.0, 1.0]));
+        assert!(notices[0].contains("line 2"), "{notices:?}");
     }
 
     #[test]

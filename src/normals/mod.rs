@@ -196,7 +196,9 @@ pub struct NormalsParams {
     pub surface_samples: bool,
     /// The sensor's position in the input's coordinates: every normal, whatever its source, is
     /// turned to face it (n flipped where n·(v − p) < 0). Default `None` (left out of the cache
-    /// key then, so keys of runs without it are unchanged).
+    /// key then, so keys of runs without it are unchanged). Without it, a cloud of registered
+    /// scans ([`PointCloud::scans`], from an E57 file or a PCD's `VIEWPOINT`) turns each
+    /// point's normal to face its own scan's scanner instead.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub viewpoint: Option<[f64; 3]>,
 }
@@ -399,6 +401,16 @@ pub fn estimate_normals(
     out.surface_samples = samples.0.len();
     points.extend(samples.0);
     normals.extend(samples.1);
+    if let (None, Some(scans)) = (params.viewpoint, &cloud.scans) {
+        // Each registered scan's points face their own scanner (the samples on faces that
+        // follow the input points belong to no scan).
+        let mut start = 0;
+        for scan in scans {
+            let end = (start + scan.n_points).min(cloud.points.len());
+            toward_viewpoint(&points[start..end], &mut normals[start..end], scan.sensor);
+            start = end;
+        }
+    }
     if let Some(v) = params.viewpoint {
         let flipped = toward_viewpoint(&points, &mut normals, v);
         if flipped > 0 {

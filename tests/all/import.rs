@@ -1022,15 +1022,22 @@ fn reject_ascii_stl_content_after_endsolid() {
 
 #[test]
 fn pts_extra_columns_are_named_in_the_notices() {
+    // The .pts layout's intensity and colour are kept, so nothing is left unread.
     let pts = b"2\n0 0 0 10 255 0 0\n1 0 0 12 0 255 0\n";
     let scan = read_scan_bytes(pts, Path::new("scan.pts")).unwrap();
     assert_eq!(scan.cloud.points.len(), 2);
     assert!(scan.cloud.normals.is_none());
-    let expected = "columns 4 to 7 of each line (intensity, r, g, b in the .pts layout) are not \
-                    read: the cloud keeps x y z only";
+    assert!(scan.notices.is_empty(), "{:?}", scan.notices);
+    let info = scan_info(&scan);
+    assert!(info.has_colours && info.has_intensity);
+    // Seven unnamed columns in a file of another extension are named as the likely layout.
+    let scan = read_scan_bytes(&pts[2..], Path::new("scan.txt")).unwrap();
+    let expected = "columns 4 to 7 of each line (often intensity, r, g, b) are not read: the \
+                    cloud keeps x y z only";
     assert_eq!(scan.notices, [expected]);
     let info = scan_info(&scan);
     assert_eq!(info.notices, [expected]);
+    assert!(!info.has_colours && !info.has_intensity);
     let json = serde_json::to_value(&info).unwrap();
     assert_eq!(json["notices"][0], expected);
     // Column names, when the file has them, name the columns.
@@ -1274,4 +1281,421 @@ fn range_grid_cell_with_two_indices_is_an_error_naming_the_line() {
     // 4 header lines before the vertices + 30 vertices + end of header block (11 lines).
     assert!(msg.contains("grid.ply:42"), "{msg}");
     assert!(msg.contains("holds 2 vertex indices"), "{msg}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// LAS and LAZ, written by the `las` crate's own writer
+
+/// A sphere of `n` points (radius 10 about a UTM-like centre) as `las` points with colour,
+/// intensity and GPS time (point format 3).
+fn las_sphere(n: usize) -> Vec<las::Point> {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    (0..n)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let r = (1.0 - z * z).sqrt();
+            let t = golden * i as f64;
+            las::Point {
+                x: 500_123.25 + 10.0 * r * t.cos(),
+                y: 4_000_456.5 + 10.0 * r * t.sin(),
+                z: 101.75 + 10.0 * z,
+                intensity: (i % 4096) as u16,
+                color: Some(las::Color::new((i * 21 % 65536) as u16, 32768, 65535)),
+                gps_time: Some(i as f64),
+                ..Default::default()
+            }
+        })
+        .collect()
+}
+
+/// Writes `points` to `path` (LAZ when it ends in .laz) with a 1 mm scale and large offsets.
+fn write_las(path: &Path, points: &[las::Point]) {
+    let mut builder = las::Builder::from((1, 2));
+    builder.point_format = las::point::Format::new(3).unwrap();
+    builder.point_format.is_compressed = path.extension().is_some_and(|e| e == "laz");
+    let t = |offset| las::Transform {
+        scale: 0.001,
+        offset,
+    };
+    builder.transforms = las::Vector {
+        x: t(500_000.0),
+        y: t(4_000_000.0),
+        z: t(0.0),
+    };
+    let mut writer = las::Writer::from_path(path, builder.into_header().unwrap()).unwrap();
+    for p in points {
+        writer.write_point(p.clone()).unwrap();
+    }
+    writer.close().unwrap();
+}
+
+#[test]
+fn las_and_laz_from_the_las_writer_import_exactly_with_colour_and_intensity() {
+    let dir = tempfile::tempdir().unwrap();
+    let points = las_sphere(3000);
+    for (name, format) in [("s.las", ScanFormat::Las), ("s.laz", ScanFormat::Laz)] {
+        let path = dir.path().join(name);
+        write_las(&path, &points);
+        let scan = read_scan(&path).unwrap();
+        assert_eq!(scan.format, format);
+        let cloud = &scan.cloud;
+        assert_eq!(cloud.points.len(), points.len());
+        // The stored integers times the scale plus the offset: exactly what the las crate's own
+        // reader gives, and within half the scale of what was written.
+        let mut reader = las::Reader::from_path(&path).unwrap();
+        let expected: Vec<[f64; 3]> = reader
+            .read_all()
+            .unwrap()
+            .points()
+            .map(|p| p.map(|p| [p.x, p.y, p.z]).unwrap())
+            .collect();
+        assert_eq!(cloud.points, expected);
+        for (p, q) in cloud.points.iter().zip(&points) {
+            for (a, b) in p.iter().zip([q.x, q.y, q.z]) {
+                assert!((a - b).abs() <= 0.0005 + 1e-9, "{a} vs {b}");
+            }
+        }
+        let colours = cloud.colours.as_ref().unwrap();
+        let intensity = cloud.intensity.as_ref().unwrap();
+        for (i, q) in points.iter().enumerate() {
+            let c = q.color.unwrap();
+            assert_eq!(colours[i], [c.red, c.green, c.blue]);
+            assert_eq!(intensity[i], f32::from(q.intensity));
+        }
+        let info = scan_info(&scan);
+        assert!(info.has_colours && info.has_intensity && !info.has_normals);
+        assert_eq!(info.format, format.as_str());
+        // The CLI reports the same.
+        let out = crate::fixtures::bin()
+            .args(["info", "--json"])
+            .arg(&path)
+            .output()
+            .unwrap();
+        assert!(out.status.success());
+        let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(json["points"], 3000);
+        assert_eq!(json["has_colours"], true);
+        assert_eq!(json["bbox_min"][0], info.bbox_min[0]);
+    }
+    // A run meshes the LAZ file: normals are estimated, the mesh lies on the sphere.
+    let out = dir.path().join("out");
+    crate::fixtures::run_ok(
+        &dir.path().join("s.laz"),
+        &out,
+        &["-q", "--no-cache", "--formats", "ply,json"],
+    );
+    let report = crate::fixtures::read_report(&out);
+    assert_eq!(report["stages"][0]["figures"]["points"], 3000);
+    assert_eq!(report["mesh"]["watertight"], true);
+}
+
+#[test]
+fn unreadable_las_files_name_the_file_and_write_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = dir.path().join("good.las");
+    write_las(&good, &las_sphere(100));
+    let bytes = std::fs::read(&good).unwrap();
+    // Cut in the middle of the point records.
+    let e = err(&bytes[..bytes.len() - 50], "cut.las");
+    assert!(matches!(e, ImportError::Truncated { .. }), "{e}");
+    assert!(e.to_string().contains("declares 100 point records"), "{e}");
+    // Not a LAS file at all, under a LAS name.
+    let e = err(b"hello, not a las file, only some words", "words.laz");
+    assert!(e.to_string().contains("export the scan again"), "{e}");
+    // The CLI: exit code 1, the file named, no output files.
+    let cut = dir.path().join("cut.las");
+    std::fs::write(&cut, &bytes[..bytes.len() - 50]).unwrap();
+    let out = dir.path().join("out");
+    let done = crate::fixtures::bin()
+        .arg("run")
+        .arg(&cut)
+        .arg("-o")
+        .arg(&out)
+        .arg("--no-cache")
+        .output()
+        .unwrap();
+    assert_eq!(done.status.code(), Some(1));
+    let stderr = crate::fixtures::stderr_of(&done);
+    assert!(
+        stderr.contains("cut.las") && stderr.contains("truncated"),
+        "{stderr}"
+    );
+    let written = std::fs::read_dir(&out).map_or(0, |d| d.count());
+    assert_eq!(written, 0, "no partial output");
+}
+
+/// laspy (with its lazrs backend) writes a LAS and a LAZ file; `tools/validate/las.py` runs
+/// `stablesurf info` and `stablesurf run` on them and checks the counts, the bounding box to
+/// the scale, colour and intensity, and that the mesh lies on the sphere it wrote.
+#[test]
+fn las_and_laz_written_by_laspy_read_and_mesh() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let python = std::env::var_os("STABLESURF_VALIDATOR_PYTHON")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| root.join("tools/validate/.venv/bin/python"));
+    if !python.exists() {
+        let msg = "laspy is not installed; run `bash tools/install-validators.sh` to check LAS \
+                   and LAZ files written by it";
+        assert!(std::env::var_os("CI").is_none(), "{msg} (CI is set)");
+        eprintln!("notice: skipping: {msg}");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = std::process::Command::new(python)
+        .arg(root.join("tools/validate/las.py"))
+        .arg(assert_cmd::cargo::cargo_bin("stablesurf"))
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let lines: Vec<serde_json::Value> = stdout
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(lines.len(), 2, "{stdout}");
+    for (line, format) in lines.iter().zip(["las", "laz"]) {
+        assert_eq!(line["format"], format);
+        assert_eq!(line["points"], 3000);
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// E57, written by the `e57` crate's own writer
+
+/// The rotation matrix of the unit quaternion (w, x, y, z).
+fn rotation(q: [f64; 4]) -> [[f64; 3]; 3] {
+    crate::fixtures::quaternion_rotation(q[0], q[1], q[2], q[3])
+}
+
+/// One scan to write: its points in the common frame, its pose's quaternion (w, x, y, z) and
+/// its scanner's position (the pose's translation).
+type E57Scan = (Vec<[f64; 3]>, [f64; 4], [f64; 3]);
+
+/// Writes `path`: one scan per [`E57Scan`], each stored in its own frame
+/// (p_local = Rᵀ(p − sensor)) with the pose that moves it back, and with colour and intensity.
+fn write_e57(path: &Path, scans: &[E57Scan]) {
+    use e57::{
+        Quaternion, Record, RecordDataType, RecordName, RecordValue, Transform, Translation,
+    };
+    let mut writer = e57::E57Writer::from_file(path, "test-file").unwrap();
+    for (index, (points, q, sensor)) in scans.iter().enumerate() {
+        let prototype = vec![
+            Record::CARTESIAN_X_F64,
+            Record::CARTESIAN_Y_F64,
+            Record::CARTESIAN_Z_F64,
+            Record {
+                name: RecordName::ColorRed,
+                data_type: RecordDataType::U8,
+            },
+            Record {
+                name: RecordName::ColorGreen,
+                data_type: RecordDataType::U8,
+            },
+            Record {
+                name: RecordName::ColorBlue,
+                data_type: RecordDataType::U8,
+            },
+            Record {
+                name: RecordName::Intensity,
+                data_type: RecordDataType::F32,
+            },
+        ];
+        let mut scan = writer
+            .add_pointcloud(&format!("scan-{index}"), prototype)
+            .unwrap();
+        scan.set_transform(Some(Transform {
+            rotation: Quaternion {
+                w: q[0],
+                x: q[1],
+                y: q[2],
+                z: q[3],
+            },
+            translation: Translation {
+                x: sensor[0],
+                y: sensor[1],
+                z: sensor[2],
+            },
+        }));
+        let r = rotation(*q);
+        for (i, p) in points.iter().enumerate() {
+            let d = [0, 1, 2].map(|a| p[a] - sensor[a]);
+            let local = [0, 1, 2].map(|c| (0..3).map(|a| r[a][c] * d[a]).sum::<f64>());
+            scan.add_point(vec![
+                RecordValue::Double(local[0]),
+                RecordValue::Double(local[1]),
+                RecordValue::Double(local[2]),
+                RecordValue::Integer(255),
+                RecordValue::Integer(index as i64),
+                RecordValue::Integer((i % 256) as i64),
+                RecordValue::Single(i as f32 * 0.5),
+            ])
+            .unwrap();
+        }
+        scan.finalize().unwrap();
+    }
+    writer.finalize().unwrap();
+}
+
+/// Two scans of the inside of a sphere of radius 5 (a room), from two scanners inside it with
+/// different poses: the points come back in the common frame, each scan's scanner is its pose's
+/// translation, and the normals face each scan's own scanner (inwards), where a cloud without
+/// the scanners gets outward normals.
+#[test]
+fn e57_scans_from_the_e57_writer_come_back_in_the_common_frame_facing_their_scanners() {
+    let n = 4000;
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let sphere: Vec<[f64; 3]> = (0..n)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+            let r = (1.0 - z * z).sqrt();
+            let t = golden * i as f64;
+            [5.0 * r * t.cos(), 5.0 * r * t.sin(), 5.0 * z]
+        })
+        .collect();
+    let (a, b): (Vec<[f64; 3]>, Vec<[f64; 3]>) = sphere.iter().partition(|p| p[0] > 0.0);
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    let sensors = [[1.0, 0.0, 0.5], [-1.0, 0.5, 0.0]];
+    let scans = vec![
+        (a.clone(), [h, 0.0, 0.0, h], sensors[0]),
+        (b.clone(), [0.5, 0.5, 0.5, 0.5], sensors[1]),
+    ];
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("room.e57");
+    write_e57(&path, &scans);
+
+    let scan = read_scan(&path).unwrap();
+    assert_eq!(scan.format, ScanFormat::E57);
+    let cloud = &scan.cloud;
+    let expected: Vec<[f64; 3]> = a.iter().chain(&b).copied().collect();
+    assert_eq!(cloud.points.len(), n);
+    for (p, q) in cloud.points.iter().zip(&expected) {
+        for c in 0..3 {
+            assert!((p[c] - q[c]).abs() < 1e-9, "{p:?} vs {q:?}");
+        }
+    }
+    let origins = cloud.scans.as_ref().unwrap();
+    assert_eq!(origins.len(), 2);
+    assert_eq!(
+        (origins[0].sensor, origins[0].n_points),
+        (sensors[0], a.len())
+    );
+    assert_eq!(
+        (origins[1].sensor, origins[1].n_points),
+        (sensors[1], b.len())
+    );
+    let colours = cloud.colours.as_ref().unwrap();
+    assert_eq!(colours[0], [65535, 0, 0]);
+    assert_eq!(colours[a.len() + 3], [65535, 257, 3 * 257]);
+    assert_eq!(cloud.intensity.as_ref().unwrap()[a.len() + 3], 1.5);
+    assert!(scan.notices.is_empty(), "{:?}", scan.notices);
+
+    // Normals face each point's own scanner: inwards, against the outward orientation that the
+    // same points get without scanners.
+    let params = stablesurf::normals::NormalsParams::default();
+    let with = stablesurf::normals::estimate_normals(cloud, &params).unwrap();
+    let mut plain = cloud.clone();
+    plain.scans = None;
+    let without = stablesurf::normals::estimate_normals(&plain, &params).unwrap();
+    let dot = |u: &[f64; 3], v: &[f64; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+    for (i, (p, nrm)) in with
+        .cloud
+        .points
+        .iter()
+        .zip(&with.cloud.normals)
+        .enumerate()
+    {
+        let s = sensors[usize::from(i >= a.len())];
+        let to_sensor = [s[0] - p[0], s[1] - p[1], s[2] - p[2]];
+        assert!(dot(nrm, &to_sensor) > 0.0, "point {i}");
+        assert!(dot(nrm, p) < 0.0, "point {i} faces inwards");
+    }
+    let outward = without
+        .cloud
+        .points
+        .iter()
+        .zip(&without.cloud.normals)
+        .filter(|(p, nrm)| dot(nrm, p) > 0.0)
+        .count();
+    assert_eq!(outward, n, "without scanners the normals point outwards");
+
+    // `stablesurf info` lists the scans.
+    let out = crate::fixtures::bin()
+        .args(["info", "--json"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", crate::fixtures::stderr_of(&out));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["format"], "e57");
+    assert_eq!(json["points"], n);
+    assert_eq!(json["scans"][1]["sensor"][1], 0.5);
+    assert_eq!(json["has_colours"], true);
+    assert_eq!(json["has_intensity"], true);
+
+    // A cut file is an error that names it.
+    let bytes = std::fs::read(&path).unwrap();
+    let e = err(&bytes[..bytes.len() / 2], "cut.e57");
+    assert!(e.to_string().contains("e57"), "{e}");
+}
+
+/// Seeded byte mutations (flips, truncations, overwritten header bytes) of small LAS, LAZ, E57
+/// and PCD files never panic their readers or ask for memory the file cannot back: each gives
+/// a cloud or an error.
+#[test]
+fn mutated_las_e57_and_pcd_files_never_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut files: Vec<(&str, Vec<u8>)> = Vec::new();
+    for name in ["m.las", "m.laz"] {
+        let path = dir.path().join(name);
+        write_las(&path, &las_sphere(60));
+        files.push((name, std::fs::read(&path).unwrap()));
+    }
+    let e57 = dir.path().join("m.e57");
+    let pts: Vec<[f64; 3]> = (0..40).map(|i| [i as f64, 1.0, 2.0]).collect();
+    write_e57(&e57, &[(pts, [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 3.0])]);
+    files.push(("m.e57", std::fs::read(&e57).unwrap()));
+    let mut pcd = b"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F U\n\
+                    COUNT 1 1 1 1\nWIDTH 30\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 30\n\
+                    DATA binary\n"
+        .to_vec();
+    for i in 0..30u32 {
+        for c in [i as f32, 1.0, 2.0] {
+            pcd.extend_from_slice(&c.to_le_bytes());
+        }
+        pcd.extend_from_slice(&(i * 1000).to_le_bytes());
+    }
+    files.push(("m.pcd", pcd));
+    let mut rng = crate::fixtures::Rng(57);
+    for (name, original) in &files {
+        for case in 0..300 {
+            let mut bytes = original.clone();
+            match case % 3 {
+                0 => bytes.truncate(rng.below(bytes.len())),
+                1 => {
+                    // Header bytes, where the counts and offsets are.
+                    for _ in 0..1 + rng.below(3) {
+                        let at = rng.below(bytes.len().min(400));
+                        bytes[at] = rng.byte();
+                    }
+                }
+                _ => {
+                    for _ in 0..1 + rng.below(4) {
+                        let at = rng.below(bytes.len());
+                        bytes[at] ^= 1 << rng.below(8);
+                    }
+                }
+            }
+            for format in [ScanFormat::Las, ScanFormat::E57, ScanFormat::PcdBinary] {
+                if let Ok(scan) = read_scan_bytes_as(&bytes, Path::new(name), format) {
+                    let _ = scan_info(&scan);
+                }
+            }
+            let _ = import_bytes(&bytes, Path::new(name));
+        }
+    }
 }

@@ -570,6 +570,7 @@ fn mesh_and_input_sources_orient_outward() {
         normals: None,
         triangles,
         range: None,
+        ..Default::default()
     };
     let out = estimate_normals(&cloud, &NormalsParams::default()).unwrap();
     assert_eq!(out.source_used, NormalSource::Mesh);
@@ -592,6 +593,7 @@ fn mesh_and_input_sources_orient_outward() {
         normals: Some(inward),
         triangles: Vec::new(),
         range: None,
+        ..Default::default()
     };
     let out = estimate_normals(&cloud, &NormalsParams::default()).unwrap();
     assert_eq!(out.source_used, NormalSource::Input);

@@ -234,6 +234,7 @@ fn read_ascii_blocks(
         normals: plan.normals.map(|_| concat(normals.collect(), parallel)),
         triangles: concat(triangles.collect(), parallel),
         range: None,
+        ..Default::default()
     })
 }
 

@@ -407,6 +407,7 @@ fn read_binary_body<const BIG: bool>(
         normals,
         triangles,
         range: None,
+        ..Default::default()
     })
 }
 
