@@ -72,6 +72,7 @@ fn bench_export(c: &mut Criterion) {
             encoding: PlyEncoding::BinaryLittleEndian,
             quality: Some(&quality),
             units: None,
+            colours: None,
         };
         b.iter(|| {
             buf.clear();

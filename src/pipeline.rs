@@ -323,7 +323,7 @@ impl Observer for Silent {}
 // Stage versions: if you change anything that changes a stage's output for the same input and
 // params (algorithm, defaults, artifact layout), bump its version so old cache entries are not
 // reused.
-const IMPORT_VERSION: u32 = 2;
+const IMPORT_VERSION: u32 = 3;
 /// Merging the views of a `.conf` or of several files.
 const MERGE_VERSION: u32 = 1;
 /// The outlier filter is not cached (it is a linear pass), but its output's key chains
@@ -564,6 +564,8 @@ fn merged_views(
         Oriented {
             cloud: merged,
             n_input,
+            // The views' colours are not merged.
+            colours: None,
         },
         key,
     ))
@@ -625,10 +627,14 @@ fn oriented_scan(
     )?;
     ctx.warn_figures();
     let n_input = cloud.points.len();
+    // The normals stage keeps the input points first and in order (duplicates too), so the
+    // cloud's colours are those of the input points.
+    let colours = cloud.colours.filter(|c| c.len() == n_input);
     Ok((
         Oriented {
             cloud: oriented,
             n_input,
+            colours,
         },
         oriented_key,
     ))
@@ -652,6 +658,8 @@ fn fit_stages(
 struct Oriented {
     cloud: OrientedCloud,
     n_input: usize,
+    /// The input points' colours (16-bit RGB), when the scan has them.
+    colours: Option<Vec<[u16; 3]>>,
 }
 
 impl Oriented {
@@ -815,6 +823,7 @@ pub fn run(
     oriented.cloud.normals = Vec::new();
     oriented.cloud.weights = None;
     let points = oriented.input_points();
+    let colours = oriented.colours.as_deref();
 
     let region = model.region();
     let polygonize_params = cache::params_bytes(&config.polygonize);
@@ -871,6 +880,7 @@ pub fn run(
                     mesh,
                     embedded,
                     points,
+                    colours,
                     &export_params,
                 ))
             }
@@ -900,7 +910,7 @@ pub fn run(
                     }
                     out
                 }
-                None => export::export(&model, &mesh, embedded, points, &export_params)?,
+                None => export::export(&model, &mesh, embedded, points, colours, &export_params)?,
             };
             let figures = out.figures();
             Ok((OutputFiles(out.files), figures))

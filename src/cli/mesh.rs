@@ -45,6 +45,7 @@ pub fn mesh(args: MeshArgs, verbosity: Verbosity) -> Result<()> {
             units: args.units.map(Into::into),
             ..Default::default()
         },
+        colours: None,
     };
     let name = args
         .output

@@ -19,6 +19,14 @@
 //! positions and normals, which Blender's importer maps back to the original (x, y, z) in its own
 //! Z-up frame. With [`GltfOptions::units`] the positions are scaled to metres (a millimetre scan
 //! by 0.001); without, they are written unchanged (a scan in metres needs no unit).
+//!
+//! Vertex colours ([`write_glb_coloured`], [`write_gltf_coloured`]) come in as 8-bit sRGB, as
+//! scans store them, and are written after the indices as a fourth buffer view and a `COLOR_0`
+//! accessor of `f32` `VEC3` *linear* RGB (glTF defines `COLOR_0` as linear; the sRGB transfer
+//! function of IEC 61966-2-1 is undone, so Blender and three.js show the scan's own colours).
+//! Float rather than normalized bytes: linear 8-bit values would lose the dark shades. The
+//! material's base colour factor, which multiplies them, is then white. Without colours the file
+//! is as before.
 
 use std::borrow::Cow;
 use std::collections::BTreeMap;
@@ -81,7 +89,36 @@ pub fn write_glb(
     out: &mut impl Write,
     opts: &GltfOptions,
 ) -> Result<(), ExportError> {
-    let (root, bin) = encode(mesh, opts, None)?;
+    write_glb_coloured(mesh, None, out, opts)
+}
+
+/// [`write_glb`] with one 8-bit sRGB colour per vertex, written as the `COLOR_0` attribute
+/// (linear RGB `f32` `VEC3`, see the module docs) when `colours` is given.
+///
+/// ```
+/// use stablesurf::export::gltf::{write_glb_coloured, GltfOptions};
+/// use stablesurf::TriangleMesh;
+/// let mesh = TriangleMesh {
+///     positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+///     normals: vec![[0.0, 0.0, 1.0]; 3],
+///     triangles: vec![[0, 1, 2]],
+/// };
+/// let colours = [[255, 0, 0], [0, 255, 0], [0, 0, 255]];
+/// let mut glb = Vec::new();
+/// write_glb_coloured(&mesh, Some(&colours), &mut glb, &GltfOptions::default()).unwrap();
+/// assert!(glb.windows(9).any(|w| w == b"\"COLOR_0\""));
+/// ```
+///
+/// # Errors
+/// As [`write_glb`], and [`ExportError::InvalidMesh`] when `colours` does not hold one colour
+/// per vertex.
+pub fn write_glb_coloured(
+    mesh: &TriangleMesh,
+    colours: Option<&[[u8; 3]]>,
+    out: &mut impl Write,
+    opts: &GltfOptions,
+) -> Result<(), ExportError> {
+    let (root, bin) = encode(mesh, colours, opts, None)?;
     let json_bytes = json::serialize::to_vec(&root)
         .map_err(|e| ExportError::Format(format!("cannot serialize glTF JSON: {e}")))?;
     // 12-byte file header, two 8-byte chunk headers, both chunks padded to 4 bytes.
@@ -134,12 +171,28 @@ pub fn write_gltf(
     bin_uri: &str,
     opts: &GltfOptions,
 ) -> Result<(), ExportError> {
+    write_gltf_coloured(mesh, None, json_out, bin_out, bin_uri, opts)
+}
+
+/// [`write_gltf`] with one 8-bit sRGB colour per vertex, written as the `COLOR_0` attribute
+/// when `colours` is given (as [`write_glb_coloured`]).
+///
+/// # Errors
+/// As [`write_gltf`] and [`write_glb_coloured`].
+pub fn write_gltf_coloured(
+    mesh: &TriangleMesh,
+    colours: Option<&[[u8; 3]]>,
+    json_out: &mut impl Write,
+    bin_out: &mut impl Write,
+    bin_uri: &str,
+    opts: &GltfOptions,
+) -> Result<(), ExportError> {
     if bin_uri.is_empty() {
         return Err(ExportError::InvalidMesh(
             "the .bin URI of a .gltf must not be empty".into(),
         ));
     }
-    let (root, bin) = encode(mesh, opts, Some(bin_uri))?;
+    let (root, bin) = encode(mesh, colours, opts, Some(bin_uri))?;
     let json_bytes = json::serialize::to_vec_pretty(&root)
         .map_err(|e| ExportError::Format(format!("cannot serialize glTF JSON: {e}")))?;
     json_out
@@ -202,11 +255,20 @@ fn orient(v: [f64; 3], up: UpAxis) -> [f64; 3] {
 /// Checks the mesh and converts it to the glTF JSON document and its binary buffer.
 fn encode(
     mesh: &TriangleMesh,
+    colours: Option<&[[u8; 3]]>,
     opts: &GltfOptions,
     uri: Option<&str>,
 ) -> Result<(json::Root, Vec<u8>), ExportError> {
     let n_vertices = mesh.positions.len();
     check_mesh(mesh)?;
+    if let Some(c) = colours {
+        if c.len() != n_vertices {
+            return Err(ExportError::InvalidMesh(format!(
+                "{} colours for {n_vertices} vertices",
+                c.len()
+            )));
+        }
+    }
 
     // Positions and normals in f32, with min/max taken from the f32 values actually written.
     let mut min = [f32::INFINITY; 3];
@@ -248,6 +310,16 @@ fn encode(
     }
     while bin.len() % 4 != 0 {
         bin.push(0);
+    }
+    // The colours, after the indices (which end on a 4-byte boundary), as linear f32 RGB.
+    let colour_offset = bin.len();
+    if let Some(colours) = colours {
+        let linear = srgb_to_linear_table();
+        for c in colours {
+            for &v in c {
+                bin.extend_from_slice(&linear[usize::from(v)].to_le_bytes());
+            }
+        }
     }
 
     let mut root = json::Root {
@@ -302,6 +374,13 @@ fn encode(
             extras: Default::default(),
         }
     };
+    let colour_view = colours.map(|_| {
+        root.push(view(
+            colour_offset,
+            position_bytes,
+            json::buffer::Target::ArrayBuffer,
+        ))
+    });
     use json::accessor::{ComponentType, Type};
     let positions = root.push(accessor(
         position_view,
@@ -332,7 +411,12 @@ fn encode(
     let material = root.push(json::Material {
         name: Some("stablesurf".into()),
         pbr_metallic_roughness: json::material::PbrMetallicRoughness {
-            base_color_factor: json::material::PbrBaseColorFactor([0.8, 0.8, 0.8, 1.0]),
+            // White under vertex colours, which the factor multiplies; light grey otherwise.
+            base_color_factor: json::material::PbrBaseColorFactor(if colours.is_some() {
+                [1.0; 4]
+            } else {
+                [0.8, 0.8, 0.8, 1.0]
+            }),
             metallic_factor: json::material::StrengthFactor(0.0),
             roughness_factor: json::material::StrengthFactor(0.6),
             ..Default::default()
@@ -342,6 +426,16 @@ fn encode(
     let mut attributes = BTreeMap::new();
     attributes.insert(Valid(json::mesh::Semantic::Positions), positions);
     attributes.insert(Valid(json::mesh::Semantic::Normals), normals);
+    if let Some(colour_view) = colour_view {
+        let colours = root.push(accessor(
+            colour_view,
+            n_vertices,
+            ComponentType::F32,
+            Type::Vec3,
+            None,
+        ));
+        attributes.insert(Valid(json::mesh::Semantic::Colors(0)), colours);
+    }
     let mesh_index = root.push(json::Mesh {
         name: Some("surface".into()),
         primitives: vec![json::mesh::Primitive {
@@ -370,6 +464,20 @@ fn encode(
     });
     root.scene = Some(scene);
     Ok((root, bin))
+}
+
+/// The linear value of each 8-bit sRGB value (IEC 61966-2-1: v/12.92 up to 0.04045, else
+/// ((v + 0.055)/1.055)^2.4), as glTF's `COLOR_0` holds linear RGB.
+fn srgb_to_linear_table() -> [f32; 256] {
+    std::array::from_fn(|i| {
+        let v = i as f64 / 255.0;
+        let linear = if v <= 0.04045 {
+            v / 12.92
+        } else {
+            ((v + 0.055) / 1.055).powf(2.4)
+        };
+        linear as f32
+    })
 }
 
 /// Checks what glTF requires of the mesh: at least one triangle, finite positions, one normal

@@ -193,6 +193,9 @@ pub struct MeshFileOptions<'a> {
     pub gltf: gltf::GltfOptions,
     /// Options of the PLY writer (encoding, per-vertex quality).
     pub ply: ply::PlyOptions<'a>,
+    /// One 8-bit sRGB colour per vertex for every format (PLY `red green blue`, glTF
+    /// `COLOR_0`), or `None`; for PLY, `ply.colours` wins when both are given.
+    pub colours: Option<&'a [[u8; 3]]>,
 }
 
 /// The files of `mesh` in `format`, named after `name` (a file name such as `mesh.glb`), as
@@ -224,17 +227,30 @@ pub fn mesh_files(
 ) -> Result<Vec<(String, Vec<u8>)>, ExportError> {
     let mut bytes = Vec::new();
     match format {
-        MeshFormat::Glb => gltf::write_glb(mesh, &mut bytes, &opts.gltf)?,
+        MeshFormat::Glb => gltf::write_glb_coloured(mesh, opts.colours, &mut bytes, &opts.gltf)?,
         MeshFormat::Gltf => {
             let bin_name = Path::new(name)
                 .with_extension("bin")
                 .to_string_lossy()
                 .into_owned();
             let mut bin = Vec::new();
-            gltf::write_gltf(mesh, &mut bytes, &mut bin, &bin_name, &opts.gltf)?;
+            gltf::write_gltf_coloured(
+                mesh,
+                opts.colours,
+                &mut bytes,
+                &mut bin,
+                &bin_name,
+                &opts.gltf,
+            )?;
             return Ok(vec![(bin_name, bin), (name.to_string(), bytes)]);
         }
-        MeshFormat::Ply => ply::write(mesh, &mut bytes, &opts.ply)?,
+        MeshFormat::Ply => {
+            let ply_opts = ply::PlyOptions {
+                colours: opts.ply.colours.or(opts.colours),
+                ..opts.ply
+            };
+            ply::write(mesh, &mut bytes, &ply_opts)?
+        }
     }
     Ok(vec![(name.to_string(), bytes)])
 }

@@ -59,6 +59,10 @@ pub struct PlyOptions<'a> {
     /// The unit of the coordinates, recorded as a `comment units SYMBOL` header line (the
     /// coordinates themselves stay in input units); `None` writes no such line.
     pub units: Option<crate::export::units::LengthUnit>,
+    /// One 8-bit sRGB colour per vertex, written as `uchar` `red`, `green`, `blue` after the
+    /// normals (and before the quality), which MeshLab and Blender show as vertex colours;
+    /// `None` writes no colour properties.
+    pub colours: Option<&'a [[u8; 3]]>,
 }
 
 /// Bytes gathered before each `write_all`, so writing neither allocates the whole file nor
@@ -80,6 +84,7 @@ const CHUNK_BYTES: usize = 1 << 20;
 ///     encoding: PlyEncoding::Ascii,
 ///     quality: Some(&[0.5, 0.25, 0.0]),
 ///     units: None,
+///     colours: None,
 /// };
 /// write(&mesh, &mut text, &opts).unwrap();
 /// let text = String::from_utf8(text).unwrap();
@@ -89,8 +94,8 @@ const CHUNK_BYTES: usize = 1 << 20;
 ///
 /// # Errors
 /// [`ExportError::InvalidMesh`] when the mesh is empty, has non-finite coordinates, a normal
-/// count that differs from the vertex count, an index out of range, or a quality slice of the
-/// wrong length; [`ExportError::Write`] when `out` fails.
+/// count that differs from the vertex count, an index out of range, or a quality or colour slice
+/// of the wrong length; [`ExportError::Write`] when `out` fails.
 pub fn write(
     mesh: &TriangleMesh,
     out: &mut impl Write,
@@ -107,6 +112,14 @@ pub fn write(
             return Err(ExportError::InvalidMesh(format!(
                 "{} quality values for {n_vertices} vertices",
                 q.len()
+            )));
+        }
+    }
+    if let Some(c) = opts.colours {
+        if c.len() != n_vertices {
+            return Err(ExportError::InvalidMesh(format!(
+                "{} colours for {n_vertices} vertices",
+                c.len()
             )));
         }
     }
@@ -137,6 +150,9 @@ pub fn write(
          property float x\nproperty float y\nproperty float z\n\
          property float nx\nproperty float ny\nproperty float nz\n"
     );
+    if opts.colours.is_some() {
+        header.push_str("property uchar red\nproperty uchar green\nproperty uchar blue\n");
+    }
     if opts.quality.is_some() {
         header.push_str("property float quality\n");
     }
@@ -161,6 +177,9 @@ pub fn write(
                 for c in p.iter().chain(n) {
                     buf.extend_from_slice(&(*c as f32).to_le_bytes());
                 }
+                if let Some(colours) = opts.colours {
+                    buf.extend_from_slice(&colours[vertex_idx]);
+                }
                 if let Some(q) = opts.quality {
                     buf.extend_from_slice(&q[vertex_idx].to_le_bytes());
                 }
@@ -184,6 +203,10 @@ pub fn write(
                 for (k, v) in values.enumerate() {
                     let sep = if k == 0 { "" } else { " " };
                     let _ = write!(line, "{sep}{v}");
+                }
+                if let Some(colours) = opts.colours {
+                    let [r, g, b] = colours[vertex_idx];
+                    let _ = write!(line, " {r} {g} {b}");
                 }
                 if let Some(q) = opts.quality {
                     let _ = write!(line, " {}", q[vertex_idx]);
@@ -271,6 +294,7 @@ mod tests {
         use ply_rs_bw::ply::{DefaultElement, Property};
         let mesh = quad();
         let quality = [0.5f32, 1.5, 2.5, 3.5];
+        let colours = [[255u8, 0, 0], [0, 255, 0], [0, 0, 255], [10, 20, 30]];
         for encoding in [PlyEncoding::BinaryLittleEndian, PlyEncoding::Ascii] {
             let mut out = Vec::new();
             write(
@@ -280,6 +304,7 @@ mod tests {
                     encoding,
                     quality: Some(&quality),
                     units: None,
+                    colours: Some(&colours),
                 },
             )
             .unwrap();
@@ -290,6 +315,9 @@ mod tests {
             assert_eq!(vertices.len(), 4);
             assert_eq!(vertices[2]["y"], Property::Float(1.0));
             assert_eq!(vertices[3]["quality"], Property::Float(3.5));
+            assert_eq!(vertices[3]["red"], Property::UChar(10));
+            assert_eq!(vertices[3]["green"], Property::UChar(20));
+            assert_eq!(vertices[3]["blue"], Property::UChar(30));
             let faces = &ply.payload["face"];
             assert_eq!(faces[1]["vertex_indices"], Property::ListInt(vec![0, 2, 3]));
         }

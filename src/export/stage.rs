@@ -1,8 +1,8 @@
 //! Stage `export`: the fitted model and its mesh → the bytes of every output file of `run`,
 //! with the figures the report gives about them.
 //!
-//! Input: a [`Model`], the [`TriangleMesh`] polygonized from it, the data points, and
-//! [`ExportParams`]. Output: an [`ExportOutput`]: the files as (name relative to the output
+//! Input: a [`Model`], the [`TriangleMesh`] polygonized from it, the data points (with their
+//! colours, when the scan has them), and [`ExportParams`]. Output: an [`ExportOutput`]: the files as (name relative to the output
 //! folder, bytes), in a fixed order, and the figures of the mesh as written (components left
 //! out, what the trim removed, the topology checks, the accuracy against the data).
 //!
@@ -36,7 +36,7 @@ use crate::trim::{self, TrimParams, TrimReport};
 /// The export stage's version. If you change any input to this stage's key (the fields of
 /// [`ExportParams`] or how they are written), or anything that changes its output for the same
 /// input and params, bump `STAGE_VERSION`.
-pub const STAGE_VERSION: u32 = 6;
+pub const STAGE_VERSION: u32 = 7;
 
 /// With [`Keep::Data`], closed pieces inside another piece and smaller than this share of the
 /// largest piece's area are left out ([`mesh::drop_small_nested_components`]).
@@ -242,7 +242,7 @@ impl ExportOutput {
 /// let model = ImplicitModel { polynomial: plane, bounds: None, fit: None, diagnostics: None };
 /// let model = Model::Global(model);
 /// let params = ExportParams { formats: vec![OutputFormat::Ply], ..Default::default() };
-/// let out = export(&model, &mesh, false, &mesh.positions, &params).unwrap();
+/// let out = export(&model, &mesh, false, &mesh.positions, None, &params).unwrap();
 /// assert_eq!(out.files.len(), 1);
 /// assert_eq!(out.files[0].0, "mesh.ply");
 /// assert_eq!(out.mesh.boundary_edges, 3);
@@ -252,17 +252,66 @@ pub fn export(
     mesh: &TriangleMesh,
     known_embedded: bool,
     points: &[[f64; 3]],
+    colours: Option<&[[u16; 3]]>,
     params: &ExportParams,
 ) -> Result<ExportOutput, ExportError> {
     let (slices, out) = rayon::join(
         || model_slices(model, params),
-        || export_mesh(model, mesh, known_embedded, points, params),
+        || export_mesh(model, mesh, known_embedded, points, colours, params),
     );
     let mut out = out?;
     if let Some(files) = slices {
         out.files.extend(files?);
     }
     Ok(out)
+}
+
+/// How many of the nearest data points a vertex's colour is interpolated from.
+const COLOUR_NEIGHBOURS: usize = 4;
+
+/// Each vertex's colour, interpolated from its [`COLOUR_NEIGHBOURS`] nearest data points with
+/// inverse-distance weights (the nearest point's colour when the vertex is on it), in the 16-bit
+/// values of the scan and then rounded to 8 bits. `None` when no data point is finite. Per
+/// vertex, so the result does not depend on the thread count; ties between equally near points
+/// are broken by the k-d tree's fixed order.
+fn vertex_colours(
+    vertices: &[[f64; 3]],
+    points: &[[f64; 3]],
+    colours: &[[u16; 3]],
+) -> Option<Vec<[u8; 3]>> {
+    use rayon::prelude::*;
+    let (finite_points, finite_colours): (Vec<[f64; 3]>, Vec<[u16; 3]>) = points
+        .iter()
+        .zip(colours)
+        .filter(|(p, _)| p.iter().all(|c| c.is_finite()))
+        .map(|(p, c)| (*p, *c))
+        .unzip();
+    let tree = measure::PointTree::new(&finite_points)?;
+    let colour_of = |q: &[f64; 3]| -> [u8; 3] {
+        let mut nearest = [(0.0, 0_u32); COLOUR_NEIGHBOURS];
+        let n = tree.nearest_n_within(*q, f64::INFINITY, &mut nearest);
+        let nearest = &nearest[..n];
+        let to_u8 = |v: f64| (v / 257.0).round().clamp(0.0, 255.0) as u8;
+        match nearest {
+            [] => [0; 3],
+            [(d2, i), ..] if *d2 == 0.0 || n == 1 => {
+                finite_colours[*i as usize].map(|c| to_u8(f64::from(c)))
+            }
+            _ => {
+                let mut sum = [0.0; 3];
+                let mut total = 0.0;
+                for &(d2, i) in nearest {
+                    let weight = 1.0 / d2.sqrt();
+                    total += weight;
+                    for (s, &c) in sum.iter_mut().zip(&finite_colours[i as usize]) {
+                        *s += weight * f64::from(c);
+                    }
+                }
+                sum.map(|s| to_u8(s / total))
+            }
+        }
+    };
+    Some(vertices.par_iter().map(colour_of).collect())
 }
 
 /// Whether [`model_slices`] makes the slice files (from the model alone): slices are asked for,
@@ -294,7 +343,9 @@ pub fn model_slices(
 
 /// The export stage without the files of [`model_slices`]: the component filter, the trim, then
 /// at once the checks, the accuracy, the model, glTF, PLY (with the distance of each vertex to
-/// the nearest data point as its quality) and preview files and, unless [`model_slices`] makes
+/// the nearest data point as its quality; with `colours`, one per data point, each vertex gets
+/// a colour interpolated from its 4 nearest data points, PLY `red green blue` and glTF
+/// `COLOR_0`) and preview files and, unless [`model_slices`] makes
 /// them, the slice files from the distance to the kept mesh.
 ///
 /// # Errors
@@ -304,8 +355,18 @@ pub fn export_mesh(
     mesh: &TriangleMesh,
     known_embedded: bool,
     points: &[[f64; 3]],
+    colours: Option<&[[u16; 3]]>,
     params: &ExportParams,
 ) -> Result<ExportOutput, ExportError> {
+    if let Some(c) = colours {
+        if c.len() != points.len() {
+            return Err(ExportError::InvalidMesh(format!(
+                "{} colours for {} data points",
+                c.len(),
+                points.len()
+            )));
+        }
+    }
     let data_diagonal = Aabb::from_points(points).map_or(0.0, |b| b.diagonal());
     // One index of the data points for every nearest-point query below.
     let data = measure::PointIndex::new(points);
@@ -328,6 +389,7 @@ pub fn export_mesh(
         mesh = Cow::Owned(trimmed.mesh);
     }
     let m: &TriangleMesh = &mesh;
+    let vertex_colours = colours.and_then(|c| vertex_colours(&m.positions, points, c));
     let with_slices = !slices_from_model(model, params);
     let one = |name: &str, bytes: Vec<u8>| vec![(name.to_string(), bytes)];
     let mesh_opts = MeshFileOptions {
@@ -335,6 +397,7 @@ pub fn export_mesh(
             units: params.units,
             ..params.gltf
         },
+        colours: vertex_colours.as_deref(),
         ..Default::default()
     };
     let json = || -> Result<Vec<OutputFile>, ExportError> {
@@ -608,8 +671,8 @@ mod tests {
             ..ExportParams::default()
         };
         assert!(slices_from_model(&model, &params));
-        let whole = export(&model, &mesh, false, &mesh.positions, &params).unwrap();
-        let mut halves = export_mesh(&model, &mesh, false, &mesh.positions, &params).unwrap();
+        let whole = export(&model, &mesh, false, &mesh.positions, None, &params).unwrap();
+        let mut halves = export_mesh(&model, &mesh, false, &mesh.positions, None, &params).unwrap();
         halves
             .files
             .extend(model_slices(&model, &params).unwrap().unwrap());

@@ -22,7 +22,9 @@ use std::process::Command;
 use stablesurf::cloud::Aabb;
 use stablesurf::distance::{slices, Axis, DistanceMethod, Slice, SliceParams};
 use stablesurf::export::exr::{write_slice, ExrOptions};
-use stablesurf::export::gltf::{write_glb, write_gltf, GltfOptions, UpAxis};
+use stablesurf::export::gltf::{
+    write_glb, write_glb_coloured, write_gltf_coloured, GltfOptions, UpAxis,
+};
 use stablesurf::export::model::{read_model, write_model};
 use stablesurf::export::ply::{self, nearest_point_distances, PlyEncoding, PlyOptions};
 use stablesurf::export::png::write_preview;
@@ -127,6 +129,15 @@ fn run(mut command: Command, args: &[&Path]) -> Vec<serde_json::Value> {
         .collect()
 }
 
+/// A colour per position that varies with it: each channel is its coordinate mapped from
+/// [-1.5, 1.5] to [0, 255].
+fn position_colours(positions: &[[f64; 3]]) -> Vec<[u8; 3]> {
+    positions
+        .iter()
+        .map(|p| p.map(|c| ((c + 1.5) / 3.0 * 255.0).round().clamp(0.0, 255.0) as u8))
+        .collect()
+}
+
 fn write_file<F>(path: &Path, f: F)
 where
     F: FnOnce(&mut BufWriter<&mut File>) -> Result<(), ExportError>,
@@ -149,26 +160,43 @@ fn gltf_passes_the_khronos_validator() {
         ),
     ];
     let mut files = Vec::new();
-    for (name, mesh, up, units) in &cases {
-        let opts = GltfOptions {
-            up: *up,
-            units: *units,
-        };
+    // The small torus once more with a colour per vertex (COLOR_0).
+    let coloured = torus_mesh(60, 40, 1.0, 0.3);
+    let colours = position_colours(&coloured.positions);
+    let cases = cases
+        .iter()
+        .map(|(name, mesh, up, units)| (*name, mesh, *up, *units, None))
+        .chain([(
+            "coloured",
+            &coloured,
+            UpAxis::Y,
+            None,
+            Some(colours.as_slice()),
+        )]);
+    for (name, mesh, up, units, colours) in cases {
+        let opts = GltfOptions { up, units };
         let glb = dir.path().join(format!("{name}.glb"));
-        write_file(&glb, |w| write_glb(mesh, w, &opts));
+        write_file(&glb, |w| write_glb_coloured(mesh, colours, w, &opts));
         let gltf = dir.path().join(format!("{name}.gltf"));
         let bin_name = format!("{name}.bin");
         let mut bin = Vec::new();
-        write_file(&gltf, |w| write_gltf(mesh, w, &mut bin, &bin_name, &opts));
+        write_file(&gltf, |w| {
+            write_gltf_coloured(mesh, colours, w, &mut bin, &bin_name, &opts)
+        });
         write_file(&dir.path().join(&bin_name), |w| {
             w.write_all(&bin).map_err(ExportError::Write)
         });
 
-        // Deterministic bytes.
+        // Deterministic bytes, and no colours are no colours.
         let (mut a, mut b) = (Vec::new(), Vec::new());
-        write_glb(mesh, &mut a, &opts).unwrap();
-        write_glb(mesh, &mut b, &opts).unwrap();
+        write_glb_coloured(mesh, colours, &mut a, &opts).unwrap();
+        write_glb_coloured(mesh, colours, &mut b, &opts).unwrap();
         assert_eq!(a, b);
+        if colours.is_none() {
+            let mut plain = Vec::new();
+            write_glb(mesh, &mut plain, &opts).unwrap();
+            assert_eq!(plain, a);
+        }
         assert_eq!(std::fs::read(&glb).unwrap(), a);
         files.push((glb, mesh.positions.len(), mesh.triangles.len()));
         files.push((gltf, mesh.positions.len(), mesh.triangles.len()));
@@ -181,6 +209,9 @@ fn gltf_passes_the_khronos_validator() {
         assert_eq!(report["errors"], 0, "{report}");
         assert_eq!(report["warnings"], 0, "{report}");
         let info = &report["info"];
+        let coloured = file.to_string_lossy().contains("coloured");
+        // POSITION, NORMAL, and COLOR_0 when coloured.
+        assert_eq!(info["maxAttributes"], 2 + u64::from(coloured), "{report}");
         assert_eq!(info["generator"], "stablesurf");
         assert_eq!(info["version"], "2.0");
         assert_eq!(info["totalVertexCount"], n_vertices as u64, "{report}");
@@ -210,10 +241,13 @@ fn ply_passes_plyfile_and_meshlab() {
     for encoding in [PlyEncoding::BinaryLittleEndian, PlyEncoding::Ascii] {
         let path = dir.path().join(format!("mesh-{encoding:?}.ply"));
         // The unit's comment line must not bother the readers either.
+        // Colours in the binary file only, so both layouts are checked.
+        let colours = position_colours(&mesh.positions);
         let opts = PlyOptions {
             encoding,
             quality: Some(&quality),
             units: (encoding == PlyEncoding::Ascii).then_some(LengthUnit::Mm),
+            colours: (encoding == PlyEncoding::BinaryLittleEndian).then_some(colours.as_slice()),
         };
         write_file(&path, |w| ply::write(&mesh, w, &opts));
         let Some(mut command) = validator("ply") else {
@@ -237,6 +271,11 @@ fn ply_passes_plyfile_and_meshlab() {
         assert_eq!(meshlab["connected_components_number"], 1);
         assert_eq!(meshlab["genus"], 1);
         assert_eq!(meshlab["has_vertex_quality"], true);
+        assert_eq!(
+            meshlab["has_vertex_colour"],
+            opts.colours.is_some(),
+            "{report}"
+        );
         let seen = meshlab["quality_max"].as_f64().unwrap();
         assert!(
             (seen - f64::from(q_max)).abs() < 1e-6,
@@ -446,4 +485,100 @@ fn model_file_round_trips_through_disk() {
     assert_eq!(read_model(&bytes, &path).unwrap(), model);
     let text = String::from_utf8(bytes).unwrap();
     assert!(text.contains("\"format\": \"stablesurf.implicit-polynomial\""));
+}
+
+/// An RGB PLY sphere through `run`: the colour of each input point shows on the mesh near it
+/// in the PLY (`red green blue`), the glb has one COLOR_0 entry per vertex, and `info` sees the
+/// colours.
+#[test]
+fn scan_colours_reach_the_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    // 3000 points on the unit sphere (Fibonacci), each channel (coordinate + 1) / 2 · 255.
+    let n = 3000;
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let colour_at = |p: [f64; 3]| p.map(|c| (c + 1.0) / 2.0 * 255.0);
+    let mut text = format!(
+        "ply\nformat ascii 1.0\nelement vertex {n}\nproperty float x\nproperty float y\n\
+         property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n\
+         end_header\n"
+    );
+    let mut points = Vec::new();
+    for i in 0..n {
+        let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+        let r = (1.0 - z * z).sqrt();
+        let t = i as f64 * golden;
+        let p = [r * t.cos(), r * t.sin(), z].map(|c| f64::from(c as f32));
+        let c = colour_at(p).map(|c| c.round() as u8);
+        text.push_str(&format!(
+            "{} {} {} {} {} {}\n",
+            p[0] as f32, p[1] as f32, p[2] as f32, c[0], c[1], c[2]
+        ));
+        points.push(p);
+    }
+    let input = dir.path().join("sphere.ply");
+    std::fs::write(&input, text).unwrap();
+    let scan =
+        stablesurf::import::read_scan_bytes(&std::fs::read(&input).unwrap(), &input).unwrap();
+    assert_eq!(scan.cloud.colours.as_ref().map(Vec::len), Some(n));
+
+    let out = dir.path().join("out");
+    crate::fixtures::run_ok(&input, &out, &["-q", "--no-cache", "--formats", "ply,glb"]);
+    let mesh_path = out.join("mesh.ply");
+    let mesh = stablesurf::import::read_scan_bytes(&std::fs::read(&mesh_path).unwrap(), &mesh_path)
+        .unwrap()
+        .cloud;
+    let vertex_colours = mesh.colours.as_ref().expect("the mesh has colours");
+    assert_eq!(vertex_colours.len(), mesh.points.len());
+    let dist = |a: [f64; 3], b: [f64; 3]| {
+        ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+    };
+    // A vertex's colour is a weighted mean of the colours of its 4 nearest input points, all
+    // within r4 (the distance to the 4th). Each channel of the colour field changes by at most
+    // 127.5 per unit length, so for the vertex v nearest an input point p every channel is
+    // within 127.5 · (|p − v| + r4(v)) of p's colour, plus 1.5 for the three roundings to
+    // 8 bits (p's, its neighbours', the vertex's).
+    let mut total_error = 0.0;
+    let mut worst_excess = f64::NEG_INFINITY;
+    for (p, c) in points.iter().zip(scan.cloud.colours.as_ref().unwrap()) {
+        let (v, d) = mesh
+            .points
+            .iter()
+            .enumerate()
+            .map(|(v, &q)| (v, dist(*p, q)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap();
+        let mut near: Vec<f64> = points.iter().map(|&q| dist(mesh.points[v], q)).collect();
+        near.select_nth_unstable_by(3, f64::total_cmp);
+        let r4 = near[3];
+        let bound = 127.5 * (d + r4) + 1.5;
+        for k in 0..3 {
+            let error = (f64::from(vertex_colours[v][k]) - f64::from(c[k])).abs() / 257.0;
+            assert!(
+                error <= bound,
+                "point {p:?}: vertex {v} channel {k} off by {error} > {bound}"
+            );
+            total_error += error;
+            worst_excess = worst_excess.max(error - bound);
+        }
+    }
+    let mean_error = total_error / (3 * n) as f64;
+    eprintln!("mean colour error {mean_error:.3} of 255 (worst margin {worst_excess:.2})");
+    assert!(mean_error < 4.0, "mean colour error {mean_error}");
+
+    // The glb: COLOR_0 with one entry per vertex.
+    let glb = gltf::Gltf::from_slice(&std::fs::read(out.join("mesh.glb")).unwrap()).unwrap();
+    let primitive = glb.meshes().next().unwrap().primitives().next().unwrap();
+    let count = |semantic| primitive.get(&semantic).map(|a| a.count());
+    let n_vertices = count(gltf::Semantic::Positions).unwrap();
+    assert_eq!(count(gltf::Semantic::Colors(0)), Some(n_vertices));
+
+    // `info` of the mesh sees the colours.
+    let info = crate::fixtures::bin()
+        .args(["info", "--json"])
+        .arg(&mesh_path)
+        .output()
+        .unwrap();
+    assert!(info.status.success());
+    let json: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    assert_eq!(json["has_colours"], true);
 }

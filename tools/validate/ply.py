@@ -3,7 +3,7 @@
 Usage: python tools/validate/ply.py FILE.ply [--closed]
 
 1. plyfile, read strictly: the header must declare exactly the elements and properties stablesurf
-   writes (vertex x y z nx ny nz float, optional quality float; face vertex_indices as a list of
+   writes (vertex x y z nx ny nz float, optional red green blue uchar, optional quality float; face vertex_indices as a list of
    uchar count and int indices), the body must hold exactly the declared data with no trailing
    bytes, every face must be a triangle with indices in range, and every float must be finite.
 2. pymeshlab (MeshLab's own loader): loads the file and reports its topology. With --closed the
@@ -19,6 +19,7 @@ import math
 import sys
 
 EXPECTED_VERTEX = ["x", "y", "z", "nx", "ny", "nz"]
+COLOURS = ["red", "green", "blue"]
 
 
 def check_plyfile(path, problems):
@@ -46,11 +47,17 @@ def check_plyfile(path, problems):
     vertex, face = data["vertex"], data["face"]
     props = [(p.name, p.val_dtype) for p in vertex.properties]
     prop_names = [p[0] for p in props]
-    if prop_names not in (EXPECTED_VERTEX, EXPECTED_VERTEX + ["quality"]):
+    allowed = [
+        EXPECTED_VERTEX + colours + quality
+        for colours in ([], COLOURS)
+        for quality in ([], ["quality"])
+    ]
+    if prop_names not in allowed:
         problems.append(f"vertex properties are {prop_names}")
     for name, dtype in props:
-        if dtype != "f4":
-            problems.append(f"vertex property {name} has type {dtype}, expected float")
+        expected = "u1" if name in COLOURS else "f4"
+        if dtype != expected:
+            problems.append(f"vertex property {name} has type {dtype}, expected {expected}")
     face_props = face.properties
     if len(face_props) != 1 or face_props[0].name != "vertex_indices":
         problems.append(f"face properties are {[p.name for p in face_props]}")
@@ -101,6 +108,7 @@ def check_pymeshlab(path, closed, problems):
         "vertices": mesh.vertex_number(),
         "faces": mesh.face_number(),
         "has_vertex_quality": bool(mesh.has_vertex_scalar()),
+        "has_vertex_colour": bool(mesh.has_vertex_color()),
     }
     for key in (
         "boundary_edges",

@@ -79,7 +79,7 @@ struct EntryLayout {
     /// last (saturating: a header may declare more entries than a u64 counts).
     start: u64,
     end: u64,
-    /// For each property, where its value goes: 0..3 coordinates, 3..6 normals.
+    /// For each property, where its value goes: 0..3 coordinates, 3..6 normals, 6..9 colours.
     slot_of: Vec<Option<usize>>,
     is_vertex: bool,
     /// Whether the entries' normals are kept (the vertex element, when it has nx, ny and nz).
@@ -128,6 +128,7 @@ struct Block {
 struct BlockOutput {
     points: Vec<[f64; 3]>,
     normals: Vec<[f64; 3]>,
+    colours: Vec<[u16; 3]>,
     triangles: Vec<[u32; 3]>,
     /// Range grid cells (`u32::MAX` when empty).
     cells: Vec<u32>,
@@ -171,7 +172,7 @@ fn read_ascii_blocks(
     let layouts = entry_layouts(header, plan);
     let n_vertices = header.elements[plan.vertex].count;
     let blocks = split_blocks(text, header.body_line, block_bytes);
-    let read = |block: &Block| read_block(text, block, header, &layouts, n_vertices, path);
+    let read = |block: &Block| read_block(text, block, header, plan, &layouts, n_vertices, path);
     let parallel = block_bytes.is_some();
     let outputs: Vec<Result<BlockOutput, ImportError>> = if parallel {
         blocks.par_iter().map(read).collect()
@@ -224,6 +225,7 @@ fn read_ascii_blocks(
 
     let points = outputs.iter().map(|o| o.points.as_slice());
     let normals = outputs.iter().map(|o| o.normals.as_slice());
+    let colours = outputs.iter().map(|o| o.colours.as_slice());
     let triangles = outputs.iter().map(|o| o.triangles.as_slice());
     *cells = concat(
         outputs.iter().map(|o| o.cells.as_slice()).collect(),
@@ -232,6 +234,7 @@ fn read_ascii_blocks(
     Ok(PointCloud {
         points: concat(points.collect(), parallel),
         normals: plan.normals.map(|_| concat(normals.collect(), parallel)),
+        colours: plan.colours.map(|_| concat(colours.collect(), parallel)),
         triangles: concat(triangles.collect(), parallel),
         range: None,
         ..Default::default()
@@ -302,6 +305,7 @@ fn read_block(
     text: &str,
     block: &Block,
     header: &Header,
+    plan: &Plan,
     layouts: &[EntryLayout],
     n_vertices: u64,
     path: &str,
@@ -312,7 +316,7 @@ fn read_block(
         block.first_line,
     );
     let mut polygon: Vec<u32> = Vec::new();
-    let mut values = [0.0; 6];
+    let mut values = [0.0; 9];
     // The element of entry `index` (counted over the body's non-blank lines).
     let mut e = 0;
     let mut index = block.first_entry;
@@ -410,6 +414,7 @@ fn read_block(
             if layout.normals {
                 out.normals.push([values[3], values[4], values[5]]);
             }
+            out.colours.extend(plan.colour(&values));
         } else if layout.face_list.is_some() {
             push_fan(&mut out.triangles, &polygon);
         }

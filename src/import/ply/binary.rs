@@ -236,6 +236,7 @@ fn read_binary_body<const BIG: bool>(
     let mut pos = 0;
     let mut points = Vec::new();
     let mut normals = plan.normals.map(|_| Vec::new());
+    let mut colours = plan.colours.map(|_| Vec::new());
     let mut triangles = Vec::new();
     for (e, element) in header.elements.iter().enumerate() {
         let remaining = body.len() - pos;
@@ -270,6 +271,7 @@ fn read_binary_body<const BIG: bool>(
                     plan,
                     &mut points,
                     &mut normals,
+                    &mut colours,
                 );
             }
             continue;
@@ -310,7 +312,7 @@ fn read_binary_body<const BIG: bool>(
             scalars: &slots,
             list,
         };
-        let mut values = [0.0; 6];
+        let mut values = [0.0; 9];
         let mut polygon: Vec<i64> = Vec::new();
         let mut polygon_u32: Vec<u32> = Vec::new();
         if e == plan.vertex {
@@ -324,6 +326,9 @@ fn read_binary_body<const BIG: bool>(
                 points.push([values[0], values[1], values[2]]);
                 if let Some(n) = normals.as_mut() {
                     n.push([values[3], values[4], values[5]]);
+                }
+                if let (Some(c), Some(colour)) = (colours.as_mut(), plan.colour(&values)) {
+                    c.push(colour);
                 }
             } else if is_grid {
                 cells.push(match polygon.as_slice() {
@@ -405,6 +410,7 @@ fn read_binary_body<const BIG: bool>(
     Ok(PointCloud {
         points,
         normals,
+        colours,
         triangles,
         range: None,
         ..Default::default()
@@ -503,6 +509,7 @@ fn read_vertex_records<const BIG: bool>(
     plan: &Plan,
     points: &mut Vec<[f64; 3]>,
     normals: &mut Option<Vec<[f64; 3]>>,
+    colours: &mut Option<Vec<[u16; 3]>>,
 ) {
     let mut offsets = Vec::with_capacity(element.properties.len());
     let mut offset = 0;
@@ -544,6 +551,17 @@ fn read_vertex_records<const BIG: bool>(
             out.push([read(record, n[0]), read(record, n[1]), read(record, n[2])]);
         }
     }
+    if let (Some(out), Some((c, _))) = (colours.as_mut(), plan.colours) {
+        let c = c.map(field);
+        out.reserve(n_records);
+        let mut values = [0.0; 9];
+        for record in records.chunks_exact(stride) {
+            for (slot, field) in (6..9).zip(c) {
+                values[slot] = read(record, field);
+            }
+            out.extend(plan.colour(&values));
+        }
+    }
 }
 
 /// Walks one binary entry from `pos`, storing wanted scalars and the wanted list.
@@ -553,7 +571,7 @@ fn walk_entry<const BIG: bool>(
     mut pos: usize,
     element: &Element,
     wanted: &Wanted<'_>,
-    values: &mut [f64; 6],
+    values: &mut [f64; 9],
     list_out: &mut Vec<i64>,
 ) -> Option<usize> {
     for (p, property) in element.properties.iter().enumerate() {

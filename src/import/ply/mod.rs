@@ -2,7 +2,9 @@
 //! [`PointCloud`].
 //!
 //! Input: the whole file as bytes. Output: the format and a cloud with the `vertex` element's
-//! x/y/z (any numeric type, converted to f64), its nx/ny/nz when all three are present, and the
+//! x/y/z (any numeric type, converted to f64), its nx/ny/nz when all three are present, its
+//! red/green/blue (or diffuse_red/green/blue) when all three are `uchar` (scaled by 257) or
+//! `ushort` (kept), and the
 //! `face` element's `vertex_indices` (or `vertex_index`) lists of any integer type,
 //! fan-triangulated. A file without faces whose header gives `obj_info num_cols` and `num_rows`
 //! has its `range_grid` element (Stanford's raw range scans: one list of 0 or 1 vertex index per
@@ -52,7 +54,7 @@ use crate::cloud::PointCloud;
 use crate::import::{range, ImportError, ScanFormat};
 use ascii::read_ascii;
 use binary::read_binary;
-use header::{read_header, Encoding, Header, PropertyType};
+use header::{read_header, Encoding, Header, PropertyType, Scalar};
 
 /// Reads a PLY file; the vertex properties and elements it skips are named in `notices`.
 pub(crate) fn read(
@@ -118,6 +120,7 @@ fn skipped(header: &Header, plan: &Plan) -> Vec<String> {
         .coords
         .iter()
         .chain(plan.normals.iter().flatten())
+        .chain(plan.colours.iter().flat_map(|(c, _)| c))
         .copied()
         .collect();
     let names: Vec<&str> = (0..vertex.properties.len())
@@ -126,10 +129,15 @@ fn skipped(header: &Header, plan: &Plan) -> Vec<String> {
         .collect();
     if !names.is_empty() {
         notices.push(format!(
-            "vertex properties not read: {}; the cloud keeps x y z{}",
+            "vertex properties not read: {}; the cloud keeps x y z{}{}",
             names.join(", "),
             if plan.normals.is_some() {
                 " and nx ny nz"
+            } else {
+                ""
+            },
+            if plan.colours.is_some() {
+                " and red green blue"
             } else {
                 ""
             }
@@ -160,6 +168,9 @@ struct Plan {
     /// Property indices of x, y, z, then nx, ny, nz when all three exist.
     coords: [usize; 3],
     normals: Option<[usize; 3]>,
+    /// Property indices of red, green, blue (or diffuse_red, diffuse_green, diffuse_blue) when
+    /// all three exist and are `uchar` or `ushort`, and the factor to 16 bits (257 or 1).
+    colours: Option<([usize; 3], f64)>,
     /// Index of the `face` element and of its index-list property.
     face: Option<(usize, usize)>,
     /// Index of the `range_grid` element and of its index-list property, when the file has no
@@ -177,10 +188,27 @@ fn vertex_index(value: i64, n_vertices: u64) -> Option<u32> {
 
 impl Plan {
     /// The vertex element's values to read, as (property index, slot): x, y, z go to slots 0..3,
-    /// nx, ny, nz (when read) to 3..6.
+    /// nx, ny, nz (when read) to 3..6, red, green, blue (when read) to 6..9.
     fn vertex_slots(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
-        let wanted = self.coords.iter().chain(self.normals.iter().flatten());
-        wanted.enumerate().map(|(slot, &p)| (p, slot))
+        let coords = self.coords.iter().enumerate().map(|(i, &p)| (p, i));
+        let normals = self
+            .normals
+            .iter()
+            .flat_map(|n| n.iter().enumerate().map(|(i, &p)| (p, 3 + i)));
+        let colours = self
+            .colours
+            .iter()
+            .flat_map(|(c, _)| c.iter().enumerate().map(|(i, &p)| (p, 6 + i)));
+        coords.chain(normals).chain(colours)
+    }
+
+    /// The 16-bit colour held in slots 6..9 of `values`, when the plan reads colours.
+    #[inline(always)]
+    fn colour(&self, values: &[f64; 9]) -> Option<[u16; 3]> {
+        self.colours.map(|(_, scale)| {
+            [values[6], values[7], values[8]]
+                .map(|v| (v * scale).round().clamp(0.0, 65535.0) as u16)
+        })
     }
 
     /// The index-list property to read when element `e` is the face element.
@@ -229,6 +257,27 @@ impl Plan {
             (Some(a), Some(b), Some(c)) => Some([a, b, c]),
             _ => None,
         };
+        // Colours of 8 or 16 bits; other types (float colours are rare in scans) stay unread
+        // and are named in the notices.
+        let colour_type = |i: usize| match element.properties[i].ty {
+            PropertyType::Scalar(Scalar::U8) => Some(257.0),
+            PropertyType::Scalar(Scalar::U16) => Some(1.0),
+            _ => None,
+        };
+        let colours = [
+            ["red", "green", "blue"],
+            ["diffuse_red", "diffuse_green", "diffuse_blue"],
+        ]
+        .into_iter()
+        .find_map(|names| {
+            let [r, g, b] = names.map(|n| element.property_index(n));
+            let indices = [r?, g?, b?];
+            let scale = colour_type(indices[0])?;
+            indices
+                .iter()
+                .all(|&i| colour_type(i) == Some(scale))
+                .then_some((indices, scale))
+        });
         let face = match header.elements.iter().position(|e| e.name == "face") {
             None => None,
             Some(f) => {
@@ -274,6 +323,7 @@ impl Plan {
             vertex,
             coords,
             normals,
+            colours,
             face,
             grid,
         })
@@ -300,6 +350,51 @@ mod tests {
         assert_eq!(cloud.points.len(), 4);
         assert_eq!(cloud.triangles, vec![[0, 1, 2], [0, 2, 3]]);
         assert!(cloud.normals.is_none());
+    }
+
+    #[test]
+    fn colours_are_read_as_16_bit() {
+        // 8-bit red green blue are scaled by 257; a lone `red` is not a colour.
+        let s = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n\
+                 property float z\nproperty uchar red\nproperty uchar green\n\
+                 property uchar blue\nend_header\n0 0 0 255 0 1\n1 0 0 10 20 30\n";
+        let (_, cloud) = read_str(s).unwrap();
+        assert_eq!(
+            cloud.colours,
+            Some(vec![[65535, 0, 257], [2570, 5140, 7710]])
+        );
+        assert_eq!(read_str(SQUARE).unwrap().1.colours, None);
+        // 16-bit diffuse colours are kept as they are.
+        let s = s
+            .replace("uchar red", "ushort diffuse_red")
+            .replace("uchar green", "ushort diffuse_green")
+            .replace("uchar blue", "ushort diffuse_blue");
+        let (_, cloud) = read_str(&s).unwrap();
+        assert_eq!(cloud.colours, Some(vec![[255, 0, 1], [10, 20, 30]]));
+        // Binary, both through the fixed-stride path and the entry walk (a vertex list).
+        for with_list in [false, true] {
+            let mut bytes = format!(
+                "ply\nformat binary_big_endian 1.0\nelement vertex 1\nproperty float x\n\
+                 property float y\nproperty float z\n{}property uchar red\n\
+                 property uchar green\nproperty uchar blue\nend_header\n",
+                if with_list {
+                    "property list uchar int extra\n"
+                } else {
+                    ""
+                }
+            )
+            .into_bytes();
+            for c in [1.0f32, 2.0, 3.0] {
+                bytes.extend_from_slice(&c.to_be_bytes());
+            }
+            if with_list {
+                bytes.push(0);
+            }
+            bytes.extend_from_slice(&[1, 2, 3]);
+            let (_, cloud, _) = read(&bytes, "t.ply", &mut Vec::new()).unwrap();
+            assert_eq!(cloud.points, vec![[1.0, 2.0, 3.0]]);
+            assert_eq!(cloud.colours, Some(vec![[257, 514, 771]]), "{with_list}");
+        }
     }
 
     #[test]
