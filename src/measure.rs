@@ -1120,6 +1120,11 @@ impl<'a> PointIndex<'a> {
         &self.points
     }
 
+    /// The k-d tree over [`PointIndex::points`] (its indices are positions in that slice).
+    pub(crate) fn tree(&self) -> &PointTree {
+        &self.tree
+    }
+
     /// Distance from each of `queries` to the nearest indexed point (input units); a query
     /// with a non-finite coordinate gets NaN. Runs in parallel; the result does not depend on
     /// the thread count.

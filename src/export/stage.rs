@@ -271,22 +271,24 @@ const COLOUR_NEIGHBOURS: usize = 4;
 
 /// Each vertex's colour, interpolated from its [`COLOUR_NEIGHBOURS`] nearest data points with
 /// inverse-distance weights (the nearest point's colour when the vertex is on it), in the 16-bit
-/// values of the scan and then rounded to 8 bits. `None` when no data point is finite. Per
-/// vertex, so the result does not depend on the thread count; ties between equally near points
-/// are broken by the k-d tree's fixed order.
+/// values of the scan and then rounded to 8 bits. `data` indexes the finite ones of `points`,
+/// whose colours are `colours`. Per vertex, so the result does not depend on the thread count;
+/// ties between equally near points are broken by the k-d tree's fixed order.
 fn vertex_colours(
     vertices: &[[f64; 3]],
+    data: &measure::PointIndex<'_>,
     points: &[[f64; 3]],
     colours: &[[u16; 3]],
-) -> Option<Vec<[u8; 3]>> {
+) -> Vec<[u8; 3]> {
     use rayon::prelude::*;
-    let (finite_points, finite_colours): (Vec<[f64; 3]>, Vec<[u16; 3]>) = points
+    // The colours of the indexed points: the finite ones, in order, as the index keeps them.
+    let finite_colours: Vec<[u16; 3]> = points
         .iter()
         .zip(colours)
         .filter(|(p, _)| p.iter().all(|c| c.is_finite()))
-        .map(|(p, c)| (*p, *c))
-        .unzip();
-    let tree = measure::PointTree::new(&finite_points)?;
+        .map(|(_, c)| *c)
+        .collect();
+    let tree = data.tree();
     let colour_of = |q: &[f64; 3]| -> [u8; 3] {
         let mut nearest = [(0.0, 0_u32); COLOUR_NEIGHBOURS];
         let n = tree.nearest_n_within(*q, f64::INFINITY, &mut nearest);
@@ -311,7 +313,7 @@ fn vertex_colours(
             }
         }
     };
-    Some(vertices.par_iter().map(colour_of).collect())
+    vertices.par_iter().map(colour_of).collect()
 }
 
 /// Whether [`model_slices`] makes the slice files (from the model alone): slices are asked for,
@@ -389,7 +391,10 @@ pub fn export_mesh(
         mesh = Cow::Owned(trimmed.mesh);
     }
     let m: &TriangleMesh = &mesh;
-    let vertex_colours = colours.and_then(|c| vertex_colours(&m.positions, points, c));
+    // The colours come from the same index as the other nearest-point queries.
+    let vertex_colours = colours
+        .zip(data.as_ref())
+        .map(|(c, index)| vertex_colours(&m.positions, index, points, c));
     let with_slices = !slices_from_model(model, params);
     let one = |name: &str, bytes: Vec<u8>| vec![(name.to_string(), bytes)];
     let mesh_opts = MeshFileOptions {
