@@ -73,6 +73,7 @@ fn bench_export(c: &mut Criterion) {
             quality: Some(&quality),
             units: None,
             colours: None,
+            up: None,
         };
         b.iter(|| {
             buf.clear();

@@ -124,6 +124,9 @@ pub struct PipelineConfig {
     pub gltf: export::gltf::GltfOptions,
     /// The unit of the input coordinates (`--units`; see [`ExportParams::units`]).
     pub units: Option<export::units::LengthUnit>,
+    /// The input's up axis when the PLY should stand upright in Blender (`--up`; see
+    /// [`ExportParams::ply_up`]).
+    pub ply_up: Option<export::gltf::UpAxis>,
     /// Which files to write.
     pub formats: Vec<OutputFormat>,
 }
@@ -167,6 +170,7 @@ impl PipelineConfig {
             slices: export.slices,
             gltf: export.gltf,
             units: export.units,
+            ply_up: export.ply_up,
             formats: export.formats,
         };
         match mode {
@@ -207,6 +211,7 @@ impl PipelineConfig {
             slices: self.slices,
             gltf: self.gltf,
             units: self.units,
+            ply_up: self.ply_up,
         }
     }
 }

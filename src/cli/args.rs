@@ -282,12 +282,12 @@ pub enum KeepArg {
     Data,
 }
 
-/// glTF up axis.
+/// `--up`: the input's up axis.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum UpArg {
-    /// Coordinates unchanged (glTF is +Y up).
+    /// The input is Y-up: glTF unchanged, PLY turned by (x, y, z) ↦ (x, −z, y).
     Y,
-    /// The scan is Z-up: rotate it so it stands upright in Blender.
+    /// The input is Z-up: glTF turned by (x, y, z) ↦ (x, z, −y), PLY unchanged.
     Z,
 }
 
@@ -336,9 +336,11 @@ pub struct RunArgs {
     #[arg(long, value_delimiter = ',', default_value = "glb,ply,exr,png,json",
           value_parser = Trimmed::<FormatArg>::default(), hide_possible_values = true)]
     pub formats: Vec<FormatArg>,
-    /// glTF up axis.
-    #[arg(long, value_enum, default_value_t = UpArg::Y)]
-    pub up: UpArg,
+    /// The input's up axis, y or z: every mesh file is written upright for its format (glTF
+    /// +Y up, PLY +Z up as Blender and CloudCompare import it). Without it the PLY keeps the
+    /// input's coordinates (to lie on the scan in MeshLab) and glTF takes them as Y-up.
+    #[arg(long, value_enum)]
+    pub up: Option<UpArg>,
     /// Unit of the input coordinates: the glTF is written in metres (glTF's unit, so Blender
     /// shows the true size), PLY, OpenEXR and report.json record the unit; without it
     /// coordinates are written unchanged.
@@ -491,9 +493,11 @@ pub struct MeshArgs {
     /// Write a text PLY instead of binary.
     #[arg(long)]
     pub ascii: bool,
-    /// glTF up axis.
-    #[arg(long, value_enum, default_value_t = UpArg::Y)]
-    pub up: UpArg,
+    /// The model's up axis, y or z: the mesh is written upright for its format (glTF +Y up,
+    /// PLY +Z up as Blender and CloudCompare import it). Without it a PLY keeps the model's
+    /// coordinates and glTF takes them as Y-up.
+    #[arg(long, value_enum)]
+    pub up: Option<UpArg>,
     /// Unit of the model's coordinates: a glTF is written in metres, a PLY records the unit;
     /// without it coordinates are written unchanged.
     #[arg(
@@ -876,7 +880,7 @@ mod tests {
         assert_eq!(r.fit.kappa_rule, KappaRuleArg::Paper);
         assert_eq!(r.mesh.depth, Some(7));
         assert_eq!(r.keep, Some(KeepArg::Data));
-        assert_eq!(r.up, UpArg::Z);
+        assert_eq!(r.up, Some(UpArg::Z));
         assert_eq!(r.normals.source, SourceArg::Pca);
         assert!(r.cache.no_cache && r.json);
         assert_eq!(r.cache.cache_dir, Some(PathBuf::from("c")));

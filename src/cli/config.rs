@@ -235,7 +235,8 @@ pub fn run_config(args: &RunArgs) -> Result<PipelineConfig> {
             }
         }
     }
-    config.gltf.up = args.up.into();
+    config.gltf.up = args.up.map_or(UpAxis::Y, Into::into);
+    config.ply_up = args.up.map(Into::into);
     config.units = args.units.map(Into::into);
     // The count and resolution are within range::SLICE_COUNT and range::SLICE_RESOLUTION.
     config.slices.count = args.slices.slice_count;

@@ -33,7 +33,7 @@ pub fn mesh(args: MeshArgs, verbosity: Verbosity) -> Result<()> {
         .mesh;
     let opts = MeshFileOptions {
         gltf: export::gltf::GltfOptions {
-            up: args.up.into(),
+            up: args.up.map_or(export::gltf::UpAxis::Y, Into::into),
             units: args.units.map(Into::into),
         },
         ply: export::ply::PlyOptions {
@@ -43,6 +43,7 @@ pub fn mesh(args: MeshArgs, verbosity: Verbosity) -> Result<()> {
                 export::ply::PlyEncoding::BinaryLittleEndian
             },
             units: args.units.map(Into::into),
+            up: args.up.map(Into::into),
             ..Default::default()
         },
         colours: None,

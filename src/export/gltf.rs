@@ -20,6 +20,12 @@
 //! Z-up frame. With [`GltfOptions::units`] the positions are scaled to metres (a millimetre scan
 //! by 0.001); without, they are written unchanged (a scan in metres needs no unit).
 //!
+//! Far-off coordinates (a LiDAR tile in UTM coordinates, where `f32` steps are 0.25 m; the
+//! test is [`needs_double`](crate::export::needs_double)) are written relative to the centre of
+//! their bounding box, and the node's `translation` holds that centre as a JSON number with every
+//! digit of the `f64`: the shape keeps its detail and viewers place it where it belongs. Other
+//! meshes are written as before, with no translation.
+//!
 //! Vertex colours ([`write_glb_coloured`], [`write_gltf_coloured`]) come in as 8-bit sRGB, as
 //! scans store them, and are written after the indices as a fourth buffer view and a `COLOR_0`
 //! accessor of `f32` `VEC3` *linear* RGB (glTF defines `COLOR_0` as linear; the sRGB transfer
@@ -118,9 +124,8 @@ pub fn write_glb_coloured(
     out: &mut impl Write,
     opts: &GltfOptions,
 ) -> Result<(), ExportError> {
-    let (root, bin) = encode(mesh, colours, opts, None)?;
-    let json_bytes = json::serialize::to_vec(&root)
-        .map_err(|e| ExportError::Format(format!("cannot serialize glTF JSON: {e}")))?;
+    let (root, bin, translation) = encode(mesh, colours, opts, None)?;
+    let json_bytes = json_bytes(&root, translation, false)?;
     // 12-byte file header, two 8-byte chunk headers, both chunks padded to 4 bytes.
     let total = 12 + 8 + json_bytes.len().next_multiple_of(4) + 8 + bin.len().next_multiple_of(4);
     let length = u32::try_from(total).map_err(|_| ExportError::TooLarge {
@@ -192,9 +197,8 @@ pub fn write_gltf_coloured(
             "the .bin URI of a .gltf must not be empty".into(),
         ));
     }
-    let (root, bin) = encode(mesh, colours, opts, Some(bin_uri))?;
-    let json_bytes = json::serialize::to_vec_pretty(&root)
-        .map_err(|e| ExportError::Format(format!("cannot serialize glTF JSON: {e}")))?;
+    let (root, bin, translation) = encode(mesh, colours, opts, Some(bin_uri))?;
+    let json_bytes = json_bytes(&root, translation, true)?;
     json_out
         .write_all(&json_bytes)
         .map_err(ExportError::Write)?;
@@ -244,6 +248,33 @@ pub fn read_info(bytes: &[u8]) -> Result<serde_json::Value, ExportError> {
     }))
 }
 
+/// The JSON text of `root`; with a `translation`, the first node gets it with every digit of
+/// its `f64` values (`gltf-json` holds translations as `f32`, 0.25 m steps at UTM northings).
+fn json_bytes(
+    root: &json::Root,
+    translation: Option<[f64; 3]>,
+    pretty: bool,
+) -> Result<Vec<u8>, ExportError> {
+    let error =
+        |e: serde_json::Error| ExportError::Format(format!("cannot serialize glTF JSON: {e}"));
+    let Some(translation) = translation else {
+        return if pretty {
+            json::serialize::to_vec_pretty(root)
+        } else {
+            json::serialize::to_vec(root)
+        }
+        .map_err(error);
+    };
+    let mut value = serde_json::to_value(root).map_err(error)?;
+    value["nodes"][0]["translation"] = serde_json::json!(translation);
+    if pretty {
+        serde_json::to_vec_pretty(&value)
+    } else {
+        serde_json::to_vec(&value)
+    }
+    .map_err(error)
+}
+
 /// Applies the up-axis rotation to a vector.
 fn orient(v: [f64; 3], up: UpAxis) -> [f64; 3] {
     match up {
@@ -252,13 +283,16 @@ fn orient(v: [f64; 3], up: UpAxis) -> [f64; 3] {
     }
 }
 
+/// A glTF document, its binary buffer, and the node translation of far-off coordinates.
+type Encoded = (json::Root, Vec<u8>, Option<[f64; 3]>);
+
 /// Checks the mesh and converts it to the glTF JSON document and its binary buffer.
 fn encode(
     mesh: &TriangleMesh,
     colours: Option<&[[u8; 3]]>,
     opts: &GltfOptions,
     uri: Option<&str>,
-) -> Result<(json::Root, Vec<u8>), ExportError> {
+) -> Result<Encoded, ExportError> {
     let n_vertices = mesh.positions.len();
     check_mesh(mesh)?;
     if let Some(c) = colours {
@@ -279,8 +313,26 @@ fn encode(
     let index_bytes = mesh.triangles.len() * 3 * index_size;
     let mut bin = Vec::with_capacity(2 * position_bytes + index_bytes.next_multiple_of(4));
     let scale = opts.units.map_or(1.0, LengthUnit::metres);
-    for p in &mesh.positions {
-        let q = orient(*p, opts.up).map(|c| (c * scale) as f32);
+    let world: Vec<[f64; 3]> = mesh
+        .positions
+        .iter()
+        .map(|p| orient(*p, opts.up).map(|c| c * scale))
+        .collect();
+    // Far-off coordinates: positions relative to the box centre, which the node carries.
+    let translation = crate::export::needs_double(&world).then(|| {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for q in &world {
+            for a in 0..3 {
+                lo[a] = lo[a].min(q[a]);
+                hi[a] = hi[a].max(q[a]);
+            }
+        }
+        std::array::from_fn(|a| 0.5 * (lo[a] + hi[a]))
+    });
+    let origin = translation.unwrap_or([0.0; 3]);
+    for q in &world {
+        let q: [f32; 3] = std::array::from_fn(|a| (q[a] - origin[a]) as f32);
         for a in 0..3 {
             min[a] = min[a].min(q[a]);
             max[a] = max[a].max(q[a]);
@@ -463,7 +515,7 @@ fn encode(
         extras: Default::default(),
     });
     root.scene = Some(scene);
-    Ok((root, bin))
+    Ok((root, bin, translation))
 }
 
 /// The linear value of each 8-bit sRGB value (IEC 61966-2-1: v/12.92 up to 0.04045, else
@@ -624,5 +676,59 @@ mod tests {
             prim.indices().unwrap().data_type(),
             gltf::accessor::DataType::U32
         );
+    }
+    #[test]
+    fn far_off_coordinates_are_relative_to_a_full_precision_translation() {
+        let offset = [500_123.25, 4_000_456.5, 101.75];
+        let mesh = TriangleMesh {
+            positions: vec![
+                offset,
+                [offset[0] + 2.0, offset[1] + 0.001, offset[2]],
+                [offset[0], offset[1] + 2.0, offset[2] + 0.123_456_789],
+            ],
+            normals: vec![[0.0, 0.0, 1.0]; 3],
+            triangles: vec![[0, 1, 2]],
+        };
+        let mut glb = Vec::new();
+        write_glb(&mesh, &mut glb, &GltfOptions::default()).unwrap();
+        let asset = gltf::Gltf::from_slice(&glb).unwrap();
+        let json_len = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+        let text: serde_json::Value = serde_json::from_slice(&glb[20..20 + json_len]).unwrap();
+        let t: Vec<f64> = text["nodes"][0]["translation"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        // The box centre, every digit kept.
+        assert_eq!(
+            t,
+            [
+                offset[0] + 1.0,
+                offset[1] + 1.0,
+                offset[2] + 0.061_728_394_5
+            ]
+        );
+        let bin = asset.blob.as_deref().unwrap();
+        for (i, p) in mesh.positions.iter().enumerate() {
+            let back: [f64; 3] = std::array::from_fn(|a| {
+                let at = 12 * i + 4 * a;
+                f64::from(f32::from_le_bytes(bin[at..at + 4].try_into().unwrap())) + t[a]
+            });
+            for a in 0..3 {
+                assert!(
+                    (back[a] - p[a]).abs() < 1e-6,
+                    "vertex {i}: {back:?} vs {p:?}"
+                );
+            }
+        }
+        // Near the origin nothing changes: no translation.
+        let mut near = Vec::new();
+        let plain = TriangleMesh {
+            positions: vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+            ..mesh
+        };
+        write_glb(&plain, &mut near, &GltfOptions::default()).unwrap();
+        assert!(!near.windows(13).any(|w| w == b"\"translation\""));
     }
 }

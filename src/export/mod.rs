@@ -40,6 +40,36 @@ use std::path::Path;
 
 use crate::mesh::TriangleMesh;
 
+/// Largest `f32` rounding error of a coordinate, as a fraction of the mesh's bounding-box
+/// diagonal, that float positions may carry; past it positions are written as `double` (PLY) or relative
+/// to a node translation (glTF). At 1e-7
+/// no mesh from a scan near the origin changes, while a 50 m LiDAR tile at UTM northings
+/// (4,000 km, where `f32` steps are 0.25 m) is written in doubles.
+pub const DOUBLE_PRECISION_RATIO: f64 = 1e-7;
+
+/// Whether `positions` need `double` PLY properties: half an `f32` step at the largest
+/// coordinate magnitude exceeds [`DOUBLE_PRECISION_RATIO`] of the bounding-box diagonal.
+pub fn needs_double(positions: &[[f64; 3]]) -> bool {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    let mut largest = 0.0f64;
+    for p in positions {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+            largest = largest.max(p[a].abs());
+        }
+    }
+    let diagonal = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
+    if diagonal.is_nan() || diagonal <= 0.0 {
+        return false;
+    }
+    // The spacing of f32 values just below `largest`: 2^(exponent − 23).
+    let step = (largest as f32).max(f32::MIN_POSITIVE);
+    let half_step = 0.5 * f64::from(f32::from_bits(step.to_bits() + 1) - step);
+    half_step > DOUBLE_PRECISION_RATIO * diagonal
+}
+
 /// Errors of the export stage.
 #[derive(Debug, thiserror::Error)]
 pub enum ExportError {

@@ -113,6 +113,10 @@ pub struct ExportParams {
     /// The unit of the input coordinates (`--units`): glTF is scaled to metres, PLY and OpenEXR
     /// record it; `None` (the default) leaves every file as without units.
     pub units: Option<super::units::LengthUnit>,
+    /// The input's up axis when the PLY is to stand upright in Blender (`--up`): the PLY is
+    /// turned so that axis is +Z ([`ply::PlyOptions::up`]); `None` (the default) keeps the
+    /// input's frame, so the mesh lies on the scan in MeshLab.
+    pub ply_up: Option<super::gltf::UpAxis>,
 }
 
 impl Default for ExportParams {
@@ -136,6 +140,7 @@ impl Default for ExportParams {
             },
             gltf: Default::default(),
             units: None,
+            ply_up: None,
         }
     }
 }
@@ -172,6 +177,9 @@ impl Serialize for ExportParams {
         let mut value = value;
         if let Some(units) = self.units {
             value["units"] = serde_json::Value::from(units.symbol());
+        }
+        if let Some(up) = self.ply_up {
+            value["ply_up"] = serde_json::Value::from(format!("{up:?}"));
         }
         value.serialize(serializer)
     }
@@ -442,6 +450,7 @@ pub fn export_mesh(
             ply: ply::PlyOptions {
                 quality: Some(&quality),
                 units: params.units,
+                up: params.ply_up,
                 ..Default::default()
             },
             ..mesh_opts

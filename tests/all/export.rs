@@ -78,7 +78,8 @@ fn unit_sphere(center: [f64; 3], scale: f64) -> ImplicitPolynomial {
 }
 
 /// How to run one external validator, or `None` (after a notice, or a failure under CI).
-fn validator(kind: &str) -> Option<Command> {
+/// `kind` names its script in tools/validate; `blender` runs in Blender's own environment.
+pub(crate) fn validator(kind: &str) -> Option<Command> {
     let dir = Path::new(ROOT).join("tools/validate");
     let (found, command) = match kind {
         "gltf" => {
@@ -89,6 +90,12 @@ fn validator(kind: &str) -> Option<Command> {
             let mut c = Command::new("node");
             c.arg(dir.join("gltf.mjs"));
             (ok, c)
+        }
+        "blender" => {
+            let python = dir.join(".venv-blender/bin/python");
+            let mut c = Command::new(&python);
+            c.arg(dir.join("blender.py"));
+            (python.exists(), c)
         }
         _ => {
             let python = std::env::var_os("STABLESURF_VALIDATOR_PYTHON")
@@ -115,7 +122,7 @@ fn validator(kind: &str) -> Option<Command> {
 }
 
 /// Runs a validator on `args`; returns its JSON lines, asserting it exited 0.
-fn run(mut command: Command, args: &[&Path]) -> Vec<serde_json::Value> {
+pub(crate) fn run(mut command: Command, args: &[&Path]) -> Vec<serde_json::Value> {
     let out = command.args(args).output().expect("cannot start validator");
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -149,7 +156,11 @@ where
 fn gltf_passes_the_khronos_validator() {
     let dir = tempfile::tempdir().unwrap();
     // 2 400 vertices (u16 indices) and 75 000 vertices (u32 indices, Z up, millimetres scaled
-    // to metres).
+    // to metres); the small torus once more at UTM-like coordinates (a node translation).
+    let mut far_off = torus_mesh(60, 40, 1.0, 0.3);
+    for p in &mut far_off.positions {
+        *p = [p[0] + 500_123.25, p[1] + 4_000_456.5, p[2] + 101.75];
+    }
     let cases = [
         ("small", torus_mesh(60, 40, 1.0, 0.3), UpAxis::Y, None),
         (
@@ -158,6 +169,7 @@ fn gltf_passes_the_khronos_validator() {
             UpAxis::Z,
             Some(LengthUnit::Mm),
         ),
+        ("far_off", far_off, UpAxis::Z, None),
     ];
     let mut files = Vec::new();
     // The small torus once more with a colour per vertex (COLOR_0).
@@ -248,6 +260,7 @@ fn ply_passes_plyfile_and_meshlab() {
             quality: Some(&quality),
             units: (encoding == PlyEncoding::Ascii).then_some(LengthUnit::Mm),
             colours: (encoding == PlyEncoding::BinaryLittleEndian).then_some(colours.as_slice()),
+            up: None,
         };
         write_file(&path, |w| ply::write(&mesh, w, &opts));
         let Some(mut command) = validator("ply") else {

@@ -1464,6 +1464,42 @@ fn las_and_laz_written_by_laspy_read_and_mesh() {
     }
 }
 
+/// pye57 (libE57Format, the reference E57 library) writes a sphere as four scans, each in its
+/// scanner's frame with its pose; `tools/validate/e57.py` checks `info`'s count and bounding box
+/// (the poses applied), and that `run` makes one watertight mesh on the sphere (every normal
+/// turned towards its own scanner).
+#[test]
+fn e57_written_by_pye57_reads_with_its_poses_and_meshes() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let python = std::env::var_os("STABLESURF_VALIDATOR_PYTHON")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| root.join("tools/validate/.venv/bin/python"));
+    if !python.exists() {
+        let msg = "pye57 is not installed; run `bash tools/install-validators.sh` to check E57 \
+                   files written by it";
+        assert!(std::env::var_os("CI").is_none(), "{msg} (CI is set)");
+        eprintln!("notice: skipping: {msg}");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = std::process::Command::new(python)
+        .arg(root.join("tools/validate/e57.py"))
+        .arg(assert_cmd::cargo::cargo_bin("stablesurf"))
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let line: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert_eq!(line["format"], "e57");
+    assert_eq!(line["scans"], 4);
+    assert_eq!(line["watertight"], true);
+}
+
 // ---------------------------------------------------------------------------------------------
 // E57, written by the `e57` crate's own writer
 

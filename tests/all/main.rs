@@ -8,6 +8,7 @@
 
 mod fixtures;
 
+mod blender;
 mod cli;
 mod detail;
 mod export;
