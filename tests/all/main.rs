@@ -8,6 +8,7 @@
 
 mod fixtures;
 
+mod batch;
 mod cli;
 mod detail;
 mod export;
