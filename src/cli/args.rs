@@ -823,6 +823,7 @@ mod tests {
             panic!()
         };
         assert!(r.input.is_empty());
+        assert!(!r.batch);
         assert_eq!(r.fit.degree, 8);
         assert_eq!(r.fit.kappa.value, fit::Kappa::Auto);
         assert_eq!(r.mesh.depth, None);
@@ -836,6 +837,16 @@ mod tests {
                 FormatArg::Json
             ]
         );
+    }
+
+    #[test]
+    fn batch_takes_several_inputs() {
+        let CommandArgs::Run(r) = parse(&["run", "a.ply", "b.obj", "--batch", "-o", "out"]).command
+        else {
+            panic!()
+        };
+        assert!(r.batch);
+        assert_eq!(r.input, [PathBuf::from("a.ply"), PathBuf::from("b.obj")]);
     }
 
     #[test]
