@@ -32,11 +32,10 @@ pub fn run(args: RunArgs, verbosity: Verbosity) -> Result<()> {
         ));
     }
     let config = config::run_config(&args)?;
+    let cache = config::open_cache(&args.cache)?;
     if let Some(plan) = batch::plan(&args.input, args.batch, &args.output)? {
-        let cache = config::open_cache(&args.cache)?;
         return batch::run_batch(&args, &plan, &config, &cache, verbosity);
     }
-    let cache = config::open_cache(&args.cache)?;
     let source = ScanSource::from_inputs(&args.input);
     if args.input.len() > 1 {
         if let Some(conf) = args.input.iter().find(|p| import::conf::is_conf(p)) {

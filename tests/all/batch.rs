@@ -416,3 +416,42 @@ fn a_folder_without_scans_or_given_with_other_inputs_is_a_usage_error() {
         assert!(!out.exists(), "a usage error wrote {}", out.display());
     }
 }
+
+/// An input whose outputs cannot be written (a full disk at its first file) fails alone: its
+/// folder, which its run created, is gone, and the next input's is complete.
+#[test]
+fn an_input_that_cannot_write_leaves_no_folder_and_the_next_one_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let first = dir.path().join("first.xyz");
+    let second = dir.path().join("second.xyz");
+    fs::write(&first, xyz(&ellipsoid(300, [0.0; 3], [1.0; 3]))).unwrap();
+    fs::write(&second, xyz(&ellipsoid(300, [0.0; 3], [1.0, 1.2, 1.0]))).unwrap();
+    let out = dir.path().join("out");
+    let done = bin()
+        .arg("run")
+        .arg(&first)
+        .arg(&second)
+        .arg("--batch")
+        .arg("-o")
+        .arg(&out)
+        .arg("--no-cache")
+        .args(SMALL)
+        .env("STABLESURF_FAULT", "enospc@1")
+        .output()
+        .unwrap();
+    let stderr = stderr_of(&done);
+    assert_eq!(done.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr
+            .lines()
+            .last()
+            .unwrap()
+            .contains("1 of 2 inputs failed"),
+        "{stderr}"
+    );
+    assert!(!out.join("first").exists(), "{stderr}");
+    assert!(out.join("second").join("report.json").is_file(), "{stderr}");
+    let rows = csv_rows(&fs::read_to_string(out.join("summary.csv")).unwrap());
+    assert_eq!(rows[0]["status"], "failed");
+    assert_eq!(rows[1]["status"], "ok");
+}
