@@ -3,7 +3,8 @@
 //!
 //! Exit codes: 0 success (also when stdout is a closed pipe), 1 runtime error (bad input, failed
 //! fit, unwritable output), 2 usage error (clap's, and [`cli::UsageError`]). stdout carries only
-//! machine-readable output (`--json`); everything else goes to stderr.
+//! machine-readable output (`--json`) and a batch run's result table; everything else goes to
+//! stderr.
 
 use std::process::ExitCode;
 

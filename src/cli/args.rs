@@ -323,8 +323,18 @@ pub struct RunArgs {
     /// Scan file (PLY, OBJ, STL, XYZ/PTS, LAS/LAZ, E57, PCD); a Stanford .conf registration
     /// file (its scans, moved by their poses); or several scans of one object in one frame. Each
     /// scan gets its normals in its own frame before the merge. Without any, a small built-in
-    /// sample scan is used.
+    /// sample scan is used. A folder (given alone) is a batch: every scan file directly in it
+    /// (by extension; subfolders and other files are skipped with a notice) runs on its own into
+    /// OUT_DIR/<file stem>/, as with --batch.
     pub input: Vec<PathBuf>,
+    /// Run each INPUT on its own instead of merging them as views of one object: each into
+    /// OUT_DIR/<file stem>/, exactly as `run INPUT -o OUT_DIR/<file stem>` would. Inputs whose
+    /// stems collide get their file name instead (a.ply/, a.obj/), and a name still taken gets
+    /// -2, -3, … in input order. One failed input does not stop the others; the command then
+    /// exits 1 naming each. A table of the results goes to stdout (JSON with --json) and to
+    /// OUT_DIR/summary.csv.
+    #[arg(long)]
+    pub batch: bool,
     /// Output directory (created if missing).
     #[arg(short, long, value_name = "OUT_DIR")]
     pub output: PathBuf,
@@ -365,7 +375,7 @@ pub struct RunArgs {
           help = trim_help(),
           allow_negative_numbers = true, value_parser = parse_trim)]
     pub trim: Option<TrimArg>,
-    /// Print the stage summary as JSON on stdout.
+    /// Print the stage summary as JSON on stdout (a batch: the summary table as JSON).
     #[arg(long)]
     pub json: bool,
     #[command(flatten)]
@@ -817,6 +827,7 @@ mod tests {
             panic!()
         };
         assert!(r.input.is_empty());
+        assert!(!r.batch);
         assert_eq!(r.fit.degree, 8);
         assert_eq!(r.fit.kappa.value, fit::Kappa::Auto);
         assert_eq!(r.mesh.depth, None);
@@ -830,6 +841,16 @@ mod tests {
                 FormatArg::Json
             ]
         );
+    }
+
+    #[test]
+    fn batch_takes_several_inputs() {
+        let CommandArgs::Run(r) = parse(&["run", "a.ply", "b.obj", "--batch", "-o", "out"]).command
+        else {
+            panic!()
+        };
+        assert!(r.batch);
+        assert_eq!(r.input, [PathBuf::from("a.ply"), PathBuf::from("b.obj")]);
     }
 
     #[test]

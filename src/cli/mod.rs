@@ -9,6 +9,7 @@
 //! [`UsageError`] (exit code 2); every other error is a runtime error (exit code 1).
 
 mod args;
+mod batch;
 mod cache;
 mod config;
 mod fit;

@@ -1,13 +1,19 @@
 //! `stablesurf run`: a scan (or several, or a registration file, or the built-in sample) through
 //! the whole pipeline into an output folder, with a one-line summary of the settings before and
-//! of the result after on stderr, and the stage summary as JSON on stdout with `--json`.
+//! of the result after on stderr, and the stage summary as JSON on stdout with `--json`. A
+//! folder, or several inputs with `--batch`, is a batch ([`super::batch`]): each input through
+//! [`run_source`], the one path of a single run.
+
+use std::path::Path;
 
 use anyhow::{Context, Result};
+use stablesurf::cache::Cache;
 use stablesurf::import;
-use stablesurf::pipeline::{self, Keep, Mode, ScanSource};
+use stablesurf::pipeline::{self, Keep, Mode, PipelineConfig, RunReport, ScanSource};
 use stablesurf::trim::TrimMode;
 
 use super::args::{spelling, DistanceArg, RunArgs};
+use super::batch;
 use super::config;
 use super::progress::{StderrObserver, Verbosity};
 use super::usage;
@@ -27,15 +33,39 @@ pub fn run(args: RunArgs, verbosity: Verbosity) -> Result<()> {
     }
     let config = config::run_config(&args)?;
     let cache = config::open_cache(&args.cache)?;
+    if let Some(plan) = batch::plan(&args.input, args.batch, &args.output)? {
+        return batch::run_batch(&args, &plan, &config, &cache, verbosity);
+    }
     let source = ScanSource::from_inputs(&args.input);
     if args.input.len() > 1 {
         if let Some(conf) = args.input.iter().find(|p| import::conf::is_conf(p)) {
             return Err(usage(format!(
-                "{} is a registration file: give it alone, or give the scans without it",
+                "{} is a registration file: give it alone, or give the scans without it (or add --batch to run each input on its own)",
                 conf.display()
             )));
         }
     }
+    let report = run_source(&args, &source, &args.output, &config, &cache, verbosity)?;
+    if args.json {
+        config::print_json(&report)?;
+    }
+    Ok(())
+}
+
+/// One run of `source` into `output`, with its lines on stderr: a single `run`, and each input
+/// of a batch.
+///
+/// # Errors
+/// The pipeline's error, with the input named.
+pub fn run_source(
+    args: &RunArgs,
+    source: &ScanSource,
+    output: &Path,
+    config: &PipelineConfig,
+    cache: &Cache,
+    verbosity: Verbosity,
+) -> Result<RunReport> {
+    let mode = config.mode;
     if verbosity != Verbosity::Quiet {
         let input = source.name();
         let model = match mode {
@@ -54,7 +84,7 @@ pub fn run(args: RunArgs, verbosity: Verbosity) -> Result<()> {
         };
         eprintln!(
             "stablesurf: run {input} -> {} (mode {}{}, normals {}, {model}, depth {}, keep {}, trim {}, slices {} x {}^2 {}, cache {})",
-            args.output.display(),
+            output.display(),
             spelling(&args.mode()),
             if args.mode.is_some() {
                 ""
@@ -78,8 +108,8 @@ pub fn run(args: RunArgs, verbosity: Verbosity) -> Result<()> {
         );
     }
     let mut observer = StderrObserver::new(verbosity);
-    let report = pipeline::run(&source, &args.output, &config, &cache, &mut observer)
-        .with_context(|| {
+    let report =
+        pipeline::run(source, output, config, cache, &mut observer).with_context(|| {
             format!(
                 "running the pipeline on {}",
                 match source {
@@ -121,11 +151,8 @@ pub fn run(args: RunArgs, verbosity: Verbosity) -> Result<()> {
             report.mesh.boundary_loops,
             report.mesh.self_intersecting_faces,
             report.accuracy.describe(),
-            args.output.display()
+            output.display()
         );
     }
-    if args.json {
-        config::print_json(&report)?;
-    }
-    Ok(())
+    Ok(report)
 }

@@ -355,6 +355,28 @@ fn display_path(path: &Path) -> String {
     path.display().to_string()
 }
 
+/// The extensions (lowercase, without the dot) of the scan formats the readers know: a file
+/// with one of them is read as that format when its content carries no signature. A batch run
+/// of a folder runs the files with these extensions and skips the others.
+pub const SCAN_EXTENSIONS: [&str; 11] = [
+    "ply", "obj", "stl", "las", "laz", "e57", "pcd", "xyz", "pts", "txt", "csv",
+];
+
+/// Whether `path`'s extension is one of [`SCAN_EXTENSIONS`], in any case.
+///
+/// ```
+/// use std::path::Path;
+/// use stablesurf::import::has_scan_extension;
+/// assert!(has_scan_extension(Path::new("data/bunny.PLY")));
+/// assert!(!has_scan_extension(Path::new("data/SOURCES.md")));
+/// assert!(!has_scan_extension(Path::new("data/bun.conf")));
+/// ```
+pub fn has_scan_extension(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| SCAN_EXTENSIONS.iter().any(|k| e.eq_ignore_ascii_case(k)))
+}
+
 /// Reads and parses a scan file (no validation: NaN coordinates are kept).
 ///
 /// # Errors
@@ -890,6 +912,17 @@ mod tests {
             detect_format(b"1 2 3\n", Path::new("a.PTS")),
             Some(Detected::Xyz)
         );
+    }
+
+    #[test]
+    fn every_scan_extension_selects_a_reader() {
+        // Text with no signature and no OBJ or number lines: only the extension can decide.
+        for extension in SCAN_EXTENSIONS {
+            let path = format!("scan.{}", extension.to_ascii_uppercase());
+            assert!(detect_format(b"\x00", Path::new(&path)).is_some(), "{path}");
+            assert!(has_scan_extension(Path::new(&path)), "{path}");
+        }
+        assert_eq!(detect_format(b"\x00", Path::new("scan.md")), None);
     }
 
     #[test]

@@ -8,6 +8,7 @@
 
 mod fixtures;
 
+mod batch;
 mod blender;
 mod cli;
 mod detail;
