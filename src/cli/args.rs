@@ -16,7 +16,7 @@ use stablesurf::fit;
 
 use super::range::{
     number, BOUNDS_MAX_ABS, COUNT, DEGREE, DEPTH, EPSILON, KAPPA, LOCAL_DEGREE, RESOLUTION, SIZE,
-    SLICE_COUNT, SLICE_RESOLUTION, THREADS, TOLERANCE, TRIM, VIEWPOINT,
+    SLICE_COUNT, SLICE_RESOLUTION, TARGET_TRIANGLES, THREADS, TOLERANCE, TRIM, VIEWPOINT,
 };
 
 /// stablesurf: stable algebraic surfaces from 3D scans (Sahin & Unel 2008).
@@ -138,6 +138,14 @@ pub struct MeshOpts {
           help = depth_help(),
           allow_negative_numbers = true, value_parser = DEPTH.whole::<u32>())]
     pub depth: Option<u32>,
+    /// Decimate the mesh by edge collapses (quadric error, new vertices on the model's
+    /// surface) to at most N triangles, keeping it watertight, manifold, of the same genus and
+    /// free of self-intersections; after the component filter and the trim. When no legal
+    /// collapse is left above N, the smallest mesh reached is written with a warning.
+    #[arg(long, value_name = "N",
+          help = TARGET_TRIANGLES.help("Decimate the mesh to at most N triangles by edge collapses that keep it watertight, manifold, of the same genus and free of self-intersections (after --keep and --trim; a warning says when no legal collapse gets there)"),
+          allow_negative_numbers = true, value_parser = TARGET_TRIANGLES.whole::<usize>())]
+    pub target_triangles: Option<usize>,
 }
 
 /// `--mode`: which model to fit.

@@ -9,6 +9,7 @@
 mod fixtures;
 
 mod cli;
+mod decimate;
 mod detail;
 mod export;
 mod fit;
