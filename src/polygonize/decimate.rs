@@ -478,12 +478,11 @@ impl<'f, F: ImplicitFunction + ?Sized> State<'f, F> {
         } else {
             0.0
         };
-        let kind: Vec<Kind> = (0..n as u32)
+        let mut kind: Vec<Kind> = (0..n as u32)
             .into_par_iter()
             .map(|v| classify(v, &around[v as usize], &triangles, &positions))
             .collect();
         // Vertices of a degenerate or non-finite triangle stay where they are.
-        let mut kind = kind;
         for tri in &triangles {
             let bad = tri[0] == tri[1]
                 || tri[1] == tri[2]
@@ -522,8 +521,8 @@ impl<'f, F: ImplicitFunction + ?Sized> State<'f, F> {
                         u[2] * d,
                         d * d,
                     ];
-                    for i in 0..10 {
-                        q[i] += area * plane[i];
+                    for (qi, pi) in q.iter_mut().zip(plane) {
+                        *qi += area * pi;
                     }
                 }
                 q
@@ -752,7 +751,7 @@ impl<'f, F: ImplicitFunction + ?Sized> State<'f, F> {
         // (a) Link condition: the common neighbours are exactly w₁, w₂ ...
         self.mark_stamp = self.mark_stamp.wrapping_add(1);
         if self.mark_stamp == 0 {
-            self.mark.iter_mut().for_each(|m| *m = 0);
+            self.mark.fill(0);
             self.mark_stamp = 1;
         }
         let stamp = self.mark_stamp;
@@ -857,11 +856,9 @@ impl<'f, F: ImplicitFunction + ?Sized> State<'f, F> {
         let overlap = |x: &([f64; 3], [f64; 3]), y: &([f64; 3], [f64; 3])| {
             (0..3).all(|k| x.0[k] <= y.1[k] && y.0[k] <= x.1[k])
         };
-        for i in 0..fan.len() {
-            for j in i + 1..fan.len() {
-                if overlap(&boxes[i], &boxes[j])
-                    && triangles_intersect(fan[i], fan[j], &self.positions)
-                {
+        for (i, (s, sb)) in fan.iter().zip(&boxes).enumerate() {
+            for (t, tb) in fan[i + 1..].iter().zip(&boxes[i + 1..]) {
+                if overlap(sb, tb) && triangles_intersect(*s, *t, &self.positions) {
                     return true;
                 }
             }
