@@ -837,6 +837,40 @@ mod tests {
     }
 
     #[test]
+    fn target_triangles_parses_on_run_and_mesh_and_refuses_zero() {
+        let CommandArgs::Run(r) =
+            parse(&["run", "-o", "out", "--target-triangles", "20000"]).command
+        else {
+            panic!()
+        };
+        assert_eq!(r.mesh.target_triangles, Some(20000));
+        let CommandArgs::Mesh(m) =
+            parse(&["mesh", "m.json", "-o", "x.ply", "--target-triangles", "4"]).command
+        else {
+            panic!()
+        };
+        assert_eq!(m.mesh.target_triangles, Some(4));
+        for bad in ["0", "-5", "1.5", "2000000000"] {
+            let e = Cli::try_parse_from([
+                "stablesurf",
+                "mesh",
+                "m.json",
+                "-o",
+                "x.ply",
+                "--target-triangles",
+                bad,
+            ])
+            .unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{bad}");
+            assert!(
+                e.to_string()
+                    .contains("--target-triangles takes a whole number from 1 to 1e9"),
+                "{e}"
+            );
+        }
+    }
+
+    #[test]
     fn run_flags_parse() {
         let cli = parse(&[
             "run",
