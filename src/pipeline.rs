@@ -25,6 +25,7 @@ use crate::mesh::MeshReport;
 use crate::normals::{self, NormalsParams};
 use crate::outliers::{self, OutlierParams};
 use crate::outputs::OutputSet;
+use crate::polygonize::decimate::{DecimateParams, DecimateReport};
 use crate::polygonize::{self, PolygonizeParams};
 use crate::trim::{self, TrimParams, TrimReport};
 
@@ -129,6 +130,8 @@ pub struct PipelineConfig {
     pub ply_up: Option<export::gltf::UpAxis>,
     /// Which files to write.
     pub formats: Vec<OutputFormat>,
+    /// The decimation to a triangle budget (`--target-triangles`); `None` keeps every triangle.
+    pub decimate: Option<DecimateParams>,
 }
 
 impl PipelineConfig {
@@ -172,6 +175,7 @@ impl PipelineConfig {
             units: export.units,
             ply_up: export.ply_up,
             formats: export.formats,
+            decimate: export.decimate,
         };
         match mode {
             Mode::Global => global,
@@ -212,6 +216,7 @@ impl PipelineConfig {
             gltf: self.gltf,
             units: self.units,
             ply_up: self.ply_up,
+            decimate: self.decimate,
         }
     }
 }
@@ -290,6 +295,10 @@ pub struct RunReport {
     pub fit: serde_json::Value,
     /// What the trim stage removed and closed.
     pub trim: TrimReport,
+    /// What the decimation did (`--target-triangles`): the budget, triangles before and after,
+    /// and whether the budget was reached.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub decimate: Option<DecimateReport>,
     /// Mesh topology checks.
     pub mesh: MeshReport,
     /// Two-sided distances between the input points and the mesh, absolute and relative to the
@@ -928,6 +937,11 @@ pub fn run(
         serde_json::from_value(figures["accuracy"].clone()).unwrap_or_default();
     let trim_report: TrimReport =
         serde_json::from_value(figures["trim"].clone()).unwrap_or_default();
+    let decimate_report: Option<DecimateReport> =
+        serde_json::from_value(figures["decimate"].clone()).unwrap_or_default();
+    if let Some(message) = decimate_report.as_ref().and_then(DecimateReport::shortfall) {
+        ctx.warn(message);
+    }
     // A polynomial's zero set that runs out of the meshing box is open there: not a bounded
     // surface in this mesh, whatever the fit certified.
     let dropped = figures["dropped_components"].as_u64().unwrap_or(0);
@@ -990,6 +1004,7 @@ pub fn run(
             fit
         },
         trim: trim_report,
+        decimate: decimate_report,
         mesh: report_mesh,
         accuracy,
         units: config.units,

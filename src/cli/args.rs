@@ -16,7 +16,7 @@ use stablesurf::fit;
 
 use super::range::{
     number, BOUNDS_MAX_ABS, COUNT, DEGREE, DEPTH, EPSILON, KAPPA, LOCAL_DEGREE, RESOLUTION, SIZE,
-    SLICE_COUNT, SLICE_RESOLUTION, THREADS, TOLERANCE, TRIM, VIEWPOINT,
+    SLICE_COUNT, SLICE_RESOLUTION, TARGET_TRIANGLES, THREADS, TOLERANCE, TRIM, VIEWPOINT,
 };
 
 /// stablesurf: stable algebraic surfaces from 3D scans (Sahin & Unel 2008).
@@ -138,6 +138,14 @@ pub struct MeshOpts {
           help = depth_help(),
           allow_negative_numbers = true, value_parser = DEPTH.whole::<u32>())]
     pub depth: Option<u32>,
+    /// Decimate the mesh by edge collapses (quadric error, new vertices on the model's
+    /// surface) to at most N triangles, keeping it watertight, manifold, of the same genus and
+    /// free of self-intersections; after the component filter and the trim. When no legal
+    /// collapse is left above N, the smallest mesh reached is written with a warning.
+    #[arg(long, value_name = "N",
+          help = TARGET_TRIANGLES.help("Decimate the mesh to at most N triangles by edge collapses that keep it watertight, manifold, of the same genus and free of self-intersections (after --keep and --trim; a warning says when no legal collapse gets there)"),
+          allow_negative_numbers = true, value_parser = TARGET_TRIANGLES.whole::<usize>())]
+    pub target_triangles: Option<usize>,
 }
 
 /// `--mode`: which model to fit.
@@ -851,6 +859,40 @@ mod tests {
         };
         assert!(r.batch);
         assert_eq!(r.input, [PathBuf::from("a.ply"), PathBuf::from("b.obj")]);
+    }
+
+    #[test]
+    fn target_triangles_parses_on_run_and_mesh_and_refuses_zero() {
+        let CommandArgs::Run(r) =
+            parse(&["run", "-o", "out", "--target-triangles", "20000"]).command
+        else {
+            panic!()
+        };
+        assert_eq!(r.mesh.target_triangles, Some(20000));
+        let CommandArgs::Mesh(m) =
+            parse(&["mesh", "m.json", "-o", "x.ply", "--target-triangles", "4"]).command
+        else {
+            panic!()
+        };
+        assert_eq!(m.mesh.target_triangles, Some(4));
+        for bad in ["0", "-5", "1.5", "2000000000"] {
+            let e = Cli::try_parse_from([
+                "stablesurf",
+                "mesh",
+                "m.json",
+                "-o",
+                "x.ply",
+                "--target-triangles",
+                bad,
+            ])
+            .unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{bad}");
+            assert!(
+                e.to_string()
+                    .contains("--target-triangles takes a whole number from 1 to 1e9"),
+                "{e}"
+            );
+        }
     }
 
     #[test]

@@ -13,6 +13,7 @@ use stablesurf::export::{self, gltf::UpAxis, units::LengthUnit};
 use stablesurf::fit::{self, FitMethod, KappaRule};
 use stablesurf::normals::{NormalSource, NormalsParams};
 use stablesurf::pipeline::{Keep, Mode, Model, OutputFormat, PipelineConfig};
+use stablesurf::polygonize::decimate::DecimateParams;
 use stablesurf::polygonize::PolygonizeParams;
 use stablesurf::render::View;
 use stablesurf::trim::TrimParams;
@@ -213,6 +214,12 @@ pub fn polygonize_params(opts: &MeshOpts, mode: Mode) -> PolygonizeParams {
     }
 }
 
+/// The decimation `--target-triangles` asks for (within range::TARGET_TRIANGLES), or none.
+pub fn decimate_params(opts: &MeshOpts) -> Option<DecimateParams> {
+    opts.target_triangles
+        .map(|target_triangles| DecimateParams { target_triangles })
+}
+
 /// The configuration of `stablesurf run`: the mode's defaults, then every flag given.
 pub fn run_config(args: &RunArgs) -> Result<PipelineConfig> {
     let mode = Mode::from(args.mode());
@@ -222,6 +229,7 @@ pub fn run_config(args: &RunArgs) -> Result<PipelineConfig> {
     config.fit = fit_params(&args.fit)?;
     config.detail = detail_params(&args.detail);
     config.polygonize = polygonize_params(&args.mesh, mode);
+    config.decimate = decimate_params(&args.mesh);
     if let Some(keep) = args.keep {
         config.keep = keep.into();
     }
@@ -337,6 +345,15 @@ mod tests {
         assert_eq!(config.keep, Keep::All);
         assert_eq!(config.polygonize.depth, 5);
         assert_eq!(config.polygonize.guard_levels, 0);
+        assert_eq!(config.decimate, None);
+        let decimating = run_config(&run_args(&["--target-triangles", "5000"])).unwrap();
+        assert_eq!(
+            decimating
+                .export_params()
+                .decimate
+                .map(|d| d.target_triangles),
+            Some(5000)
+        );
         let global = run_config(&run_args(&["--mode", "global", "--trim", "3"])).unwrap();
         assert_eq!(global.trim.support_factor, 3.0);
         assert_eq!(global.trim.mode, stablesurf::trim::TrimMode::Support);

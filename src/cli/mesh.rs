@@ -28,9 +28,16 @@ pub fn mesh(args: MeshArgs, verbosity: Verbosity) -> Result<()> {
             anyhow!("{} has no \"box\": pass the meshing region with --bounds xmin,ymin,zmin,xmax,ymax,zmax", args.model.display())
         })?,
     };
-    let mesh = polygonize::polygonize(model.function(), &region, &params)
+    let mut mesh = polygonize::polygonize(model.function(), &region, &params)
         .with_context(|| format!("meshing {}", args.model.display()))?
         .mesh;
+    if let Some(decimate) = config::decimate_params(&args.mesh) {
+        let out = polygonize::decimate::decimate(&mesh, model.function(), &decimate);
+        if let (Some(message), false) = (out.report.shortfall(), verbosity == Verbosity::Quiet) {
+            eprintln!("stablesurf: warning: {message}");
+        }
+        mesh = out.mesh;
+    }
     let opts = MeshFileOptions {
         gltf: export::gltf::GltfOptions {
             up: args.up.map_or(export::gltf::UpAxis::Y, Into::into),

@@ -126,6 +126,10 @@ pub const TOLERANCE: Range = Range::float("--tolerance", 1e-6, 0.5);
 /// `--depth` (run, mesh, slices): octree depth near the surface; each level has about 4× the
 /// triangles of the one before, so 12 is already ~4^5 times the default 7.
 pub const DEPTH: Range = Range::int("--depth", 1, 12);
+/// `--target-triangles` (run, mesh): the decimation's budget. 0 asks for no mesh at all; a
+/// closed mesh cannot go below 4 (a tetrahedron), and the decimation says so when it stops
+/// above the budget. A billion is far above any mesh the octree makes.
+pub const TARGET_TRIANGLES: Range = Range::int("--target-triangles", 1, 1_000_000_000);
 /// `slices --count`: slices across the box.
 pub const COUNT: Range = Range::int("--count", 1, 1024);
 /// `run --slice-count`: the same range as `slices --count`.

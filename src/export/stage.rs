@@ -31,6 +31,7 @@ use crate::distance::{DistanceMethod, Slice, SliceParams};
 use crate::measure::{self, Accuracy};
 use crate::mesh::{self, MeshReport, TriangleMesh};
 use crate::model::Model;
+use crate::polygonize::decimate::{self, DecimateParams, DecimateReport};
 use crate::trim::{self, TrimParams, TrimReport};
 
 /// The export stage's version. If you change any input to this stage's key (the fields of
@@ -117,6 +118,9 @@ pub struct ExportParams {
     /// turned so that axis is +Z ([`ply::PlyOptions::up`]); `None` (the default) keeps the
     /// input's frame, so the mesh lies on the scan in MeshLab.
     pub ply_up: Option<super::gltf::UpAxis>,
+    /// The decimation to a triangle budget after the filter and the trim (`--target-triangles`;
+    /// [`crate::polygonize::decimate`]); `None` (the default) keeps every triangle.
+    pub decimate: Option<DecimateParams>,
 }
 
 impl Default for ExportParams {
@@ -141,6 +145,7 @@ impl Default for ExportParams {
             gltf: Default::default(),
             units: None,
             ply_up: None,
+            decimate: None,
         }
     }
 }
@@ -181,6 +186,12 @@ impl Serialize for ExportParams {
         if let Some(up) = self.ply_up {
             value["ply_up"] = serde_json::Value::from(format!("{up:?}"));
         }
+        // Likewise only a decimating run has these.
+        if let Some(decimate) = self.decimate {
+            value["target_triangles"] = serde_json::Value::from(decimate.target_triangles);
+            value["decimate_version"] =
+                serde_json::Value::from(crate::polygonize::decimate::VERSION);
+        }
         value.serialize(serializer)
     }
 }
@@ -198,6 +209,8 @@ pub struct ExportOutput {
     pub dropped_nested: usize,
     /// What the trim removed and closed.
     pub trim: TrimReport,
+    /// What the decimation did, when the params asked for one.
+    pub decimate: Option<DecimateReport>,
     /// The topology checks of the mesh as written.
     pub mesh: MeshReport,
     /// Two-sided distances between the data points and the mesh as written.
@@ -214,6 +227,7 @@ impl ExportOutput {
             "dropped_components": self.dropped_components,
             "dropped_nested": self.dropped_nested,
             "trim": self.trim,
+            "decimate": self.decimate,
             "mesh": self.mesh,
             "accuracy": self.accuracy,
         })
@@ -398,6 +412,18 @@ pub fn export_mesh(
     if trim_report.removed_triangles > 0 {
         mesh = Cow::Owned(trimmed.mesh);
     }
+    // The decimation, last, so that the budget counts the triangles written.
+    let mut known_embedded = known_embedded;
+    let decimate_report = params.decimate.map(|p| {
+        let out = decimate::decimate(&mesh, model.function(), &p);
+        if out.report.collapses > 0 {
+            mesh = Cow::Owned(out.mesh);
+            // Measured again rather than vouched for: the collapses test their new triangles
+            // against their neighbours only.
+            known_embedded = false;
+        }
+        out.report
+    });
     let m: &TriangleMesh = &mesh;
     // The colours come from the same index as the other nearest-point queries.
     let vertex_colours = colours
@@ -502,6 +528,7 @@ pub fn export_mesh(
         dropped_components,
         dropped_nested,
         trim: trim_report,
+        decimate: decimate_report,
         mesh: report,
         accuracy,
     })
@@ -649,6 +676,18 @@ mod tests {
                     up: UpAxis::Z,
                     ..Default::default()
                 },
+                ..base.clone()
+            },
+            ExportParams {
+                decimate: Some(DecimateParams {
+                    target_triangles: 5000,
+                }),
+                ..base.clone()
+            },
+            ExportParams {
+                decimate: Some(DecimateParams {
+                    target_triangles: 5001,
+                }),
                 ..base.clone()
             },
         ];

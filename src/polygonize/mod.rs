@@ -90,6 +90,7 @@
 //! # Ok::<(), stablesurf::polygonize::PolygonizeError>(())
 //! ```
 
+pub mod decimate;
 mod extract;
 mod grid;
 mod octree;

@@ -869,6 +869,7 @@ fn help_prints_every_range() {
         "[range: 1 to 1024]",
         "[range: 2 to 4096]",
         "[range: 1 to 256]",
+        "[range: 1 to 1e9]",
     ];
     let run = help("run");
     for range in fit_ranges.iter().chain(&run_only_ranges) {
@@ -880,7 +881,9 @@ fn help_prints_every_range() {
     }
     let mesh = help("mesh");
     assert!(
-        mesh.contains("[range: 1 to 12]") && mesh.contains("-1e15 to 1e15"),
+        mesh.contains("[range: 1 to 12]")
+            && mesh.contains("-1e15 to 1e15")
+            && mesh.contains("[range: 1 to 1e9]"),
         "{mesh}"
     );
     let slices = help("slices");

@@ -11,6 +11,7 @@ mod fixtures;
 mod batch;
 mod blender;
 mod cli;
+mod decimate;
 mod detail;
 mod export;
 mod fit;

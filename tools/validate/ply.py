@@ -1,6 +1,6 @@
 """Validates a PLY file written by stablesurf with two independent readers.
 
-Usage: python tools/validate/ply.py FILE.ply [--closed]
+Usage: python tools/validate/ply.py FILE.ply [--closed] [--self-intersections]
 
 1. plyfile, read strictly: the header must declare exactly the elements and properties stablesurf
    writes (vertex x y z nx ny nz float, optional red green blue uchar, optional quality float; face vertex_indices as a list of
@@ -8,7 +8,10 @@ Usage: python tools/validate/ply.py FILE.ply [--closed]
    bytes, every face must be a triangle with indices in range, and every float must be finite.
 2. pymeshlab (MeshLab's own loader): loads the file and reports its topology. With --closed the
    mesh must be watertight (no boundary edges) and two-manifold (no non-manifold edges or
-   vertices).
+   vertices). With --self-intersections, MeshLab's own test selects the faces that intersect
+   another (`compute_selection_by_self_intersections_per_face`); their number is reported as
+   `self_intersecting_faces` (a report, not a failure: MeshLab's test is not exact, see the
+   README's note on the synthetic cube).
 
 Prints one JSON line with what both readers saw and exits 0 when every check passed, 1 when a
 check failed, 2 when a reader could not be imported.
@@ -97,7 +100,7 @@ def check_plyfile(path, problems):
     return summary
 
 
-def check_pymeshlab(path, closed, problems):
+def check_pymeshlab(path, closed, problems, self_intersections=False):
     import pymeshlab
 
     ms = pymeshlab.MeshSet()
@@ -125,6 +128,9 @@ def check_pymeshlab(path, closed, problems):
         q = mesh.vertex_scalar_array()
         summary["quality_min"] = float(q.min())
         summary["quality_max"] = float(q.max())
+    if self_intersections:
+        ms.compute_selection_by_self_intersections_per_face()
+        summary["self_intersecting_faces"] = int(ms.current_mesh().selected_face_number())
     if closed:
         if not summary["watertight"]:
             problems.append(f"meshlab: {topo.get('boundary_edges')} boundary edges (not watertight)")
@@ -156,7 +162,9 @@ def main():
     except Exception as err:  # a parse failure is a validation failure
         problems.append(f"plyfile: {type(err).__name__}: {err}")
     try:
-        report["pymeshlab"] = check_pymeshlab(path, closed, problems)
+        report["pymeshlab"] = check_pymeshlab(
+            path, closed, problems, "--self-intersections" in args
+        )
     except Exception as err:
         problems.append(f"pymeshlab: {type(err).__name__}: {err}")
     if "plyfile" in report and "pymeshlab" in report:
