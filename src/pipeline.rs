@@ -1108,10 +1108,26 @@ pub struct Reconstruction {
 ///
 /// ```
 /// use stablesurf::pipeline::{reconstruct, Mode, PipelineConfig, ScanSource, Silent};
-/// let config = PipelineConfig::for_mode(Mode::Detail);
-/// let out = reconstruct(&ScanSource::Sample, &config, &mut Silent).unwrap();
+/// use stablesurf::PointCloud;
+/// // 400 points on the unit sphere, with their normals.
+/// let points: Vec<[f64; 3]> = (0..400)
+///     .map(|i| {
+///         let z = 1.0 - (2.0 * i as f64 + 1.0) / 400.0;
+///         let (r, a) = ((1.0 - z * z).sqrt(), 2.399963 * i as f64);
+///         [r * a.cos(), r * a.sin(), z]
+///     })
+///     .collect();
+/// let cloud = PointCloud { normals: Some(points.clone()), points, ..Default::default() };
+/// let mut config = PipelineConfig::for_mode(Mode::Global);
+/// config.fit.degree = 2;
+/// config.polygonize.depth = 4;
+/// let out = reconstruct(&ScanSource::Cloud(Box::new(cloud)), &config, &mut Silent).unwrap();
 /// assert!(out.report.mesh.watertight);
 /// assert_eq!(out.mesh.positions.len(), out.report.mesh.vertices);
+/// for p in &out.mesh.positions {
+///     let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+///     assert!((r - 1.0).abs() < 1e-3, "{r}");
+/// }
 /// ```
 ///
 /// # Errors
