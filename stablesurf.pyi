@@ -1,4 +1,5 @@
-"""Type stubs of the stablesurf extension module (see docs/python.md)."""
+"""Type stubs of the stablesurf extension module (see docs/python.md); maturin ships this file,
+found beside pyproject.toml, as the package's __init__.pyi with py.typed."""
 
 from os import PathLike
 from typing import Any, Literal, Optional, Sequence, Union
