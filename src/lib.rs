@@ -23,6 +23,7 @@ mod files;
 pub mod fit;
 pub mod implicit;
 pub mod import;
+pub mod limits;
 pub mod measure;
 pub mod merge;
 pub mod mesh;

@@ -228,6 +228,9 @@ impl Default for PipelineConfig {
     }
 }
 
+/// What the errors about an in-memory cloud ([`ScanSource::Cloud`]) call it.
+pub const CLOUD_NAME: &str = "points";
+
 /// Where the scan comes from.
 #[derive(Clone, Debug)]
 pub enum ScanSource {
@@ -241,6 +244,10 @@ pub enum ScanSource {
     /// Several scans of one object, already in one frame (identity poses), each oriented on its
     /// own and then merged.
     Files(Vec<PathBuf>),
+    /// A cloud already in memory (points given as arrays, or a scan read before): it takes the
+    /// path of a file's cloud from the outlier filter on. Its import is the check of the
+    /// cloud's invariants ([`import::validate_cloud`]), keyed by the cloud's canonical bytes.
+    Cloud(Box<PointCloud>),
 }
 
 impl ScanSource {
@@ -265,6 +272,7 @@ impl ScanSource {
                 .map(|p| p.display().to_string())
                 .collect::<Vec<_>>()
                 .join(" "),
+            ScanSource::Cloud(cloud) => format!("{CLOUD_NAME} ({} points)", cloud.points.len()),
         }
     }
 }
@@ -506,7 +514,7 @@ fn read_bytes(path: &Path) -> Result<Vec<u8>, PipelineError> {
 /// The views of a multi-view source (`None` for a single scan), poses included.
 fn views_of(source: &ScanSource) -> Result<Option<Vec<import::conf::View>>, PipelineError> {
     Ok(match source {
-        ScanSource::Sample | ScanSource::File(_) => None,
+        ScanSource::Sample | ScanSource::File(_) | ScanSource::Cloud(_) => None,
         ScanSource::Conf(path) => Some(import::conf::read_conf(&read_bytes(path)?, path)?),
         ScanSource::Files(paths) => Some(
             paths
@@ -529,13 +537,11 @@ fn orient_stages(
 ) -> Result<(Oriented, Key), PipelineError> {
     match views_of(source)? {
         Some(views) => merged_views(ctx, &views, config),
-        None => {
-            let (bytes, path) = match source {
-                ScanSource::File(path) => (read_bytes(path)?, path.clone()),
-                _ => (SAMPLE_SCAN.to_vec(), PathBuf::from("spot.obj")),
-            };
-            oriented_scan(ctx, bytes, &path, config)
-        }
+        None => match source {
+            ScanSource::Cloud(cloud) => oriented_cloud_in_memory(ctx, cloud, config),
+            ScanSource::File(path) => oriented_scan(ctx, read_bytes(path)?, path, config),
+            _ => oriented_scan(ctx, SAMPLE_SCAN.to_vec(), Path::new("spot.obj"), config),
+        },
     }
 }
 
@@ -623,6 +629,44 @@ fn oriented_scan(
             ctx.observer.note(&format!("{}: {n}", path.display()));
         }
     }
+    orient(ctx, cloud, cloud_key, config)
+}
+
+/// An in-memory cloud through its import (the check of its invariants) and the rest of
+/// [`oriented_scan`]'s stages.
+fn oriented_cloud_in_memory(
+    ctx: &mut Ctx<'_>,
+    cloud: &PointCloud,
+    config: &PipelineConfig,
+) -> Result<(Oriented, Key), PipelineError> {
+    let mut canonical = b"in-memory cloud".to_vec();
+    cloud.encode_payload(&mut canonical);
+    let (cloud, cloud_key) = ctx.stage(
+        "import",
+        IMPORT_VERSION,
+        b"",
+        &Key::of_bytes(&canonical),
+        || {
+            import::validate_cloud(cloud, CLOUD_NAME)?;
+            let figures = serde_json::json!({
+                "points": cloud.points.len(),
+                "triangles": cloud.triangles.len(),
+                "has_normals": cloud.normals.is_some(),
+            });
+            Ok((cloud.clone(), figures))
+        },
+    )?;
+    drop(canonical);
+    orient(ctx, cloud, cloud_key, config)
+}
+
+/// An imported cloud through the outlier filter and the normals stage.
+fn orient(
+    ctx: &mut Ctx<'_>,
+    cloud: PointCloud,
+    cloud_key: Key,
+    config: &PipelineConfig,
+) -> Result<(Oriented, Key), PipelineError> {
     let (cloud, cloud_key) = without_outliers(ctx, cloud, cloud_key, &config.outliers);
     let (oriented, oriented_key) = ctx.stage(
         "normals",
@@ -839,7 +883,6 @@ pub fn run(
     let points = oriented.input_points();
     let colours = oriented.colours.as_deref();
 
-    let region = model.region();
     let polygonize_params = cache::params_bytes(&config.polygonize);
     let export_params = config.export_params();
     let export_params_bytes = cache::params_bytes(&export_params);
@@ -867,23 +910,7 @@ pub fn run(
         if early_from_model {
             scope.spawn(|_| early_slices = export::model_slices(&model, &export_params));
         }
-        let polygonized = ctx.stage(
-            "polygonize",
-            POLYGONIZE_VERSION,
-            &polygonize_params,
-            &model_key,
-            || {
-                let out = polygonize::polygonize(model.function(), &region, &config.polygonize)?;
-                let figures = serde_json::json!({
-                    "vertices": out.mesh.positions.len(),
-                    "triangles": out.mesh.triangles.len(),
-                    "evaluations": out.evaluations,
-                    "simplified": out.simplified,
-                    "embedded": out.embedded,
-                });
-                Ok((out.mesh, figures))
-            },
-        );
+        let polygonized = polygonize_stage(&mut ctx, &model, &model_key, config);
         let export_start = Instant::now();
         let embedded = polygonized.is_ok() && ctx.last_figures()["embedded"] == true;
         let parts = match &polygonized {
@@ -930,40 +957,7 @@ pub fn run(
             Ok((OutputFiles(out.files), figures))
         },
     )?;
-    let figures = &ctx.last_figures().clone();
-    let report_mesh: MeshReport =
-        serde_json::from_value(figures["mesh"].clone()).unwrap_or_default();
-    let accuracy: Accuracy =
-        serde_json::from_value(figures["accuracy"].clone()).unwrap_or_default();
-    let trim_report: TrimReport =
-        serde_json::from_value(figures["trim"].clone()).unwrap_or_default();
-    let decimate_report: Option<DecimateReport> =
-        serde_json::from_value(figures["decimate"].clone()).unwrap_or_default();
-    if let Some(message) = decimate_report.as_ref().and_then(DecimateReport::shortfall) {
-        ctx.warn(message);
-    }
-    // A polynomial's zero set that runs out of the meshing box is open there: not a bounded
-    // surface in this mesh, whatever the fit certified.
-    let dropped = figures["dropped_components"].as_u64().unwrap_or(0);
-    if dropped > 0 {
-        ctx.warn(format!(
-            "left out {dropped} piece(s) of the surface with no data point within 2% of the diagonal; --keep all keeps them"
-        ));
-    }
-    let nested = figures["dropped_nested"].as_u64().unwrap_or(0);
-    if nested > 0 {
-        ctx.warn(format!(
-            "left out {nested} small closed piece(s) inside the surface (each under {}% of the largest piece's area); --keep all keeps them",
-            100.0 * export::NESTED_AREA_FRACTION
-        ));
-    }
-    let clipped = matches!(model, Model::Global(_)) && report_mesh.boundary_edges > 0;
-    if clipped {
-        ctx.warn(format!(
-            "the zero set is clipped by the meshing box: the mesh is open along {} boundary edges, so it is not a bounded surface here; try another --degree or --kappa, or --mode detail",
-            report_mesh.boundary_edges
-        ));
-    }
+    let figures = export_figures(&mut ctx, &model);
 
     // Every file is staged, then all move into place together (see [`crate::outputs`]): the
     // folder holds either this run's complete set or what it held before.
@@ -984,34 +978,7 @@ pub fn run(
         names.push("report.json".into());
     }
 
-    let mut report = RunReport {
-        input: input_name,
-        stages: ctx.stages,
-        fit: {
-            let mut fit = model.report();
-            if let (Model::Detail(_), Some(map)) = (&model, fit.as_object_mut()) {
-                map.insert(
-                    "params".into(),
-                    serde_json::to_value(&config.detail).unwrap_or_default(),
-                );
-            }
-            if clipped {
-                fit["clipped"] = true.into();
-                if let Some(d) = fit["diagnostics"].as_object_mut() {
-                    d.insert("bounded".into(), false.into());
-                }
-            }
-            fit
-        },
-        trim: trim_report,
-        decimate: decimate_report,
-        mesh: report_mesh,
-        accuracy,
-        units: config.units,
-        outputs: names,
-        warnings: ctx.warnings,
-        seconds: 0.0,
-    };
+    let mut report = run_report(input_name, ctx, &model, config, figures, names);
     report.seconds = start.elapsed().as_secs_f64();
     if write_report {
         let bytes =
@@ -1020,4 +987,206 @@ pub fn run(
     }
     outputs.commit()?;
     Ok(report)
+}
+
+/// The polygonize stage of `model` through the cache: its mesh and key. The stage's figures
+/// say whether the meshing proved the mesh embedded (`"embedded"`).
+fn polygonize_stage(
+    ctx: &mut Ctx<'_>,
+    model: &Model,
+    model_key: &Key,
+    config: &PipelineConfig,
+) -> Result<(crate::mesh::TriangleMesh, Key), PipelineError> {
+    let region = model.region();
+    ctx.stage(
+        "polygonize",
+        POLYGONIZE_VERSION,
+        &cache::params_bytes(&config.polygonize),
+        model_key,
+        || {
+            let out = polygonize::polygonize(model.function(), &region, &config.polygonize)?;
+            let figures = serde_json::json!({
+                "vertices": out.mesh.positions.len(),
+                "triangles": out.mesh.triangles.len(),
+                "evaluations": out.evaluations,
+                "simplified": out.simplified,
+                "embedded": out.embedded,
+            });
+            Ok((out.mesh, figures))
+        },
+    )
+}
+
+/// The figures of the mesh as written, from the export stage's record.
+struct MeshFigures {
+    mesh: MeshReport,
+    accuracy: Accuracy,
+    trim: TrimReport,
+    decimate: Option<DecimateReport>,
+    /// A polynomial's zero set runs out of the meshing box.
+    clipped: bool,
+}
+
+/// The figures of the export stage recorded last, with the warnings they call for: pieces of
+/// the surface left out, a polynomial's zero set clipped by the meshing box.
+fn export_figures(ctx: &mut Ctx<'_>, model: &Model) -> MeshFigures {
+    let figures = &ctx.last_figures().clone();
+    let mesh: MeshReport = serde_json::from_value(figures["mesh"].clone()).unwrap_or_default();
+    let accuracy: Accuracy =
+        serde_json::from_value(figures["accuracy"].clone()).unwrap_or_default();
+    let trim: TrimReport = serde_json::from_value(figures["trim"].clone()).unwrap_or_default();
+    let decimate: Option<DecimateReport> =
+        serde_json::from_value(figures["decimate"].clone()).unwrap_or_default();
+    if let Some(message) = decimate.as_ref().and_then(DecimateReport::shortfall) {
+        ctx.warn(message);
+    }
+    let dropped = figures["dropped_components"].as_u64().unwrap_or(0);
+    if dropped > 0 {
+        ctx.warn(format!(
+            "left out {dropped} piece(s) of the surface with no data point within 2% of the diagonal; --keep all keeps them"
+        ));
+    }
+    let nested = figures["dropped_nested"].as_u64().unwrap_or(0);
+    if nested > 0 {
+        ctx.warn(format!(
+            "left out {nested} small closed piece(s) inside the surface (each under {}% of the largest piece's area); --keep all keeps them",
+            100.0 * export::NESTED_AREA_FRACTION
+        ));
+    }
+    // A polynomial's zero set that runs out of the meshing box is open there: not a bounded
+    // surface in this mesh, whatever the fit certified.
+    let clipped = matches!(model, Model::Global(_)) && mesh.boundary_edges > 0;
+    if clipped {
+        ctx.warn(format!(
+            "the zero set is clipped by the meshing box: the mesh is open along {} boundary edges, so it is not a bounded surface here; try another --degree or --kappa, or --mode detail",
+            mesh.boundary_edges
+        ));
+    }
+    MeshFigures {
+        mesh,
+        accuracy,
+        trim,
+        decimate,
+        clipped,
+    }
+}
+
+/// The run's report (its `seconds` still 0): the stages and warnings of `ctx`, the model's
+/// settings and diagnostics, the figures of the mesh as written, and the files.
+fn run_report(
+    input: String,
+    ctx: Ctx<'_>,
+    model: &Model,
+    config: &PipelineConfig,
+    figures: MeshFigures,
+    outputs: Vec<String>,
+) -> RunReport {
+    let mut fit = model.report();
+    if let (Model::Detail(_), Some(map)) = (model, fit.as_object_mut()) {
+        map.insert(
+            "params".into(),
+            serde_json::to_value(&config.detail).unwrap_or_default(),
+        );
+    }
+    if figures.clipped {
+        fit["clipped"] = true.into();
+        if let Some(d) = fit["diagnostics"].as_object_mut() {
+            d.insert("bounded".into(), false.into());
+        }
+    }
+    RunReport {
+        input,
+        stages: ctx.stages,
+        fit,
+        trim: figures.trim,
+        decimate: figures.decimate,
+        mesh: figures.mesh,
+        accuracy: figures.accuracy,
+        units: config.units,
+        outputs,
+        warnings: ctx.warnings,
+        seconds: 0.0,
+    }
+}
+
+/// What [`reconstruct`] makes: the mesh `run` writes, the model it is meshed from, and the
+/// report `run` would write beside them.
+#[derive(Clone, Debug)]
+pub struct Reconstruction {
+    /// The mesh as `run` writes it (`mesh.ply`), after the component filter and the trim, in
+    /// input coordinates, with unit vertex normals.
+    pub mesh: crate::mesh::TriangleMesh,
+    /// The fitted model.
+    pub model: Model,
+    /// What `run` would write as `report.json` (no file is listed: none is made).
+    pub report: RunReport,
+}
+
+/// What [`run`] computes, in memory and without the cache: the same stages with the same
+/// functions and params (import, outliers, normals, fit or detail, polygonize, and the export
+/// stage's component filter, trim, checks and accuracy), so the mesh is the one `run` writes
+/// for the same source and config. No file is encoded or written (`config.formats` is not
+/// used). The input of the Python package's `reconstruct`.
+///
+/// ```
+/// use stablesurf::pipeline::{reconstruct, Mode, PipelineConfig, ScanSource, Silent};
+/// use stablesurf::PointCloud;
+/// // 400 points on the unit sphere, with their normals.
+/// let points: Vec<[f64; 3]> = (0..400)
+///     .map(|i| {
+///         let z = 1.0 - (2.0 * i as f64 + 1.0) / 400.0;
+///         let (r, a) = ((1.0 - z * z).sqrt(), 2.399963 * i as f64);
+///         [r * a.cos(), r * a.sin(), z]
+///     })
+///     .collect();
+/// let cloud = PointCloud { normals: Some(points.clone()), points, ..Default::default() };
+/// let mut config = PipelineConfig::for_mode(Mode::Global);
+/// config.fit.degree = 2;
+/// config.polygonize.depth = 4;
+/// let out = reconstruct(&ScanSource::Cloud(Box::new(cloud)), &config, &mut Silent).unwrap();
+/// assert!(out.report.mesh.watertight);
+/// assert_eq!(out.mesh.positions.len(), out.report.mesh.vertices);
+/// for p in &out.mesh.positions {
+///     let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+///     assert!((r - 1.0).abs() < 1e-3, "{r}");
+/// }
+/// ```
+///
+/// # Errors
+/// Any stage's error, as [`run`]'s.
+pub fn reconstruct(
+    source: &ScanSource,
+    config: &PipelineConfig,
+    observer: &mut dyn Observer,
+) -> Result<Reconstruction, PipelineError> {
+    let start = Instant::now();
+    let mut ctx = Ctx::new(&Cache::disabled(), observer)?;
+    let (oriented, model, model_key) = fit_stages(&mut ctx, source, config)?;
+    let (mesh, _) = polygonize_stage(&mut ctx, &model, &model_key, config)?;
+    let embedded = ctx.last_figures()["embedded"] == true;
+    let export_params = ExportParams {
+        formats: Vec::new(),
+        ..config.export_params()
+    };
+    ctx.observer.stage_started("export");
+    let export_start = Instant::now();
+    let out = export::export(
+        &model,
+        &mesh,
+        embedded,
+        oriented.input_points(),
+        oriented.colours.as_deref(),
+        &export_params,
+    )?;
+    drop(mesh);
+    ctx.finish("export", "none", export_start, None, out.figures());
+    let figures = export_figures(&mut ctx, &model);
+    let input = source.name();
+    let mut report = run_report(input, ctx, &model, config, figures, Vec::new());
+    report.seconds = start.elapsed().as_secs_f64();
+    Ok(Reconstruction {
+        mesh: out.surface,
+        model,
+        report,
+    })
 }

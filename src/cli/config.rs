@@ -194,10 +194,9 @@ pub fn fit_params(opts: &FitOpts) -> Result<fit::FitParams> {
 pub fn detail_params(opts: &DetailOpts) -> DetailParams {
     DetailParams {
         degree: opts.local_degree,
-        tolerance: opts.tolerance,
-        finest_tolerance: opts.tolerance.min(1e-3),
         ..DetailParams::default()
     }
+    .with_tolerance(opts.tolerance)
 }
 
 /// Meshing parameters for a model of `mode`: the mode's defaults

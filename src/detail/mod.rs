@@ -187,6 +187,24 @@ impl Default for DetailParams {
 }
 
 impl DetailParams {
+    /// These params with the split tolerance `tolerance` (a fraction of the diagonal): the
+    /// finest cells split down to `tolerance` or 1e-3, whichever is smaller (`--tolerance`).
+    ///
+    /// ```
+    /// use stablesurf::DetailParams;
+    /// let coarse = DetailParams::default().with_tolerance(0.01);
+    /// assert_eq!((coarse.tolerance, coarse.finest_tolerance), (0.01, 1e-3));
+    /// let d = DetailParams::default();
+    /// assert_eq!(d.clone().with_tolerance(d.tolerance), d);
+    /// ```
+    pub fn with_tolerance(self, tolerance: f64) -> DetailParams {
+        DetailParams {
+            tolerance,
+            finest_tolerance: tolerance.min(1e-3),
+            ..self
+        }
+    }
+
     /// Canonical bytes for the cache key: every field, little-endian, in declaration order.
     ///
     /// ```

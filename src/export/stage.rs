@@ -215,6 +215,9 @@ pub struct ExportOutput {
     pub mesh: MeshReport,
     /// Two-sided distances between the data points and the mesh as written.
     pub accuracy: Accuracy,
+    /// The mesh as written (after the component filter and the trim), in input coordinates:
+    /// the positions and triangles of `mesh.ply`, before its `float` conversion.
+    pub surface: TriangleMesh,
 }
 
 impl ExportOutput {
@@ -531,6 +534,7 @@ pub fn export_mesh(
         decimate: decimate_report,
         mesh: report,
         accuracy,
+        surface: mesh.into_owned(),
     })
 }
 

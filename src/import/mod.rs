@@ -564,6 +564,27 @@ pub fn import_scan_bytes(bytes: &[u8], path: &Path) -> Result<Scan, ImportError>
     Ok(scan)
 }
 
+/// Checks the invariants of a validated [`PointCloud`] (see the module docs) on a cloud built
+/// in memory rather than read from a file; `name` stands for the file's path in the messages.
+///
+/// ```
+/// use stablesurf::import::{validate_cloud, ImportError};
+/// use stablesurf::PointCloud;
+/// let mut cloud = PointCloud { points: vec![[0.0, 0.0, 0.0]], ..Default::default() };
+/// assert!(validate_cloud(&cloud, "points").is_ok());
+/// cloud.triangles = vec![[0, 0, 1]];
+/// let err = validate_cloud(&cloud, "points").unwrap_err();
+/// assert!(matches!(err, ImportError::IndexOutOfRange { index: 1, .. }));
+/// ```
+///
+/// # Errors
+/// [`ImportError::NoPoints`], [`ImportError::NonFinite`], [`ImportError::IndexOutOfRange`],
+/// [`ImportError::NormalCountMismatch`], or [`ImportError::BadLayout`] when the colours,
+/// intensities or scans do not count one per point.
+pub fn validate_cloud(cloud: &PointCloud, name: &str) -> Result<(), ImportError> {
+    validate(cloud, name)
+}
+
 /// Checks the invariants of a validated [`PointCloud`] (see the module docs).
 fn validate(cloud: &PointCloud, path: &str) -> Result<(), ImportError> {
     if cloud.points.is_empty() {

@@ -1,11 +1,11 @@
-//! Checks of the source tree itself: every Rust file under src/, tests/, benches/ and tools/
-//! opens with a `//!` header that says what the file is for.
+//! Checks of the source tree itself: every Rust file under src/, tests/, benches/, tools/ and
+//! python/ (the Python package's binding crate) opens with a `//!` header that says what the file is for.
 
 use std::fs;
 use std::path::{Path, PathBuf};
 
 /// The folders whose Rust files must carry a header.
-const FOLDERS: [&str; 4] = ["src", "tests", "benches", "tools"];
+const FOLDERS: [&str; 5] = ["src", "tests", "benches", "tools", "python"];
 
 /// Every `.rs` file below `dir`, sorted. Hidden folders and installed third-party trees
 /// (`node_modules`, `target`) are not ours and are left out.
