@@ -126,6 +126,8 @@ pub struct PipelineConfig {
     pub units: Option<export::units::LengthUnit>,
     /// Which files to write.
     pub formats: Vec<OutputFormat>,
+    /// The signed-distance volumes' voxel size (`vdb`, `npy`; see [`ExportParams::volume`]).
+    pub volume: crate::distance::volume::VolumeParams,
 }
 
 impl PipelineConfig {
@@ -168,6 +170,7 @@ impl PipelineConfig {
             gltf: export.gltf,
             units: export.units,
             formats: export.formats,
+            volume: export.volume,
         };
         match mode {
             Mode::Global => global,
@@ -207,6 +210,7 @@ impl PipelineConfig {
             slices: self.slices,
             gltf: self.gltf,
             units: self.units,
+            volume: self.volume,
         }
     }
 }

@@ -16,7 +16,7 @@ use stablesurf::fit;
 
 use super::range::{
     number, BOUNDS_MAX_ABS, COUNT, DEGREE, DEPTH, EPSILON, KAPPA, LOCAL_DEGREE, RESOLUTION, SIZE,
-    SLICE_COUNT, SLICE_RESOLUTION, THREADS, TOLERANCE, TRIM, VIEWPOINT,
+    SLICE_COUNT, SLICE_RESOLUTION, THREADS, TOLERANCE, TRIM, VIEWPOINT, VOXEL_SIZE,
 };
 
 /// stablesurf: stable algebraic surfaces from 3D scans (Sahin & Unel 2008).
@@ -217,6 +217,10 @@ pub enum FormatArg {
     Png,
     /// The model file and report.json.
     Json,
+    /// volume.vdb: the narrow-band signed-distance level set (OpenVDB, Blender).
+    Vdb,
+    /// volume.npy and volume.json: the dense signed-distance grid (NumPy) and its transform.
+    Npy,
 }
 
 /// `render --view`: the camera direction.
@@ -332,7 +336,9 @@ pub struct RunArgs {
     /// polynomial, the paper's compact descriptor of the coarse shape.
     #[arg(long, value_name = "MODE", value_enum, hide_possible_values = true)]
     pub mode: Option<ModeArg>,
-    /// Outputs to write, comma-separated: glb, gltf, ply, exr, png, json.
+    /// Outputs to write, comma-separated: glb, gltf, ply, exr, png, json, vdb (volume.vdb, a
+    /// narrow-band signed-distance level set for Blender and OpenVDB), npy (volume.npy, the
+    /// dense signed-distance grid, with volume.json giving its transform).
     #[arg(long, value_delimiter = ',', default_value = "glb,ply,exr,png,json",
           value_parser = Trimmed::<FormatArg>::default(), hide_possible_values = true)]
     pub formats: Vec<FormatArg>,
@@ -363,6 +369,14 @@ pub struct RunArgs {
           help = trim_help(),
           allow_negative_numbers = true, value_parser = parse_trim)]
     pub trim: Option<TrimArg>,
+    /// Voxel edge of the vdb and npy volumes, input units [default: the meshing box's longest
+    /// side / 256]. The vdb keeps the voxels within 3 voxels of the surface; with --units its
+    /// transform and values are in metres and it is turned like the glb, so both overlap in
+    /// Blender; the npy stays in input units and coordinates.
+    #[arg(long, value_name = "SIZE",
+          help = VOXEL_SIZE.help("Voxel edge of the vdb and npy volumes, input units [default: the meshing box's longest side / 256]. The vdb keeps the voxels within 3 voxels of the surface; with --units its transform and values are in metres and it is turned like the glb (--up), so both overlap in Blender; the npy stays in input units and coordinates"),
+          allow_negative_numbers = true, value_parser = VOXEL_SIZE.real())]
+    pub voxel_size: Option<f64>,
     /// Print the stage summary as JSON on stdout.
     #[arg(long)]
     pub json: bool,
@@ -961,6 +975,7 @@ mod tests {
             ("run", "depth", DEPTH),
             ("run", "slice_count", SLICE_COUNT),
             ("run", "slice_resolution", SLICE_RESOLUTION),
+            ("run", "voxel_size", VOXEL_SIZE),
             ("slices", "count", COUNT),
             ("slices", "resolution", RESOLUTION),
             ("slices", "depth", DEPTH),

@@ -78,7 +78,7 @@ fn unit_sphere(center: [f64; 3], scale: f64) -> ImplicitPolynomial {
 }
 
 /// How to run one external validator, or `None` (after a notice, or a failure under CI).
-fn validator(kind: &str) -> Option<Command> {
+pub fn validator(kind: &str) -> Option<Command> {
     let dir = Path::new(ROOT).join("tools/validate");
     let (found, command) = match kind {
         "gltf" => {
@@ -89,6 +89,13 @@ fn validator(kind: &str) -> Option<Command> {
             let mut c = Command::new("node");
             c.arg(dir.join("gltf.mjs"));
             (ok, c)
+        }
+        // Blender's checks run in Blender's own Python (bpy).
+        "vdb_blender" => {
+            let python = dir.join(".venv-blender/bin/python");
+            let mut c = Command::new(&python);
+            c.arg(dir.join(format!("{kind}.py")));
+            (python.exists(), c)
         }
         _ => {
             let python = std::env::var_os("STABLESURF_VALIDATOR_PYTHON")
@@ -115,7 +122,7 @@ fn validator(kind: &str) -> Option<Command> {
 }
 
 /// Runs a validator on `args`; returns its JSON lines, asserting it exited 0.
-fn run(mut command: Command, args: &[&Path]) -> Vec<serde_json::Value> {
+pub fn run(mut command: Command, args: &[&Path]) -> Vec<serde_json::Value> {
     let out = command.args(args).output().expect("cannot start validator");
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);

@@ -19,3 +19,4 @@ mod normals;
 mod polygonize;
 mod reliability;
 mod tidy;
+mod volume;
