@@ -24,9 +24,10 @@
 //!   convention, what its signed flood fill leaves). Blocks the band does not reach are listed
 //!   by their sign ([`NarrowBand::inside_blocks`]); the surface does not cross them, so one
 //!   value of f at a block's centre voxel decides it.
-//! - **Dense** ([`dense`]): every voxel of the grid, with the distance of the mesh distance
-//!   slices ([`crate::measure::GridMeshDistance`], within the mesh's chord error, warm-started
-//!   along each row of constant (i, j)), and the band's exact values where the band is active.
+//! - **Dense** ([`dense`]): the band's exact values where the band is active; every other voxel
+//!   gets the distance of the mesh distance slices ([`crate::measure::GridMeshDistance`],
+//!   within the mesh's chord error, warm-started along each row of constant (i, j)) and the
+//!   sign the band holds for it (its block's voxel, or its block's sign).
 //! - **Sign**: the sign of the model's f at the voxel centre (f < 0 inside), the convention of
 //!   every output. The distance is to the mesh, which is f's zero set polygonized, so the sign
 //!   and the distance agree up to the mesh's chord error.
@@ -392,16 +393,13 @@ fn voxel_range(grid: &VoxelGrid, tri: &[[f64; 3]; 3], margin: f64) -> Option<[[u
 }
 
 /// The dense grid of the signed distance to `mesh` over the grid of `band` (see the module
-/// docs): `band` supplies the grid and its exact values near the surface.
+/// docs): `band` supplies the grid, its exact values near the surface and every voxel's sign
+/// (the sign of f, which [`narrow_band`] evaluated), so f is not needed again.
 ///
 /// # Errors
 /// [`DistanceError::InvalidParams`] when the grid has more than [`MAX_DENSE_VOXELS`] voxels (a
 /// larger voxel size helps); [`DistanceError::NoSurface`] as for [`narrow_band`].
-pub fn dense<F: ImplicitFunction + ?Sized>(
-    f: &F,
-    mesh: &TriangleMesh,
-    band: &NarrowBand,
-) -> Result<DenseVolume, DistanceError> {
+pub fn dense(mesh: &TriangleMesh, band: &NarrowBand) -> Result<DenseVolume, DistanceError> {
     let grid = band.grid;
     if grid.len() > MAX_DENSE_VOXELS {
         return Err(DistanceError::InvalidParams(format!(
@@ -412,40 +410,49 @@ pub fn dense<F: ImplicitFunction + ?Sized>(
     check_mesh(mesh)?;
     let index = GridMeshDistance::new(mesh).ok_or(DistanceError::NoSurface)?;
     let [nx, ny, nz] = grid.shape;
-    // As in the mesh distance slices: the sign needs f only where it can change between
-    // neighbouring voxels h apart (d_prev + d ≤ h + 2e, e the chord error, bounded by a cell).
-    let margin = grid.voxel_size + 2.0 * index.seed_cell();
+    // The band decides every voxel's sign: its blocks hold the sign of f at each of their
+    // voxels, and every other block is listed by its sign. So only the distance is searched.
+    let n_blocks = grid.shape.map(|n| n.div_ceil(BLOCK));
+    let block_key = |o: [usize; 3]| {
+        ((o[0] / BLOCK * n_blocks[1] + o[1] / BLOCK) * n_blocks[2] + o[2] / BLOCK) as usize
+    };
+    let mut block_of = vec![u32::MAX; n_blocks.iter().product()];
+    for (n, b) in band.blocks.iter().enumerate() {
+        block_of[block_key(b.origin.map(|c| c as usize))] = n as u32;
+    }
+    let mut inside_block = vec![false; block_of.len()];
+    for o in &band.inside_blocks {
+        inside_block[block_key(o.map(|c| c as usize))] = true;
+    }
     let rows: Vec<Vec<f32>> = (0..nx * ny)
         .into_par_iter()
         .map(|row| {
             let (i, j) = (row / ny, row % ny);
             let mut warm = None;
-            let mut previous: Option<(f64, bool)> = None;
             (0..nz)
                 .map(|k| {
+                    let key = block_key([i, j, k]);
+                    let (inside, exact) = match block_of[key] {
+                        u32::MAX => (inside_block[key], None),
+                        b => {
+                            let block = &band.blocks[b as usize];
+                            let n = (i % BLOCK) * 64 + (j % BLOCK) * 8 + k % BLOCK;
+                            let active = block.active[n / 64] >> (n % 64) & 1 == 1;
+                            (block.values[n] < 0.0, active.then_some(block.values[n]))
+                        }
+                    };
+                    if let Some(v) = exact {
+                        return v;
+                    }
                     let p = grid.position([i as i64, j as i64, k as i64]);
                     let (d, vertex) = index.distance_from(p, warm);
                     warm = Some(vertex);
-                    let inside = match previous {
-                        Some((d_prev, inside)) if d_prev + d > margin => inside,
-                        _ => f.value(p) < 0.0,
-                    };
-                    previous = Some((d, inside));
                     (if inside { -d } else { d }) as f32
                 })
                 .collect()
         })
         .collect();
-    let mut values: Vec<f32> = rows.into_iter().flatten().collect();
-    for b in &band.blocks {
-        for n in 0..BLOCK_VOXELS {
-            if b.active[n / 64] >> (n % 64) & 1 == 1 {
-                let o = b.origin.map(|c| c as usize);
-                let (i, j, k) = (o[0] + n / 64, o[1] + (n / 8) % 8, o[2] + n % 8);
-                values[(i * ny + j) * nz + k] = b.values[n];
-            }
-        }
-    }
+    let values: Vec<f32> = rows.into_iter().flatten().collect();
     Ok(DenseVolume { grid, values })
 }
 
@@ -527,7 +534,7 @@ mod tests {
         assert!(band.inside_blocks.contains(&[24, 24, 24]));
         assert!(!band.inside_blocks.contains(&[0, 0, 0]));
 
-        let dense = dense(&poly, &mesh, &band).unwrap();
+        let dense = dense(&mesh, &band).unwrap();
         assert_eq!(dense.values.len(), 60 * 60 * 60);
         let mut worst: f64 = 0.0;
         for i in 0..60 {

@@ -590,7 +590,7 @@ fn volume_files(
         ));
     }
     if params.wants(OutputFormat::Npy) {
-        let dense = volume::dense(f, mesh, &band)?;
+        let dense = volume::dense(mesh, &band)?;
         files.push((
             "volume.npy".to_string(),
             encode(&|w| npy::write(&dense, w))?,

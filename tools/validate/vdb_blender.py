@@ -1,7 +1,7 @@
 """Checks a stablesurf volume.vdb in Blender (bpy) and with the OpenVDB module Blender ships.
 
 Usage: tools/validate/.venv-blender/bin/python tools/validate/vdb_blender.py
-           VOLUME.vdb MESH.ply VOLUME.json [--up y|z] [--metres-per-unit F]
+           VOLUME.vdb MESH.ply VOLUME.json [--up y|z] [--metres-per-unit F] [--glb MESH.glb]
 
 VOLUME.json is the npy sidecar of the same run (volume.npy beside it): it gives the grid the vdb
 must hold (voxel size, origin of voxel (0, 0, 0), shape, in input units). --up and
@@ -14,6 +14,8 @@ scale and translation the sidecar implies in Blender's frame (input (x, y, z) be
 metres). A Volume to Mesh modifier (threshold 0, the grid's own resolution) turns it into a
 mesh, which is compared with MESH.ply imported by Blender's PLY importer and put in the same
 frame: distances from each mesh's vertices to the other mesh's surface (BVH trees), in voxels.
+With --glb, the run's glb is imported by Blender's glTF importer as is and its vertices must lie
+within a voxel of the volume's mesh (the two overlap in one scene).
 
 OpenVDB (the `openvdb` module in Blender's bundled site-packages): the grid must read back with
 class level set, background 3 voxels, `is_saved_as_half_float` false, and its values, copied
@@ -104,6 +106,7 @@ def main():
     parser.add_argument("sidecar")
     parser.add_argument("--up", choices=["y", "z"], default="y")
     parser.add_argument("--metres-per-unit", type=float, default=1.0)
+    parser.add_argument("--glb", help="the run's mesh.glb, imported as is: it must overlap")
     args = parser.parse_args()
     try:
         import bpy
@@ -112,6 +115,10 @@ def main():
         return 2
     import numpy as np
 
+    # Blender prints its own messages on stdout: send them to stderr, so that stdout holds
+    # only the report line.
+    stdout = os.dup(1)
+    os.dup2(2, 1)
     scale = args.metres_per_unit
     with open(args.sidecar) as f:
         side = json.load(f)
@@ -128,7 +135,9 @@ def main():
     if len(volumes) != 1:
         problems.append(f"{len(volumes)} volume objects after the import, expected 1")
         report["problems"] = problems
-        print(json.dumps(report))
+        sys.stdout.flush()
+        os.dup2(stdout, 1)
+        print(json.dumps(report), flush=True)
         return 1
     vol_obj = volumes[0]
     vol = vol_obj.data
@@ -177,6 +186,19 @@ def main():
         if a.max() > 1.0 or b.max() > 1.0 or a.mean() > 0.25 or b.mean() > 0.25:
             problems.append("the volume's zero set is over 1 voxel (max) or 0.25 (mean) from the PLY")
 
+    if args.glb and len(vv):
+        before = set(bpy.data.objects)
+        bpy.ops.import_scene.gltf(filepath=os.path.abspath(args.glb))
+        glbs = [o for o in bpy.data.objects if o not in before and o.type == "MESH"]
+        if len(glbs) != 1:
+            problems.append(f"{len(glbs)} meshes imported from the glb, expected 1")
+        else:
+            gv, _ = mesh_arrays(glbs[0])
+            c = surface_distances(gv, vv, vp) / h
+            report["glb_to_volume_voxels"] = {"max": float(c.max()), "mean": float(c.mean())}
+            if c.max() > 1.0:
+                problems.append("the glb, imported by Blender, is over 1 voxel from the volume")
+
     openvdb = openvdb_module(bpy)
     npy_path = os.path.join(os.path.dirname(os.path.abspath(args.sidecar)), side["data"])
     if openvdb is None:
@@ -219,7 +241,9 @@ def main():
         if np.abs(got).max() > 3 * h * (1 + 1e-6):
             problems.append("a value exceeds the background")
     report["problems"] = problems
-    print(json.dumps(report))
+    sys.stdout.flush()
+    os.dup2(stdout, 1)
+    print(json.dumps(report), flush=True)
     return 0 if not problems else 1
 
 
