@@ -964,7 +964,7 @@ mod tests {
     fn ranged_flags_print_and_check_the_same_constant() {
         use clap::CommandFactory;
         let cli = Cli::command();
-        let cases: [(&str, &str, Range); 14] = [
+        let cases: [(&str, &str, Range); 15] = [
             ("run", "threads", THREADS),
             ("run", "trim", TRIM),
             ("run", "degree", DEGREE),

@@ -384,7 +384,10 @@ fn voxel_range(grid: &VoxelGrid, tri: &[[f64; 3]; 3], margin: f64) -> Option<[[u
         let last = ((hi - grid.origin[a]) / grid.voxel_size)
             .floor()
             .min(grid.shape[a] as f64 - 1.0);
-        if !(first <= last) {
+        if first
+            .partial_cmp(&last)
+            .is_none_or(|o| o == std::cmp::Ordering::Greater)
+        {
             return None;
         }
         out[a] = [first as usize, last as usize];
@@ -413,9 +416,8 @@ pub fn dense(mesh: &TriangleMesh, band: &NarrowBand) -> Result<DenseVolume, Dist
     // The band decides every voxel's sign: its blocks hold the sign of f at each of their
     // voxels, and every other block is listed by its sign. So only the distance is searched.
     let n_blocks = grid.shape.map(|n| n.div_ceil(BLOCK));
-    let block_key = |o: [usize; 3]| {
-        ((o[0] / BLOCK * n_blocks[1] + o[1] / BLOCK) * n_blocks[2] + o[2] / BLOCK) as usize
-    };
+    let block_key =
+        |o: [usize; 3]| (o[0] / BLOCK * n_blocks[1] + o[1] / BLOCK) * n_blocks[2] + o[2] / BLOCK;
     let mut block_of = vec![u32::MAX; n_blocks.iter().product()];
     for (n, b) in band.blocks.iter().enumerate() {
         block_of[block_key(b.origin.map(|c| c as usize))] = n as u32;

@@ -25,12 +25,13 @@
 //! ```
 //!
 //! Offsets within a node: a leaf holds voxel (x, y, z) at `(x & 7)·64 + (y & 7)·8 + (z & 7)`;
-//! the 16³ node holds its child covering (x, y, z) at `((x & 127) >> 3)·256 + ((y & 127) >> 3)·16
-//! + ((z & 127) >> 3)`; the 32³ node at `((x & 4095) >> 7)·1024 + ((y & 4095) >> 7)·32 +
-//! ((z & 4095) >> 7)`. The grid's voxels have indices 0 ..= 4095 (the volume's limit), so the
-//! root has one child, at the origin. Every slot without a child is an inactive tile of value
-//! ± the background, its sign that of the blocks it covers, so the level set is signed
-//! everywhere as OpenVDB's signed flood fill would leave it.
+//! the 16³ node holds its child covering (x, y, z) at
+//! `((x & 127) >> 3)·256 + ((y & 127) >> 3)·16 + ((z & 127) >> 3)`; the 32³ node at
+//! `((x & 4095) >> 7)·1024 + ((y & 4095) >> 7)·32 + ((z & 4095) >> 7)`. The grid's voxels have
+//! indices 0 ..= 4095 (the volume's limit), so the root has one child, at the origin. Every slot
+//! without a child is an inactive tile of value ± the background, its sign that of the blocks
+//! it covers, so the level set is signed everywhere as OpenVDB's signed flood fill would leave
+//! it.
 //!
 //! # Frame
 //!
@@ -98,22 +99,28 @@ fn frame(band: &NarrowBand, opts: &VdbOptions) -> Framed {
     let o = band.grid.origin.map(|c| c * scale);
     let n_blocks_z = band.grid.shape[2].div_ceil(BLOCK) as i32;
     let last_z = n_blocks_z * BLOCK as i32 - 1;
-    // Output index of input index (i, j, k), and of a voxel's offset inside its block.
-    let (map_origin, map_offset, translation): (
-        Box<dyn Fn([i32; 3]) -> [i32; 3]>,
-        Box<dyn Fn(usize) -> usize>,
-        [f64; 3],
-    ) = match opts.up {
-        UpAxis::Z => (Box::new(|b| b), Box::new(|n| n), o),
-        // (i, j, k) ↦ (i, last_z − k, j): world (x, −z, y).
-        UpAxis::Y => (
-            Box::new(move |b: [i32; 3]| [b[0], last_z - (b[2] + BLOCK as i32 - 1), b[1]]),
-            Box::new(|n: usize| {
-                let (x, y, z) = (n / 64, (n / 8) % 8, n % 8);
-                x * 64 + (7 - z) * 8 + y
-            }),
-            [o[0], -o[2] - h * f64::from(last_z), o[1]],
-        ),
+    // Output origin of a block at input origin (i, j, k), and output offset of a voxel's
+    // offset inside its block. With Y up: (i, j, k) ↦ (i, last_z − k, j), world (x, −z, y).
+    let turn = opts.up == UpAxis::Y;
+    let map_origin = |b: [i32; 3]| {
+        if turn {
+            [b[0], last_z - (b[2] + BLOCK as i32 - 1), b[1]]
+        } else {
+            b
+        }
+    };
+    let map_offset = |n: usize| {
+        let (x, y, z) = (n / 64, (n / 8) % 8, n % 8);
+        if turn {
+            x * 64 + (7 - z) * 8 + y
+        } else {
+            n
+        }
+    };
+    let translation = if turn {
+        [o[0], -o[2] - h * f64::from(last_z), o[1]]
+    } else {
+        o
     };
     let mut leaves: Vec<Leaf> = band
         .blocks
