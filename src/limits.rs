@@ -188,3 +188,6 @@ pub const BOUNDS_MAX_ABS: f64 = 1e15;
 /// `--trim` as a number: the support factor (a triangle is kept when a data point lies within
 /// this many local sample spacings of it).
 pub const TRIM: Range = Range::float("--trim", 0.5, 100.0);
+/// `--voxel-size`: the volumes' voxel edge, input units (the grid's own limit of 4096 voxels
+/// per axis is checked against the meshing box at run time).
+pub const VOXEL_SIZE: Range = Range::float("--voxel-size", 1e-9, BOUNDS_MAX_ABS);

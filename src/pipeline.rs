@@ -132,6 +132,8 @@ pub struct PipelineConfig {
     pub formats: Vec<OutputFormat>,
     /// The decimation to a triangle budget (`--target-triangles`); `None` keeps every triangle.
     pub decimate: Option<DecimateParams>,
+    /// The signed-distance volumes' voxel size (`vdb`, `npy`; see [`ExportParams::volume`]).
+    pub volume: crate::distance::volume::VolumeParams,
 }
 
 impl PipelineConfig {
@@ -176,6 +178,7 @@ impl PipelineConfig {
             ply_up: export.ply_up,
             formats: export.formats,
             decimate: export.decimate,
+            volume: export.volume,
         };
         match mode {
             Mode::Global => global,
@@ -217,6 +220,7 @@ impl PipelineConfig {
             units: self.units,
             ply_up: self.ply_up,
             decimate: self.decimate,
+            volume: self.volume,
         }
     }
 }

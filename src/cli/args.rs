@@ -17,6 +17,7 @@ use stablesurf::fit;
 use super::range::{
     number, BOUNDS_MAX_ABS, COUNT, DEGREE, DEPTH, EPSILON, KAPPA, LOCAL_DEGREE, RESOLUTION, SIZE,
     SLICE_COUNT, SLICE_RESOLUTION, TARGET_TRIANGLES, THREADS, TOLERANCE, TRIM, VIEWPOINT,
+    VOXEL_SIZE,
 };
 
 /// stablesurf: stable algebraic surfaces from 3D scans (Sahin & Unel 2008).
@@ -225,6 +226,10 @@ pub enum FormatArg {
     Png,
     /// The model file and report.json.
     Json,
+    /// volume.vdb: the narrow-band signed-distance level set (OpenVDB, Blender).
+    Vdb,
+    /// volume.npy and volume.json: the dense signed-distance grid (NumPy) and its transform.
+    Npy,
 }
 
 /// `render --view`: the camera direction.
@@ -350,7 +355,9 @@ pub struct RunArgs {
     /// polynomial, the paper's compact descriptor of the coarse shape.
     #[arg(long, value_name = "MODE", value_enum, hide_possible_values = true)]
     pub mode: Option<ModeArg>,
-    /// Outputs to write, comma-separated: glb, gltf, ply, exr, png, json.
+    /// Outputs to write, comma-separated: glb, gltf, ply, exr, png, json, vdb (volume.vdb, a
+    /// narrow-band signed-distance level set for Blender and OpenVDB), npy (volume.npy, the
+    /// dense signed-distance grid, with volume.json giving its transform).
     #[arg(long, value_delimiter = ',', default_value = "glb,ply,exr,png,json",
           value_parser = Trimmed::<FormatArg>::default(), hide_possible_values = true)]
     pub formats: Vec<FormatArg>,
@@ -383,6 +390,14 @@ pub struct RunArgs {
           help = trim_help(),
           allow_negative_numbers = true, value_parser = parse_trim)]
     pub trim: Option<TrimArg>,
+    /// Voxel edge of the vdb and npy volumes, input units [default: the meshing box's longest
+    /// side / 256]. The vdb keeps the voxels within 3 voxels of the surface; with --units its
+    /// transform and values are in metres and it is turned like the glb, so both overlap in
+    /// Blender; the npy stays in input units and coordinates.
+    #[arg(long, value_name = "SIZE",
+          help = VOXEL_SIZE.help("Voxel edge of the vdb and npy volumes, input units [default: the meshing box's longest side / 256]. The vdb keeps the voxels within 3 voxels of the surface; with --units its transform and values are in metres and it is turned like the glb (--up), so both overlap in Blender; the npy stays in input units and coordinates"),
+          allow_negative_numbers = true, value_parser = VOXEL_SIZE.real())]
+    pub voxel_size: Option<f64>,
     /// Print the stage summary as JSON on stdout (a batch: the summary table as JSON).
     #[arg(long)]
     pub json: bool,
@@ -1017,7 +1032,7 @@ mod tests {
     fn ranged_flags_print_and_check_the_same_constant() {
         use clap::CommandFactory;
         let cli = Cli::command();
-        let cases: [(&str, &str, Range); 14] = [
+        let cases: [(&str, &str, Range); 15] = [
             ("run", "threads", THREADS),
             ("run", "trim", TRIM),
             ("run", "degree", DEGREE),
@@ -1028,6 +1043,7 @@ mod tests {
             ("run", "depth", DEPTH),
             ("run", "slice_count", SLICE_COUNT),
             ("run", "slice_resolution", SLICE_RESOLUTION),
+            ("run", "voxel_size", VOXEL_SIZE),
             ("slices", "count", COUNT),
             ("slices", "resolution", RESOLUTION),
             ("slices", "depth", DEPTH),

@@ -8,6 +8,7 @@ use std::path::Path;
 use anyhow::{Context, Result};
 use stablesurf::cache::Cache;
 use stablesurf::detail::DetailParams;
+use stablesurf::distance::volume::VoxelSize;
 use stablesurf::distance::{Axis, DistanceMethod};
 use stablesurf::export::{self, gltf::UpAxis, units::LengthUnit};
 use stablesurf::fit::{self, FitMethod, KappaRule};
@@ -75,6 +76,8 @@ impl From<FormatArg> for OutputFormat {
             FormatArg::Exr => OutputFormat::Exr,
             FormatArg::Png => OutputFormat::Png,
             FormatArg::Json => OutputFormat::Json,
+            FormatArg::Vdb => OutputFormat::Vdb,
+            FormatArg::Npy => OutputFormat::Npy,
         }
     }
 }
@@ -252,6 +255,9 @@ pub fn run_config(args: &RunArgs) -> Result<PipelineConfig> {
         config.slices.method = distance.into();
     }
     config.formats = args.formats.iter().map(|&f| f.into()).collect();
+    if let Some(h) = args.voxel_size {
+        config.volume.voxel_size = VoxelSize::Size(h);
+    }
     Ok(config)
 }
 

@@ -53,6 +53,7 @@
 //! each row computed sequentially from its first pixel), whatever the thread count.
 
 mod exact;
+pub mod volume;
 
 pub use exact::ExactDistance;
 

@@ -11,6 +11,8 @@
 //! - [`png`]: a colour preview of a distance slice with the zero contour drawn;
 //! - [`model`]: `model.json`, the polynomial and its fit record, and its reader;
 //! - [`mpu`]: `model.mpu`, the detail model, and its reader;
+//! - [`vdb`]: `volume.vdb`, the narrow-band signed-distance level set for OpenVDB and Blender;
+//! - [`npy`]: `volume.npy` and `volume.json`, the dense signed-distance grid for NumPy;
 //! - [`units`]: the input's length unit (`--units`), which glTF is scaled by and the others
 //!   record.
 //!
@@ -24,10 +26,12 @@ pub mod exr;
 pub mod gltf;
 pub mod model;
 pub mod mpu;
+pub mod npy;
 pub mod ply;
 pub mod png;
 mod stage;
 pub mod units;
+pub mod vdb;
 
 pub use stage::{
     export, export_mesh, model_slices, slices_from_model, ExportOutput, ExportParams, Keep,

@@ -25,8 +25,9 @@ use std::borrow::Cow;
 use serde::Serialize;
 
 use super::gltf::GltfOptions;
-use super::{exr, mesh_files, ply, png, ExportError, MeshFileOptions, MeshFormat};
+use super::{exr, mesh_files, npy, ply, png, vdb, ExportError, MeshFileOptions, MeshFormat};
 use crate::cloud::Aabb;
+use crate::distance::volume::{self, VolumeParams, VoxelSize};
 use crate::distance::{DistanceMethod, Slice, SliceParams};
 use crate::measure::{self, Accuracy};
 use crate::mesh::{self, MeshReport, TriangleMesh};
@@ -61,6 +62,10 @@ pub enum OutputFormat {
     Png,
     /// The model file (`model.json`, or `model.mpu` in detail mode) and `report.json`.
     Json,
+    /// `volume.vdb`: the narrow-band signed-distance level set (OpenVDB).
+    Vdb,
+    /// `volume.npy` + `volume.json`: the dense signed-distance grid (NumPy) and its transform.
+    Npy,
 }
 
 impl std::str::FromStr for OutputFormat {
@@ -74,9 +79,11 @@ impl std::str::FromStr for OutputFormat {
             "exr" => OutputFormat::Exr,
             "png" => OutputFormat::Png,
             "json" => OutputFormat::Json,
+            "vdb" => OutputFormat::Vdb,
+            "npy" => OutputFormat::Npy,
             other => {
                 return Err(format!(
-                    "unknown output format '{other}' (choose from glb, gltf, ply, exr, png, json)"
+                    "unknown output format '{other}' (choose from glb, gltf, ply, exr, png, json, vdb, npy)"
                 ))
             }
         })
@@ -121,6 +128,8 @@ pub struct ExportParams {
     /// The decimation to a triangle budget after the filter and the trim (`--target-triangles`;
     /// [`crate::polygonize::decimate`]); `None` (the default) keeps every triangle.
     pub decimate: Option<DecimateParams>,
+    /// The signed-distance volumes (`vdb`, `npy`): their voxel size.
+    pub volume: VolumeParams,
 }
 
 impl Default for ExportParams {
@@ -146,6 +155,7 @@ impl Default for ExportParams {
             units: None,
             ply_up: None,
             decimate: None,
+            volume: VolumeParams::default(),
         }
     }
 }
@@ -154,6 +164,11 @@ impl ExportParams {
     /// Whether the params ask for `format`.
     pub fn wants(&self, format: OutputFormat) -> bool {
         self.formats.contains(&format)
+    }
+
+    /// Whether the formats ask for a signed-distance volume (OpenVDB or NumPy).
+    fn volumes_wanted(&self) -> bool {
+        self.wants(OutputFormat::Vdb) || self.wants(OutputFormat::Npy)
     }
 
     /// Whether the formats ask for slices (OpenEXR or their PNG previews).
@@ -192,6 +207,13 @@ impl Serialize for ExportParams {
             value["decimate_version"] =
                 serde_json::Value::from(crate::polygonize::decimate::VERSION);
         }
+        // Likewise the voxel size, only when a volume is asked for.
+        if self.volumes_wanted() {
+            value["voxel_size"] = match self.volume.voxel_size {
+                VoxelSize::Auto => serde_json::Value::from("auto"),
+                VoxelSize::Size(h) => serde_json::Value::from(h),
+            };
+        }
         value.serialize(serializer)
     }
 }
@@ -200,7 +222,7 @@ impl Serialize for ExportParams {
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ExportOutput {
     /// The files, in a fixed order: the model file, `mesh.glb`, `mesh.bin` + `mesh.gltf`,
-    /// `mesh.ply`, `preview.png`, then the slices in slice order (per slice its `.exr`, then its
+    /// `mesh.ply`, `preview.png`, `volume.vdb`, `volume.npy` + `volume.json`, then the slices in slice order (per slice its `.exr`, then its
     /// `.png`), each as the formats ask.
     pub files: Vec<OutputFile>,
     /// Components left out for having no data point within 2% of the data's diagonal.
@@ -409,12 +431,18 @@ pub fn export_mesh(
         let (kept, n) = mesh::drop_small_nested_components(&mesh, NESTED_AREA_FRACTION);
         (mesh, dropped_nested) = (Cow::Owned(kept), n);
     }
+    // The volumes measure the kept mesh before the trim: the closed zero set that f's sign
+    // describes, so that the distance and the sign agree everywhere.
+    let kept = mesh;
+    let volumes = || -> Result<Vec<OutputFile>, ExportError> { volume_files(model, &kept, params) };
     // The trim: the surface the data supports (the mesh itself when all of it is).
-    let trimmed = trim::trim(&mesh, points, &params.trim)?;
+    let trimmed = trim::trim(&kept, points, &params.trim)?;
     let trim_report = trimmed.report;
-    if trim_report.removed_triangles > 0 {
-        mesh = Cow::Owned(trimmed.mesh);
-    }
+    let mut mesh: Cow<'_, TriangleMesh> = if trim_report.removed_triangles > 0 {
+        Cow::Owned(trimmed.mesh)
+    } else {
+        Cow::Borrowed(&*kept)
+    };
     // The decimation, last, so that the budget counts the triangles written.
     let mut known_embedded = known_embedded;
     let decimate_report = params.decimate.map(|p| {
@@ -497,8 +525,13 @@ pub fn export_mesh(
         let image = crate::render::render(m, &render_params);
         Ok(one("preview.png", encode(&|w| png::write_rgb(&image, w))?))
     };
-    let slices = || with_slices.then(|| mesh_slices(model, m, params));
-    let (slices, ((report, accuracy), (json, ((glb, gltf), (ply, preview))))) =
+    let slices = || {
+        rayon::join(
+            || with_slices.then(|| mesh_slices(model, m, params)),
+            volumes,
+        )
+    };
+    let ((slices, volumes), ((report, accuracy), (json, ((glb, gltf), (ply, preview))))) =
         rayon::join(slices, || {
             rayon::join(
                 || {
@@ -522,7 +555,7 @@ pub fn export_mesh(
         });
     let slices = slices.transpose()?;
     let mut files = Vec::new();
-    for part in [json?, glb?, gltf?, ply?, preview?] {
+    for part in [json?, glb?, gltf?, ply?, preview?, volumes?] {
         files.extend(part);
     }
     files.extend(slices.into_iter().flatten());
@@ -570,6 +603,44 @@ fn mesh_slices(
             method.name()
         ))),
     }
+}
+
+/// The volume files the formats ask for, from the distance to `mesh` signed by the model:
+/// `volume.vdb` (the narrow band, [`super::vdb`]) and `volume.npy` + `volume.json` (the dense
+/// grid, [`super::npy`]).
+fn volume_files(
+    model: &Model,
+    mesh: &TriangleMesh,
+    params: &ExportParams,
+) -> Result<Vec<OutputFile>, ExportError> {
+    if !params.volumes_wanted() {
+        return Ok(Vec::new());
+    }
+    let f = model.function();
+    let band = volume::narrow_band(f, mesh, &model.region(), &params.volume)?;
+    let mut files = Vec::new();
+    if params.wants(OutputFormat::Vdb) {
+        let opts = vdb::VdbOptions {
+            units: params.units,
+            up: params.gltf.up,
+        };
+        files.push((
+            "volume.vdb".to_string(),
+            encode(&|w| vdb::write(&band, &opts, w))?,
+        ));
+    }
+    if params.wants(OutputFormat::Npy) {
+        let dense = volume::dense(mesh, &band)?;
+        files.push((
+            "volume.npy".to_string(),
+            encode(&|w| npy::write(&dense, w))?,
+        ));
+        files.push((
+            "volume.json".to_string(),
+            npy::sidecar(&dense, params.units),
+        ));
+    }
+    Ok(files)
 }
 
 /// Encodes the slices as the formats ask, in parallel; the files come out in slice order.

@@ -78,7 +78,8 @@ fn unit_sphere(center: [f64; 3], scale: f64) -> ImplicitPolynomial {
 }
 
 /// How to run one external validator, or `None` (after a notice, or a failure under CI).
-/// `kind` names its script in tools/validate; `blender` runs in Blender's own environment.
+/// `kind` names its script in tools/validate; `blender` and `vdb_blender` run in Blender's own
+/// environment.
 pub(crate) fn validator(kind: &str) -> Option<Command> {
     let dir = Path::new(ROOT).join("tools/validate");
     let (found, command) = match kind {
@@ -91,10 +92,11 @@ pub(crate) fn validator(kind: &str) -> Option<Command> {
             c.arg(dir.join("gltf.mjs"));
             (ok, c)
         }
-        "blender" => {
+        // Blender's checks run in Blender's own Python (bpy).
+        "blender" | "vdb_blender" => {
             let python = dir.join(".venv-blender/bin/python");
             let mut c = Command::new(&python);
-            c.arg(dir.join("blender.py"));
+            c.arg(dir.join(format!("{kind}.py")));
             (python.exists(), c)
         }
         _ => {

@@ -22,3 +22,4 @@ mod normals;
 mod polygonize;
 mod reliability;
 mod tidy;
+mod volume;

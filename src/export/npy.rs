@@ -1,0 +1,98 @@
+//! Export stage, NumPy writer: a [`DenseVolume`] → `volume.npy` and its sidecar `volume.json`.
+//!
+//! Input: the dense signed-distance grid of [`crate::distance::volume::dense`]. Output: a NumPy
+//! `.npy` file, format version 1.0: the magic `\x93NUMPY`, version bytes 1 0, a little-endian
+//! u16 header length, the header (a Python dict literal `{'descr': '<f4', 'fortran_order':
+//! False, 'shape': (nx, ny, nz), }` padded with spaces and a newline so that the data starts at
+//! a multiple of 64 bytes), then nx·ny·nz little-endian float32 values in C order:
+//! `volume[i, j, k]` is the signed distance at the centre of voxel (i, j, k), i along x, j along
+//! y, k along z, at `origin + voxel_size · (i, j, k)` in input coordinates. Values are in input
+//! units, negative inside.
+//!
+//! The sidecar ([`sidecar`]) is JSON: `format` `stablesurf.volume`, `version` 1, `data`
+//! (`volume.npy`), `shape`, `axis_order`, `origin` (the centre of voxel (0, 0, 0)),
+//! `voxel_size`, `grid_to_world` (a 4×4 row-major matrix taking (i, j, k, 1) to input
+//! coordinates), `units` (with `--units`), `sign` and `distance` (how the values were made).
+//! Deterministic: fixed key order, Rust's shortest round-trip float formatting.
+
+use std::io::Write;
+
+use super::units::LengthUnit;
+use super::ExportError;
+use crate::distance::volume::{DenseVolume, BAND_VOXELS};
+
+/// Writes `volume` as a `.npy` file (see the module docs) to `out`.
+///
+/// ```
+/// use stablesurf::distance::volume::{DenseVolume, VoxelGrid};
+/// use stablesurf::export::npy::write;
+/// let grid = VoxelGrid { origin: [0.0; 3], voxel_size: 1.0, shape: [2, 3, 4] };
+/// let volume = DenseVolume { grid, values: vec![0.5; 24] };
+/// let mut bytes = Vec::new();
+/// write(&volume, &mut bytes).unwrap();
+/// assert_eq!(&bytes[..8], b"\x93NUMPY\x01\x00");
+/// assert_eq!(bytes.len(), 128 + 24 * 4);
+/// ```
+///
+/// # Errors
+/// [`ExportError::Format`] when the values do not fill the grid; [`ExportError::Write`] when
+/// `out` fails.
+pub fn write(volume: &DenseVolume, out: &mut impl Write) -> Result<(), ExportError> {
+    let [nx, ny, nz] = volume.grid.shape;
+    if volume.values.len() != nx * ny * nz {
+        return Err(ExportError::Format(format!(
+            "the volume has {} values for a grid of {nx} × {ny} × {nz}",
+            volume.values.len()
+        )));
+    }
+    let dict = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': ({nx}, {ny}, {nz}), }}");
+    // Magic (6) + version (2) + length (2) + dict + padding + '\n', a multiple of 64.
+    let total = (10 + dict.len() + 1).div_ceil(64) * 64;
+    let mut header = Vec::with_capacity(total);
+    header.extend_from_slice(b"\x93NUMPY\x01\x00");
+    header.extend_from_slice(&((total - 10) as u16).to_le_bytes());
+    header.extend_from_slice(dict.as_bytes());
+    header.resize(total - 1, b' ');
+    header.push(b'\n');
+    out.write_all(&header).map_err(ExportError::Write)?;
+    let mut data = Vec::with_capacity(volume.values.len() * 4);
+    for v in &volume.values {
+        data.extend_from_slice(&v.to_le_bytes());
+    }
+    out.write_all(&data).map_err(ExportError::Write)
+}
+
+/// The sidecar JSON of `volume.npy` (see the module docs); `units` is the input's unit, if
+/// known.
+pub fn sidecar(volume: &DenseVolume, units: Option<LengthUnit>) -> Vec<u8> {
+    let g = &volume.grid;
+    let h = g.voxel_size;
+    let o = g.origin;
+    let mut value = serde_json::json!({
+        "format": "stablesurf.volume",
+        "version": 1,
+        "data": "volume.npy",
+        "dtype": "float32 little-endian",
+        "shape": g.shape,
+        "axis_order": "C order: volume[i, j, k], i along x, j along y, k along z (k fastest)",
+        "origin": o,
+        "origin_is": "the centre of voxel (0, 0, 0), input coordinates",
+        "voxel_size": h,
+        "grid_to_world": [
+            [h, 0.0, 0.0, o[0]],
+            [0.0, h, 0.0, o[1]],
+            [0.0, 0.0, h, o[2]],
+            [0.0, 0.0, 0.0, 1.0],
+        ],
+        "sign": "negative inside, positive outside (the sign of the model's f)",
+        "distance": format!(
+            "Euclidean distance to the output mesh, in input units: exact within {BAND_VOXELS} voxels of it, elsewhere within the mesh's chord error"
+        ),
+    });
+    if let Some(u) = units {
+        value["units"] = serde_json::Value::from(u.symbol());
+    }
+    let mut bytes = serde_json::to_vec_pretty(&value).unwrap_or_default();
+    bytes.push(b'\n');
+    bytes
+}
