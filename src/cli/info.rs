@@ -20,6 +20,10 @@ pub fn info(args: InfoArgs) -> Result<()> {
         export::gltf::read_info(&bytes).with_context(|| named("glTF"))?
     } else if bytes.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
         export::exr::read_info(&bytes).with_context(|| named("OpenEXR"))?
+    } else if bytes.starts_with(&[0x20, 0x42, 0x44, 0x56, 0, 0, 0, 0]) {
+        export::vdb::read_info(&bytes).with_context(|| named("OpenVDB"))?
+    } else if bytes.starts_with(b"\x93NUMPY") {
+        export::npy::read_info(&bytes).with_context(|| named("NumPy .npy"))?
     } else if bytes.starts_with(b"SSMOMENT") {
         moments_info(&bytes).with_context(|| named("a moments file"))?
     } else if looks_like_json || export::mpu::is_mpu(&bytes) {

@@ -96,3 +96,111 @@ pub fn sidecar(volume: &DenseVolume, units: Option<LengthUnit>) -> Vec<u8> {
     bytes.push(b'\n');
     bytes
 }
+
+/// What `stablesurf info` shows of a `.npy` file: its version, dtype, shape and order from the
+/// header, and the range of the values when they are little-endian `float32` (what [`write`]
+/// writes), NaN ignored.
+///
+/// # Errors
+/// [`ExportError::Format`] when the bytes are not a NumPy `.npy` file or end before the data
+/// its header announces.
+pub fn read_info(bytes: &[u8]) -> Result<serde_json::Value, ExportError> {
+    let bad = |why: &str| ExportError::Format(format!("not a readable .npy file: {why}"));
+    if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
+        return Err(bad("no NumPy magic string"));
+    }
+    let (major, minor) = (bytes[6], bytes[7]);
+    let (len, start) = match major {
+        1 => (usize::from(u16::from_le_bytes([bytes[8], bytes[9]])), 10),
+        2 | 3 if bytes.len() >= 12 => (
+            u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+            12,
+        ),
+        _ => return Err(bad("an unknown format version")),
+    };
+    let header = bytes
+        .get(start..start + len)
+        .ok_or_else(|| bad("the header is cut short"))?;
+    let header = String::from_utf8_lossy(header);
+    // The header is a Python dict literal: 'descr': '<f4', 'fortran_order': False, 'shape': (…).
+    let field = |key: &str| -> Option<String> {
+        let at = header.find(&format!("'{key}':"))? + key.len() + 3;
+        let rest = header[at..].trim_start();
+        let end = if rest.starts_with('(') {
+            rest.find(')')? + 1
+        } else {
+            rest.find([',', '}'])?
+        };
+        Some(rest[..end].trim().trim_matches('\'').to_string())
+    };
+    let descr = field("descr").ok_or_else(|| bad("no 'descr' in the header"))?;
+    let fortran = field("fortran_order").ok_or_else(|| bad("no 'fortran_order' in the header"))?;
+    let shape_text = field("shape").ok_or_else(|| bad("no 'shape' in the header"))?;
+    let shape: Vec<usize> = shape_text
+        .trim_matches(|c| c == '(' || c == ')')
+        .split(',')
+        .map(str::trim)
+        .filter(|t| !t.is_empty())
+        .map(|t| {
+            t.parse()
+                .map_err(|_| bad("a shape that is not whole numbers"))
+        })
+        .collect::<Result<_, _>>()?;
+    let count = shape.iter().try_fold(1usize, |a, &n| a.checked_mul(n));
+    let count = count.ok_or_else(|| bad("a shape too large"))?;
+    let mut info = serde_json::json!({
+        "format": "npy",
+        "version": format!("{major}.{minor}"),
+        "dtype": descr,
+        "fortran_order": fortran == "True",
+        "shape": shape,
+    });
+    if descr == "<f4" {
+        let data = &bytes[start + len..];
+        if data.len() < count * 4 {
+            return Err(bad("the data is shorter than its shape"));
+        }
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        for c in data[..count * 4].chunks_exact(4) {
+            let v = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+            if !v.is_nan() {
+                lo = lo.min(v);
+                hi = hi.max(v);
+            }
+        }
+        if lo <= hi {
+            info["min"] = lo.into();
+            info["max"] = hi.into();
+        }
+    }
+    Ok(info)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::distance::volume::VoxelGrid;
+
+    #[test]
+    fn info_reads_what_write_writes() {
+        let grid = VoxelGrid {
+            origin: [0.0; 3],
+            voxel_size: 1.0,
+            shape: [2, 3, 4],
+        };
+        let values: Vec<f32> = (0..24).map(|i| i as f32 - 5.5).collect();
+        let mut bytes = Vec::new();
+        write(&DenseVolume { grid, values }, &mut bytes).unwrap();
+        let info = read_info(&bytes).unwrap();
+        assert_eq!(info["format"], "npy");
+        assert_eq!(info["version"], "1.0");
+        assert_eq!(info["dtype"], "<f4");
+        assert_eq!(info["fortran_order"], false);
+        assert_eq!(info["shape"], serde_json::json!([2, 3, 4]));
+        assert_eq!(info["min"], -5.5);
+        assert_eq!(info["max"], 17.5);
+        for n in [0, 9, 40, bytes.len() - 1] {
+            assert!(read_info(&bytes[..n]).is_err(), "prefix of {n} bytes");
+        }
+    }
+}

@@ -442,6 +442,150 @@ fn uuid(bytes: &[u8]) -> String {
     )
 }
 
+/// A little-endian reader over a byte slice for [`read_info`]; every read is bounds-checked.
+struct Reader<'a> {
+    bytes: &'a [u8],
+    at: usize,
+}
+
+impl<'a> Reader<'a> {
+    fn take(&mut self, n: usize) -> Result<&'a [u8], ExportError> {
+        let end = self.at.checked_add(n).filter(|&e| e <= self.bytes.len());
+        let end = end.ok_or_else(|| {
+            ExportError::Format(format!(
+                "not a readable OpenVDB file: it ends at byte {}",
+                self.bytes.len()
+            ))
+        })?;
+        let out = &self.bytes[self.at..end];
+        self.at = end;
+        Ok(out)
+    }
+    fn u32(&mut self) -> Result<u32, ExportError> {
+        Ok(u32::from_le_bytes(
+            self.take(4)?.try_into().unwrap_or_default(),
+        ))
+    }
+    fn i64(&mut self) -> Result<i64, ExportError> {
+        Ok(i64::from_le_bytes(
+            self.take(8)?.try_into().unwrap_or_default(),
+        ))
+    }
+    fn vec3d(&mut self) -> Result<[f64; 3], ExportError> {
+        let mut v = [0.0; 3];
+        for c in &mut v {
+            *c = f64::from_le_bytes(self.take(8)?.try_into().unwrap_or_default());
+        }
+        Ok(v)
+    }
+    fn string(&mut self) -> Result<String, ExportError> {
+        let n = self.u32()? as usize;
+        Ok(String::from_utf8_lossy(self.take(n)?).into_owned())
+    }
+    /// A metadata block: a count, then name, type name and sized value per entry.
+    fn metadata(&mut self) -> Result<serde_json::Map<String, serde_json::Value>, ExportError> {
+        let count = self.u32()?;
+        let mut map = serde_json::Map::new();
+        for _ in 0..count {
+            let name = self.string()?;
+            let type_name = self.string()?;
+            let size = self.u32()? as usize;
+            let value = self.take(size)?;
+            map.insert(name, metadata_value(&type_name, value));
+        }
+        Ok(map)
+    }
+}
+
+/// A metadata value as JSON: strings, booleans, numbers and 3-vectors decoded; other types by
+/// their type name and size.
+fn metadata_value(type_name: &str, v: &[u8]) -> serde_json::Value {
+    let le4 = |c: &[u8]| <[u8; 4]>::try_from(c).unwrap_or_default();
+    let le8 = |c: &[u8]| <[u8; 8]>::try_from(c).unwrap_or_default();
+    match (type_name, v.len()) {
+        ("string", _) => String::from_utf8_lossy(v).into(),
+        ("bool", 1) => (v[0] != 0).into(),
+        ("int32", 4) => i32::from_le_bytes(le4(v)).into(),
+        ("int64", 8) => i64::from_le_bytes(le8(v)).into(),
+        ("float", 4) => f32::from_le_bytes(le4(v)).into(),
+        ("double", 8) => f64::from_le_bytes(le8(v)).into(),
+        ("vec3i", 12) => v
+            .chunks(4)
+            .map(|c| i32::from_le_bytes(le4(c)))
+            .collect::<Vec<_>>()
+            .into(),
+        ("vec3d", 24) => v
+            .chunks(8)
+            .map(|c| f64::from_le_bytes(le8(c)))
+            .collect::<Vec<_>>()
+            .into(),
+        _ => format!("{type_name} ({} bytes)", v.len()).into(),
+    }
+}
+
+/// What `stablesurf info` shows of an OpenVDB file: its format and library versions, and per
+/// grid its name, tree type, metadata (class, bounds, voxel count, …) and, for the maps this
+/// writer uses, the voxel size and translation. The grids' trees are not read.
+///
+/// # Errors
+/// [`ExportError::Format`] when the bytes are not an OpenVDB file of format version 222 or
+/// later (the versions that record grid offsets and per-grid compression), or end early.
+pub fn read_info(bytes: &[u8]) -> Result<serde_json::Value, ExportError> {
+    let mut r = Reader { bytes, at: 0 };
+    if r.i64()? != MAGIC {
+        return Err(ExportError::Format(
+            "not an OpenVDB file (no VDB magic number)".into(),
+        ));
+    }
+    let file_version = r.u32()?;
+    if file_version < 222 {
+        return Err(ExportError::Format(format!(
+            "OpenVDB file format {file_version} is older than 222, which info does not read"
+        )));
+    }
+    let library = [r.u32()?, r.u32()?];
+    if r.take(1)?[0] == 0 {
+        return Err(ExportError::Format(
+            "an OpenVDB file without grid offsets".into(),
+        ));
+    }
+    let uuid = String::from_utf8_lossy(r.take(36)?).into_owned();
+    let file_metadata = r.metadata()?;
+    let n_grids = r.u32()?;
+    let mut grids = Vec::new();
+    for _ in 0..n_grids {
+        let name = r.string()?;
+        let tree = r.string()?;
+        let _instance_parent = r.string()?;
+        let grid_pos = r.i64()?;
+        let _blocks = r.i64()?;
+        let end = r.i64()?;
+        let mut g = Reader {
+            bytes,
+            at: usize::try_from(grid_pos).unwrap_or(usize::MAX),
+        };
+        let _compression = g.u32()?;
+        let metadata = g.metadata()?;
+        let map = g.string()?;
+        let mut grid =
+            serde_json::json!({"name": name, "tree": tree, "metadata": metadata, "map": map});
+        if map == "UniformScaleTranslateMap" || map == "ScaleTranslateMap" {
+            grid["translation"] = g.vec3d()?.to_vec().into();
+            grid["voxel_size"] = g.vec3d()?.to_vec().into();
+        }
+        grids.push(grid);
+        r.at = usize::try_from(end).unwrap_or(usize::MAX).max(r.at);
+    }
+    Ok(serde_json::json!({
+        "format": "vdb",
+        "file_version": file_version,
+        "library_version": format!("{}.{}", library[0], library[1]),
+        "uuid": uuid,
+        "metadata": file_metadata,
+        "grids": grids,
+    }))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -635,6 +779,30 @@ mod tests {
             // The tiles inside the sphere carry −background.
             assert!(inside_tiles > 0);
             assert_eq!(r.at, bytes.len());
+        }
+    }
+
+    #[test]
+    fn info_reads_the_header_and_the_grid_metadata() {
+        let band = sphere_band(0.1);
+        let mut bytes = Vec::new();
+        write(&band, &VdbOptions::default(), &mut bytes).unwrap();
+        let info = read_info(&bytes).unwrap();
+        assert_eq!(info["format"], "vdb");
+        assert_eq!(info["file_version"], FILE_VERSION);
+        let grid = &info["grids"][0];
+        assert_eq!(grid["name"], GRID_NAME);
+        assert_eq!(grid["tree"], GRID_TYPE);
+        assert_eq!(grid["metadata"]["class"], "level set");
+        assert_eq!(grid["metadata"]["is_saved_as_half_float"], false);
+        assert!(grid["metadata"]["file_voxel_count"].as_i64().unwrap() > 0);
+        assert_eq!(grid["map"], "UniformScaleTranslateMap");
+        let h = grid["voxel_size"][0].as_f64().unwrap();
+        assert!((h - 0.1).abs() < 1e-12, "{grid}");
+        // A file cut before its grid's transform is an error, never a panic (the trees are not
+        // read, so a file cut inside them still shows its header).
+        for n in [0, 7, 20, 60, 200, 400] {
+            assert!(read_info(&bytes[..n]).is_err(), "prefix of {n} bytes");
         }
     }
 

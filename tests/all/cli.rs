@@ -1599,7 +1599,7 @@ fn info_reads_what_the_tool_writes() {
     run_ok(
         &input,
         &out,
-        &flags("--mode global --degree 2 --formats glb,gltf,exr,json --no-cache -q"),
+        &flags("--mode global --degree 2 --formats glb,gltf,exr,json,vdb,npy --voxel-size 0.2 --no-cache -q"),
     );
     let info = |file: &Path| -> serde_json::Value {
         let done = bin().arg("info").arg(file).arg("--json").output().unwrap();
@@ -1625,6 +1625,31 @@ fn info_reads_what_the_tool_writes() {
     assert_eq!(slice["signConvention"], "negative inside");
     assert_eq!(slice["voxelSize"].as_array().map(Vec::len), Some(3));
     assert_eq!(info(&out.join("model.json"))["degree"], 2);
+    // The volumes: the vdb's grid and its metadata, the npy's header and value range.
+    let vdb = info(&out.join("volume.vdb"));
+    let grid = &vdb["grids"][0];
+    assert_eq!(
+        (vdb["format"].as_str(), grid["name"].as_str()),
+        (Some("vdb"), Some("surface"))
+    );
+    assert_eq!(grid["metadata"]["class"], "level set");
+    assert!(
+        (grid["voxel_size"][0].as_f64().unwrap() - 0.2).abs() < 1e-12,
+        "{vdb}"
+    );
+    let npy = info(&out.join("volume.npy"));
+    let sidecar: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("volume.json")).unwrap()).unwrap();
+    assert_eq!(
+        (npy["format"].as_str(), npy["dtype"].as_str()),
+        (Some("npy"), Some("<f4"))
+    );
+    assert_eq!(npy["shape"], sidecar["shape"]);
+    // The sphere of radius 2: the distance is about −2 at its centre, positive at the box's corners.
+    assert!(
+        npy["min"].as_f64().unwrap() < -1.5 && npy["max"].as_f64().unwrap() > 0.0,
+        "{npy}"
+    );
     let part = dir.path().join("part.moments");
     let done = bin()
         .arg("moments")
