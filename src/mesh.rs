@@ -917,6 +917,52 @@ pub fn intersecting_triangles_among(mesh: &TriangleMesh, active: Option<&[bool]>
     flags.into_iter().map(AtomicBool::into_inner).collect()
 }
 
+/// A closed latitude–longitude sphere with `rings` bands and `sectors` wedges, wound outwards,
+/// with radial unit normals: a test mesh for the mesh checks and the decimation.
+#[cfg(test)]
+pub(crate) fn lat_long_sphere(
+    center: [f64; 3],
+    radius: f64,
+    rings: u32,
+    sectors: u32,
+) -> TriangleMesh {
+    let mut normals = vec![[0.0, 0.0, 1.0]];
+    for r in 1..rings {
+        let theta = std::f64::consts::PI * f64::from(r) / f64::from(rings);
+        for s in 0..sectors {
+            let phi = 2.0 * std::f64::consts::PI * f64::from(s) / f64::from(sectors);
+            normals.push([
+                theta.sin() * phi.cos(),
+                theta.sin() * phi.sin(),
+                theta.cos(),
+            ]);
+        }
+    }
+    normals.push([0.0, 0.0, -1.0]);
+    let positions = normals
+        .iter()
+        .map(|n| std::array::from_fn(|a| center[a] + radius * n[a]))
+        .collect();
+    let south = normals.len() as u32 - 1;
+    let at = |r: u32, s: u32| 1 + (r - 1) * sectors + s % sectors;
+    let mut triangles = Vec::new();
+    for s in 0..sectors {
+        triangles.push([0, at(1, s), at(1, s + 1)]);
+        triangles.push([south, at(rings - 1, s + 1), at(rings - 1, s)]);
+    }
+    for r in 1..rings - 1 {
+        for s in 0..sectors {
+            triangles.push([at(r, s), at(r + 1, s), at(r + 1, s + 1)]);
+            triangles.push([at(r, s), at(r + 1, s + 1), at(r, s + 1)]);
+        }
+    }
+    TriangleMesh {
+        positions,
+        normals,
+        triangles,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -930,35 +976,8 @@ mod tests {
         }
     }
 
-    /// A closed latitude–longitude sphere, wound outwards.
     fn sphere(center: [f64; 3], radius: f64, rings: u32, sectors: u32) -> TriangleMesh {
-        let mut positions = vec![[center[0], center[1], center[2] + radius]];
-        for r in 1..rings {
-            let theta = std::f64::consts::PI * f64::from(r) / f64::from(rings);
-            for s in 0..sectors {
-                let phi = 2.0 * std::f64::consts::PI * f64::from(s) / f64::from(sectors);
-                positions.push([
-                    center[0] + radius * theta.sin() * phi.cos(),
-                    center[1] + radius * theta.sin() * phi.sin(),
-                    center[2] + radius * theta.cos(),
-                ]);
-            }
-        }
-        positions.push([center[0], center[1], center[2] - radius]);
-        let south = positions.len() as u32 - 1;
-        let at = |r: u32, s: u32| 1 + (r - 1) * sectors + s % sectors;
-        let mut triangles = Vec::new();
-        for s in 0..sectors {
-            triangles.push([0, at(1, s), at(1, s + 1)]);
-            triangles.push([south, at(rings - 1, s + 1), at(rings - 1, s)]);
-        }
-        for r in 1..rings - 1 {
-            for s in 0..sectors {
-                triangles.push([at(r, s), at(r + 1, s), at(r + 1, s + 1)]);
-                triangles.push([at(r, s), at(r + 1, s + 1), at(r, s + 1)]);
-            }
-        }
-        mesh(positions, triangles)
+        lat_long_sphere(center, radius, rings, sectors)
     }
 
     fn merge(a: &TriangleMesh, b: &TriangleMesh) -> TriangleMesh {

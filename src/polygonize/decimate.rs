@@ -1076,37 +1076,7 @@ mod tests {
 
     /// A latitude–longitude sphere of radius 1, wound outwards.
     fn sphere_mesh(rings: u32, sectors: u32) -> TriangleMesh {
-        let mut positions = vec![[0.0, 0.0, 1.0]];
-        for r in 1..rings {
-            let theta = std::f64::consts::PI * f64::from(r) / f64::from(rings);
-            for s in 0..sectors {
-                let phi = 2.0 * std::f64::consts::PI * f64::from(s) / f64::from(sectors);
-                positions.push([
-                    theta.sin() * phi.cos(),
-                    theta.sin() * phi.sin(),
-                    theta.cos(),
-                ]);
-            }
-        }
-        positions.push([0.0, 0.0, -1.0]);
-        let south = positions.len() as u32 - 1;
-        let at = |r: u32, s: u32| 1 + (r - 1) * sectors + s % sectors;
-        let mut triangles = Vec::new();
-        for s in 0..sectors {
-            triangles.push([0, at(1, s), at(1, s + 1)]);
-            triangles.push([south, at(rings - 1, s + 1), at(rings - 1, s)]);
-        }
-        for r in 1..rings - 1 {
-            for s in 0..sectors {
-                triangles.push([at(r, s), at(r + 1, s), at(r + 1, s + 1)]);
-                triangles.push([at(r, s), at(r + 1, s + 1), at(r, s + 1)]);
-            }
-        }
-        TriangleMesh {
-            normals: positions.clone(),
-            positions,
-            triangles,
-        }
+        crate::mesh::lat_long_sphere([0.0; 3], 1.0, rings, sectors)
     }
 
     fn unit_sphere() -> crate::poly::ImplicitPolynomial {
