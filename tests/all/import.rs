@@ -1429,35 +1429,13 @@ fn unreadable_las_files_name_the_file_and_write_nothing() {
 /// the scale, colour and intensity, and that the mesh lies on the sphere it wrote.
 #[test]
 fn las_and_laz_written_by_laspy_read_and_mesh() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let python = std::env::var_os("STABLESURF_VALIDATOR_PYTHON")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| root.join("tools/validate/.venv/bin/python"));
-    if !python.exists() {
-        let msg = "laspy is not installed; run `bash tools/install-validators.sh` to check LAS \
-                   and LAZ files written by it";
-        assert!(std::env::var_os("CI").is_none(), "{msg} (CI is set)");
-        eprintln!("notice: skipping: {msg}");
+    let Some(command) = crate::export::validator("las") else {
         return;
-    }
+    };
     let dir = tempfile::tempdir().unwrap();
-    let out = std::process::Command::new(python)
-        .arg(root.join("tools/validate/las.py"))
-        .arg(assert_cmd::cargo::cargo_bin("stablesurf"))
-        .arg(dir.path())
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let lines: Vec<serde_json::Value> = stdout
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
-    assert_eq!(lines.len(), 2, "{stdout}");
+    let binary = assert_cmd::cargo::cargo_bin("stablesurf");
+    let lines = crate::export::run(command, &[&binary, dir.path()]);
+    assert_eq!(lines.len(), 2, "{lines:?}");
     for (line, format) in lines.iter().zip(["las", "laz"]) {
         assert_eq!(line["format"], format);
         assert_eq!(line["points"], 3000);
@@ -1470,31 +1448,14 @@ fn las_and_laz_written_by_laspy_read_and_mesh() {
 /// turned towards its own scanner).
 #[test]
 fn e57_written_by_pye57_reads_with_its_poses_and_meshes() {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let python = std::env::var_os("STABLESURF_VALIDATOR_PYTHON")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| root.join("tools/validate/.venv/bin/python"));
-    if !python.exists() {
-        let msg = "pye57 is not installed; run `bash tools/install-validators.sh` to check E57 \
-                   files written by it";
-        assert!(std::env::var_os("CI").is_none(), "{msg} (CI is set)");
-        eprintln!("notice: skipping: {msg}");
+    let Some(command) = crate::export::validator("e57") else {
         return;
-    }
+    };
     let dir = tempfile::tempdir().unwrap();
-    let out = std::process::Command::new(python)
-        .arg(root.join("tools/validate/e57.py"))
-        .arg(assert_cmd::cargo::cargo_bin("stablesurf"))
-        .arg(dir.path())
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{stdout}\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let line: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    let binary = assert_cmd::cargo::cargo_bin("stablesurf");
+    let lines = crate::export::run(command, &[&binary, dir.path()]);
+    assert_eq!(lines.len(), 1, "{lines:?}");
+    let line = &lines[0];
     assert_eq!(line["format"], "e57");
     assert_eq!(line["scans"], 4);
     assert_eq!(line["watertight"], true);
