@@ -226,6 +226,22 @@ enum Kind {
 /// coordinates relative to the mesh's centre.
 type Quadric = [f64; 10];
 
+/// The quadric of the plane u·x + d = 0 (u a unit normal): the squared distance to it.
+fn plane_quadric(u: [f64; 3], d: f64) -> Quadric {
+    [
+        u[0] * u[0],
+        u[0] * u[1],
+        u[0] * u[2],
+        u[1] * u[1],
+        u[1] * u[2],
+        u[2] * u[2],
+        u[0] * d,
+        u[1] * d,
+        u[2] * d,
+        d * d,
+    ]
+}
+
 fn add(q: &Quadric, r: &Quadric) -> Quadric {
     std::array::from_fn(|i| q[i] + r[i])
 }
@@ -509,19 +525,7 @@ impl<'f, F: ImplicitFunction + ?Sized> State<'f, F> {
                     let area = 0.5 * len;
                     let u = n2.map(|x| x / len);
                     let d = -dot(u, a);
-                    let plane = [
-                        u[0] * u[0],
-                        u[0] * u[1],
-                        u[0] * u[2],
-                        u[1] * u[1],
-                        u[1] * u[2],
-                        u[2] * u[2],
-                        u[0] * d,
-                        u[1] * d,
-                        u[2] * d,
-                        d * d,
-                    ];
-                    for (qi, pi) in q.iter_mut().zip(plane) {
+                    for (qi, pi) in q.iter_mut().zip(plane_quadric(u, d)) {
                         *qi += area * pi;
                     }
                 }
@@ -1106,19 +1110,7 @@ mod tests {
         for (axis, d) in [(0, 1.0), (1, 2.0), (2, 3.0)] {
             let mut u = [0.0; 3];
             u[axis] = 1.0;
-            let plane = [
-                u[0] * u[0],
-                u[0] * u[1],
-                u[0] * u[2],
-                u[1] * u[1],
-                u[1] * u[2],
-                u[2] * u[2],
-                -u[0] * d,
-                -u[1] * d,
-                -u[2] * d,
-                d * d,
-            ];
-            q = add(&q, &plane);
+            q = add(&q, &plane_quadric(u, -d));
         }
         let x = optimum(&q, [1.0, 2.0, 3.0]).unwrap();
         for (got, want) in x.iter().zip([1.0, 2.0, 3.0]) {
