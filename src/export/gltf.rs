@@ -319,17 +319,7 @@ fn encode(
         .map(|p| orient(*p, opts.up).map(|c| c * scale))
         .collect();
     // Far-off coordinates: positions relative to the box centre, which the node carries.
-    let translation = crate::export::needs_double(&world).then(|| {
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for q in &world {
-            for a in 0..3 {
-                lo[a] = lo[a].min(q[a]);
-                hi[a] = hi[a].max(q[a]);
-            }
-        }
-        std::array::from_fn(|a| 0.5 * (lo[a] + hi[a]))
-    });
+    let translation = crate::export::far_off_centre(&world);
     let origin = translation.unwrap_or([0.0; 3]);
     for q in &world {
         let q: [f32; 3] = std::array::from_fn(|a| (q[a] - origin[a]) as f32);

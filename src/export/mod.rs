@@ -54,24 +54,22 @@ pub const DOUBLE_PRECISION_RATIO: f64 = 1e-7;
 /// Whether `positions` need `double` PLY properties: half an `f32` step at the largest
 /// coordinate magnitude exceeds [`DOUBLE_PRECISION_RATIO`] of the bounding-box diagonal.
 pub fn needs_double(positions: &[[f64; 3]]) -> bool {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    let mut largest = 0.0f64;
-    for p in positions {
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
-            largest = largest.max(p[a].abs());
-        }
-    }
-    let diagonal = (0..3).map(|a| (hi[a] - lo[a]).powi(2)).sum::<f64>().sqrt();
+    far_off_centre(positions).is_some()
+}
+
+/// The centre of the bounding box of `positions` when they [`needs_double`], else `None`: the
+/// origin glTF writes far-off positions relative to.
+pub fn far_off_centre(positions: &[[f64; 3]]) -> Option<[f64; 3]> {
+    let b = crate::cloud::Aabb::from_points(positions)?;
+    let diagonal = b.diagonal();
     if diagonal.is_nan() || diagonal <= 0.0 {
-        return false;
+        return None;
     }
+    let largest = (0..3).fold(0.0f64, |m, a| m.max(b.min[a].abs()).max(b.max[a].abs()));
     // The spacing of f32 values just below `largest`: 2^(exponent − 23).
     let step = (largest as f32).max(f32::MIN_POSITIVE);
     let half_step = 0.5 * f64::from(f32::from_bits(step.to_bits() + 1) - step);
-    half_step > DOUBLE_PRECISION_RATIO * diagonal
+    (half_step > DOUBLE_PRECISION_RATIO * diagonal).then(|| b.center())
 }
 
 /// Errors of the export stage.
