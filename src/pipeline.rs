@@ -186,6 +186,7 @@ impl PipelineConfig {
                 mode: Mode::Detail,
                 polygonize: PolygonizeParams {
                     guard_levels: 0,
+                    data_levels: 2,
                     ..global.polygonize
                 },
                 keep: Keep::Data,
@@ -914,7 +915,7 @@ pub fn run(
         if early_from_model {
             scope.spawn(|_| early_slices = export::model_slices(&model, &export_params));
         }
-        let polygonized = polygonize_stage(&mut ctx, &model, &model_key, config);
+        let polygonized = polygonize_stage(&mut ctx, &model, &model_key, points, config);
         let export_start = Instant::now();
         let embedded = polygonized.is_ok() && ctx.last_figures()["embedded"] == true;
         let parts = match &polygonized {
@@ -993,12 +994,14 @@ pub fn run(
     Ok(report)
 }
 
-/// The polygonize stage of `model` through the cache: its mesh and key. The stage's figures
-/// say whether the meshing proved the mesh embedded (`"embedded"`).
+/// The polygonize stage of `model` through the cache: its mesh and key, at the finest depth
+/// near the input `points` (the model's key covers them). The stage's figures say whether the
+/// meshing proved the mesh embedded (`"embedded"`).
 fn polygonize_stage(
     ctx: &mut Ctx<'_>,
     model: &Model,
     model_key: &Key,
+    points: &[[f64; 3]],
     config: &PipelineConfig,
 ) -> Result<(crate::mesh::TriangleMesh, Key), PipelineError> {
     let region = model.region();
@@ -1008,7 +1011,12 @@ fn polygonize_stage(
         &cache::params_bytes(&config.polygonize),
         model_key,
         || {
-            let out = polygonize::polygonize(model.function(), &region, &config.polygonize)?;
+            let out = polygonize::polygonize_with_data(
+                model.function(),
+                &region,
+                points,
+                &config.polygonize,
+            )?;
             let figures = serde_json::json!({
                 "vertices": out.mesh.positions.len(),
                 "triangles": out.mesh.triangles.len(),
@@ -1166,7 +1174,13 @@ pub fn reconstruct(
     let start = Instant::now();
     let mut ctx = Ctx::new(&Cache::disabled(), observer)?;
     let (oriented, model, model_key) = fit_stages(&mut ctx, source, config)?;
-    let (mesh, _) = polygonize_stage(&mut ctx, &model, &model_key, config)?;
+    let (mesh, _) = polygonize_stage(
+        &mut ctx,
+        &model,
+        &model_key,
+        oriented.input_points(),
+        config,
+    )?;
     let embedded = ctx.last_figures()["embedded"] == true;
     let export_params = ExportParams {
         formats: Vec::new(),

@@ -28,9 +28,12 @@
 //!   gets the distance of the mesh distance slices ([`crate::measure::GridMeshDistance`],
 //!   within the mesh's chord error, warm-started along each row of constant (i, j)) and the
 //!   sign the band holds for it (its block's voxel, or its block's sign).
-//! - **Sign**: the sign of the model's f at the voxel centre (f < 0 inside), the convention of
-//!   every output. The distance is to the mesh, which is f's zero set polygonized, so the sign
-//!   and the distance agree up to the mesh's chord error.
+//! - **Sign**: inside the band, the side of the mesh the voxel centre lies on, seen from its
+//!   closest point q on the nearest triangle: the sign of (p − q) · n(q), the vertex normals
+//!   (f's gradient directions) interpolated at q, so the band's zero crossing is the mesh's
+//!   own, not f's zero set a chord error away; where that says nothing (p on the tangent
+//!   plane) and outside the band, the sign of the model's f at the voxel centre (f < 0
+//!   inside), the convention of every output.
 //!
 //! Invariants: values are finite; blocks and rows are fixed tasks computed sequentially, in a
 //! fixed order, so the output does not depend on the thread count.
@@ -299,6 +302,8 @@ pub fn narrow_band<F: ImplicitFunction + ?Sized>(
             let b = unkey(*key);
             let lo = b.map(|c| c * BLOCK);
             let mut d2 = vec![f64::INFINITY; BLOCK_VOXELS];
+            // Per voxel, the nearest triangle found so far and its closest point.
+            let mut nearest = vec![(u32::MAX, [0.0; 3]); BLOCK_VOXELS];
             for &(_, ti) in &pairs[members.clone()] {
                 let Some(r) = ranges[ti as usize] else {
                     continue;
@@ -312,8 +317,12 @@ pub fn narrow_band<F: ImplicitFunction + ?Sized>(
                             let p =
                                 grid.position([lo[0] + x, lo[1] + y, lo[2] + z].map(|c| c as i64));
                             let q = closest_point_on_triangle(p, tri[0], tri[1], tri[2]);
-                            let slot = &mut d2[x * 64 + y * 8 + z];
-                            *slot = slot.min(dist2(p, q));
+                            let n = x * 64 + y * 8 + z;
+                            let d = dist2(p, q);
+                            if d < d2[n] {
+                                d2[n] = d;
+                                nearest[n] = (ti, q);
+                            }
                         }
                     }
                 }
@@ -324,8 +333,13 @@ pub fn narrow_band<F: ImplicitFunction + ?Sized>(
                     let ijk = [lo[0] + n / 64, lo[1] + (n / 8) % 8, lo[2] + n % 8];
                     let p = grid.position(ijk.map(|c| c as i64));
                     let d = d2[n].sqrt();
-                    let inside = f.value(p) < 0.0;
                     let in_grid = (0..3).all(|a| ijk[a] < grid.shape[a]);
+                    let inside = match nearest[n] {
+                        (ti, q) if d < half_width => {
+                            mesh_side(mesh, ti, q, p).unwrap_or_else(|| f.value(p) < 0.0)
+                        }
+                        _ => f.value(p) < 0.0,
+                    };
                     let magnitude = if in_grid && d < half_width {
                         active[n / 64] |= 1 << (n % 64);
                         d as f32
@@ -371,6 +385,42 @@ pub fn narrow_band<F: ImplicitFunction + ?Sized>(
         blocks,
         inside_blocks,
     })
+}
+
+/// Whether `p` lies inside (behind) the mesh as seen from `q`, the closest point of triangle
+/// `ti` to it: the sign of (p − q) · n(q), with n(q) the vertex normals interpolated at q
+/// (the face's normal when the mesh has no vertex normals). `None` when p is (nearly) on the
+/// tangent plane there, where that sign says nothing: within 10⁻⁹ of |p − q|.
+fn mesh_side(mesh: &TriangleMesh, ti: u32, q: [f64; 3], p: [f64; 3]) -> Option<bool> {
+    let t = mesh.triangles[ti as usize];
+    let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+    let sub = |u: [f64; 3], v: [f64; 3]| [u[0] - v[0], u[1] - v[1], u[2] - v[2]];
+    let dot = |u: [f64; 3], v: [f64; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+    let cross = |u: [f64; 3], v: [f64; 3]| {
+        [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ]
+    };
+    let face = cross(sub(b, a), sub(c, a));
+    let area2 = dot(face, face);
+    let normal = if mesh.normals.len() == mesh.positions.len() && area2 > 0.0 {
+        // Barycentric coordinates of q by the sub-triangles' areas (signed along `face`).
+        let l = [
+            dot(cross(sub(b, q), sub(c, q)), face) / area2,
+            dot(cross(sub(c, q), sub(a, q)), face) / area2,
+            dot(cross(sub(a, q), sub(b, q)), face) / area2,
+        ];
+        let n = t.map(|i| mesh.normals[i as usize]);
+        [0, 1, 2].map(|k| l[0] * n[0][k] + l[1] * n[1][k] + l[2] * n[2][k])
+    } else {
+        face
+    };
+    let offset = sub(p, q);
+    let side = dot(offset, normal);
+    let scale = dot(offset, offset).sqrt() * dot(normal, normal).sqrt();
+    (side.abs() > 1e-9 * scale).then_some(side < 0.0)
 }
 
 /// The voxels (inclusive index ranges per axis, clamped to the grid) whose centres lie in the

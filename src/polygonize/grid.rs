@@ -113,6 +113,24 @@ impl Grid {
             | u64::from(cell.coords[2]) << 32
     }
 
+    /// The level-`level` cell that holds the input-space point `p` (a point on a face between
+    /// two cells goes to the upper one), `None` when `p` lies outside the region or is not
+    /// finite.
+    pub fn cell_of(&self, p: [f64; 3], level: u32) -> Option<Cell> {
+        let side = self.cell_side(level);
+        let mut coords = [0u32; 3];
+        for a in 0..3 {
+            let l = (p[a] - self.origin[a]) / self.step[a];
+            if !(l >= 0.0 && l <= self.extent[a] as f64) {
+                return None;
+            }
+            // A point on the region's upper face belongs to the last cell inside.
+            let last = (self.extent[a] - 1) / side;
+            coords[a] = ((l / side as f64).floor() as u64).min(last) as u32;
+        }
+        Some(Cell { level, coords })
+    }
+
     /// Whether integer coordinates at `level` name a cell inside the region.
     pub fn in_range(&self, level: u32, coords: [i64; 3]) -> bool {
         coords.iter().all(|&c| c >= 0 && c < 1i64 << level)

@@ -159,6 +159,13 @@ pub struct PolygonizeParams {
     /// direction may turn by 90° or more (near singular points, thin necks, tiny components).
     /// 0 disables the guard. Default 3; `depth + guard_levels` ≤ [`MAX_LEVEL`] (16).
     pub guard_levels: u32,
+    /// How many levels coarser than `depth` the surface may stay in cells that hold no data
+    /// point: the mesh has level `depth`'s resolution in the cells (of levels `depth − 1`,
+    /// `depth − 2`, …) that hold a data point, and is up to 2^`data_levels` times coarser
+    /// between far-apart points. Used only by [`polygonize_with_data`] with data points;
+    /// the coarse level is at least 1. Default 0 (the same level everywhere).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub data_levels: u32,
     /// What is done to the marching-tetrahedra mesh before its vertices are projected.
     /// Default [`Simplification::EdgeCollapse`].
     pub simplification: Simplification,
@@ -182,6 +189,7 @@ impl Default for PolygonizeParams {
         PolygonizeParams {
             depth: 7,
             guard_levels: 3,
+            data_levels: 0,
             simplification: Simplification::EdgeCollapse,
         }
     }
@@ -218,7 +226,12 @@ pub struct Polygonized {
     pub embedded: bool,
 }
 
-/// Meshes the zero set of `function` inside `region` (input coordinates).
+fn is_zero(n: &u32) -> bool {
+    *n == 0
+}
+
+/// Meshes the zero set of `function` inside `region` (input coordinates), at level
+/// `params.depth` everywhere (`params.data_levels` is not used: there is no data).
 ///
 /// `function` is any [`ImplicitFunction`]; pass an `&ImplicitPolynomial` for the global model.
 ///
@@ -229,6 +242,22 @@ pub struct Polygonized {
 pub fn polygonize<F: ImplicitFunction + ?Sized>(
     function: &F,
     region: &Aabb,
+    params: &PolygonizeParams,
+) -> Result<Polygonized, PolygonizeError> {
+    polygonize_with_data(function, region, &[], params)
+}
+
+/// Meshes the zero set of `function` inside `region` as [`polygonize`] does, at level
+/// `params.depth` near the `data` points and up to `params.data_levels` levels coarser away
+/// from them (when `data` is empty or `data_levels` is 0: at `depth` everywhere). The coarse
+/// level is `depth − data_levels`, at least 1.
+///
+/// # Errors
+/// As [`polygonize`].
+pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
+    function: &F,
+    region: &Aabb,
+    data: &[[f64; 3]],
     params: &PolygonizeParams,
 ) -> Result<Polygonized, PolygonizeError> {
     let valid_region = (0..3).all(|a| {
@@ -249,9 +278,16 @@ pub fn polygonize<F: ImplicitFunction + ?Sized>(
         });
     }
     function.validate().map_err(PolygonizeError::InvalidModel)?;
-    let grid = Grid::new(*region, params.depth, params.depth + params.guard_levels);
+    let coarse = if data.is_empty() {
+        params.depth
+    } else {
+        params.depth.saturating_sub(params.data_levels).max(1)
+    };
+    let grid = Grid::new(*region, coarse, params.depth + params.guard_levels);
+    let data_cells =
+        (coarse < params.depth).then(|| octree::DataCells::new(&grid, data, params.depth));
 
-    let tree = octree::build(function, &grid);
+    let tree = octree::build(function, &grid, data_cells.as_ref());
     let (edges, end_values, triangles, extraction_evaluations) =
         extract::triangulate(function, &grid, &tree);
     let diagonal = region.diagonal();

@@ -16,9 +16,13 @@
 //! cell ── bound excludes 0 ──────────────▶ discarded (f has one strict sign on it)
 //!   │
 //!   ├── level < depth ───────────────────▶ split into 8
+//!   ├── level < fine and holds data ─────▶ split into 8 (data refinement, DataCells)
 //!   ├── level < cap and guard fails ─────▶ split into 8 (topology guard)
 //!   └── otherwise ───────────────────────▶ surface leaf
 //! ```
+//!
+//! With data refinement ([`DataCells`]) `depth` is the coarse level every surface leaf reaches
+//! and `fine` the level the leaves holding a data point reach; without it, `fine` = `depth`.
 //!
 //! The topology guard is the small-normal-variation condition of Plantinga & Vegter (*Isotopic
 //! approximation of implicit curves and surfaces*, SGP 2004): with G the interval enclosure of ∇f
@@ -54,7 +58,7 @@ pub(crate) struct Octree {
     pub leaves: Vec<Cell>,
     /// Keys ([`Grid::cell_key`]) of the subdivided cells at levels ≥ `depth`.
     pub internal: HashSet<u64, BuildHasherDefault<MultiplyHasher>>,
-    /// Number of subdivided cells at levels ≥ `depth` (split by the topology guard).
+    /// Number of cells at levels ≥ `depth` split by the topology guard (not for the data).
     pub guard_splits: u64,
     /// Bound evaluations spent.
     pub evaluations: u64,
@@ -65,6 +69,7 @@ pub(crate) struct Octree {
 struct Part {
     leaves: Vec<Cell>,
     internal: Vec<Cell>,
+    guard_splits: u64,
     evaluations: u64,
 }
 
@@ -72,23 +77,70 @@ impl Part {
     fn append(&mut self, mut other: Part) {
         self.leaves.append(&mut other.leaves);
         self.internal.append(&mut other.internal);
+        self.guard_splits += other.guard_splits;
         self.evaluations += other.evaluations;
     }
 }
 
-/// Builds the octree of `function` over `grid`.
-pub(crate) fn build<F: ImplicitFunction + ?Sized>(function: &F, grid: &Grid) -> Octree {
+/// The cells between the grid's `depth` and a finer level that hold a data point: the octree
+/// splits them down to `fine`, so the mesh has the fine resolution where the data is and the
+/// coarse one between far-apart points.
+pub(crate) struct DataCells {
+    /// Level the leaves holding a data point reach (> the grid's `depth`).
+    pub fine: u32,
+    /// Keys ([`Grid::cell_key`]) of the cells of levels `depth..fine` that hold a data point.
+    keys: HashSet<u64, BuildHasherDefault<MultiplyHasher>>,
+}
+
+impl DataCells {
+    /// The cells of levels `grid.depth..fine` that hold one of `points` (points outside the
+    /// region are ignored). Deterministic: a set, whatever the thread count.
+    pub fn new(grid: &Grid, points: &[[f64; 3]], fine: u32) -> DataCells {
+        debug_assert!(grid.depth < fine && fine <= grid.cap);
+        // The level fine − 1 cells first, then their ancestors.
+        let mut cells: Vec<Cell> = points
+            .par_iter()
+            .filter_map(|&p| grid.cell_of(p, fine - 1))
+            .collect();
+        cells.par_sort_unstable();
+        cells.dedup();
+        let mut keys: HashSet<u64, BuildHasherDefault<MultiplyHasher>> =
+            HashSet::with_capacity_and_hasher(2 * cells.len(), BuildHasherDefault::default());
+        for mut cell in cells {
+            // An ancestor already in the set has all of its own ancestors there too.
+            while cell.level >= grid.depth && keys.insert(grid.cell_key(cell)) && cell.level > 0 {
+                cell = Cell {
+                    level: cell.level - 1,
+                    coords: cell.coords.map(|c| c / 2),
+                };
+            }
+        }
+        DataCells { fine, keys }
+    }
+
+    /// Whether `cell` (of a level in `depth..fine`) holds a data point.
+    fn holds(&self, grid: &Grid, cell: Cell) -> bool {
+        cell.level < self.fine && self.keys.contains(&grid.cell_key(cell))
+    }
+}
+
+/// Builds the octree of `function` over `grid`, refined down to `data.fine` near the data when
+/// `data` is given.
+pub(crate) fn build<F: ImplicitFunction + ?Sized>(
+    function: &F,
+    grid: &Grid,
+    data: Option<&DataCells>,
+) -> Octree {
     let root = Cell {
         level: 0,
         coords: [0, 0, 0],
     };
     let mut part = Part::default();
-    visit(function, grid, root, None, &mut part);
-    let guard_splits = part.internal.len() as u64;
+    visit(function, grid, data, root, None, &mut part);
     Octree {
         leaves: part.leaves,
         internal: part.internal.iter().map(|&c| grid.cell_key(c)).collect(),
-        guard_splits,
+        guard_splits: part.guard_splits,
         evaluations: part.evaluations,
     }
 }
@@ -113,6 +165,7 @@ struct FromParent<'a> {
 fn visit<F: ImplicitFunction + ?Sized>(
     function: &F,
     grid: &Grid,
+    data: Option<&DataCells>,
     cell: Cell,
     parent: Option<FromParent<'_>>,
     part: &mut Part,
@@ -136,19 +189,22 @@ fn visit<F: ImplicitFunction + ?Sized>(
             return;
         }
     }
-    let in_guard_zone = cell.level >= grid.depth && cell.level < grid.cap;
+    // A cell above `depth`, or near the data above `fine`, is split whenever it survives.
+    let must_split = cell.level < grid.depth || data.is_some_and(|d| d.holds(grid, cell));
+    // The guard runs when it may refine beyond the finest level asked for (cap > fine).
+    let fine = data.map_or(grid.depth, |d| d.fine);
+    let in_guard_zone = cell.level >= grid.depth && cell.level < grid.cap && grid.cap > fine;
     let passes_guard_by_parent =
         parent.is_some_and(|p| normal_variation_small(&p.enclosure.gradient));
-    let leaf_without_own_enclosure = cell.level >= grid.depth
-        && (cell.level == grid.cap || (in_guard_zone && passes_guard_by_parent));
+    let leaf_without_own_enclosure = !must_split && (!in_guard_zone || passes_guard_by_parent);
     if leaf_without_own_enclosure {
         part.leaves.push(cell);
         return;
     }
     let children = children(cell);
-    // Above `depth` a cell that survives is always split, so its children's centre values are
-    // worth taking from its expansion; below, splits are rare (guard failures only).
-    let (enclosure, grid_values) = if cell.level < grid.depth {
+    // A cell that must be split has its children's centre values taken from its expansion;
+    // otherwise splits are rare (guard failures only).
+    let (enclosure, grid_values) = if must_split {
         let (first, last) = (grid.cell_box(children[0]), grid.cell_box(children[7]));
         let (c0, c1) = (first.center(), last.center());
         let axes = [0, 1, 2].map(|a| [c0[a], c1[a]]);
@@ -162,13 +218,14 @@ fn visit<F: ImplicitFunction + ?Sized>(
     if lo > 0.0 || hi < 0.0 {
         return;
     }
-    let split = cell.level < grid.depth || !normal_variation_small(&enclosure.gradient);
+    let split = must_split || (in_guard_zone && !normal_variation_small(&enclosure.gradient));
     if !split {
         part.leaves.push(cell);
         return;
     }
     if cell.level >= grid.depth {
         part.internal.push(cell);
+        part.guard_splits += u64::from(!must_split);
     }
     let from_parent = |i: usize| FromParent {
         enclosure: &enclosure,
@@ -180,7 +237,14 @@ fn visit<F: ImplicitFunction + ?Sized>(
             .enumerate()
             .map(|(i, &child)| {
                 let mut child_part = Part::default();
-                visit(function, grid, child, Some(from_parent(i)), &mut child_part);
+                visit(
+                    function,
+                    grid,
+                    data,
+                    child,
+                    Some(from_parent(i)),
+                    &mut child_part,
+                );
                 child_part
             })
             .collect();
@@ -190,7 +254,7 @@ fn visit<F: ImplicitFunction + ?Sized>(
     } else {
         // Sequentially, straight into `part`: the same order as concatenating.
         for (i, &child) in children.iter().enumerate() {
-            visit(function, grid, child, Some(from_parent(i)), part);
+            visit(function, grid, data, child, Some(from_parent(i)), part);
         }
     }
 }

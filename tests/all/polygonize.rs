@@ -8,7 +8,8 @@ use stablesurf::mesh::{
     check, component_labels, drop_components_far_from, MeshReport, TriangleMesh,
 };
 use stablesurf::polygonize::{
-    polygonize, shapes, ImplicitFunction, PolygonizeParams, Polygonized, Simplification,
+    polygonize, polygonize_with_data, shapes, ImplicitFunction, PolygonizeParams, Polygonized,
+    Simplification,
 };
 use stablesurf::{Aabb, ImplicitPolynomial};
 
@@ -568,6 +569,7 @@ fn no_triangle_crosses_another() {
                 depth: *depth,
                 guard_levels: *guard_levels,
                 simplification,
+                ..PolygonizeParams::default()
             };
             let out = polygonize(f, region, &params).expect("valid input");
             let report = check(&out.mesh);
@@ -581,4 +583,71 @@ fn no_triangle_crosses_another() {
             assert!(out.embedded, "depth {depth} {simplification:?}");
         }
     }
+}
+
+/// Mean length of the edges of the triangles whose centroid lies in the half-space `z > 0`
+/// (`upper`) or `z < 0`.
+fn mean_edge_length(mesh: &TriangleMesh, upper: bool) -> f64 {
+    let (mut sum, mut count) = (0.0, 0usize);
+    for t in &mesh.triangles {
+        let p = t.map(|v| mesh.positions[v as usize]);
+        if (p[0][2] + p[1][2] + p[2][2] > 0.0) != upper {
+            continue;
+        }
+        for i in 0..3 {
+            let (a, b) = (p[i], p[(i + 1) % 3]);
+            sum += ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+            count += 1;
+        }
+    }
+    sum / count as f64
+}
+
+#[test]
+fn data_levels_keep_the_fine_level_where_the_data_is_and_a_closed_embedded_mesh() {
+    let f = shapes::sphere(1.0);
+    let region = boxed([-1.3; 3], [1.3; 3]);
+    // Data on the upper cap only (z > 0.3), spread finer than a level-6 cell.
+    let mut data = Vec::new();
+    for i in 0..4000 {
+        let z = 0.3 + 0.7 * (i as f64 + 0.5) / 4000.0;
+        let (r, a) = ((1.0 - z * z).sqrt(), 2.399963 * i as f64);
+        data.push([r * a.cos(), r * a.sin(), z]);
+    }
+    let params = PolygonizeParams {
+        depth: 6,
+        data_levels: 2,
+        ..PolygonizeParams::default()
+    };
+    let uniform = polygonize(&f, &region, &params).expect("valid input");
+    // With no data (or through `polygonize`) the data levels change nothing.
+    let no_data = polygonize_with_data(&f, &region, &[], &params).expect("valid input");
+    assert_eq!(uniform.mesh, no_data.mesh);
+    let adaptive = polygonize_with_data(&f, &region, &data, &params).expect("valid input");
+    for out in [&uniform, &adaptive] {
+        let report = check(&out.mesh);
+        assert_closed(&report, 1, 2);
+        assert_eq!(report.self_intersecting_faces, 0);
+        assert!(out.embedded);
+        // Every vertex on the sphere (the projection), so the coarse part is as exact there.
+        for p in &out.mesh.positions {
+            let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+            assert!((r - 1.0).abs() < 1e-6, "{r}");
+        }
+    }
+    // The upper half keeps the uniform mesh's edge lengths (within 10%); the lower half, with
+    // no data, has edges about 4× as long (two levels coarser): at least 2.5× here.
+    let fine = mean_edge_length(&uniform.mesh, true);
+    let near = mean_edge_length(&adaptive.mesh, true);
+    let far = mean_edge_length(&adaptive.mesh, false);
+    assert!((near / fine - 1.0).abs() < 0.1, "{near} vs {fine}");
+    assert!(far > 2.5 * fine, "{far} vs {fine}");
+    assert!(adaptive.mesh.triangles.len() < uniform.mesh.triangles.len());
+    // The same mesh on one thread as on several.
+    let single = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap()
+        .install(|| polygonize_with_data(&f, &region, &data, &params).expect("valid input"));
+    assert_eq!(single.mesh, adaptive.mesh);
 }
