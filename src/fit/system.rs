@@ -634,8 +634,8 @@ unsafe fn tile_sums<const R: usize, const C: usize>(
             }
             for k in 0..C {
                 let z = _mm512_loadu_pd(s.pz[c0 + k].as_ptr().add(i * 8));
-                for r in 0..R {
-                    acc[r][k] = _mm512_fmadd_pd(xy[r], z, acc[r][k]);
+                for (sums, &x) in acc.iter_mut().zip(&xy) {
+                    sums[k] = _mm512_fmadd_pd(x, z, sums[k]);
                 }
             }
         }
