@@ -413,17 +413,25 @@ pub fn input_normals(
     };
     let m = check_points.len();
     let step = m.div_ceil(CHECK_SAMPLE).max(1);
-    let sample: Vec<usize> = (0..m).step_by(step).collect();
+    let sample: Vec<u32> = (0..m).step_by(step).map(|i| i as u32).collect();
+    // The sample's neighbours in one batch, queried in cell order (the same lists as one query
+    // each, found faster); a row is padded with its own point when the check has fewer than
+    // k + 1 points, and that point is skipped below.
+    let near = check_index
+        .as_ref()
+        .map(|index| index.nearest_of(&check_points, &sample, params.k_neighbours));
     let (pairs, disagree) = sample
         .par_iter()
-        .map(|&i| {
+        .enumerate()
+        .map(|(r, &i)| {
+            let i = i as usize;
             let (mut pairs, mut disagree) = (0usize, 0usize);
-            let near = match &check_index {
-                Some(index) => pca::nearest(index, &check_points, i, params.k_neighbours),
-                None => Vec::new(),
-            };
-            for j in near {
+            let near = near.as_ref().map_or(&[][..], |near| near.row(r));
+            for &j in near {
                 let j = j as usize;
+                if j == i {
+                    continue;
+                }
                 let d = sub(&check_points[j], &check_points[i]);
                 let reach = 0.5 * crate::normals::vec3::norm(&d);
                 if dot(&check_normals[i], &d).abs() > reach
@@ -439,7 +447,7 @@ pub fn input_normals(
             (pairs, disagree)
         })
         .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-    drop((check_points, check_normals, check_index));
+    drop((check_points, check_normals, check_index, near));
     let flipped = if n_bad > 0 || disagree * 100 > pairs {
         if n_bad == 0 {
             warnings.push(format!(

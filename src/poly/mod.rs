@@ -87,7 +87,7 @@ pub struct FitDiagnostics {
     /// when the leading form is positive.
     pub containment_radius: Option<f64>,
     /// Mean first-order distance |f|/|∇f| from the data points to the zero set, input units
-    /// (over every k-th point past [`crate::measure::ACCURACY_POINTS`] points).
+    /// (over every k-th point past [`crate::fit::DISTANCE_POINTS`] points).
     pub mean_distance: f64,
     /// Maximum first-order distance |f|/|∇f| from the data points to the zero set, input units
     /// (over the same points as `mean_distance`).
