@@ -33,19 +33,32 @@ pub(super) fn local_spacing(
     around.sort_unstable();
     around.dedup();
     let dist = |i: usize, j: u32| norm(sub(points[i], points[j as usize]));
-    let around_neighbours = grid.nearest_of(points, &around, k);
-    let nearest: Vec<f64> = around
+    // The first neighbour at a positive distance among the k nearest (sorted by distance) is
+    // at the smallest positive distance, so the nearest neighbour alone answers unless it
+    // coincides with the point; only those points ask for all k (the same values, at a
+    // fraction of the cost: most of `around` is the wanted points' neighbours).
+    let first = grid.nearest_of(points, &around, 1);
+    let mut nearest: Vec<f64> = around
         .par_iter()
         .enumerate()
-        .map(|(r, &i)| {
-            around_neighbours
-                .row(r)
-                .iter()
-                .map(|&j| dist(i as usize, j))
-                .find(|&d| d > 0.0)
-                .unwrap_or(0.0)
-        })
+        .map(|(r, &i)| first.row(r).first().map_or(0.0, |&j| dist(i as usize, j)))
         .collect();
+    if k > 1 {
+        let coincident: Vec<u32> = (0..around.len() as u32)
+            .filter(|&r| nearest[r as usize] == 0.0)
+            .collect();
+        let of: Vec<u32> = coincident.iter().map(|&r| around[r as usize]).collect();
+        let all = grid.nearest_of(points, &of, k);
+        for (row, &r) in coincident.iter().enumerate() {
+            let i = around[r as usize] as usize;
+            nearest[r as usize] = all
+                .row(row)
+                .iter()
+                .map(|&j| dist(i, j))
+                .find(|&d| d > 0.0)
+                .unwrap_or(0.0);
+        }
+    }
     let nearest_of = |j: u32| nearest[around.binary_search(&j).unwrap_or(0)];
     wanted
         .par_iter()
