@@ -361,21 +361,9 @@ pub struct RunArgs {
     #[arg(long, value_delimiter = ',', default_value = "glb,ply,exr,png,json",
           value_parser = Trimmed::<FormatArg>::default(), hide_possible_values = true)]
     pub formats: Vec<FormatArg>,
-    /// The input's up axis, y or z: every mesh file is written upright for its format (glTF
-    /// +Y up, PLY +Z up as Blender and CloudCompare import it). Without it the PLY keeps the
-    /// input's coordinates (to lie on the scan in MeshLab) and glTF takes them as Y-up.
-    #[arg(long, value_enum)]
-    pub up: Option<UpArg>,
-    /// Unit of the input coordinates: the glTF is written in metres (glTF's unit, so Blender
-    /// shows the true size), PLY, OpenEXR and report.json record the unit; without it
-    /// coordinates are written unchanged.
-    #[arg(
-        long,
-        value_enum,
-        value_name = "mm|cm|m|in|ft",
-        hide_possible_values = true
-    )]
-    pub units: Option<UnitsArg>,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub frame: FrameOpts,
     /// Which zero-set components to keep: data (drop pieces with no data point within 2% of the
     /// diagonal; the default in detail mode) or all (the default in global mode).
     #[arg(long, value_enum)]
@@ -511,6 +499,27 @@ pub struct FitArgs {
     pub detail: DetailOpts,
 }
 
+/// The coordinates' up axis and unit (`run`, `mesh`).
+#[derive(Debug, Args)]
+pub struct FrameOpts {
+    /// The up axis of the input's (or model's) coordinates, y or z: every mesh file is written
+    /// upright for its format (glTF +Y up, PLY +Z up as Blender and CloudCompare import it).
+    /// Without it a PLY keeps the input's coordinates (to lie on the scan in MeshLab) and glTF
+    /// takes them as Y-up.
+    #[arg(long, value_enum)]
+    pub up: Option<UpArg>,
+    /// Unit of the input's (or model's) coordinates: a glTF is written in metres (glTF's unit,
+    /// so Blender shows the true size); the PLY (and run's OpenEXR slices and report.json)
+    /// record the unit; without it coordinates are written unchanged.
+    #[arg(
+        long,
+        value_enum,
+        value_name = "mm|cm|m|in|ft",
+        hide_possible_values = true
+    )]
+    pub units: Option<UnitsArg>,
+}
+
 /// `stablesurf mesh`.
 #[derive(Debug, Args)]
 pub struct MeshArgs {
@@ -526,20 +535,9 @@ pub struct MeshArgs {
     /// Write a text PLY instead of binary.
     #[arg(long)]
     pub ascii: bool,
-    /// The model's up axis, y or z: the mesh is written upright for its format (glTF +Y up,
-    /// PLY +Z up as Blender and CloudCompare import it). Without it a PLY keeps the model's
-    /// coordinates and glTF takes them as Y-up.
-    #[arg(long, value_enum)]
-    pub up: Option<UpArg>,
-    /// Unit of the model's coordinates: a glTF is written in metres, a PLY records the unit;
-    /// without it coordinates are written unchanged.
-    #[arg(
-        long,
-        value_enum,
-        value_name = "mm|cm|m|in|ft",
-        hide_possible_values = true
-    )]
-    pub units: Option<UnitsArg>,
+    #[command(flatten)]
+    #[allow(missing_docs)]
+    pub frame: FrameOpts,
     #[command(flatten)]
     #[allow(missing_docs)]
     pub mesh: MeshOpts,
@@ -958,7 +956,7 @@ mod tests {
         assert_eq!(r.fit.kappa_rule, KappaRuleArg::Paper);
         assert_eq!(r.mesh.depth, Some(7));
         assert_eq!(r.keep, Some(KeepArg::Data));
-        assert_eq!(r.up, Some(UpArg::Z));
+        assert_eq!(r.frame.up, Some(UpArg::Z));
         assert_eq!(r.normals.source, SourceArg::Pca);
         assert!(r.cache.no_cache && r.json);
         assert_eq!(r.cache.cache_dir, Some(PathBuf::from("c")));

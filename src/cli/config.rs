@@ -245,9 +245,9 @@ pub fn run_config(args: &RunArgs) -> Result<PipelineConfig> {
             }
         }
     }
-    config.gltf.up = args.up.map_or(UpAxis::Y, Into::into);
-    config.ply_up = args.up.map(Into::into);
-    config.units = args.units.map(Into::into);
+    config.gltf.up = args.frame.up.map_or(UpAxis::Y, Into::into);
+    config.ply_up = args.frame.up.map(Into::into);
+    config.units = args.frame.units.map(Into::into);
     // The count and resolution are within range::SLICE_COUNT and range::SLICE_RESOLUTION.
     config.slices.count = args.slices.slice_count;
     config.slices.resolution = args.slices.slice_resolution;

@@ -40,8 +40,8 @@ pub fn mesh(args: MeshArgs, verbosity: Verbosity) -> Result<()> {
     }
     let opts = MeshFileOptions {
         gltf: export::gltf::GltfOptions {
-            up: args.up.map_or(export::gltf::UpAxis::Y, Into::into),
-            units: args.units.map(Into::into),
+            up: args.frame.up.map_or(export::gltf::UpAxis::Y, Into::into),
+            units: args.frame.units.map(Into::into),
         },
         ply: export::ply::PlyOptions {
             encoding: if args.ascii {
@@ -49,8 +49,8 @@ pub fn mesh(args: MeshArgs, verbosity: Verbosity) -> Result<()> {
             } else {
                 export::ply::PlyEncoding::BinaryLittleEndian
             },
-            units: args.units.map(Into::into),
-            up: args.up.map(Into::into),
+            units: args.frame.units.map(Into::into),
+            up: args.frame.up.map(Into::into),
             ..Default::default()
         },
         colours: None,
