@@ -4,7 +4,7 @@
 //! Shapes are those of `stablesurf::fit::study` (sphere, torus, eight, heart, cube, twisted),
 //! sampled clean with `study::sample` (seed 2008), plus a 1,000,000-point torus (`torus_1m.ply`).
 //!
-//! Usage: `cargo run --release --example bench_peers_inputs -- OUT_DIR [--quick] [--points N]
+//! Usage: `cargo run --release --features tools --example bench_peers_inputs -- OUT_DIR [--quick] [--points N]
 //! [--big N]`; `--quick` writes only the torus (and no big sample). Defaults: 20000 points per
 //! shape, 1000000 for the big torus (0 skips it).
 

@@ -2,7 +2,7 @@
 //! centre (1, 2, 3)) and a torus (R = 2, r = 0.6), 20k points each by default, fitted with
 //! `fit_detail` and the default `DetailParams`, meshed by `polygonize` (guard levels 0).
 //!
-//! Usage: `cargo run --release --example detail_bias -- [--points N] [--depth D]
+//! Usage: `cargo run --release --features tools --example detail_bias -- [--points N] [--depth D]
 //! [--epsilon E] [--kappa K] [--tolerance T] [--gradient|--three-levels] [--no-aux]` (`--gradient`:
 //! the local fits' gradient rows ∇Q = n instead of the 3L rows at ±ε, the default). Prints, per shape: cells, fit time, vertices, and the mean and
 //! rms signed radial (sphere) / tube (torus) error of the mesh vertices as fractions of the

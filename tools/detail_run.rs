@@ -1,7 +1,7 @@
 //! Detail mode on scan files: import → normals (auto: the mesh's faces where present) → detail
 //! fit → polygonize → checks and the symmetric Chamfer distance, one line per file.
 //!
-//! Usage: `cargo run --release --example detail_run -- [--depth D] [--tolerance T]
+//! Usage: `cargo run --release --features tools --example detail_run -- [--depth D] [--tolerance T]
 //! [--finest F] [--degree N] FILE...`. Prints, per file: points, cells, grown cells, fit and mesh
 //! times, components, watertight, manifold, and Chamfer / diagonal (mean of the two directed
 //! means; see `stablesurf::detail::chamfer_distance`).

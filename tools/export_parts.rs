@@ -1,6 +1,6 @@
 //! Times each part of the pipeline's export stage alone (wall and CPU seconds), on the artifacts
 //! of a cached run: `stablesurf run SCAN -o OUT --cache-dir DIR` first, then
-//! `cargo run --release --example export_parts -- DIR [REPEATS]`. Each part runs REPEATS times
+//! `cargo run --release --features tools --example export_parts -- DIR [REPEATS]`. Each part runs REPEATS times
 //! (default 3) on the global rayon pool (`RAYON_NUM_THREADS` sets its size); the minimum is
 //! printed. With a third argument, an output folder of `stablesurf run` (for instance main's),
 //! the slices are compared pixel by pixel with its EXR files. A tool, not part of the library.

@@ -4,7 +4,7 @@
 //! triangles per grid cell as `list uchar int vertex_indices`); n = 1000 gives 1,000,000
 //! vertices, 1,996,002 triangles and about 50 MB. `benches/import.rs` uses the same generator.
 //!
-//! Usage: `cargo run --release --example gen_big_ply -- OUT.ply [N] [--time K]`; with `--time K`
+//! Usage: `cargo run --release --features tools --example gen_big_ply -- OUT.ply [N] [--time K]`; with `--time K`
 //! it then reads the file K times with `read_scan` and prints wall and CPU time per read (CPU time
 //! is the steadier figure on a shared machine).
 

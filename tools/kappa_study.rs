@@ -4,7 +4,7 @@
 //! zero-set component near the data, nothing else in [−4, 4]³). Prints one line per case and a
 //! summary table (Markdown) for the README.
 //!
-//! Run: `cargo run --release --example kappa_study [-- POINTS [SEED]]` (default 3000 points per
+//! Run: `cargo run --release --features tools --example kappa_study [-- POINTS [SEED]]` (default 3000 points per
 //! case, seed 2008).
 
 use stablesurf::fit::study::{assess, sample, Shape, Variant};

@@ -1,7 +1,7 @@
 //! Symmetric Chamfer distance between two triangle meshes, relative to the reference's bounding
 //! box diagonal.
 //!
-//! Usage: `cargo run --release --example mesh_chamfer -- RESULT REFERENCE`. Takes two mesh files
+//! Usage: `cargo run --release --features tools --example mesh_chamfer -- RESULT REFERENCE`. Takes two mesh files
 //! (any format `import` reads); gives, on one line, the mean distance from RESULT's vertices to
 //! REFERENCE's triangles, from REFERENCE's vertices to RESULT's triangles, and their mean, each
 //! divided by REFERENCE's diagonal.

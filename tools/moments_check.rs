@@ -4,7 +4,7 @@
 //! `stablesurf fit` on the whole file, and prints the largest relative coefficient difference
 //! and the times of each step.
 //!
-//! Usage: `cargo run --release --example moments_check -- OUT_DIR [--points N] [--chunks K]
+//! Usage: `cargo run --release --features tools --example moments_check -- OUT_DIR [--points N] [--chunks K]
 //! [--degree D] [--kappa K] [--write-only]` (defaults: 8,000,000 points, 8 chunks, degree 8,
 //! κ = 1e-3). `--write-only` only writes the chunk files `chunk-K.ply` (and `whole.ply`), for
 //! other drivers such as `tools/distributed/fit_dask.py`. The `stablesurf` binary is the one

@@ -2,8 +2,8 @@
 //! triangles and triangle shape at depths 6–9 for exact models, with the growth factor per level
 //! (about 4× for a surface, 8× would mean the octree refines the volume).
 //!
-//! Run: `cargo run --release --example octree_counts` for the exact models, or
-//! `cargo run --release --example octree_counts -- MODEL.json [DEPTH] [none]` for one model file
+//! Run: `cargo run --release --features tools --example octree_counts` for the exact models, or
+//! `cargo run --release --features tools --example octree_counts -- MODEL.json [DEPTH] [none]` for one model file
 //! (its box is the region; `none` skips the edge collapses), which prints the time (best of 3), the mesh checks and the triangle shape
 //! statistics (minimum angle, radius ratio 2r/R: 1 for an equilateral triangle, 0 for a sliver).
 

@@ -19,7 +19,7 @@
 //! MᵀM + κD.
 //!
 //! Usage: `tools/paper_experiments [--quick] [--out DIR] [--points N]`
-//! (= `cargo run --release --example paper_experiments -- …`). `--quick` runs the torus at
+//! (= `cargo run --release --features tools --example paper_experiments -- …`). `--quick` runs the torus at
 //! degree 6 only (for CI) and writes into `target/paper-experiments-quick` unless `--out` is
 //! given. Deterministic: fixed seeds, no timing in the document except the total wall time.
 

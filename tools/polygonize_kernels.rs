@@ -3,7 +3,7 @@
 //! term ranges, grid values), the point value and the value with gradient, each on 40,000
 //! pseudo-random cells (level-8 size) or points of the degree-8 linked tori's box. Prints the
 //! best of five passes in ns per call and a blake3 hash of all results, so that a faster kernel
-//! can be checked to give the same bits: `cargo run --release --example polygonize_kernels`.
+//! can be checked to give the same bits: `cargo run --release --features tools --example polygonize_kernels`.
 //! A tool, not part of the library.
 
 use std::io::Write;

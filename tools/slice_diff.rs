@@ -5,7 +5,7 @@
 //! computation keeps the distances.
 //!
 //! ```text
-//! cargo run --release --example slice_diff -- DIR_A DIR_B
+//! cargo run --release --features tools --example slice_diff -- DIR_A DIR_B
 //! ```
 
 use std::path::{Path, PathBuf};

@@ -37,7 +37,7 @@ const NEWTON_PROJECT_STEP: f64 = 1e-3;
 /// float32 output's step, near the surface as far from it. On the degree-8 bunny model's
 /// 16 × 128² slices the shortcut with the step bound alone moved 656 of 262,144 values, by up to
 /// 175 float32 steps among those above 1e-3 of the largest (5.1e-9 input units at most); with
-/// this bound too, one value moved, by one step (`cargo run --release --example slice_diff`).
+/// this bound too, one value moved, by one step (`cargo run --release --features tools --example slice_diff`).
 const NEWTON_PROJECT_AREA: f64 = 1e-6;
 
 /// The exact distance to the zero set: samples of the zero set in a k-d tree, refined per query
