@@ -393,13 +393,13 @@ impl Artifact for crate::detail::MpuModel {
 
     fn encode_payload(&self, out: &mut Vec<u8>) {
         let mut file = Vec::new();
-        crate::export::mpu::write_mpu(self, &mut file).expect("writing to memory cannot fail");
+        crate::model::mpu::write_mpu(self, &mut file).expect("writing to memory cannot fail");
         out.extend_from_slice(&(file.len() as u64).to_le_bytes());
         out.extend_from_slice(&file);
     }
 
     fn decode_payload(r: &mut Reader<'_>) -> Option<Self> {
-        crate::export::mpu::read_mpu(r.bytes()?, std::path::Path::new("cache entry")).ok()
+        crate::model::mpu::read_mpu(r.bytes()?, std::path::Path::new("cache entry")).ok()
     }
 }
 
