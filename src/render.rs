@@ -17,7 +17,7 @@
 use image::{Rgb, RgbImage};
 use rayon::prelude::*;
 
-pub use crate::export::gltf::UpAxis;
+use crate::frame::UpAxis;
 use crate::mesh::TriangleMesh;
 use crate::vec3::{cross, dot, norm};
 
@@ -48,12 +48,7 @@ impl View {
             View::Top => ([0.0, 1.0, 0.0], [0.0, 0.0, -1.0]),
             View::Side => ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
         };
-        let to_model = |v: [f64; 3]| match up {
-            UpAxis::Y => v,
-            // y-up (x, y, z) is z-up (x, −z, y).
-            UpAxis::Z => [v[0], -v[2], v[1]],
-        };
-        (to_model(towards), to_model(screen_up))
+        (up.y_up_to_input(towards), up.y_up_to_input(screen_up))
     }
 }
 
@@ -366,10 +361,7 @@ mod tests {
     /// A square pyramid, its base at the bottom of its up axis and its tip at the top.
     fn pyramid(up: UpAxis) -> TriangleMesh {
         // y-up: base square in y = 0, tip at y = 2; turned for z-up.
-        let turn = |p: [f64; 3]| match up {
-            UpAxis::Y => p,
-            UpAxis::Z => [p[0], -p[2], p[1]],
-        };
+        let turn = |p: [f64; 3]| up.y_up_to_input(p);
         let positions: Vec<[f64; 3]> = [
             [-1.0, 0.0, -1.0],
             [1.0, 0.0, -1.0],
