@@ -30,7 +30,7 @@ pub struct TriangleMesh {
 
 impl TriangleMesh {
     /// Version of this artifact's layout; bump it whenever a field changes.
-    pub const FORMAT_VERSION: u32 = 1;
+    pub(crate) const FORMAT_VERSION: u32 = 1;
 }
 
 /// Topology and size of a mesh, as [`check`] measures it.
@@ -387,7 +387,7 @@ pub fn drop_components_far_from(
 /// [`drop_components_far_from`] given each vertex's distance to the nearest data point
 /// (`vertex_distances`, one per vertex; NaN counts as far): a component is kept when one of its
 /// vertices lies within `max_distance`.
-pub fn drop_components_by_distance(
+pub(crate) fn drop_components_by_distance(
     mesh: &TriangleMesh,
     vertex_distances: &[f64],
     max_distance: f64,
@@ -787,7 +787,10 @@ pub fn intersecting_triangles(mesh: &TriangleMesh) -> Vec<bool> {
 /// [`intersecting_triangles`] testing only the pairs with at least one triangle `t` such that
 /// `active[t]` (all pairs when `active` is `None`); the other triangles' flags come from those
 /// pairs alone.
-pub fn intersecting_triangles_among(mesh: &TriangleMesh, active: Option<&[bool]>) -> Vec<bool> {
+pub(crate) fn intersecting_triangles_among(
+    mesh: &TriangleMesh,
+    active: Option<&[bool]>,
+) -> Vec<bool> {
     use rayon::prelude::*;
     use std::sync::atomic::{AtomicBool, Ordering};
     let positions = &mesh.positions;

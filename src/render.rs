@@ -10,7 +10,7 @@
 //! pass, for its nearest triangle (the first drawn among equal depths), with the interpolated
 //! vertex normal (two-sided, so an open mesh seen from inside is still readable) under a key
 //! light and a dim fill light, over a light grey background. Deterministic: the image is cut
-//! into bands of [`BAND_ROWS`] rows rasterized side by side (rayon), each seeing the triangles
+//! into bands of `BAND_ROWS` rows rasterized side by side (rayon), each seeing the triangles
 //! that reach it in index order, so every pixel sees the same triangles in the same order
 //! whatever the thread count; no randomness.
 

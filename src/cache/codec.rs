@@ -82,7 +82,7 @@ pub fn encode<T: Artifact>(artifact: &T, id: &EntryId, meta: &serde_json::Value)
 }
 
 /// Decodes a cache entry; `None` when it is corrupt, truncated or of another version or type.
-/// The identity is returned, not checked: [`decode_as`] checks it.
+/// The identity is returned, not checked: `decode_as` checks it.
 pub fn decode_entry<T: Artifact>(bytes: &[u8]) -> Option<Entry<T>> {
     let body_len = bytes.len().checked_sub(32)?;
     let (body, digest) = bytes.split_at(body_len);
@@ -118,7 +118,7 @@ pub fn decode_entry<T: Artifact>(bytes: &[u8]) -> Option<Entry<T>> {
 }
 
 /// Decodes a cache entry that must have been stored as `id`; `None` otherwise.
-pub fn decode_as<T: Artifact>(bytes: &[u8], id: &EntryId) -> Option<Entry<T>> {
+pub(crate) fn decode_as<T: Artifact>(bytes: &[u8], id: &EntryId) -> Option<Entry<T>> {
     decode_entry(bytes).filter(|e| &e.id == id)
 }
 

@@ -1,6 +1,6 @@
 //! Stage `export`: artifacts → files (glTF, PLY, OpenEXR slices, PNG previews, model.json).
 //!
-//! Input: a [`TriangleMesh`](crate::TriangleMesh), the distance slices of
+//! Input: a [`TriangleMesh`], the distance slices of
 //! [`distance::slices`](crate::distance::slices), or an [`ImplicitModel`](crate::ImplicitModel).
 //! Output: bytes. The stage function is [`export()`] (in `stage.rs`: the model and its mesh →
 //! every output file of `run`, with [`ExportParams`]); it calls one writer per format:

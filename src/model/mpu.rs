@@ -32,7 +32,7 @@ use crate::export::ExportError;
 use crate::poly::{n_coefficients, ImplicitPolynomial};
 
 /// The file's first 16 bytes.
-pub const MAGIC: &[u8; 16] = b"stablesurf.mpu\0\0";
+pub(crate) const MAGIC: &[u8; 16] = b"stablesurf.mpu\0\0";
 
 /// The layout version this code writes and reads.
 pub const VERSION: u32 = 1;

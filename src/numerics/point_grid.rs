@@ -38,7 +38,7 @@ const BLOCK: usize = 1024;
 
 /// The points bucketed in a uniform grid (see the module docs).
 #[derive(Clone, Debug)]
-pub struct PointGrid {
+pub(crate) struct PointGrid {
     /// The grid's lowest corner.
     origin: [f64; 3],
     /// Side of a cell.
@@ -190,7 +190,7 @@ impl PointGrid {
 
     /// [`PointGrid::nearest`], the answer appended to `out` (no allocation once `out` and
     /// `keys` have grown); returns the same hint.
-    pub fn nearest_into(
+    pub(crate) fn nearest_into(
         &self,
         points: &[[f64; 3]],
         i: usize,
@@ -256,14 +256,14 @@ impl PointGrid {
 
     /// The `k` nearest neighbours of every point of `points` (the points the grid was made
     /// of), as [`PointGrid::nearest`] gives them, in one flat array.
-    pub fn all_nearest(&self, points: &[[f64; 3]], k: usize) -> Neighbours {
+    pub(crate) fn all_nearest(&self, points: &[[f64; 3]], k: usize) -> Neighbours {
         // In cell order, so that each query's hint is the answer of a point next to it.
         self.nearest_in_order(points, k, &self.items, |i| i)
     }
 
     /// The `k` nearest neighbours of the points `of` (indices into `points`, the points the
     /// grid was made of), as [`PointGrid::nearest`] gives them: row r holds those of `of[r]`.
-    pub fn nearest_of(&self, points: &[[f64; 3]], of: &[u32], k: usize) -> Neighbours {
+    pub(crate) fn nearest_of(&self, points: &[[f64; 3]], of: &[u32], k: usize) -> Neighbours {
         // The rows queried in cell order, as in `all_nearest`.
         let cell = |i: u32| {
             let p = points[i as usize];
@@ -336,7 +336,7 @@ fn listed(keys: &[u128], i: usize, k: usize) -> impl Iterator<Item = u32> + '_ {
 /// The k nearest neighbours of every point, nearest first, in one flat array of rows of equal
 /// length (one allocation instead of one per point).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub struct Neighbours {
+pub(crate) struct Neighbours {
     /// Length of every row.
     stride: usize,
     /// Number of rows (points).
