@@ -1128,7 +1128,7 @@ impl<'a> PointIndex<'a> {
     /// Distance from each of `queries` to the nearest indexed point (input units); a query
     /// with a non-finite coordinate gets NaN. Runs in parallel; the result does not depend on
     /// the thread count.
-    pub fn distances(&self, queries: &[[f64; 3]]) -> Vec<f64> {
+    pub(crate) fn distances(&self, queries: &[[f64; 3]]) -> Vec<f64> {
         // Queried in spatial order, each query's answer bounds the next search (the distances
         // are the same as without it).
         in_spatial_order(queries, |j, hint| {

@@ -330,7 +330,7 @@ pub fn boundary_edges(triangles: &[[u32; 3]]) -> Vec<[u32; 2]> {
 
 /// The number of boundary loops of `mesh` (as [`check`] counts them): connected pieces of its
 /// boundary edges, 0 for a closed surface.
-pub fn boundary_loops(mesh: &TriangleMesh) -> usize {
+pub(crate) fn boundary_loops(mesh: &TriangleMesh) -> usize {
     let triangles: Vec<[u32; 3]> = valid_triangles(mesh).collect();
     boundary_pieces(mesh.positions.len(), &triangles)
 }

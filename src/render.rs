@@ -40,7 +40,7 @@ pub enum View {
 impl View {
     /// Unit vector from the scene towards the camera, and the screen's up vector, for a model
     /// whose up axis is `up`.
-    pub fn direction(self, up: UpAxis) -> ([f64; 3], [f64; 3]) {
+    pub(crate) fn direction(self, up: UpAxis) -> ([f64; 3], [f64; 3]) {
         // In a y-up frame (x right, y up, z towards the front), then turned into the model's.
         let (towards, screen_up) = match self {
             View::Iso => (normalize([1.0, 0.9, 1.2]), [0.0, 1.0, 0.0]),

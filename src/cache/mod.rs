@@ -89,7 +89,7 @@ impl Key {
     }
 
     /// Lower-case hex.
-    pub fn hex(&self) -> String {
+    pub(crate) fn hex(&self) -> String {
         self.0.iter().map(|b| format!("{b:02x}")).collect()
     }
 }
@@ -643,7 +643,7 @@ impl Puts {
     }
 
     /// Waits for every queued write; returns the error that stopped them, if any.
-    pub fn finish(&mut self) -> Vec<CacheError> {
+    pub(crate) fn finish(&mut self) -> Vec<CacheError> {
         self.sender = None;
         match self.worker.take().map(std::thread::JoinHandle::join) {
             Some(Ok(errors)) => errors,
