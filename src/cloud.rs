@@ -44,7 +44,7 @@ pub struct PointCloud {
 
 impl PointCloud {
     /// Version of this artifact's layout; bump it whenever a field changes.
-    pub const FORMAT_VERSION: u32 = 3;
+    pub(crate) const FORMAT_VERSION: u32 = 3;
 }
 
 /// One registered scan of a multi-scan file: its scanner's position and its share of the points.
@@ -83,7 +83,7 @@ pub struct OrientedCloud {
 
 impl OrientedCloud {
     /// Version of this artifact's layout; bump it whenever a field changes.
-    pub const FORMAT_VERSION: u32 = 2;
+    pub(crate) const FORMAT_VERSION: u32 = 2;
 }
 
 /// An axis-aligned box in input coordinates.

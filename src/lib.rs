@@ -21,6 +21,7 @@ pub mod distance;
 pub mod export;
 mod files;
 pub mod fit;
+mod frame;
 pub mod implicit;
 pub mod import;
 pub mod limits;
@@ -44,6 +45,7 @@ mod vec3;
 // The artifacts passed between the stages.
 pub use cloud::{Aabb, OrientedCloud, PointCloud};
 pub use detail::MpuModel;
+pub use frame::UpAxis;
 pub use implicit::ImplicitFunction;
 pub use import::Scan;
 pub use mesh::TriangleMesh;

@@ -21,8 +21,8 @@
 //!
 //! The run's report uses [`accuracy`]: data → mesh as above (over every k-th point of a cloud
 //! of more than [`ACCURACY_POINTS`]), and mesh → data by *area*
-//! ([`mesh_to_points_by_area`]): every triangle cut into congruent pieces of at most 0.5% of the
-//! diagonal ([`area_samples`]), each piece's centroid weighted by its area, its distance to the
+//! (`mesh_to_points_by_area`): every triangle cut into congruent pieces of at most 0.5% of the
+//! diagonal (`area_samples`), each piece's centroid weighted by its area, its distance to the
 //! nearest data point from the k-d tree below. Its far share (the area farther than 1% of the
 //! diagonal from every data point) shows surface the data does not support, which the data →
 //! mesh figure cannot see.
@@ -98,7 +98,7 @@ impl DistanceSummary {
 }
 
 /// Distances from a mesh's surface to the nearest data point, weighted by area
-/// ([`mesh_to_points_by_area`]).
+/// (`mesh_to_points_by_area`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct AreaDistanceSummary {
     /// Area-weighted mean distance from the mesh to the nearest data point, input units.
@@ -167,7 +167,7 @@ const AREA_SAMPLE_MAX_SPLITS: usize = 16;
 /// into s × s congruent pieces (s = ⌈longest edge / `piece`⌉, from 1 to 16) and each piece gives
 /// its centroid. Deterministic: triangles in order, pieces in a fixed order. Triangles with an
 /// index out of range or a non-finite vertex give nothing.
-pub fn area_samples(mesh: &TriangleMesh, piece: f64) -> (Vec<[f64; 3]>, Vec<f64>) {
+pub(crate) fn area_samples(mesh: &TriangleMesh, piece: f64) -> (Vec<[f64; 3]>, Vec<f64>) {
     let n = mesh.positions.len();
     let mut points = Vec::with_capacity(mesh.triangles.len());
     let mut weights = Vec::with_capacity(mesh.triangles.len());
@@ -209,7 +209,7 @@ pub fn area_samples(mesh: &TriangleMesh, piece: f64) -> (Vec<[f64; 3]>, Vec<f64>
 /// `diagonal`, each sample's distance to the nearest data point of `data`, summed in sample
 /// order. `far_relative` × `diagonal` is the threshold of the far share. `None` when there is no
 /// usable triangle.
-pub fn mesh_to_points_by_area(
+pub(crate) fn mesh_to_points_by_area(
     mesh: &TriangleMesh,
     data: &PointIndex<'_>,
     diagonal: f64,
@@ -318,7 +318,7 @@ pub fn closest_point_on_triangle(p: [f64; 3], a: [f64; 3], b: [f64; 3], c: [f64;
 
 /// A triangle mesh indexed for distance queries: a k-d tree over its vertices and the triangles
 /// around each vertex (see the module docs for the candidate set and its error).
-pub struct MeshDistance<'a> {
+pub(crate) struct MeshDistance<'a> {
     mesh: &'a TriangleMesh,
     around: VertexTriangles,
     tree: PointTree,
@@ -340,17 +340,12 @@ impl<'a> MeshDistance<'a> {
         Some(MeshDistance { mesh, around, tree })
     }
 
-    /// Unsigned distance from `p` to the triangles around the mesh vertex nearest to `p`: the
+    /// Unsigned distance from `p` to the triangles around the mesh vertex nearest to `p` (the
     /// distance to the mesh whenever the closest triangle touches that vertex, and never more
-    /// than it plus the longest edge at the nearest vertex otherwise.
-    pub fn distance(&self, p: [f64; 3]) -> f64 {
-        self.distance_near(p, None).0
-    }
-
-    /// [`Self::distance`] and the nearest vertex, given a vertex `hint` near `p` (typically the
-    /// answer for a neighbouring query): it bounds the tree search, not the result. The hint is
-    /// first walked along the mesh towards `p` (see [`Self::descend`]), so the search starts
-    /// from an almost tight radius.
+    /// than it plus the longest edge at the nearest vertex otherwise) and that vertex, given a
+    /// vertex `hint` near `p` (typically the answer for a neighbouring query): it bounds the tree
+    /// search, not the result. The hint is first walked along the mesh towards `p` (see
+    /// [`Self::descend`]), so the search starts from an almost tight radius.
     fn distance_near(&self, p: [f64; 3], hint: Option<usize>) -> (f64, usize) {
         let hint = hint.map(|v| self.mesh.positions[self.descend(p, v)]);
         let (d2, v) = nearest_in(&self.tree, p, hint);
@@ -474,7 +469,7 @@ const SEED_CELLS: f64 = 64.0;
 const N_WALKS: usize = 3;
 
 impl<'a> GridMeshDistance<'a> {
-    /// Indexes `mesh`; `None` as for [`MeshDistance::new`].
+    /// Indexes `mesh`; `None` as for `MeshDistance::new`.
     pub fn new(mesh: &'a TriangleMesh) -> Option<Self> {
         let index = MeshDistance::new(mesh)?;
         let mut lo = [f64::INFINITY; 3];
@@ -538,13 +533,13 @@ impl<'a> GridMeshDistance<'a> {
     }
 
     /// Side of the coarse seed grid's cells, input units.
-    pub fn seed_cell(&self) -> f64 {
+    pub(crate) fn seed_cell(&self) -> f64 {
         self.cell
     }
 
     /// Unsigned distance from `p` to the mesh (see the type's docs) and the vertex the best walk
     /// ended at, to warm-start the next query with `warm`.
-    pub fn distance_from(&self, p: [f64; 3], warm: Option<usize>) -> (f64, usize) {
+    pub(crate) fn distance_from(&self, p: [f64; 3], warm: Option<usize>) -> (f64, usize) {
         // Each walk ends at a vertex; the fan (1-ring) distance ranks the ends, and the best
         // end's 2-ring gives the result.
         let mut best = (f64::INFINITY, 0);
@@ -661,10 +656,10 @@ impl LeafBlock {
 }
 
 /// A k-d tree over 3D points for the nearest-point queries of this module and of
-/// [`crate::distance`]: median splits on the widest axis, leaves of up to [`LEAF_POINTS`]
+/// [`crate::distance`]: median splits on the widest axis, leaves of up to `LEAF_POINTS`
 /// points stored as one block each, and queries that start from a radius (typically the
 /// distance of a point known to be near, the previous query's answer) so the search prunes from
-/// the start. Distances are squared Euclidean, summed as [`dist2`] does. Among points at exactly
+/// the start. Distances are squared Euclidean, summed as `dist2` does. Among points at exactly
 /// equal distance the one met first in the tree's order wins; the results are otherwise those
 /// of any exact nearest-neighbour search.
 #[derive(Clone, Debug)]
@@ -692,7 +687,7 @@ impl PointTree {
 
     /// The point of `q`'s nearest neighbour and its squared distance, among the points closer
     /// than √`radius2`; `None` when there is none.
-    pub fn nearest_within(&self, q: [f64; 3], radius2: f64) -> Option<(f64, usize)> {
+    pub(crate) fn nearest_within(&self, q: [f64; 3], radius2: f64) -> Option<(f64, usize)> {
         let mut best = (radius2, u32::MAX);
         self.search_one(0, q, &mut best);
         (best.1 != u32::MAX).then_some((best.0, best.1 as usize))
@@ -740,7 +735,12 @@ impl PointTree {
 
     /// The up to `out.len()` nearest points to `q` closer than √`radius2`, nearest first, as
     /// (squared distance, index) into `out`; returns how many were found.
-    pub fn nearest_n_within(&self, q: [f64; 3], radius2: f64, out: &mut [(f64, u32)]) -> usize {
+    pub(crate) fn nearest_n_within(
+        &self,
+        q: [f64; 3],
+        radius2: f64,
+        out: &mut [(f64, u32)],
+    ) -> usize {
         let mut len = 0;
         if !out.is_empty() {
             self.search_n(0, q, radius2, out, &mut len);
@@ -1019,7 +1019,7 @@ fn in_spatial_order<H: Copy + Send>(
 /// The indices of `points` sorted along a Z-order (Morton) curve over their bounding box, ties
 /// by index: consecutive points of the order lie close together. Non-finite coordinates sort
 /// as the box's minimum.
-pub fn spatial_order(points: &[[f64; 3]]) -> Vec<u32> {
+pub(crate) fn spatial_order(points: &[[f64; 3]]) -> Vec<u32> {
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
     for p in points {
@@ -1130,7 +1130,7 @@ impl<'a> PointIndex<'a> {
     /// Distance from each of `queries` to the nearest indexed point (input units); a query
     /// with a non-finite coordinate gets NaN. Runs in parallel; the result does not depend on
     /// the thread count.
-    pub fn distances(&self, queries: &[[f64; 3]]) -> Vec<f64> {
+    pub(crate) fn distances(&self, queries: &[[f64; 3]]) -> Vec<f64> {
         // Queried in spatial order, each query's answer bounds the next search (the distances
         // are the same as without it).
         in_spatial_order(queries, |j, hint| {

@@ -26,7 +26,7 @@ pub struct Pose {
 
 impl Pose {
     /// The identity: the view is already in the common frame.
-    pub const IDENTITY: Pose = Pose {
+    pub(crate) const IDENTITY: Pose = Pose {
         translation: [0.0; 3],
         rotation: [0.0, 0.0, 0.0, 1.0],
     };
@@ -41,7 +41,7 @@ impl Pose {
     /// let p = pose.apply([0.0, 1.0, 0.0]);
     /// assert!((p[0] - 1.0).abs() < 1e-12 && p[1].abs() < 1e-12 && (p[2] - 1.0).abs() < 1e-12);
     /// ```
-    pub fn isometry(&self) -> Isometry3<f64> {
+    pub(crate) fn isometry(&self) -> Isometry3<f64> {
         let [x, y, z, w] = self.rotation;
         let q = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
         let [tx, ty, tz] = self.translation;

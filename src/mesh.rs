@@ -30,7 +30,7 @@ pub struct TriangleMesh {
 
 impl TriangleMesh {
     /// Version of this artifact's layout; bump it whenever a field changes.
-    pub const FORMAT_VERSION: u32 = 1;
+    pub(crate) const FORMAT_VERSION: u32 = 1;
 }
 
 /// Topology and size of a mesh, as [`check`] measures it.
@@ -330,7 +330,7 @@ pub fn boundary_edges(triangles: &[[u32; 3]]) -> Vec<[u32; 2]> {
 
 /// The number of boundary loops of `mesh` (as [`check`] counts them): connected pieces of its
 /// boundary edges, 0 for a closed surface.
-pub fn boundary_loops(mesh: &TriangleMesh) -> usize {
+pub(crate) fn boundary_loops(mesh: &TriangleMesh) -> usize {
     let triangles: Vec<[u32; 3]> = valid_triangles(mesh).collect();
     boundary_pieces(mesh.positions.len(), &triangles)
 }
@@ -387,7 +387,7 @@ pub fn drop_components_far_from(
 /// [`drop_components_far_from`] given each vertex's distance to the nearest data point
 /// (`vertex_distances`, one per vertex; NaN counts as far): a component is kept when one of its
 /// vertices lies within `max_distance`.
-pub fn drop_components_by_distance(
+pub(crate) fn drop_components_by_distance(
     mesh: &TriangleMesh,
     vertex_distances: &[f64],
     max_distance: f64,
@@ -787,7 +787,10 @@ pub fn intersecting_triangles(mesh: &TriangleMesh) -> Vec<bool> {
 /// [`intersecting_triangles`] testing only the pairs with at least one triangle `t` such that
 /// `active[t]` (all pairs when `active` is `None`); the other triangles' flags come from those
 /// pairs alone.
-pub fn intersecting_triangles_among(mesh: &TriangleMesh, active: Option<&[bool]>) -> Vec<bool> {
+pub(crate) fn intersecting_triangles_among(
+    mesh: &TriangleMesh,
+    active: Option<&[bool]>,
+) -> Vec<bool> {
     use rayon::prelude::*;
     use std::sync::atomic::{AtomicBool, Ordering};
     let positions = &mesh.positions;

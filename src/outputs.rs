@@ -4,13 +4,13 @@
 //! Input: an output folder and the files of a run (name relative to the folder, bytes).
 //! Output: the files in place, or an [`OutputError`] that names the path and what to do.
 //!
-//! How ([`OutputSet`]):
+//! How (`OutputSet`):
 //!
-//! 1. [`OutputSet::begin`], before any work: removes the debris of runs that were killed (see
+//! 1. `OutputSet::begin`, before any work: removes the debris of runs that were killed (see
 //!    below), creates the folder if needed and a staging folder `.stablesurf-staging-<pid>-<n>`
 //!    inside it. That is the check that the folder is writable, so a bad `-o` fails at once.
-//! 2. [`OutputSet::stage`] writes every file, synced, under `staging/new/`.
-//! 3. [`OutputSet::commit`] writes the journal `staging/COMMITTING` (the names, synced, renamed
+//! 2. `OutputSet::stage` writes every file, synced, under `staging/new/`.
+//! 3. `OutputSet::commit` writes the journal `staging/COMMITTING` (the names, synced, renamed
 //!    into place), then for each file moves the file it replaces to `staging/old/` and the new
 //!    one into place: renames within one file system, no copying. A failure part-way moves
 //!    everything back. Then the staging folder, with the replaced files, is removed.
@@ -99,7 +99,7 @@ fn plain_relative(name: &str) -> bool {
 }
 
 /// One run's output files on their way into a folder (see the module docs).
-pub struct OutputSet {
+pub(crate) struct OutputSet {
     dir: PathBuf,
     staging: PathBuf,
     /// The output folder did not exist before [`OutputSet::begin`].
@@ -118,7 +118,7 @@ impl OutputSet {
     /// # Errors
     /// The folder cannot be created or written (the message names it and what to do), or a
     /// killed run's files cannot be put back in order.
-    pub fn begin(dir: &Path) -> Result<OutputSet, OutputError> {
+    pub(crate) fn begin(dir: &Path) -> Result<OutputSet, OutputError> {
         let created_dir = !dir.exists();
         if let Ok(meta) = fs::metadata(dir) {
             if !meta.is_dir() {
@@ -150,11 +150,6 @@ impl OutputSet {
             .and_then(|()| fs::remove_file(&probe))
             .map_err(|e| OutputError::io("write in the output folder", dir, &e))?;
         Ok(set)
-    }
-
-    /// The output folder.
-    pub fn dir(&self) -> &Path {
-        &self.dir
     }
 
     /// Writes `files` (names relative to the output folder) into the staging folder, several
@@ -234,7 +229,7 @@ impl OutputSet {
     /// # Errors
     /// A file cannot be moved (a folder stands where a file goes, no permission): everything
     /// is moved back first, so the folder holds what it held before.
-    pub fn commit(mut self) -> Result<Vec<String>, OutputError> {
+    pub(crate) fn commit(mut self) -> Result<Vec<String>, OutputError> {
         for name in &self.staged {
             let target = self.dir.join(name);
             if fs::symlink_metadata(&target).is_ok_and(|m| m.is_dir()) {

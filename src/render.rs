@@ -10,14 +10,14 @@
 //! pass, for its nearest triangle (the first drawn among equal depths), with the interpolated
 //! vertex normal (two-sided, so an open mesh seen from inside is still readable) under a key
 //! light and a dim fill light, over a light grey background. Deterministic: the image is cut
-//! into bands of [`BAND_ROWS`] rows rasterized side by side (rayon), each seeing the triangles
+//! into bands of `BAND_ROWS` rows rasterized side by side (rayon), each seeing the triangles
 //! that reach it in index order, so every pixel sees the same triangles in the same order
 //! whatever the thread count; no randomness.
 
 use image::{Rgb, RgbImage};
 use rayon::prelude::*;
 
-pub use crate::export::gltf::UpAxis;
+use crate::frame::UpAxis;
 use crate::mesh::TriangleMesh;
 use crate::vec3::{cross, dot, norm};
 
@@ -40,7 +40,7 @@ pub enum View {
 impl View {
     /// Unit vector from the scene towards the camera, and the screen's up vector, for a model
     /// whose up axis is `up`.
-    pub fn direction(self, up: UpAxis) -> ([f64; 3], [f64; 3]) {
+    pub(crate) fn direction(self, up: UpAxis) -> ([f64; 3], [f64; 3]) {
         // In a y-up frame (x right, y up, z towards the front), then turned into the model's.
         let (towards, screen_up) = match self {
             View::Iso => (normalize([1.0, 0.9, 1.2]), [0.0, 1.0, 0.0]),
@@ -48,12 +48,7 @@ impl View {
             View::Top => ([0.0, 1.0, 0.0], [0.0, 0.0, -1.0]),
             View::Side => ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
         };
-        let to_model = |v: [f64; 3]| match up {
-            UpAxis::Y => v,
-            // y-up (x, y, z) is z-up (x, −z, y).
-            UpAxis::Z => [v[0], -v[2], v[1]],
-        };
-        (to_model(towards), to_model(screen_up))
+        (up.y_up_to_input(towards), up.y_up_to_input(screen_up))
     }
 }
 
@@ -366,10 +361,7 @@ mod tests {
     /// A square pyramid, its base at the bottom of its up axis and its tip at the top.
     fn pyramid(up: UpAxis) -> TriangleMesh {
         // y-up: base square in y = 0, tip at y = 2; turned for z-up.
-        let turn = |p: [f64; 3]| match up {
-            UpAxis::Y => p,
-            UpAxis::Z => [p[0], -p[2], p[1]],
-        };
+        let turn = |p: [f64; 3]| up.y_up_to_input(p);
         let positions: Vec<[f64; 3]> = [
             [-1.0, 0.0, -1.0],
             [1.0, 0.0, -1.0],

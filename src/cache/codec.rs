@@ -82,7 +82,7 @@ pub fn encode<T: Artifact>(artifact: &T, id: &EntryId, meta: &serde_json::Value)
 }
 
 /// Decodes a cache entry; `None` when it is corrupt, truncated or of another version or type.
-/// The identity is returned, not checked: [`decode_as`] checks it.
+/// The identity is returned, not checked: `decode_as` checks it.
 pub fn decode_entry<T: Artifact>(bytes: &[u8]) -> Option<Entry<T>> {
     let body_len = bytes.len().checked_sub(32)?;
     let (body, digest) = bytes.split_at(body_len);
@@ -118,7 +118,7 @@ pub fn decode_entry<T: Artifact>(bytes: &[u8]) -> Option<Entry<T>> {
 }
 
 /// Decodes a cache entry that must have been stored as `id`; `None` otherwise.
-pub fn decode_as<T: Artifact>(bytes: &[u8], id: &EntryId) -> Option<Entry<T>> {
+pub(crate) fn decode_as<T: Artifact>(bytes: &[u8], id: &EntryId) -> Option<Entry<T>> {
     decode_entry(bytes).filter(|e| &e.id == id)
 }
 
@@ -393,13 +393,13 @@ impl Artifact for crate::detail::MpuModel {
 
     fn encode_payload(&self, out: &mut Vec<u8>) {
         let mut file = Vec::new();
-        crate::export::mpu::write_mpu(self, &mut file).expect("writing to memory cannot fail");
+        crate::model::mpu::write_mpu(self, &mut file).expect("writing to memory cannot fail");
         out.extend_from_slice(&(file.len() as u64).to_le_bytes());
         out.extend_from_slice(&file);
     }
 
     fn decode_payload(r: &mut Reader<'_>) -> Option<Self> {
-        crate::export::mpu::read_mpu(r.bytes()?, std::path::Path::new("cache entry")).ok()
+        crate::model::mpu::read_mpu(r.bytes()?, std::path::Path::new("cache entry")).ok()
     }
 }
 

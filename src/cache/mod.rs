@@ -28,7 +28,7 @@
 //! [`Cache::clear`] removes only names it makes (entries, its temporaries, then the folders
 //! they leave empty), never follows a link, and leaves everything else where it is.
 //!
-//! A run stores its entries through [`Puts`], on a background thread, while its next stages
+//! A run stores its entries through `Puts`, on a background thread, while its next stages
 //! compute. A store that fails costs only the next run's time, so the pipeline reports it as a
 //! warning and the run's outputs are complete.
 
@@ -47,7 +47,7 @@ pub use codec::{Artifact, OutputFiles};
 pub const CACHE_FORMAT_VERSION: u32 = 2;
 
 /// The stage folders a cache holds; nothing else under the root is the cache's.
-pub const STAGES: &[&str] = &["import", "normals", "fit", "detail", "polygonize", "export"];
+pub(crate) const STAGES: &[&str] = &["import", "normals", "fit", "detail", "polygonize", "export"];
 
 /// The marker file of a cache root (the cache directory tag convention, which backup tools
 /// honour), and its first line.
@@ -89,7 +89,7 @@ impl Key {
     }
 
     /// Lower-case hex.
-    pub fn hex(&self) -> String {
+    pub(crate) fn hex(&self) -> String {
         self.0.iter().map(|b| format!("{b:02x}")).collect()
     }
 }
@@ -130,7 +130,7 @@ pub fn stage_key(stage: &str, stage_version: u32, params: &[u8], input: &Key) ->
 }
 
 /// Canonical bytes of a params struct: its JSON, fields in declaration order.
-pub fn params_bytes<P: serde::Serialize>(params: &P) -> Vec<u8> {
+pub(crate) fn params_bytes<P: serde::Serialize>(params: &P) -> Vec<u8> {
     serde_json::to_vec(params).expect("params always serialize")
 }
 
@@ -146,7 +146,7 @@ pub fn default_dir() -> Option<PathBuf> {
 
 /// Whether a lookup found a usable entry.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Lookup {
+pub(crate) enum Lookup {
     /// Found and verified.
     Hit,
     /// Not present (or the cache is disabled).
@@ -321,7 +321,7 @@ fn root_state(root: &Path) -> RootState {
 }
 
 impl Cache {
-    /// A cache rooted at `root` (created and marked by [`Cache::prepare`] or the first write).
+    /// A cache rooted at `root` (created and marked by `Cache::prepare` or the first write).
     pub fn at(root: impl Into<PathBuf>) -> Cache {
         Cache {
             root: Some(root.into()),
@@ -344,7 +344,7 @@ impl Cache {
     /// # Errors
     /// [`CacheError::NotACache`] for any other folder (or a file);
     /// [`CacheError::Io`] when it cannot be created or marked.
-    pub fn prepare(&self) -> Result<(), CacheError> {
+    pub(crate) fn prepare(&self) -> Result<(), CacheError> {
         let Some(root) = &self.root else {
             return Ok(());
         };
@@ -408,7 +408,7 @@ impl Cache {
     /// Looks an artifact up under the identity it must have been stored with. Never fails:
     /// unreadable, corrupt or foreign entries are misses. Returns the artifact and the
     /// explanation stored with it.
-    pub fn get<T: Artifact>(
+    pub(crate) fn get<T: Artifact>(
         &self,
         stage: &str,
         stage_version: u32,
@@ -437,7 +437,7 @@ impl Cache {
 
     /// Whether an entry for `key` is on disk (not decoded: a corrupt entry still counts). Lets a
     /// caller skip work that only a miss would need.
-    pub fn contains(&self, stage: &str, key: &Key) -> bool {
+    pub(crate) fn contains(&self, stage: &str, key: &Key) -> bool {
         self.entry_path(stage, key)
             .is_some_and(|path| path.is_file())
     }
@@ -446,7 +446,8 @@ impl Cache {
     ///
     /// # Errors
     /// The directory cannot be created or written.
-    pub fn put<T: Artifact>(
+    #[cfg(test)]
+    pub(crate) fn put<T: Artifact>(
         &self,
         stage: &str,
         stage_version: u32,
@@ -465,7 +466,7 @@ impl Cache {
     }
 
     /// A writer that stores this cache's entries on a background thread (see [`Puts`]).
-    pub fn puts(&self) -> Puts {
+    pub(crate) fn puts(&self) -> Puts {
         Puts {
             cache: self.clone(),
             sender: None,
@@ -592,7 +593,7 @@ fn encode_entry<T: Artifact>(
 ///
 /// [`Puts::finish`] waits for every write and returns the errors. Dropping the writer waits
 /// too, so the entries of the stages that completed are stored even when a later stage fails.
-pub struct Puts {
+pub(crate) struct Puts {
     cache: Cache,
     sender: Option<std::sync::mpsc::Sender<(PathBuf, Vec<u8>)>>,
     worker: Option<std::thread::JoinHandle<Vec<CacheError>>>,
@@ -601,7 +602,7 @@ pub struct Puts {
 impl Puts {
     /// Queues an artifact with its identity and explanation (`meta`, JSON) for storing; does
     /// nothing when the cache is disabled. Errors come out of [`Puts::finish`].
-    pub fn put<T: Artifact>(
+    pub(crate) fn put<T: Artifact>(
         &mut self,
         stage: &str,
         stage_version: u32,
@@ -642,7 +643,7 @@ impl Puts {
     }
 
     /// Waits for every queued write; returns the error that stopped them, if any.
-    pub fn finish(&mut self) -> Vec<CacheError> {
+    pub(crate) fn finish(&mut self) -> Vec<CacheError> {
         self.sender = None;
         match self.worker.take().map(std::thread::JoinHandle::join) {
             Some(Ok(errors)) => errors,

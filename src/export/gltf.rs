@@ -42,20 +42,11 @@ use gltf_json as json;
 use json::validation::Checked::Valid;
 use json::validation::USize64;
 
+pub use crate::frame::UpAxis;
+
 use crate::export::units::LengthUnit;
 use crate::export::ExportError;
 use crate::mesh::TriangleMesh;
-
-/// Which input axis points up.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub enum UpAxis {
-    /// The input is already +Y up (glTF's convention): coordinates are written unchanged.
-    #[default]
-    Y,
-    /// The input is +Z up (most scanners and CAD): rotate by −90° about X, (x, y, z) ↦ (x, z, −y),
-    /// so the object stands upright in Blender and other glTF viewers.
-    Z,
-}
 
 /// Options of the glTF writers.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -275,14 +266,6 @@ fn json_bytes(
     .map_err(error)
 }
 
-/// Applies the up-axis rotation to a vector.
-fn orient(v: [f64; 3], up: UpAxis) -> [f64; 3] {
-    match up {
-        UpAxis::Y => v,
-        UpAxis::Z => [v[0], v[2], -v[1]],
-    }
-}
-
 /// A glTF document, its binary buffer, and the node translation of far-off coordinates.
 type Encoded = (json::Root, Vec<u8>, Option<[f64; 3]>);
 
@@ -316,7 +299,7 @@ fn encode(
     let world: Vec<[f64; 3]> = mesh
         .positions
         .iter()
-        .map(|p| orient(*p, opts.up).map(|c| c * scale))
+        .map(|p| opts.up.input_to_y_up(*p).map(|c| c * scale))
         .collect();
     // Far-off coordinates: positions relative to the box centre, which the node carries.
     let translation = crate::export::far_off_centre(&world);
@@ -330,7 +313,7 @@ fn encode(
         }
     }
     for (vertex_idx, n) in mesh.normals.iter().enumerate() {
-        let n = orient(*n, opts.up).map(|c| c as f32);
+        let n = opts.up.input_to_y_up(*n).map(|c| c as f32);
         let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
         if !(len.is_finite() && len > 0.0) {
             return Err(ExportError::InvalidMesh(format!(
@@ -611,7 +594,6 @@ mod tests {
 
     #[test]
     fn z_up_rotates_to_y_up() {
-        assert_eq!(orient([1.0, 2.0, 3.0], UpAxis::Z), [1.0, 3.0, -2.0]);
         let mut glb = Vec::new();
         write_glb(
             &triangle(),

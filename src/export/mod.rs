@@ -1,6 +1,6 @@
 //! Stage `export`: artifacts → files (glTF, PLY, OpenEXR slices, PNG previews, model.json).
 //!
-//! Input: a [`TriangleMesh`](crate::TriangleMesh), the distance slices of
+//! Input: a [`TriangleMesh`], the distance slices of
 //! [`distance::slices`](crate::distance::slices), or an [`ImplicitModel`](crate::ImplicitModel).
 //! Output: bytes. The stage function is [`export()`] (in `stage.rs`: the model and its mesh →
 //! every output file of `run`, with [`ExportParams`]); it calls one writer per format:
@@ -10,7 +10,8 @@
 //! - [`exr`]: one float32 OpenEXR image per distance slice, with its geometry in the header;
 //! - [`png`]: a colour preview of a distance slice with the zero contour drawn;
 //! - [`model`]: `model.json`, the polynomial and its fit record, and its reader;
-//! - [`mpu`]: `model.mpu`, the detail model, and its reader;
+//! - [`mpu`]: `model.mpu`, the detail model, and its reader (they live with the model, in
+//!   [`crate::model::mpu`]; `export` writes the file through [`Model::file`](crate::model::Model::file));
 //! - [`vdb`]: `volume.vdb`, the narrow-band signed-distance level set for OpenVDB and Blender;
 //! - [`npy`]: `volume.npy` and `volume.json`, the dense signed-distance grid for NumPy;
 //! - [`units`]: the input's length unit (`--units`), which glTF is scaled by and the others
@@ -25,13 +26,15 @@
 pub mod exr;
 pub mod gltf;
 pub mod model;
-pub mod mpu;
 pub mod npy;
 pub mod ply;
 pub mod png;
 mod stage;
 pub mod units;
 pub mod vdb;
+
+/// The `model.mpu` file of the detail model, which lives with the model: [`crate::model::mpu`].
+pub use crate::model::mpu;
 
 pub use stage::{
     export, export_mesh, model_slices, slices_from_model, ExportOutput, ExportParams, Keep,

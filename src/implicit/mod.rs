@@ -1,10 +1,10 @@
 //! Implicit functions: what the meshing and the checks need from a model f (f < 0 inside,
-//! f > 0 outside), and its implementation for [`ImplicitPolynomial`].
+//! f > 0 outside), and its implementation for [`ImplicitPolynomial`](crate::ImplicitPolynomial).
 //!
 //! Input: a model f (the global polynomial, or the partition-of-unity blend of local fits in
 //! [`crate::detail`]). Output: point values, gradients, and *guaranteed enclosures* of f and ∇f
-//! over an axis-aligned box, which the octree of [`crate::polygonize`] uses to discard cells where
-//! f cannot vanish, and which the κ checks of [`crate::fit`] and the model's distance slices use
+//! over an axis-aligned box, which the octree of [`crate::polygonize`](mod@crate::polygonize) uses to discard cells where
+//! f cannot vanish, and which the κ checks of [`crate::fit`](mod@crate::fit) and the model's distance slices use
 //! too. This module belongs to no stage: every stage that evaluates a model imports it from here.
 //!
 //! Invariants: [`ImplicitFunction::bounds_on_box`] returns an interval that contains the value that
@@ -31,7 +31,7 @@ pub struct Enclosure {
 pub struct GridValues {
     /// The values, point i at coordinate `axes[a][(i >> a) & 1]` on axis a.
     pub values: [f64; 8],
-    /// A bound on |values[i] − f(point i)| against the exact f (rounding included).
+    /// A bound on |values\[i\] − f(point i)| against the exact f (rounding included).
     pub error: f64,
 }
 

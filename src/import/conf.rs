@@ -115,24 +115,18 @@ mod tests {
 
     #[test]
     fn bad_lines_name_the_file_and_line() {
-        let err = read_conf(
-            b"bmesh a.ply 0 0 0 0 0 0 1\n\nmesh b.ply\n",
-            Path::new("x.conf"),
-        )
-        .unwrap_err()
-        .to_string();
+        let error = |text: &[u8]| {
+            read_conf(text, Path::new("x.conf"))
+                .unwrap_err()
+                .to_string()
+        };
+        let err = error(b"bmesh a.ply 0 0 0 0 0 0 1\n\nmesh b.ply\n");
         assert!(err.starts_with("x.conf:3:"), "{err}");
-        let err = read_conf(b"bmesh a.ply 0 0 0 0 0 1\n", Path::new("x.conf"))
-            .unwrap_err()
-            .to_string();
+        let err = error(b"bmesh a.ply 0 0 0 0 0 1\n");
         assert!(err.contains("x.conf:1:") && err.contains("seven"), "{err}");
-        let err = read_conf(b"bmesh a.ply 0 0 0 0 0 0 0\n", Path::new("x.conf"))
-            .unwrap_err()
-            .to_string();
+        let err = error(b"bmesh a.ply 0 0 0 0 0 0 0\n");
         assert!(err.contains("zero"), "{err}");
-        let err = read_conf(b"camera 0 0 0 0 0 0 1\n", Path::new("x.conf"))
-            .unwrap_err()
-            .to_string();
+        let err = error(b"camera 0 0 0 0 0 0 1\n");
         assert!(err.contains("lists no scan"), "{err}");
     }
 }

@@ -85,7 +85,12 @@ pub struct RangeGrid {
 
 /// Triangulates the grid `cells` (row-major, `cols` × `rows`, `u32::MAX` for an empty cell,
 /// every other value `< points.len()`). Non-finite points are treated as empty cells.
-pub fn triangulate(points: &[[f64; 3]], cols: usize, rows: usize, cells: &[u32]) -> RangeGrid {
+pub(crate) fn triangulate(
+    points: &[[f64; 3]],
+    cols: usize,
+    rows: usize,
+    cells: &[u32],
+) -> RangeGrid {
     let at = |r: usize, c: usize| -> Option<u32> {
         let v = *cells.get(r * cols + c)?;
         let p = points.get(v as usize)?;

@@ -9,10 +9,10 @@
 
 pub(crate) mod cholesky;
 mod lcg;
-pub mod point_grid;
+pub(crate) mod point_grid;
 pub(crate) mod predicates;
 pub(crate) mod union_find;
 
 pub use lcg::Lcg;
-pub use point_grid::{Neighbours, PointGrid};
+pub(crate) use point_grid::{Neighbours, PointGrid};
 pub(crate) use union_find::UnionFind;

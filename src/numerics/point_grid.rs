@@ -38,7 +38,7 @@ const BLOCK: usize = 1024;
 
 /// The points bucketed in a uniform grid (see the module docs).
 #[derive(Clone, Debug)]
-pub struct PointGrid {
+pub(crate) struct PointGrid {
     /// The grid's lowest corner.
     origin: [f64; 3],
     /// Side of a cell.
@@ -72,7 +72,7 @@ fn order_key(distance: f64, index: u32) -> u128 {
 impl PointGrid {
     /// Buckets `points`; `None` when there are none, more than `u32::MAX`, or a non-finite
     /// coordinate.
-    pub fn new(points: &[[f64; 3]]) -> Option<PointGrid> {
+    pub(crate) fn new(points: &[[f64; 3]]) -> Option<PointGrid> {
         let n = points.len();
         if n == 0 || n > u32::MAX as usize || points.iter().flatten().any(|x| !x.is_finite()) {
             return None;
@@ -129,12 +129,12 @@ impl PointGrid {
 
     /// The input indices of the points in cell order: nearby points mostly close together (an
     /// order for cache-friendly sweeps over a cloud).
-    pub fn order(&self) -> &[u32] {
+    pub(crate) fn order(&self) -> &[u32] {
         &self.items
     }
 
     /// Number of points.
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.items.len()
     }
 
@@ -176,7 +176,7 @@ impl PointGrid {
     /// likely to hold k + 1 points (any positive value gives the same answer). Also returns the
     /// squared distance of the farthest of the k + 1 nearest (i included), a hint for the next
     /// query nearby.
-    pub fn nearest(
+    pub(crate) fn nearest(
         &self,
         points: &[[f64; 3]],
         i: usize,
@@ -190,7 +190,7 @@ impl PointGrid {
 
     /// [`PointGrid::nearest`], the answer appended to `out` (no allocation once `out` and
     /// `keys` have grown); returns the same hint.
-    pub fn nearest_into(
+    pub(crate) fn nearest_into(
         &self,
         points: &[[f64; 3]],
         i: usize,
@@ -256,14 +256,14 @@ impl PointGrid {
 
     /// The `k` nearest neighbours of every point of `points` (the points the grid was made
     /// of), as [`PointGrid::nearest`] gives them, in one flat array.
-    pub fn all_nearest(&self, points: &[[f64; 3]], k: usize) -> Neighbours {
+    pub(crate) fn all_nearest(&self, points: &[[f64; 3]], k: usize) -> Neighbours {
         // In cell order, so that each query's hint is the answer of a point next to it.
         self.nearest_in_order(points, k, &self.items, |i| i)
     }
 
     /// The `k` nearest neighbours of the points `of` (indices into `points`, the points the
     /// grid was made of), as [`PointGrid::nearest`] gives them: row r holds those of `of[r]`.
-    pub fn nearest_of(&self, points: &[[f64; 3]], of: &[u32], k: usize) -> Neighbours {
+    pub(crate) fn nearest_of(&self, points: &[[f64; 3]], of: &[u32], k: usize) -> Neighbours {
         // The rows queried in cell order, as in `all_nearest`.
         let cell = |i: u32| {
             let p = points[i as usize];
@@ -336,7 +336,7 @@ fn listed(keys: &[u128], i: usize, k: usize) -> impl Iterator<Item = u32> + '_ {
 /// The k nearest neighbours of every point, nearest first, in one flat array of rows of equal
 /// length (one allocation instead of one per point).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub struct Neighbours {
+pub(crate) struct Neighbours {
     /// Length of every row.
     stride: usize,
     /// Number of rows (points).
@@ -347,7 +347,7 @@ pub struct Neighbours {
 
 impl Neighbours {
     /// `n` empty rows.
-    pub fn empty(n: usize) -> Neighbours {
+    pub(crate) fn empty(n: usize) -> Neighbours {
         Neighbours {
             stride: 0,
             n,
@@ -357,17 +357,17 @@ impl Neighbours {
 
     /// Number of rows (points).
     #[cfg(test)]
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.n
     }
 
     /// Length of every row.
-    pub fn stride(&self) -> usize {
+    pub(crate) fn stride(&self) -> usize {
         self.stride
     }
 
     /// The neighbours of point `i`, nearest first (empty for `i` out of range).
-    pub fn row(&self, i: usize) -> &[u32] {
+    pub(crate) fn row(&self, i: usize) -> &[u32] {
         if i >= self.n {
             return &[];
         }
@@ -375,7 +375,7 @@ impl Neighbours {
     }
 
     /// All rows, one after the other.
-    pub fn flat(&self) -> &[u32] {
+    pub(crate) fn flat(&self) -> &[u32] {
         &self.list
     }
 }

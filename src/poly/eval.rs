@@ -34,7 +34,7 @@ impl ImplicitPolynomial {
     }
 
     /// f and its gradient ∂f/∂q at the normalized point `q`.
-    pub fn eval_gradient_normalized(&self, q: [f64; 3]) -> (f64, [f64; 3]) {
+    pub(crate) fn eval_gradient_normalized(&self, q: [f64; 3]) -> (f64, [f64; 3]) {
         let n = self.degree as usize;
         let (px, py, pz) = (powers(q[0], n), powers(q[1], n), powers(q[2], n));
         let mut f = 0.0;
@@ -67,7 +67,7 @@ impl ImplicitPolynomial {
     }
 
     /// f and its gradient ∇f (with respect to input coordinates) at the input-space point `p`.
-    pub fn eval_gradient(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
+    pub(crate) fn eval_gradient(&self, p: [f64; 3]) -> (f64, [f64; 3]) {
         let (f, g) = self.eval_gradient_normalized(self.normalize(p));
         (f, g.map(|c| c / self.scale))
     }
@@ -135,7 +135,7 @@ fn power_table(t: &[f64], n: usize, table: &mut [f64]) {
 
 impl ImplicitPolynomial {
     /// f and the Hessian ∂²f/∂q² at the normalized point `q` (with the gradient).
-    pub fn eval_hessian_normalized(&self, q: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
+    pub(crate) fn eval_hessian_normalized(&self, q: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
         let n = self.degree as usize;
         let (px, py, pz) = (powers(q[0], n), powers(q[1], n), powers(q[2], n));
         // d[e][m] = m-th derivative factor of t^e: e(e−1)… t^{e−m}.

@@ -27,7 +27,7 @@ pub struct SphereExtrema {
 impl SphereExtrema {
     /// `min / max(|min|, |max|)`: 1 for a form constant on the sphere, ≤ 0 when the form is not
     /// positive definite, 0 for the zero form.
-    pub fn min_relative(&self) -> f64 {
+    pub(crate) fn min_relative(&self) -> f64 {
         let scale = self.min.abs().max(self.max.abs());
         if scale > 0.0 {
             self.min / scale
@@ -40,7 +40,7 @@ impl SphereExtrema {
 impl ImplicitPolynomial {
     /// The degree-k homogeneous part H_k of the normalized polynomial, as a polynomial of degree
     /// k (all lower coefficients zero) in the same normalization. H_n is the leading form.
-    pub fn homogeneous_part(&self, k: u32) -> ImplicitPolynomial {
+    pub(crate) fn homogeneous_part(&self, k: u32) -> ImplicitPolynomial {
         let k = k.min(self.degree);
         let lo = n_coefficients(k) - n_monomials_of_degree(k);
         let hi = n_coefficients(k);
@@ -64,7 +64,7 @@ impl ImplicitPolynomial {
     /// A certified upper bound of max |H_k| on the unit sphere (normalized coordinates):
     /// Σ |a_ijk| · max_{|u|=1} |u_x^i u_y^j u_z^k|, with the monomial's maximum
     /// √((i/k)^i (j/k)^j (l/k)^l) attained where u² ∝ (i, j, l).
-    pub fn homogeneous_bound(&self, k: u32) -> f64 {
+    pub(crate) fn homogeneous_bound(&self, k: u32) -> f64 {
         if k > self.degree {
             return 0.0;
         }
@@ -121,7 +121,7 @@ impl ImplicitPolynomial {
 
     /// A containment radius R in normalized units: on |p̂| = r,
     /// f ≥ H_min·rⁿ − Σ_{k<n} ‖H_k‖·r^k (H_min from [`Self::leading_form_extrema`], ‖H_k‖ from
-    /// [`Self::homogeneous_bound`]), so f > 0 for |p̂| > R and the zero set lies in |p̂| ≤ R.
+    /// `Self::homogeneous_bound`), so f > 0 for |p̂| > R and the zero set lies in |p̂| ≤ R.
     /// `None` when H_min ≤ 0 (or the degree is 0).
     pub fn containment_radius(&self) -> Option<f64> {
         let h_min = self.leading_form_extrema().min;
@@ -129,7 +129,7 @@ impl ImplicitPolynomial {
     }
 
     /// [`Self::containment_radius`] with a known leading-form minimum `h_min`.
-    pub fn containment_radius_with(&self, h_min: f64) -> Option<f64> {
+    pub(crate) fn containment_radius_with(&self, h_min: f64) -> Option<f64> {
         let n = self.degree;
         if n == 0 || h_min.is_nan() || h_min <= 0.0 {
             return None;

@@ -15,13 +15,13 @@
 //! Boundedness (paper 6.2/6.3): f = Σ_k H_k with H_k homogeneous of degree k. For even n the zero
 //! set is closed and bounded when the leading form H_n is positive on the unit sphere;
 //! [`ImplicitPolynomial::leading_form_extrema`] finds its minimum (dense sampling plus Riemannian
-//! Newton refinement), [`ImplicitPolynomial::homogeneous_bound`] bounds ‖H_k‖ from above, and
+//! Newton refinement), `ImplicitPolynomial::homogeneous_bound` bounds ‖H_k‖ from above, and
 //! [`ImplicitPolynomial::containment_radius`] combines them into a radius outside which f > 0.
 //!
 //! Invariants: `coefficients.len() == n_coefficients(degree)`; `scale > 0`.
 //!
-//! The parts: [`basis`] (the monomial order), [`eval`] (pointwise, block and grid evaluation),
-//! [`forms`] (homogeneous parts, the leading form's extrema on the sphere, the containment
+//! The parts: `basis` (the monomial order), `eval` (pointwise, block and grid evaluation),
+//! `forms` (homogeneous parts, the leading form's extrema on the sphere, the containment
 //! radius); this module holds the artifacts themselves.
 
 use serde::{Deserialize, Serialize};
@@ -50,11 +50,8 @@ pub struct ImplicitPolynomial {
 }
 
 impl ImplicitPolynomial {
-    /// Version of this artifact's layout; bump it whenever a field changes.
-    pub const FORMAT_VERSION: u32 = 1;
-
     /// Maps an input-space point to normalized coordinates p̂ = (p − center)/scale.
-    pub fn normalize(&self, p: [f64; 3]) -> [f64; 3] {
+    pub(crate) fn normalize(&self, p: [f64; 3]) -> [f64; 3] {
         [0, 1, 2].map(|a| (p[a] - self.center[a]) / self.scale)
     }
 }
@@ -136,8 +133,9 @@ pub struct ImplicitModel {
 }
 
 impl ImplicitModel {
-    /// Version of this artifact's layout; bump it whenever a field changes.
-    pub const FORMAT_VERSION: u32 = 1;
+    /// Version of this artifact's layout; bump it whenever a field changes, its polynomial's
+    /// included.
+    pub(crate) const FORMAT_VERSION: u32 = 1;
 }
 
 /// Polynomials for the tests of this module and of the evaluators built on it.

@@ -10,9 +10,9 @@
 use std::path::Path;
 
 use stablesurf::detail::{chamfer_distance, fit_detail, DetailError, DetailParams, MpuModel};
-use stablesurf::export::mpu::{is_mpu, read_mpu, write_mpu};
 use stablesurf::fit::study::{sample, Shape, Variant};
 use stablesurf::mesh::check;
+use stablesurf::model::mpu::{is_mpu, read_mpu, write_mpu};
 use stablesurf::pipeline::{Mode, PipelineConfig};
 use stablesurf::polygonize::{polygonize, ImplicitFunction, PolygonizeParams};
 use stablesurf::{OrientedCloud, TriangleMesh};

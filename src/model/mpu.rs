@@ -26,13 +26,13 @@
 use std::io::Write;
 use std::path::Path;
 
-use super::ExportError;
 use crate::cloud::Aabb;
 use crate::detail::{DetailDiagnostics, MpuCell, MpuModel};
+use crate::export::ExportError;
 use crate::poly::{n_coefficients, ImplicitPolynomial};
 
 /// The file's first 16 bytes.
-pub const MAGIC: &[u8; 16] = b"stablesurf.mpu\0\0";
+pub(crate) const MAGIC: &[u8; 16] = b"stablesurf.mpu\0\0";
 
 /// The layout version this code writes and reads.
 pub const VERSION: u32 = 1;
@@ -43,8 +43,8 @@ const MAX_DEGREE: u32 = 4;
 /// Whether `bytes` start like a `stablesurf.mpu` file (any version).
 ///
 /// ```
-/// assert!(stablesurf::export::mpu::is_mpu(b"stablesurf.mpu\0\0\x01\0\0\0"));
-/// assert!(!stablesurf::export::mpu::is_mpu(b"{\"format\": \"stablesurf.implicit-polynomial\"}"));
+/// assert!(stablesurf::model::mpu::is_mpu(b"stablesurf.mpu\0\0\x01\0\0\0"));
+/// assert!(!stablesurf::model::mpu::is_mpu(b"{\"format\": \"stablesurf.implicit-polynomial\"}"));
 /// ```
 pub fn is_mpu(bytes: &[u8]) -> bool {
     bytes.starts_with(MAGIC)
@@ -164,7 +164,7 @@ impl Reader<'_> {
 ///
 /// ```
 /// use std::path::Path;
-/// use stablesurf::export::mpu::read_mpu;
+/// use stablesurf::model::mpu::read_mpu;
 /// let err = read_mpu(b"stablesurf.mpu\0\0\x09\0\0\0", Path::new("m.mpu")).unwrap_err();
 /// assert!(err.to_string().contains("version 9"));
 /// ```

@@ -5,6 +5,11 @@
 //! [`detail::fit_detail`](crate::detail::fit_detail) (a blend of local fits), or a model file.
 //! Output: a [`Model`], which gives the function to mesh, the region to mesh it in, its file and
 //! its report.
+//!
+//! The detail model's file format, `model.mpu`, is here too ([`mpu`]): the cache stores the model in
+//! it and `export` writes it, so neither reaches into the other.
+
+pub mod mpu;
 
 use std::path::Path;
 
@@ -57,8 +62,8 @@ impl Model {
     /// assert!(err.to_string().contains("m.json"));
     /// ```
     pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Model, ExportError> {
-        Ok(if export::mpu::is_mpu(bytes) {
-            Model::Detail(export::mpu::read_mpu(bytes, path)?)
+        Ok(if mpu::is_mpu(bytes) {
+            Model::Detail(mpu::read_mpu(bytes, path)?)
         } else {
             Model::Global(export::model::read_model(bytes, path)?)
         })
@@ -105,7 +110,7 @@ impl Model {
                 Ok(("model.json", bytes))
             }
             Model::Detail(m) => {
-                export::mpu::write_mpu(m, &mut bytes)?;
+                mpu::write_mpu(m, &mut bytes)?;
                 Ok(("model.mpu", bytes))
             }
         }
