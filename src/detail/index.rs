@@ -139,8 +139,8 @@ struct Node {
 
 /// An index from points and boxes to the balls that reach them: an octree over the cube that
 /// bounds all balls, whose leaves list (in increasing cell order) every ball meeting their
-/// cube. A node is split while it lists more than [`LEAF_BALLS`] balls and its side exceeds
-/// [`LEAF_SIDE`] times the smallest of their radii, so near the surface a leaf is one or two
+/// cube. A node is split while it lists more than `LEAF_BALLS` balls and its side exceeds
+/// `LEAF_SIDE` times the smallest of their radii, so near the surface a leaf is one or two
 /// finest cells wide and lists a few dozen balls, of which about ten contain any given point.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct BallIndex {

@@ -42,7 +42,7 @@
 //! free, and the constant is re-centred on the data afterwards, so that neither the ridge nor
 //! the auxiliary rows offset the zero set: see `local.rs`).
 //!
-//! Blend weights: wᵢ(p) = b(3|p − cᵢ|/(2Rᵢ)), b the quadratic B-spline (see [`index`]).
+//! Blend weights: wᵢ(p) = b(3|p − cᵢ|/(2Rᵢ)), b the quadratic B-spline (see `index`).
 //!
 //! Cost on dense scans: the fit works on the points in Z (Morton) order, so a ball's points lie
 //! close together in memory; a parent hands each child its ball in one pass over its own; a

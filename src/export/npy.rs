@@ -98,7 +98,7 @@ pub fn sidecar(volume: &DenseVolume, units: Option<LengthUnit>) -> Vec<u8> {
 }
 
 /// What `stablesurf info` shows of a `.npy` file: its version, dtype, shape and order from the
-/// header, and the range of the values when they are little-endian `float32` (what [`write`]
+/// header, and the range of the values when they are little-endian `float32` (what [`write()`]
 /// writes), NaN ignored.
 ///
 /// # Errors

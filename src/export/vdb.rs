@@ -65,7 +65,7 @@ pub const GRID_TYPE: &str = "Tree_float_5_4_3";
 /// Node-values record: no mask, every value follows.
 const NO_MASK_AND_ALL_VALS: u8 = 6;
 
-/// Options of [`write`].
+/// Options of [`write()`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct VdbOptions {
     /// The unit of the input coordinates: the transform and the values are scaled to metres

@@ -15,19 +15,19 @@
 //!        ─MST propagation over 1 − |nᵢ·nⱼ|─▶ consistent signs ─farthest points vote─▶ outward
 //! ```
 //!
-//! 1. [`crust`]: the crust of Amenta, Bern & Kamvysselis (1998): the Voronoi poles of each sample
+//! 1. `crust`: the crust of Amenta, Bern & Kamvysselis (1998): the Voronoi poles of each sample
 //!    (the farthest vertex of its Voronoi cell, and the farthest on the other side), the Delaunay
-//!    tetrahedralization ([`delaunay`]) of the samples and the poles, and the triangles whose three
+//!    tetrahedralization (`delaunay`) of the samples and the poles, and the triangles whose three
 //!    vertices are samples.
 //! 2. Each sample's incident crust triangles are aligned (by the right-hand rule along a planar
 //!    fan, or with the Voronoi pole vector where sliver tetrahedra make the fan non-planar) and
 //!    summed with Max's (1999) weights. An ill-structured fan (empty, triangles more than
 //!    [`NormalsParams::max_fan_angle_deg`] apart, or on data that is noisy at the fan's scale) is
 //!    replaced by the normal of the least-squares plane through the point and its neighbours
-//!    ([`pca`]): [`NormalsParams::k_neighbours`] of them, grown up to
+//!    (`pca`): [`NormalsParams::k_neighbours`] of them, grown up to
 //!    [`NormalsParams::max_k_neighbours`] where that makes the neighbourhood clearly flatter
 //!    (noise).
-//! 3. [`orient`]: signs are made consistent by propagation along a minimum spanning tree of the
+//! 3. `orient`: signs are made consistent by propagation along a minimum spanning tree of the
 //!    neighbour graph (crust edges, then k-nearest-neighbour edges) weighted by 1 − |nᵢ·nⱼ|
 //!    (Hoppe et al. 1992), the robust form of the paper's "reference normal, dot product test,
 //!    repeat from each aligned point". Each connected piece is then turned outward: at the point
@@ -190,7 +190,7 @@ pub struct NormalsParams {
     /// Default 40.
     pub max_fan_angle_deg: f64,
     /// With normals from a mesh's faces, add points with their face's normal on triangles that
-    /// are large against the mesh's median edge ([`faces::surface_samples`]), after the input
+    /// are large against the mesh's median edge (`faces::surface_samples`), after the input
     /// points. Default true.
     #[serde(default = "yes")]
     pub surface_samples: bool,

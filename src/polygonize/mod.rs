@@ -18,7 +18,7 @@
 //!
 //! # Algorithm
 //!
-//! 1. **Octree** ([`octree`]): starting from the region, a cell is discarded when a guaranteed
+//! 1. **Octree** (`octree`): starting from the region, a cell is discarded when a guaranteed
 //!    enclosure of f over it (the centred Taylor form, [`crate::implicit`]) excludes 0, so no piece of
 //!    the zero set is ever lost between samples; otherwise it is split until level `depth`, and
 //!    beyond that, up to `depth + guard_levels`, while Plantinga & Vegter's normal-variation test
@@ -26,13 +26,13 @@
 //!    so the work grows about 4× per level, not 8×. A level-`depth` cell is a cube whose side is
 //!    the region's longest side / 2^depth, shrunk by less than 2× along a shorter axis so that
 //!    the cells end exactly on the region's faces.
-//! 2. **Extraction** ([`extract`]): marching tetrahedra over a tetrahedralization of the surface
+//! 2. **Extraction** (`extract`): marching tetrahedra over a tetrahedralization of the surface
 //!    leaves that conforms across levels (Kuhn tetrahedra in regular leaves, a cone from the
 //!    centre over a shared face tiling in leaves next to finer ones). It yields a watertight
 //!    2-manifold with consistent winding by construction, which is why it was chosen over dual
 //!    contouring (which needs vertex splitting and still can self-intersect) and dual marching
 //!    cubes (which needs a balanced octree and its own manifold case tables).
-//! 3. **Simplification** ([`simplify`], [`Simplification::EdgeCollapse`] by default): marching
+//! 3. **Simplification** (`simplify`, [`Simplification::EdgeCollapse`] by default): marching
 //!    tetrahedra over 6 Kuhn tetrahedra per cell puts vertices on face and body diagonals too,
 //!    which gives about 3× the triangles of marching cubes, many of them slivers. Half-edge
 //!    collapses of the short edges, each allowed only under the link condition (so the topology,
