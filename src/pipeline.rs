@@ -1022,6 +1022,7 @@ fn polygonize_stage(
                 "triangles": out.mesh.triangles.len(),
                 "evaluations": out.evaluations,
                 "simplified": out.simplified,
+                "pinned_vertices": out.pinned_vertices,
                 "embedded": out.embedded,
             });
             Ok((out.mesh, figures))

@@ -10,7 +10,8 @@
 //! (where the zero set leaves the region, the mesh is cut and [`crate::mesh::check`] reports the
 //! boundary edges); step 5 removes the crossings the projection and the collapses make, so that
 //! no triangle crosses another away from their shared vertices and edges (when one survives
-//! every fallback of the simplified mesh, the mesh is made again without collapses); a crossing
+//! every fallback of the simplified mesh, the collapses are made again without the vertices
+//! around it, and failing that the mesh is made without collapses); a crossing
 //! that survives there too is counted by [`crate::mesh::check`]; every vertex satisfies
 //! |f|/|∇f| ≤ 10⁻⁷ × the region's diagonal unless ∇f vanishes there or step 5 had to fall back
 //! to its linear position (reported in [`Polygonized::max_projection_residual`]); the output is
@@ -61,10 +62,13 @@
 //!    a crossing that remains (a collapse judged on the linearly interpolated positions) sends
 //!    its vertices to that linear position. Few vertices move (about 160 of 250 000 on the
 //!    bunny at depth 8), all still on their edges. Should a crossing survive even that (an edge
-//!    collapse made it on the very positions it was judged on: the teapot of ../shared/data,
-//!    where spout and handle meet the body), the mesh is made again without collapses, whose
-//!    vertices on their lattice edges cannot cross, at about twice the triangles
-//!    ([`Polygonized::simplified`] is then false).
+//!    collapse made it on the very positions it was judged on: the teapot of ../shared/data at
+//!    level 7 everywhere, where spout and handle meet the body; the six bunny scans of
+//!    `bun.conf`), the collapses are made again with the vertices within 3 rings of the
+//!    crossing triangles pinned, so the mesh there is the one without collapses, whose
+//!    vertices on their lattice edges cannot cross ([`Polygonized::pinned_vertices`]: 65 on
+//!    `bun.conf`); if a crossing survives that too, the whole mesh is made without collapses,
+//!    at about twice the triangles ([`Polygonized::simplified`] is then false).
 //!
 //! Determinism: the octree visits children in a fixed order and concatenates their results;
 //! leaves and edges are processed in fixed-size chunks collected in order; the simplification
@@ -217,6 +221,10 @@ pub struct Polygonized {
     /// for, or when a crossing survived the repair of the simplified mesh and the mesh without
     /// collapses was made instead (see the module docs, step 5).
     pub simplified: bool,
+    /// Vertices the collapses were made again without (step 5's local fallback: those around
+    /// a crossing that survived the repair of the simplified mesh); 0 when none was needed
+    /// or when the mesh without collapses was made instead.
+    pub pinned_vertices: usize,
     /// Largest |f|/|∇f| over the vertices, divided by the region's diagonal (0 for an empty
     /// mesh; infinite if a vertex sits where ∇f = 0 and f ≠ 0).
     pub max_projection_residual: f64,
@@ -300,34 +308,59 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
         &end_values,
         triangles,
         params.simplification,
+        &[],
         tolerance,
     );
     let mut spent_before = 0;
+    let mut pinned_vertices = 0;
     if done.crossings_left && simplified {
         // A crossing survived every fallback position: an edge collapse made it on the very
-        // positions it was judged on. The marching-tetrahedra mesh without collapses, its
-        // vertices on their lattice edges, is embedded by construction (each triangle lies in
-        // its own tetrahedron), so the repair of step 5 ends without crossings there (short of
-        // degenerate triangles, which `mesh::check` would still count).
+        // positions it was judged on. First the collapses are made again with the vertices
+        // around the crossing pinned (never removed, never moved onto: PIN_RINGS rings of the
+        // marching-tetrahedra mesh around the crossing triangles' vertices), so the mesh there
+        // stays the one without collapses, which is embedded by construction (each triangle
+        // lies in its own tetrahedron), and everywhere else keeps its collapses. Should a
+        // crossing survive that too, the whole mesh is made without collapses, whose repair
+        // of step 5 ends without crossings (short of degenerate triangles, which
+        // `mesh::check` would still count).
         // The extraction is deterministic, so it is run again here rather than its triangles
         // kept (a copy) on every run for this rare case.
         let (_, _, triangles, again) = extract::triangulate(function, &grid, &tree);
         spent_before = again + done.vertices.iter().map(|v| v.evaluations).sum::<u64>();
-        simplified = false;
+        let pinned = pin_around(&done.stuck, &triangles, edges.len(), PIN_RINGS);
+        pinned_vertices = pinned.iter().filter(|&&p| p).count();
+        let retry = triangles.clone();
         done = place_and_repair(
             function,
             &grid,
             &edges,
             &end_values,
             triangles,
-            Simplification::None,
+            Simplification::EdgeCollapse,
+            &pinned,
             tolerance,
         );
+        if done.crossings_left {
+            spent_before += done.vertices.iter().map(|v| v.evaluations).sum::<u64>();
+            simplified = false;
+            pinned_vertices = 0;
+            done = place_and_repair(
+                function,
+                &grid,
+                &edges,
+                &end_values,
+                retry,
+                Simplification::None,
+                &[],
+                tolerance,
+            );
+        }
     }
     let Repaired {
         vertices,
         mesh,
         crossings_left,
+        ..
     } = done;
     let max_residual = vertices.iter().map(|v| v.residual).fold(0.0, f64::max);
     Ok(Polygonized {
@@ -337,6 +370,7 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
             + spent_before
             + vertices.iter().map(|v| v.evaluations).sum::<u64>(),
         simplified,
+        pinned_vertices,
         cells: tree.leaves.len(),
         guard_splits: tree.guard_splits,
         max_level: tree.leaves.iter().map(|c| c.level).max().unwrap_or(0),
@@ -353,8 +387,51 @@ struct Repaired {
     /// Whether some triangle still crosses another with all its vertices at their last
     /// fallback position (when `false`, the exact test found no crossing in the final mesh).
     crossings_left: bool,
+    /// The vertices (as lattice-edge indices) of the triangles still crossing another, sorted;
+    /// empty when `crossings_left` is false.
+    stuck: Vec<u32>,
 }
 
+/// Rings of the marching-tetrahedra mesh around a surviving crossing whose vertices step 5's
+/// local fallback pins.
+const PIN_RINGS: usize = 3;
+
+/// The vertices (lattice-edge indices, of `n` in all) within `rings` edges of `seeds` in the
+/// marching-tetrahedra mesh `triangles`, as a mask.
+fn pin_around(seeds: &[u32], triangles: &[[u32; 3]], n: usize, rings: usize) -> Vec<bool> {
+    let mut pinned = vec![false; n];
+    let mut front: Vec<u32> = seeds.to_vec();
+    for &v in &front {
+        pinned[v as usize] = true;
+    }
+    for _ in 0..rings {
+        if front.is_empty() {
+            break;
+        }
+        let in_front = {
+            let mut mask = vec![false; n];
+            for &v in &front {
+                mask[v as usize] = true;
+            }
+            mask
+        };
+        let mut next = Vec::new();
+        for t in triangles {
+            if t.iter().any(|&v| in_front[v as usize]) {
+                for &v in t {
+                    if !pinned[v as usize] {
+                        pinned[v as usize] = true;
+                        next.push(v);
+                    }
+                }
+            }
+        }
+        front = next;
+    }
+    pinned
+}
+
+#[allow(clippy::too_many_arguments)]
 fn place_and_repair<F: ImplicitFunction + ?Sized>(
     function: &F,
     grid: &Grid,
@@ -362,6 +439,7 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
     end_values: &[[f64; 2]],
     triangles: Vec<[u32; 3]>,
     simplification: Simplification,
+    pinned: &[bool],
     tolerance: f64,
 ) -> Repaired {
     // The output vertices, their triangles, and each vertex's crossed lattice edge.
@@ -380,7 +458,7 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
                     let v = v as usize;
                     extract::place_vertex(function, grid, edges[v], end_values[v], tolerance)
                 };
-                let simplified = simplify::simplify(&positions, &sizes, triangles, &place);
+                let simplified = simplify::simplify(&positions, &sizes, triangles, pinned, &place);
                 let mut index = vec![u32::MAX; edges.len()];
                 let mut next = 0;
                 for (slot, &keep) in index.iter_mut().zip(&simplified.keep) {
@@ -470,11 +548,22 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
         );
     }
     // A stuck crossing may have been resolved by a neighbour's later move: one full test says.
-    let crossings_left =
-        stuck && crate::mesh::intersecting_triangles_among(&mesh, None).contains(&true);
+    let mut stuck_vertices = Vec::new();
+    if stuck {
+        let flags = crate::mesh::intersecting_triangles_among(&mesh, None);
+        stuck_vertices = flags
+            .iter()
+            .zip(&mesh.triangles)
+            .filter(|(&f, _)| f)
+            .flat_map(|(_, t)| t.map(|v| edge_of[v as usize]))
+            .collect();
+        stuck_vertices.sort_unstable();
+        stuck_vertices.dedup();
+    }
     Repaired {
         vertices,
         mesh,
-        crossings_left,
+        crossings_left: !stuck_vertices.is_empty(),
+        stuck: stuck_vertices,
     }
 }

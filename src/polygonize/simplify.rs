@@ -3,7 +3,8 @@
 //!
 //! Input: the marching-tetrahedra mesh as triangles over the crossed lattice edges, a position
 //! per vertex (the linear interpolation of the end values on its lattice edge, which costs no
-//! evaluation) and a local cell size per vertex. Output: which vertices survive, the
+//! evaluation), a local cell size per vertex and the vertices pinned (frozen: never removed,
+//! never moved onto, their triangles unchanged; step 5's local fallback). Output: which vertices survive, the
 //! surviving triangles (in the input's order, indices still the input's), and the caller's
 //! per-vertex work (vertex placement) on the survivors, run as soon as each is known to survive.
 //!
@@ -363,6 +364,7 @@ pub(crate) fn simplify<T, W>(
     positions: &[[f64; 3]],
     sizes: &[f64],
     triangles: Vec<[u32; 3]>,
+    pinned: &[bool],
     work: &W,
 ) -> Simplified<T>
 where
@@ -383,10 +385,15 @@ where
         .map(|&x| positions[x as usize])
         .collect();
     let local_sizes: Vec<f64> = old_index.par_iter().map(|&x| sizes[x as usize]).collect();
+    let local_pinned: Vec<bool> = old_index
+        .par_iter()
+        .map(|&x| pinned.get(x as usize).copied().unwrap_or(false))
+        .collect();
     let local = simplify_chunked(
         &local_positions,
         &local_sizes,
         local_triangles,
+        &local_pinned,
         &|v: u32| work(old_index[v as usize]),
     );
     // A vertex no triangle uses (none here: every vertex comes from a triangle) is kept as is.
@@ -476,6 +483,7 @@ fn simplify_chunked<T, W>(
     positions: &[[f64; 3]],
     sizes: &[f64],
     triangles: Vec<[u32; 3]>,
+    pinned: &[bool],
     work: &W,
 ) -> Chunked<T>
 where
@@ -525,6 +533,9 @@ where
             border[x as usize] = true;
         }
     }
+    // A pinned vertex is frozen everywhere: never removed, never moved onto, its star never
+    // changed.
+    let untouchable: Vec<bool> = border.iter().zip(pinned).map(|(&b, &p)| b || p).collect();
     let everyone = vec![true; CHUNK];
     let parts: Vec<ChunkPart<T>> = own
         .into_par_iter()
@@ -538,7 +549,7 @@ where
                 &positions[start..end],
                 &sizes[start..end],
                 local,
-                &border[start..end],
+                &untouchable[start..end],
                 &everyone[..end - start],
                 |v| v + offset,
             );
@@ -574,7 +585,7 @@ where
         .collect();
     let (triangles, border_results) = rayon::join(
         || {
-            let second = second_pass(positions, sizes, &merged, &border);
+            let second = second_pass(positions, sizes, &merged, &border, pinned);
             for (&v, &k) in second.vertices.iter().zip(&second.swept.keep) {
                 keep[v as usize] &= k;
             }
@@ -651,6 +662,7 @@ fn second_pass(
     sizes: &[f64],
     triangles: &[[u32; 3]],
     border: &[bool],
+    pinned: &[bool],
 ) -> SecondPass {
     let n_vertices = positions.len();
     let mut zone = vec![false; n_vertices];
@@ -683,8 +695,14 @@ fn second_pass(
         .collect();
     let local_positions: Vec<[f64; 3]> = vertices.iter().map(|&x| positions[x as usize]).collect();
     let local_sizes: Vec<f64> = vertices.iter().map(|&x| sizes[x as usize]).collect();
-    let frozen: Vec<bool> = vertices.iter().map(|&x| !zone[x as usize]).collect();
-    let candidate: Vec<bool> = vertices.iter().map(|&x| border[x as usize]).collect();
+    let frozen: Vec<bool> = vertices
+        .iter()
+        .map(|&x| !zone[x as usize] || pinned[x as usize])
+        .collect();
+    let candidate: Vec<bool> = vertices
+        .iter()
+        .map(|&x| border[x as usize] && !pinned[x as usize])
+        .collect();
     let swept = simplify_local(
         &local_positions,
         &local_sizes,
