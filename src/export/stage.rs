@@ -419,14 +419,19 @@ pub fn export_mesh(
     let data_diagonal = Aabb::from_points(points).map_or(0.0, |b| b.diagonal());
     // One index of the data points for every nearest-point query below.
     let data = measure::PointIndex::new(points);
+    let input_mesh = mesh;
     let mut mesh = Cow::Borrowed(mesh);
     let (mut dropped_components, mut dropped_nested) = (0, 0);
+    // The input vertices' distances to the data, when the component filter measured them: the
+    // PLY's vertex quality reuses them if the vertices written are those same vertices.
+    let mut input_distances = None;
     if params.keep == Keep::Data {
         let distances = data.as_ref().map_or_else(
             || vec![f64::INFINITY; mesh.positions.len()],
             |index| index.distances(&mesh.positions),
         );
         let (kept, n) = mesh::drop_components_by_distance(&mesh, &distances, 0.02 * data_diagonal);
+        input_distances = data.is_some().then_some(distances);
         (mesh, dropped_components) = (Cow::Owned(kept), n);
         let (kept, n) = mesh::drop_small_nested_components(&mesh, NESTED_AREA_FRACTION);
         (mesh, dropped_nested) = (Cow::Owned(kept), n);
@@ -498,11 +503,15 @@ pub fn export_mesh(
                 "no finite input point to measure vertex quality against".into(),
             )
         })?;
-        let quality: Vec<f32> = index
-            .distances(&m.positions)
-            .into_iter()
-            .map(|d| d as f32)
-            .collect();
+        let quality: Vec<f32> = match &input_distances {
+            // The same queries against the same index: the same distances.
+            Some(d) if m.positions == input_mesh.positions => d.iter().map(|&d| d as f32).collect(),
+            _ => index
+                .distances(&m.positions)
+                .into_iter()
+                .map(|d| d as f32)
+                .collect(),
+        };
         let opts = MeshFileOptions {
             ply: ply::PlyOptions {
                 quality: Some(&quality),

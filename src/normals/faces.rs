@@ -365,11 +365,22 @@ pub fn input_normals(
 ) -> (Vec<[f64; 3]>, Vec<String>) {
     let mut warnings = Vec::new();
     let n = points.len();
-    let mut normals: Vec<Option<[f64; 3]>> = given
+    // One pass: the unit normals, and the points whose given normal is unusable (their slot
+    // holds +z until the plane fits below replace it).
+    let mut bad: Vec<usize> = Vec::new();
+    let mut normals: Vec<[f64; 3]> = given
         .iter()
-        .map(|g| normalized(g).filter(|_| g.iter().all(|c| c.is_finite())))
+        .enumerate()
+        .map(
+            |(i, g)| match normalized(g).filter(|_| g.iter().all(|c| c.is_finite())) {
+                Some(u) => u,
+                None => {
+                    bad.push(i);
+                    [0.0, 0.0, 1.0]
+                }
+            },
+        )
         .collect();
-    let bad: Vec<usize> = (0..n).filter(|&i| normals[i].is_none()).collect();
     // An index of all points only when plane fits need their neighbours.
     let index = if bad.is_empty() {
         None
@@ -385,12 +396,8 @@ pub fn input_normals(
         .map(|&i| pca::plane_normal(points, i, &neighbours(i)))
         .collect();
     for (&i, f) in bad.iter().zip(fits) {
-        normals[i] = Some(f);
+        normals[i] = f;
     }
-    let mut normals: Vec<[f64; 3]> = normals
-        .into_iter()
-        .map(|x| x.unwrap_or([0.0, 0.0, 1.0]))
-        .collect();
     let n_bad = bad.len();
     if n_bad > 0 {
         warnings.push(format!(

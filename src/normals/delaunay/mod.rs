@@ -59,8 +59,6 @@
 //! cavity and cone), [`union`] (faces among a first batch of points, and across
 //! triangulations).
 
-use rayon::prelude::*;
-
 use crate::normals::NormalsError;
 use crate::numerics::predicates::orient3d;
 
@@ -119,7 +117,7 @@ pub(crate) fn check_spans_3d(points: &[[f64; 3]]) -> Result<(), NormalsError> {
     if let Some(index) = points.iter().position(|p| p.iter().any(|c| !c.is_finite())) {
         return Err(NormalsError::NonFinitePoint { index });
     }
-    let distinct = count_distinct(points);
+    let distinct = count_distinct(points, 5);
     if distinct < 5 {
         return Err(NormalsError::TooFewPoints {
             n_points: distinct,
@@ -157,14 +155,23 @@ pub(crate) fn check_spans_3d(points: &[[f64; 3]]) -> Result<(), NormalsError> {
     Ok(())
 }
 
-fn count_distinct(points: &[[f64; 3]]) -> usize {
-    let mut keys: Vec<[u64; 3]> = points
-        .par_iter()
-        .map(|p| p.map(|c| (c + 0.0).to_bits()))
-        .collect();
-    keys.par_sort_unstable();
-    keys.dedup();
-    keys.len()
+/// How many distinct points `points` holds, counting up to `most`: the scan stops at the
+/// `most`-th distinct point (a cloud's first few points almost always differ), so a large cloud
+/// costs a few comparisons rather than a sort (3M points: 0.15 CPU-s before).
+fn count_distinct(points: &[[f64; 3]], most: usize) -> usize {
+    // `+ 0.0` turns -0.0 into 0.0 so that both compare equal, as they do as numbers.
+    let key = |p: &[f64; 3]| p.map(|c| (c + 0.0).to_bits());
+    let mut seen: Vec<[u64; 3]> = Vec::with_capacity(most);
+    for p in points {
+        if seen.len() >= most {
+            break;
+        }
+        let k = key(p);
+        if !seen.contains(&k) {
+            seen.push(k);
+        }
+    }
+    seen.len()
 }
 
 /// Builds the Delaunay tetrahedralization of `points`.
