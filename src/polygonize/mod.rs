@@ -26,7 +26,12 @@
 //!    on the gradient enclosure fails (the topology guard). Only cells near the zero set survive,
 //!    so the work grows about 4× per level, not 8×. A level-`depth` cell is a cube whose side is
 //!    the region's longest side / 2^depth, shrunk by less than 2× along a shorter axis so that
-//!    the cells end exactly on the region's faces.
+//!    the cells end exactly on the region's faces. With data points
+//!    ([`polygonize_with_data`], [`PolygonizeParams::data_levels`] > 0), only the cells that
+//!    hold a data point are split down to `depth`; the others stay leaves up to `data_levels`
+//!    levels above it, so the mesh is as fine as before where the data is and coarser between
+//!    far-apart points (detail mode on ../shared/data: quadknot 177,522 → 106,218 triangles,
+//!    duck 136,470 → 118,364, the dense bunny unchanged; Chamfer within 0.5%).
 //! 2. **Extraction** (`extract`): marching tetrahedra over a tetrahedralization of the surface
 //!    leaves that conforms across levels (Kuhn tetrahedra in regular leaves, a cone from the
 //!    centre over a shared face tiling in leaves next to finer ones). It yields a watertight
