@@ -766,11 +766,8 @@ fn dot4(x: &[f64; BLOCK], ys: [&[f64; BLOCK]; 4]) -> [f64; 4] {
 mod tests {
     use super::*;
 
-    #[test]
-    fn portable_and_fma_kernels_agree() {
-        let n = 4;
-        let gram_layout = TensorLayout::new(2 * n);
-        let rhs_layout = TensorLayout::new(n);
+    /// A block of `len` rows for degree `n`: row t at `row(t)` = (x, y, z, w), powers filled.
+    fn test_block(n: usize, len: usize, row: impl Fn(usize) -> [f64; 4]) -> BlockScratch {
         let mut s = BlockScratch {
             px: vec![[0.0; BLOCK]; 2 * n + 1],
             py: vec![[0.0; BLOCK]; 2 * n + 1],
@@ -779,27 +776,40 @@ mod tests {
             xs: [0.0; BLOCK],
             ys: [0.0; BLOCK],
             zs: [0.0; BLOCK],
-            len: 50,
+            len,
         };
-        for t in 0..50 {
-            let u = t as f64 * 0.37;
-            s.xs[t] = u.sin();
-            s.ys[t] = (1.7 * u).cos();
-            s.zs[t] = (0.3 * u).sin() * 1.4;
-            s.w[t] = if t % 3 == 1 { 0.05 } else { -0.05 };
+        for t in 0..len {
+            [s.xs[t], s.ys[t], s.zs[t], s.w[t]] = row(t);
         }
         fill_powers(&mut s, 2 * n);
-        let new_partial = || Partial {
+        s
+    }
+
+    /// Zero moments and right-hand side for degree `n`, with their layouts.
+    fn zero_partial(n: usize) -> (TensorLayout, TensorLayout, Partial) {
+        let (gram_layout, rhs_layout) = (TensorLayout::new(2 * n), TensorLayout::new(n));
+        let partial = Partial {
             moments: vec![0.0; gram_layout.len],
             rhs: vec![0.0; rhs_layout.len],
             beta: vec![],
         };
-        let mut portable = new_partial();
+        (gram_layout, rhs_layout, partial)
+    }
+
+    #[test]
+    fn portable_and_fma_kernels_agree() {
+        let n = 4;
+        let s = test_block(n, 50, |t| {
+            let u = t as f64 * 0.37;
+            let w = if t % 3 == 1 { 0.05 } else { -0.05 };
+            [u.sin(), (1.7 * u).cos(), (0.3 * u).sin() * 1.4, w]
+        });
+        let (gram_layout, rhs_layout, mut portable) = zero_partial(n);
         accumulate_block::<PortableDots>(&s, n, &gram_layout, &rhs_layout, &mut portable);
         if !fma_available() {
             return;
         }
-        let mut fused = new_partial();
+        let mut fused = zero_partial(n).2;
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the CPU reports AVX2 and FMA.
         unsafe {
@@ -818,29 +828,17 @@ mod tests {
             // The AVX-512 kernel gives the FMA kernel's sums bit for bit, at the fit's degree
             // and at this one.
             for n in [n, 8] {
-                let gram_layout = TensorLayout::new(2 * n);
-                let rhs_layout = TensorLayout::new(n);
-                let mut s = BlockScratch {
-                    px: vec![[0.0; BLOCK]; 2 * n + 1],
-                    py: vec![[0.0; BLOCK]; 2 * n + 1],
-                    pz: vec![[0.0; BLOCK]; 2 * n + Z_PADDING],
-                    len: 61,
-                    ..s
-                };
-                for t in 0..61 {
+                let s = test_block(n, 61, |t| {
                     let u = t as f64 * 0.53;
-                    s.xs[t] = 1.3 * u.cos();
-                    s.ys[t] = (0.9 * u).sin() - 0.2;
-                    s.zs[t] = (1.1 * u).cos() * 0.8;
-                    s.w[t] = [0.0, 0.05, -0.05][t % 3];
-                }
-                fill_powers(&mut s, 2 * n);
-                let new_partial = || Partial {
-                    moments: vec![0.0; gram_layout.len],
-                    rhs: vec![0.0; rhs_layout.len],
-                    beta: vec![],
-                };
-                let (mut fused, mut wide) = (new_partial(), new_partial());
+                    [
+                        1.3 * u.cos(),
+                        (0.9 * u).sin() - 0.2,
+                        (1.1 * u).cos() * 0.8,
+                        [0.0, 0.05, -0.05][t % 3],
+                    ]
+                });
+                let (gram_layout, rhs_layout, mut fused) = zero_partial(n);
+                let mut wide = zero_partial(n).2;
                 // SAFETY: the CPU reports AVX2, FMA and AVX-512F.
                 unsafe {
                     accumulate_block_fma(&s, n, &gram_layout, &rhs_layout, &mut fused);
