@@ -45,6 +45,7 @@ use crate::cloud::Aabb;
 use crate::implicit::ImplicitFunction;
 use crate::measure::{closest_point_on_triangle, dist2, GridMeshDistance};
 use crate::mesh::TriangleMesh;
+use crate::vec3::{cross, dot, norm, sub};
 
 /// Half-width of the narrow band in voxels: voxels nearer the surface than this are active.
 pub const BAND_VOXELS: f64 = 3.0;
@@ -394,15 +395,6 @@ pub fn narrow_band<F: ImplicitFunction + ?Sized>(
 fn mesh_side(mesh: &TriangleMesh, ti: u32, q: [f64; 3], p: [f64; 3]) -> Option<bool> {
     let t = mesh.triangles[ti as usize];
     let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-    let sub = |u: [f64; 3], v: [f64; 3]| [u[0] - v[0], u[1] - v[1], u[2] - v[2]];
-    let dot = |u: [f64; 3], v: [f64; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
-    let cross = |u: [f64; 3], v: [f64; 3]| {
-        [
-            u[1] * v[2] - u[2] * v[1],
-            u[2] * v[0] - u[0] * v[2],
-            u[0] * v[1] - u[1] * v[0],
-        ]
-    };
     let face = cross(sub(b, a), sub(c, a));
     let area2 = dot(face, face);
     let normal = if mesh.normals.len() == mesh.positions.len() && area2 > 0.0 {
@@ -419,7 +411,7 @@ fn mesh_side(mesh: &TriangleMesh, ti: u32, q: [f64; 3], p: [f64; 3]) -> Option<b
     };
     let offset = sub(p, q);
     let side = dot(offset, normal);
-    let scale = dot(offset, offset).sqrt() * dot(normal, normal).sqrt();
+    let scale = norm(offset) * norm(normal);
     (side.abs() > 1e-9 * scale).then_some(side < 0.0)
 }
 
