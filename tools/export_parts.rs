@@ -196,7 +196,7 @@ fn main() {
     });
     time("model.json", repeats, || {
         let mut b = Vec::new();
-        export::model::write_model(&model, &mut b).expect("model");
+        stablesurf::model::json::write_model(&model, &mut b).expect("model");
         b
     });
     time("glb", repeats, || {

@@ -81,7 +81,7 @@ fn print_quality(mesh: &TriangleMesh) {
 
 fn model_file(path: &str, depth: u32, simplification: Simplification) {
     let bytes = std::fs::read(path).unwrap_or_else(|e| fail(format!("reading {path}: {e}")));
-    let model = stablesurf::export::model::read_model(&bytes, Path::new(path))
+    let model = stablesurf::model::json::read_model(&bytes, Path::new(path))
         .unwrap_or_else(|e| fail(e.to_string()));
     let region = model
         .bounds

@@ -26,7 +26,7 @@ pub fn info(args: InfoArgs) -> Result<()> {
         export::npy::read_info(&bytes).with_context(|| named("NumPy .npy"))?
     } else if bytes.starts_with(b"SSMOMENT") {
         moments_info(&bytes).with_context(|| named("a moments file"))?
-    } else if looks_like_json || export::mpu::is_mpu(&bytes) {
+    } else if looks_like_json || stablesurf::model::mpu::is_mpu(&bytes) {
         match Model::from_bytes(&bytes, &args.file)? {
             Model::Detail(model) => serde_json::json!({
                 "format": "stablesurf.mpu",

@@ -9,9 +9,9 @@
 //! - [`ply`]: PLY with normals and a per-vertex `quality` for MeshLab;
 //! - [`exr`]: one float32 OpenEXR image per distance slice, with its geometry in the header;
 //! - [`png`]: a colour preview of a distance slice with the zero contour drawn;
-//! - [`model`]: `model.json`, the polynomial and its fit record, and its reader;
-//! - [`mpu`]: `model.mpu`, the detail model, and its reader (they live with the model, in
-//!   [`crate::model::mpu`]; `export` writes the file through [`Model::file`](crate::model::Model::file));
+//! - `model.json` and `model.mpu`, the polynomial and the detail model, are written by
+//!   [`Model::file`](crate::model::Model::file): their formats live with the model, in
+//!   [`crate::model::json`] and [`crate::model::mpu`];
 //! - [`vdb`]: `volume.vdb`, the narrow-band signed-distance level set for OpenVDB and Blender;
 //! - [`npy`]: `volume.npy` and `volume.json`, the dense signed-distance grid for NumPy;
 //! - [`units`]: the input's length unit (`--units`), which glTF is scaled by and the others
@@ -25,16 +25,12 @@
 
 pub mod exr;
 pub mod gltf;
-pub mod model;
 pub mod npy;
 pub mod ply;
 pub mod png;
 mod stage;
 pub mod units;
 pub mod vdb;
-
-/// The `model.mpu` file of the detail model, which lives with the model: [`crate::model::mpu`].
-pub use crate::model::mpu;
 
 pub use stage::{
     export, export_mesh, model_slices, slices_from_model, ExportOutput, ExportParams, Keep,
@@ -110,18 +106,9 @@ pub enum ExportError {
         /// The format's limit.
         limit: u64,
     },
-    /// A model file could not be read: bad JSON, a missing field, or values that do not
-    /// describe a polynomial (wrong coefficient count, non-finite numbers, scale ≤ 0).
-    #[error("cannot read model {path}: {reason}")]
-    Model {
-        /// The file.
-        path: String,
-        /// What is wrong and what to change.
-        reason: String,
-    },
-    /// A model cannot be written as JSON (a non-finite number, which JSON cannot hold).
-    #[error("cannot write model: {0}")]
-    ModelValue(String),
+    /// A model file could not be written (see [`crate::model::ModelError`]).
+    #[error(transparent)]
+    Model(#[from] crate::model::ModelError),
     /// A distance slice cannot be written (its data does not match its resolution).
     #[error("slice cannot be exported: {0}")]
     InvalidSlice(String),

@@ -6,9 +6,11 @@
 //! Output: a [`Model`], which gives the function to mesh, the region to mesh it in, its file and
 //! its report.
 //!
-//! The detail model's file format, `model.mpu`, is here too ([`mpu`]): the cache stores the model in
-//! it and `export` writes it, so neither reaches into the other.
+//! The model files are here too: `model.json`, the polynomial ([`json`]), and `model.mpu`, the
+//! detail model ([`mpu`]). The cache stores the models in them, `export` writes them and the CLI
+//! reads them, so none of those reaches into another.
 
+pub mod json;
 pub mod mpu;
 
 use std::path::Path;
@@ -17,9 +19,32 @@ use serde::Serialize;
 
 use crate::cloud::Aabb;
 use crate::detail::MpuModel;
-use crate::export::{self, ExportError};
 use crate::implicit::ImplicitFunction;
 use crate::poly::ImplicitModel;
+
+/// Why a model file cannot be read or written.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    /// A `model.json` could not be read: bad JSON, a missing field, or values that do not
+    /// describe a polynomial (wrong coefficient count, non-finite numbers, scale ≤ 0).
+    #[error("cannot read model {path}: {reason}")]
+    Read {
+        /// The file.
+        path: String,
+        /// What is wrong and what to change.
+        reason: String,
+    },
+    /// A model cannot be written as JSON (a non-finite number, which JSON cannot hold).
+    #[error("cannot write model: {0}")]
+    Value(String),
+    /// A `model.mpu` is not a valid detail model (the message names the file, the fault and its
+    /// byte offset), or its diagnostics cannot be encoded.
+    #[error("{0}")]
+    Format(String),
+    /// The output stream failed (the caller knows which file it was).
+    #[error("write failed: {0}")]
+    Write(#[source] std::io::Error),
+}
 
 /// Which model the pipeline fits.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
@@ -53,7 +78,7 @@ impl Model {
     /// magic, else `model.json` (global). `path` names the file in errors.
     ///
     /// # Errors
-    /// [`ExportError`] when the bytes are not a valid model file of the kind they look like.
+    /// [`ModelError`] when the bytes are not a valid model file of the kind they look like.
     ///
     /// ```
     /// use std::path::Path;
@@ -61,11 +86,11 @@ impl Model {
     /// let err = Model::from_bytes(b"{}", Path::new("m.json")).unwrap_err();
     /// assert!(err.to_string().contains("m.json"));
     /// ```
-    pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Model, ExportError> {
+    pub fn from_bytes(bytes: &[u8], path: &Path) -> Result<Model, ModelError> {
         Ok(if mpu::is_mpu(bytes) {
             Model::Detail(mpu::read_mpu(bytes, path)?)
         } else {
-            Model::Global(export::model::read_model(bytes, path)?)
+            Model::Global(json::read_model(bytes, path)?)
         })
     }
 
@@ -101,12 +126,12 @@ impl Model {
     /// The model file's name and bytes: `model.json` (global) or `model.mpu` (detail).
     ///
     /// # Errors
-    /// [`ExportError`] from the writer.
-    pub fn file(&self) -> Result<(&'static str, Vec<u8>), ExportError> {
+    /// [`ModelError`] from the writer.
+    pub fn file(&self) -> Result<(&'static str, Vec<u8>), ModelError> {
         let mut bytes = Vec::new();
         match self {
             Model::Global(m) => {
-                export::model::write_model(m, &mut bytes)?;
+                json::write_model(m, &mut bytes)?;
                 Ok(("model.json", bytes))
             }
             Model::Detail(m) => {

@@ -26,9 +26,9 @@
 use std::io::Write;
 use std::path::Path;
 
+use super::ModelError;
 use crate::cloud::Aabb;
 use crate::detail::{DetailDiagnostics, MpuCell, MpuModel};
-use crate::export::ExportError;
 use crate::poly::{n_coefficients, ImplicitPolynomial};
 
 /// The file's first 16 bytes.
@@ -53,8 +53,8 @@ pub fn is_mpu(bytes: &[u8]) -> bool {
 /// Writes `model` in the `stablesurf.mpu` format.
 ///
 /// # Errors
-/// [`ExportError::Write`] when the stream fails.
-pub fn write_mpu(model: &MpuModel, out: &mut impl Write) -> Result<(), ExportError> {
+/// [`ModelError::Write`] when the stream fails.
+pub fn write_mpu(model: &MpuModel, out: &mut impl Write) -> Result<(), ModelError> {
     let mut buf: Vec<u8> = Vec::with_capacity(64 + model.cells.len() * 160);
     buf.extend_from_slice(MAGIC);
     buf.extend_from_slice(&VERSION.to_le_bytes());
@@ -83,10 +83,10 @@ pub fn write_mpu(model: &MpuModel, out: &mut impl Write) -> Result<(), ExportErr
         }
     }
     let diagnostics = serde_json::to_vec(&model.diagnostics)
-        .map_err(|e| ExportError::Format(format!("cannot encode the diagnostics: {e}")))?;
+        .map_err(|e| ModelError::Format(format!("cannot encode the diagnostics: {e}")))?;
     buf.extend_from_slice(&(diagnostics.len() as u64).to_le_bytes());
     buf.extend_from_slice(&diagnostics);
-    out.write_all(&buf).map_err(ExportError::Write)
+    out.write_all(&buf).map_err(ModelError::Write)
 }
 
 /// A cursor over the file's bytes that reports truncation with the path.
@@ -97,15 +97,15 @@ struct Reader<'a> {
 }
 
 impl Reader<'_> {
-    fn bad(&self, what: &str) -> ExportError {
-        ExportError::Format(format!(
+    fn bad(&self, what: &str) -> ModelError {
+        ModelError::Format(format!(
             "{} is not a valid stablesurf.mpu file: {what} (at byte {}); rewrite it with `stablesurf fit --mode detail`",
             self.path.display(),
             self.at
         ))
     }
 
-    fn take(&mut self, n: usize) -> Result<&[u8], ExportError> {
+    fn take(&mut self, n: usize) -> Result<&[u8], ModelError> {
         let end = self.at.checked_add(n).filter(|&e| e <= self.bytes.len());
         match end {
             Some(end) => {
@@ -117,14 +117,14 @@ impl Reader<'_> {
         }
     }
 
-    fn array<const N: usize>(&mut self) -> Result<[u8; N], ExportError> {
+    fn array<const N: usize>(&mut self) -> Result<[u8; N], ModelError> {
         let s = self.take(N)?;
         let mut a = [0u8; N];
         a.copy_from_slice(s);
         Ok(a)
     }
 
-    fn f64(&mut self) -> Result<f64, ExportError> {
+    fn f64(&mut self) -> Result<f64, ModelError> {
         let v = f64::from_le_bytes(self.array()?);
         if v.is_finite() {
             Ok(v)
@@ -133,19 +133,19 @@ impl Reader<'_> {
         }
     }
 
-    fn u32(&mut self) -> Result<u32, ExportError> {
+    fn u32(&mut self) -> Result<u32, ModelError> {
         Ok(u32::from_le_bytes(self.array()?))
     }
 
-    fn u64(&mut self) -> Result<u64, ExportError> {
+    fn u64(&mut self) -> Result<u64, ModelError> {
         Ok(u64::from_le_bytes(self.array()?))
     }
 
-    fn point(&mut self) -> Result<[f64; 3], ExportError> {
+    fn point(&mut self) -> Result<[f64; 3], ModelError> {
         Ok([self.f64()?, self.f64()?, self.f64()?])
     }
 
-    fn aabb(&mut self) -> Result<Aabb, ExportError> {
+    fn aabb(&mut self) -> Result<Aabb, ModelError> {
         let min = self.point()?;
         let max = self.point()?;
         if (0..3).any(|a| min[a] > max[a]) {
@@ -158,7 +158,7 @@ impl Reader<'_> {
 /// Reads a `stablesurf.mpu` file; `path` only names the file in errors.
 ///
 /// # Errors
-/// [`ExportError::Format`] naming the file and the fault: wrong magic (not an .mpu file), an
+/// [`ModelError::Format`] naming the file and the fault: wrong magic (not an .mpu file), an
 /// unsupported version, truncation, trailing bytes, a non-finite number, a radius or scale
 /// ≤ 0, a degree above 4, or unreadable diagnostics.
 ///
@@ -168,7 +168,7 @@ impl Reader<'_> {
 /// let err = read_mpu(b"stablesurf.mpu\0\0\x09\0\0\0", Path::new("m.mpu")).unwrap_err();
 /// assert!(err.to_string().contains("version 9"));
 /// ```
-pub fn read_mpu(bytes: &[u8], path: &Path) -> Result<MpuModel, ExportError> {
+pub fn read_mpu(bytes: &[u8], path: &Path) -> Result<MpuModel, ModelError> {
     let mut r = Reader { bytes, at: 0, path };
     if !is_mpu(bytes) {
         return Err(r.bad("it does not start with the stablesurf.mpu magic"));
@@ -176,7 +176,7 @@ pub fn read_mpu(bytes: &[u8], path: &Path) -> Result<MpuModel, ExportError> {
     r.at = MAGIC.len();
     let version = r.u32()?;
     if version != VERSION {
-        return Err(ExportError::Format(format!(
+        return Err(ModelError::Format(format!(
             "{} is a stablesurf.mpu file of version {version}, this build reads version {VERSION}; refit the model with this build",
             path.display()
         )));
@@ -232,7 +232,7 @@ pub fn read_mpu(bytes: &[u8], path: &Path) -> Result<MpuModel, ExportError> {
     let len = r.u64()?;
     let json = r.take(usize::try_from(len).unwrap_or(usize::MAX))?;
     let diagnostics: DetailDiagnostics = serde_json::from_slice(json).map_err(|e| {
-        ExportError::Format(format!(
+        ModelError::Format(format!(
             "{} is not a valid stablesurf.mpu file: unreadable diagnostics ({e})",
             path.display()
         ))

@@ -25,11 +25,11 @@ use stablesurf::export::exr::{write_slice, ExrOptions};
 use stablesurf::export::gltf::{
     write_glb, write_glb_coloured, write_gltf_coloured, GltfOptions, UpAxis,
 };
-use stablesurf::export::model::{read_model, write_model};
 use stablesurf::export::ply::{self, nearest_point_distances, PlyEncoding, PlyOptions};
 use stablesurf::export::png::write_preview;
 use stablesurf::export::units::LengthUnit;
 use stablesurf::export::{write_atomic, ExportError};
+use stablesurf::model::json::{read_model, write_model};
 use stablesurf::{ImplicitModel, ImplicitPolynomial, TriangleMesh};
 
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
@@ -495,7 +495,7 @@ fn model_file_round_trips_through_disk() {
         diagnostics: None,
     };
     let path = dir.path().join("model.json");
-    write_file(&path, |w| write_model(&model, w));
+    write_file(&path, |w| Ok(write_model(&model, w)?));
     let bytes = std::fs::read(&path).unwrap();
     assert_eq!(read_model(&bytes, &path).unwrap(), model);
     let text = String::from_utf8(bytes).unwrap();

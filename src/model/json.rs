@@ -1,4 +1,4 @@
-//! Export stage, model file: [`ImplicitModel`] ↔ `model.json`.
+//! The global model's file: [`ImplicitModel`] ↔ `model.json`.
 //!
 //! Input: a fitted or hand-written model. Output: the JSON document of DESIGN.md,
 //!
@@ -32,8 +32,8 @@ use std::path::Path;
 
 use serde::Serialize;
 
+use super::ModelError;
 use crate::cloud::Aabb;
-use crate::export::ExportError;
 use crate::poly::{n_coefficients, FitDiagnostics, FitRecord, ImplicitModel, ImplicitPolynomial};
 
 /// The value of the `format` field.
@@ -91,11 +91,11 @@ struct ModelFile {
 /// ```
 ///
 /// # Errors
-/// [`ExportError::ModelValue`] when the model holds a non-finite number or an inconsistent
+/// [`ModelError::Value`] when the model holds a non-finite number or an inconsistent
 /// coefficient count (JSON cannot hold NaN or infinity, so such a model would not read back);
-/// [`ExportError::Write`] when `out` fails.
-pub fn write_model(model: &ImplicitModel, out: &mut impl Write) -> Result<(), ExportError> {
-    check_polynomial(&model.polynomial, model.bounds.as_ref()).map_err(ExportError::ModelValue)?;
+/// [`ModelError::Write`] when `out` fails.
+pub fn write_model(model: &ImplicitModel, out: &mut impl Write) -> Result<(), ModelError> {
+    check_polynomial(&model.polynomial, model.bounds.as_ref()).map_err(ModelError::Value)?;
     let p = &model.polynomial;
     let file = ModelFile {
         format: MODEL_FORMAT.into(),
@@ -112,21 +112,21 @@ pub fn write_model(model: &ImplicitModel, out: &mut impl Write) -> Result<(), Ex
         diagnostics: model.diagnostics.clone(),
     };
     let mut bytes = serde_json::to_vec_pretty(&file)
-        .map_err(|e| ExportError::ModelValue(format!("cannot serialize: {e}")))?;
+        .map_err(|e| ModelError::Value(format!("cannot serialize: {e}")))?;
     bytes.push(b'\n');
     // serde_json writes NaN and infinity as `null`, which would not read back: refuse to write a
     // model that does not survive its own round trip rather than write a file that fails later.
     match read_model(&bytes, Path::new("model.json")) {
         Ok(back) if back == *model => {}
         _ => {
-            return Err(ExportError::ModelValue(
+            return Err(ModelError::Value(
                 "the fit record or diagnostics hold a non-finite number (NaN or infinity), \
                  which JSON cannot store; make the fit report finite values"
                     .into(),
             ))
         }
     }
-    out.write_all(&bytes).map_err(ExportError::Write)
+    out.write_all(&bytes).map_err(ModelError::Write)
 }
 
 /// Reads a model from the bytes of `model.json`; `path` only names the file in errors.
@@ -147,12 +147,12 @@ pub fn write_model(model: &ImplicitModel, out: &mut impl Write) -> Result<(), Ex
 /// ```
 ///
 /// # Errors
-/// [`ExportError::Model`], naming `path`, when the bytes are not JSON, a required field is
+/// [`ModelError::Read`], naming `path`, when the bytes are not JSON, a required field is
 /// missing, `format` or `version` is not this build's, the degree exceeds [`MAX_DEGREE`], the
 /// coefficient count is not (n+1)(n+2)(n+3)/6, a number is not finite, or the scale is not
 /// positive.
-pub fn read_model(bytes: &[u8], path: &Path) -> Result<ImplicitModel, ExportError> {
-    let fail = |reason: String| ExportError::Model {
+pub fn read_model(bytes: &[u8], path: &Path) -> Result<ImplicitModel, ModelError> {
+    let fail = |reason: String| ModelError::Read {
         path: path.display().to_string(),
         reason,
     };
@@ -507,7 +507,7 @@ mod tests {
         m.polynomial.coefficients[3] = f64::NAN;
         assert!(matches!(
             write_model(&m, &mut Vec::new()),
-            Err(ExportError::ModelValue(_))
+            Err(ModelError::Value(_))
         ));
         let mut m = sample_model();
         if let Some(d) = m.diagnostics.as_mut() {
@@ -516,7 +516,7 @@ mod tests {
         let mut out = Vec::new();
         assert!(matches!(
             write_model(&m, &mut out),
-            Err(ExportError::ModelValue(_))
+            Err(ModelError::Value(_))
         ));
         assert!(out.is_empty());
     }
