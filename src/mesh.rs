@@ -979,6 +979,11 @@ mod tests {
         }
     }
 
+    /// The self-intersecting faces of the mesh of `triangles` over `positions`.
+    fn crossings(positions: &[[f64; 3]], triangles: &[[u32; 3]]) -> usize {
+        self_intersecting_faces(&mesh(positions.to_vec(), triangles.to_vec()))
+    }
+
     fn sphere(center: [f64; 3], radius: f64, rings: u32, sectors: u32) -> TriangleMesh {
         lat_long_sphere(center, radius, rings, sectors)
     }
@@ -1128,24 +1133,12 @@ mod tests {
             [0.5, 1.0, 0.5],
         ];
         // Folded back onto each other in one plane.
-        assert_eq!(
-            self_intersecting_faces(&mesh(p.clone(), vec![[0, 1, 2], [1, 0, 3]])),
-            2
-        );
+        assert_eq!(crossings(&p, &[[0, 1, 2], [1, 0, 3]]), 2);
         // Flat, opposite sides: fine; bent along the edge: fine.
-        assert_eq!(
-            self_intersecting_faces(&mesh(p.clone(), vec![[0, 1, 2], [1, 0, 4]])),
-            0
-        );
-        assert_eq!(
-            self_intersecting_faces(&mesh(p.clone(), vec![[0, 1, 2], [1, 0, 5]])),
-            0
-        );
+        assert_eq!(crossings(&p, &[[0, 1, 2], [1, 0, 4]]), 0);
+        assert_eq!(crossings(&p, &[[0, 1, 2], [1, 0, 5]]), 0);
         // A duplicated face.
-        assert_eq!(
-            self_intersecting_faces(&mesh(p, vec![[0, 1, 2], [2, 1, 0]])),
-            2
-        );
+        assert_eq!(crossings(&p, &[[0, 1, 2], [2, 1, 0]]), 2);
     }
 
     #[test]
@@ -1162,20 +1155,11 @@ mod tests {
             [0.2, 0.5, 0.0],
         ];
         // Touching only at the shared vertex (other triangle away, or standing on it).
-        assert_eq!(
-            self_intersecting_faces(&mesh(p.clone(), vec![[0, 1, 2], [0, 3, 4]])),
-            0
-        );
+        assert_eq!(crossings(&p, &[[0, 1, 2], [0, 3, 4]]), 0);
         // Piercing through the first triangle from the shared corner.
-        assert_eq!(
-            self_intersecting_faces(&mesh(p.clone(), vec![[0, 1, 2], [0, 5, 6]])),
-            2
-        );
+        assert_eq!(crossings(&p, &[[0, 1, 2], [0, 5, 6]]), 2);
         // Coplanar, overlapping inside the corner.
-        assert_eq!(
-            self_intersecting_faces(&mesh(p.clone(), vec![[0, 1, 2], [0, 7, 8]])),
-            2
-        );
+        assert_eq!(crossings(&p, &[[0, 1, 2], [0, 7, 8]]), 2);
         // Coplanar, only the corner point in common.
         let q = vec![
             [0.0, 0.0, 0.0],
@@ -1184,18 +1168,12 @@ mod tests {
             [-1.0, 0.0, 0.0],
             [0.0, -1.0, 0.0],
         ];
-        assert_eq!(
-            self_intersecting_faces(&mesh(q.clone(), vec![[0, 1, 2], [0, 3, 4]])),
-            0
-        );
+        assert_eq!(crossings(&q, &[[0, 1, 2], [0, 3, 4]]), 0);
         // Coplanar, sharing a direction along an edge: overlap along a segment counts.
         let mut r = q;
         r[3] = [0.5, 0.0, 0.0];
         r[4] = [0.5, -1.0, 0.0];
-        assert_eq!(
-            self_intersecting_faces(&mesh(r, vec![[0, 1, 2], [0, 3, 4]])),
-            2
-        );
+        assert_eq!(crossings(&r, &[[0, 1, 2], [0, 3, 4]]), 2);
     }
 
     #[test]

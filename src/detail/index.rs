@@ -245,6 +245,23 @@ impl BallIndex {
         }
     }
 
+    /// The balls that hold `p` (of its leaf's list, in order), each with its index, p − centre
+    /// and |p − centre|².
+    #[inline]
+    fn holding(&self, p: [f64; 3]) -> impl Iterator<Item = (usize, &Ball, [f64; 3], f64)> + '_ {
+        self.leaf_list(p).iter().filter_map(move |&i| {
+            let b = &self.balls[i as usize];
+            let v = [p[0] - b.center[0], p[1] - b.center[1], p[2] - b.center[2]];
+            let d2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+            // Written so that a NaN distance is kept, as the blend sums it.
+            if d2 >= b.r2 {
+                None
+            } else {
+                Some((i as usize, b, v, d2))
+            }
+        })
+    }
+
     /// The list of balls of the leaf that holds `p` (empty outside the indexed cube).
     #[inline]
     fn leaf_list(&self, p: [f64; 3]) -> &[u32] {
@@ -389,19 +406,13 @@ fn distance_range(c: [f64; 3], b: &Aabb) -> (f64, f64) {
 #[inline]
 pub(crate) fn blend_value(cells: &[MpuCell], index: &BallIndex, outside: f64, p: [f64; 3]) -> f64 {
     let (mut num, mut den) = (0.0, 0.0);
-    for &i in index.leaf_list(p) {
-        let b = &index.balls[i as usize];
-        let v = [p[0] - b.center[0], p[1] - b.center[1], p[2] - b.center[2]];
-        let d2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
-        if d2 >= b.r2 {
-            continue;
-        }
+    for (i, b, v, d2) in index.holding(p) {
         let (w, _) = bspline(b.k * d2.sqrt());
         if w > 0.0 {
             let q = if b.is_quadric {
                 b.quad_value(v)
             } else {
-                cells[i as usize].poly.value(p)
+                cells[i].poly.value(p)
             };
             num += w * q;
             den += w;
@@ -424,13 +435,7 @@ pub(crate) fn blend_value_gradient(
     let (mut num, mut den) = (0.0, 0.0);
     let mut dnum = [0.0; 3];
     let mut dden = [0.0; 3];
-    for &i in index.leaf_list(p) {
-        let b = &index.balls[i as usize];
-        let v = [p[0] - b.center[0], p[1] - b.center[1], p[2] - b.center[2]];
-        let d2 = v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
-        if d2 >= b.r2 {
-            continue;
-        }
+    for (i, b, v, d2) in index.holding(p) {
         let d = d2.sqrt();
         let (w, dw_dt) = bspline(b.k * d);
         if w <= 0.0 {
@@ -439,7 +444,7 @@ pub(crate) fn blend_value_gradient(
         let (q, gq) = if b.is_quadric {
             (b.quad_value(v), b.quad_gradient(v))
         } else {
-            cells[i as usize].poly.value_gradient(p)
+            cells[i].poly.value_gradient(p)
         };
         // ∇w = b'(t)·k·(p − c)/|p − c| (0 at the centre, where b'(0) = 0).
         let gw = if d > 0.0 {

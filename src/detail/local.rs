@@ -397,16 +397,7 @@ fn fit_quadric(
         let weights = recentring_weights(points, ball, blend, confidence);
         let (mut vsum, mut wsum) = (0.0, 0.0);
         for (&i, w) in ball.iter().zip(&weights) {
-            let q = norm(points[i as usize]);
-            let v = a[0]
-                + q[0] * (a[1] + a[4] * q[0] + a[5] * q[1] + a[6] * q[2])
-                + q[1] * (a[2] + a[7] * q[1] + a[8] * q[2])
-                + q[2] * (a[3] + a[9] * q[2]);
-            let g = [
-                a[1] + 2.0 * a[4] * q[0] + a[5] * q[1] + a[6] * q[2],
-                a[2] + a[5] * q[0] + 2.0 * a[7] * q[1] + a[8] * q[2],
-                a[3] + a[6] * q[0] + a[8] * q[1] + 2.0 * a[9] * q[2],
-            ];
+            let (v, g) = quadric_value_gradient(&a, norm(points[i as usize]));
             let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-12);
             vsum += w * v / gn;
             wsum += w / gn;
@@ -418,16 +409,7 @@ fn fit_quadric(
     // Mean |∇Q| over the fitted points (input units, before rescaling: ∇ₚQ = ∇_qQ̂), and the
     // largest |Q|/|∇Q| over the measured ones, which the rescaling leaves unchanged.
     let value_gradient = |i: u32| {
-        let q = norm(points[i as usize]);
-        let v = a[0]
-            + q[0] * (a[1] + a[4] * q[0] + a[5] * q[1] + a[6] * q[2])
-            + q[1] * (a[2] + a[7] * q[1] + a[8] * q[2])
-            + q[2] * (a[3] + a[9] * q[2]);
-        let g = [
-            a[1] + 2.0 * a[4] * q[0] + a[5] * q[1] + a[6] * q[2],
-            a[2] + a[5] * q[0] + 2.0 * a[7] * q[1] + a[8] * q[2],
-            a[3] + a[6] * q[0] + a[8] * q[1] + 2.0 * a[9] * q[2],
-        ];
+        let (v, g) = quadric_value_gradient(&a, norm(points[i as usize]));
         (v, (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt())
     };
     let mut gsum = 0.0;
@@ -559,6 +541,22 @@ fn quadric_monomials(q: [f64; 3]) -> [f64; 10] {
     [1.0, x, y, z, x * x, x * y, x * z, y * y, y * z, z * z]
 }
 
+/// The value and gradient at `q` of the quadric with coefficients `a` in the order of
+/// [`quadric_monomials`] (the value in Horner form).
+#[inline(always)]
+fn quadric_value_gradient(a: &[f64], q: [f64; 3]) -> (f64, [f64; 3]) {
+    let v = a[0]
+        + q[0] * (a[1] + a[4] * q[0] + a[5] * q[1] + a[6] * q[2])
+        + q[1] * (a[2] + a[7] * q[1] + a[8] * q[2])
+        + q[2] * (a[3] + a[9] * q[2]);
+    let g = [
+        a[1] + 2.0 * a[4] * q[0] + a[5] * q[1] + a[6] * q[2],
+        a[2] + a[5] * q[0] + 2.0 * a[7] * q[1] + a[8] * q[2],
+        a[3] + a[6] * q[0] + a[8] * q[1] + 2.0 * a[9] * q[2],
+    ];
+    (v, g)
+}
+
 /// Adds w·m·mᵀ to the packed upper triangle (row-major) of a 10 × 10 matrix (the same bits as
 /// m·mᵀ when w = 1).
 #[inline(always)]
@@ -606,6 +604,33 @@ mod tests {
         assert_eq!(m, [1.0, 2.0, 3.0, 5.0, 4.0, 6.0, 10.0, 9.0, 15.0, 25.0]);
     }
 
+    /// `fit_local` over all of `points` (fitted and measured), with no stop, no auxiliary
+    /// points, no blend and unit confidence.
+    fn fit_all(
+        points: &[[f64; 3]],
+        normals: &[[f64; 3]],
+        degree: u32,
+        constraints: Constraints,
+        kappa: f64,
+    ) -> LocalFit {
+        let idx: Vec<u32> = (0..points.len() as u32).collect();
+        fit_local(
+            points,
+            normals,
+            &idx,
+            &idx,
+            f64::INFINITY,
+            &[],
+            degree,
+            constraints,
+            kappa,
+            1.0,
+            None,
+            None,
+        )
+        .unwrap()
+    }
+
     #[test]
     fn plane_patch_gives_signed_distance() {
         // Points on z = 0.5 with normals +z: Q ≈ z − 0.5 with unit gradient.
@@ -616,23 +641,8 @@ mod tests {
             }
         }
         let normals = vec![[0.0, 0.0, 1.0]; points.len()];
-        let idx: Vec<u32> = (0..points.len() as u32).collect();
         for constraints in [Constraints::Gradient, Constraints::ThreeLevels(0.3)] {
-            let fit = fit_local(
-                &points,
-                &normals,
-                &idx,
-                &idx,
-                f64::INFINITY,
-                &[],
-                2,
-                constraints,
-                1e-2,
-                1.0,
-                None,
-                None,
-            )
-            .unwrap();
+            let fit = fit_all(&points, &normals, 2, constraints, 1e-2);
             assert!(fit.max_error < 1e-6, "{}", fit.max_error);
             for p in [[0.4, 0.4, 0.6], [0.5, 0.3, 0.45]] {
                 let v = fit.poly.eval(p);
@@ -685,39 +695,16 @@ mod tests {
             }
         }
         let normals = points.clone();
-        let idx: Vec<u32> = (0..points.len() as u32).collect();
         for degree in [2, 3] {
-            let fit = fit_local(
-                &points,
-                &normals,
-                &idx,
-                &idx,
-                f64::INFINITY,
-                &[],
-                degree,
-                Constraints::Gradient,
-                1e-6,
-                1.0,
-                None,
-                None,
-            )
-            .unwrap();
+            let fit = fit_all(&points, &normals, degree, Constraints::Gradient, 1e-6);
             assert!(fit.max_error < 1e-5, "{degree}: {}", fit.max_error);
-            let three = fit_local(
+            let three = fit_all(
                 &points,
                 &normals,
-                &idx,
-                &idx,
-                f64::INFINITY,
-                &[],
                 degree,
                 Constraints::ThreeLevels(0.3),
                 1e-6,
-                1.0,
-                None,
-                None,
-            )
-            .unwrap();
+            );
             assert!(three.max_error > 1e-4, "{degree}: {}", three.max_error);
         }
     }

@@ -506,6 +506,20 @@ mod tests {
     use crate::poly::ImplicitPolynomial;
     use crate::polygonize::{polygonize, PolygonizeParams};
 
+    /// The cube [−half, half]³ and `poly` meshed in it at `depth`.
+    fn meshed_in_cube(poly: &ImplicitPolynomial, half: f64, depth: u32) -> (Aabb, TriangleMesh) {
+        let region = Aabb {
+            min: [-half; 3],
+            max: [half; 3],
+        };
+        let params = PolygonizeParams {
+            depth,
+            ..Default::default()
+        };
+        let mesh = polygonize(poly, &region, &params).unwrap().mesh;
+        (region, mesh)
+    }
+
     fn sphere(r: f64) -> ImplicitPolynomial {
         let mut c = vec![0.0; 10];
         (c[0], c[4], c[7], c[9]) = (-r * r, 1.0, 1.0, 1.0);
@@ -522,20 +536,7 @@ mod tests {
         // A sphere of radius 1 meshed at depth 6 over [−1.5, 1.5]³: cells of 3/64, chord error
         // (edge)²/(8r) ≤ (√3·3/64)²/8 ≈ 8.3e-4 (the mesh lies inside the sphere by at most that).
         let poly = sphere(1.0);
-        let region = Aabb {
-            min: [-1.5; 3],
-            max: [1.5; 3],
-        };
-        let mesh = polygonize(
-            &poly,
-            &region,
-            &PolygonizeParams {
-                depth: 6,
-                ..Default::default()
-            },
-        )
-        .unwrap()
-        .mesh;
+        let (region, mesh) = meshed_in_cube(&poly, 1.5, 6);
         let params = VolumeParams {
             voxel_size: VoxelSize::Size(0.05),
         };
@@ -620,20 +621,7 @@ mod tests {
             Err(DistanceError::InvalidParams(_))
         ));
         let poly = sphere(0.8);
-        let region = Aabb {
-            min: [-1.0; 3],
-            max: [1.0; 3],
-        };
-        let mesh = polygonize(
-            &poly,
-            &region,
-            &PolygonizeParams {
-                depth: 4,
-                ..Default::default()
-            },
-        )
-        .unwrap()
-        .mesh;
+        let (region, mesh) = meshed_in_cube(&poly, 1.0, 4);
         let params = VolumeParams {
             voxel_size: VoxelSize::Size(0.07),
         };

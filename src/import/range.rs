@@ -155,24 +155,19 @@ pub(crate) fn triangulate(
     }
 
     let centroid = centroid(points, cells);
-    let rows_fit = sensor_from_lines(
-        points,
-        centroid,
-        (0..rows).map(|r| {
-            (0..cols)
-                .filter_map(move |c| at(r, c))
+    // The grid's lines one way and the other, as the points each holds.
+    let lines = |count: usize, length: usize, cell: fn(usize, usize) -> (usize, usize)| {
+        (0..count).map(move |l| {
+            (0..length)
+                .filter_map(|k| {
+                    let (r, c) = cell(l, k);
+                    at(r, c)
+                })
                 .collect::<Vec<u32>>()
-        }),
-    );
-    let cols_fit = sensor_from_lines(
-        points,
-        centroid,
-        (0..cols).map(|c| {
-            (0..rows)
-                .filter_map(move |r| at(r, c))
-                .collect::<Vec<u32>>()
-        }),
-    );
+        })
+    };
+    let rows_fit = sensor_from_lines(points, centroid, lines(rows, cols, |r, c| (r, c)));
+    let cols_fit = sensor_from_lines(points, centroid, lines(cols, rows, |c, r| (r, c)));
     let (sensor, sensor_from) = match (rows_fit, cols_fit) {
         (Some((s, e)), Some((_, f))) if e <= f => (Some(s), Some("rows")),
         (Some((s, _)), None) => (Some(s), Some("rows")),

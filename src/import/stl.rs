@@ -82,6 +82,16 @@ impl Welder {
         }
         Some(index)
     }
+
+    /// The welded corners and `triangles` over them: the cloud an STL gives (no per-point
+    /// normals; see the module docs).
+    fn into_cloud(self, triangles: Vec<[u32; 3]>) -> PointCloud {
+        PointCloud {
+            points: self.points,
+            triangles,
+            ..Default::default()
+        }
+    }
 }
 
 fn too_many(path: &str) -> ImportError {
@@ -142,13 +152,7 @@ pub(crate) fn read_binary(bytes: &[u8], path: &str) -> Result<PointCloud, Import
         }
         triangles.push(triangle);
     }
-    Ok(PointCloud {
-        points: welder.points,
-        normals: None,
-        triangles,
-        range: None,
-        ..Default::default()
-    })
+    Ok(welder.into_cloud(triangles))
 }
 
 /// Where the ascii reader is in the STL grammar.
@@ -260,13 +264,7 @@ pub(crate) fn read_ascii(bytes: &[u8], path: &str) -> Result<PointCloud, ImportE
             ),
         });
     }
-    Ok(PointCloud {
-        points: welder.points,
-        normals: None,
-        triangles,
-        range: None,
-        ..Default::default()
-    })
+    Ok(welder.into_cloud(triangles))
 }
 
 #[cfg(test)]
