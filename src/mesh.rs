@@ -807,16 +807,7 @@ pub(crate) fn intersecting_triangles_among(
             if !usable(t) || t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
                 return None;
             }
-            let mut lo = positions[t[0] as usize];
-            let mut hi = lo;
-            for &i in &t[1..] {
-                let p = positions[i as usize];
-                for a in 0..3 {
-                    lo[a] = lo[a].min(p[a]);
-                    hi[a] = hi[a].max(p[a]);
-                }
-            }
-            Some((lo, hi))
+            Some(triangle_box(t, positions))
         })
         .collect();
     let axes: Vec<u8> = tris
@@ -964,6 +955,20 @@ pub(crate) fn lat_long_sphere(
         normals,
         triangles,
     }
+}
+
+/// The axis-aligned box (min, max) of triangle `t`'s corners in `positions`.
+pub(crate) fn triangle_box(t: &[u32; 3], positions: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
+    let mut lo = positions[t[0] as usize];
+    let mut hi = lo;
+    for &v in &t[1..] {
+        let p = positions[v as usize];
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    (lo, hi)
 }
 
 #[cfg(test)]

@@ -421,18 +421,25 @@ mod tests {
         assert_eq!(removed(points), 2);
     }
 
+    /// `n` points on the unit sphere and `extra` more at `at(0..extra)`, under 1% of the
+    /// whole (asserted).
+    fn sphere_and(n: usize, extra: usize, at: impl Fn(usize) -> [f64; 3]) -> Vec<[f64; 3]> {
+        let mut points = sphere(n, [0.0; 3], 1.0);
+        points.extend((0..extra).map(at));
+        assert!(extra * 100 < points.len());
+        points
+    }
+
     #[test]
     fn long_thin_cylinder_with_a_sphere_is_kept() {
         // A ball of radius 1 with a rod of radius 0.02 running out to x = 40: the rod holds well
         // under 1% of the points, so only the gap test keeps it.
-        let mut points = sphere(20_000, [0.0; 3], 1.0);
         let rod = 150;
-        for i in 0..rod {
+        let points = sphere_and(20_000, rod, |i| {
             let x = 1.0 + 39.0 * i as f64 / (rod - 1) as f64;
             let t = i as f64 * 2.4;
-            points.push([x, 0.02 * t.cos(), 0.02 * t.sin()]);
-        }
-        assert!(rod * 100 < points.len());
+            [x, 0.02 * t.cos(), 0.02 * t.sin()]
+        });
         assert_eq!(removed(points), 0);
     }
 
@@ -440,12 +447,8 @@ mod tests {
     fn sphere_with_a_dense_antenna_is_kept() {
         // Sampled every 0.1 (the sphere's own spacing is √(4π/N) ≈ 0.035), the antenna is far
         // longer than the object and holds under 1% of the points.
-        let mut points = sphere(10_000, [0.0; 3], 1.0);
         let antenna = 90;
-        for i in 0..antenna {
-            points.push([0.0, 0.0, 1.0 + 0.1 * (i + 1) as f64]);
-        }
-        assert!(antenna * 100 < points.len());
+        let mut points = sphere_and(10_000, antenna, |i| [0.0, 0.0, 1.0 + 0.1 * (i + 1) as f64]);
         assert_eq!(removed(points.clone()), 0);
         // The same antenna with a stray point well past its tip and a gap: only that point goes.
         points.push([0.0, 0.0, 30.0]);

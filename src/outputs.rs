@@ -431,38 +431,45 @@ mod tests {
         out
     }
 
+    /// Asserts that `dir` holds exactly `files` of set `tag` and `extra` (name, bytes), in any order.
+    fn assert_holds(dir: &Path, tag: &str, extra: &[(&str, &[u8])]) {
+        let mut want = files(tag);
+        want.extend(extra.iter().map(|(n, b)| (n.to_string(), b.to_vec())));
+        want.sort();
+        assert_eq!(listing(dir), want);
+    }
+
     fn write(dir: &Path, files: &[(String, Vec<u8>)]) -> Result<Vec<String>, OutputError> {
         let mut set = OutputSet::begin(dir)?;
         set.stage(files)?;
         set.commit()
     }
 
-    #[test]
-    fn a_set_replaces_the_earlier_one_and_leaves_nothing_else() {
+    /// A temporary folder and its `out/`, which holds set "a".
+    fn folder_with_set_a() -> (tempfile::TempDir, std::path::PathBuf) {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("out");
         write(&out, &files("a")).unwrap();
+        (dir, out)
+    }
+
+    #[test]
+    fn a_set_replaces_the_earlier_one_and_leaves_nothing_else() {
+        let (_dir, out) = folder_with_set_a();
         fs::write(out.join("user.txt"), b"mine").unwrap();
         let names = write(&out, &files("b")).unwrap();
         assert_eq!(names.len(), 3);
-        let mut want = files("b");
-        want.push(("user.txt".into(), b"mine".to_vec()));
-        want.sort();
-        assert_eq!(listing(&out), want);
+        assert_holds(&out, "b", &[("user.txt", b"mine")]);
     }
 
     #[test]
     fn a_set_dropped_before_its_commit_leaves_the_folder_as_it_was() {
-        let dir = tempfile::tempdir().unwrap();
-        let out = dir.path().join("out");
-        write(&out, &files("a")).unwrap();
+        let (dir, out) = folder_with_set_a();
         {
             let mut set = OutputSet::begin(&out).unwrap();
             set.stage(&files("b")).unwrap();
         }
-        let mut want = files("a");
-        want.sort();
-        assert_eq!(listing(&out), want);
+        assert_holds(&out, "a", &[]);
         // A folder the set created is removed again.
         let fresh = dir.path().join("fresh");
         drop(OutputSet::begin(&fresh).unwrap());
@@ -471,9 +478,7 @@ mod tests {
 
     #[test]
     fn a_failed_move_puts_everything_back() {
-        let dir = tempfile::tempdir().unwrap();
-        let out = dir.path().join("out");
-        write(&out, &files("a")).unwrap();
+        let (_dir, out) = folder_with_set_a();
         fs::write(out.join("zzz"), b"user").unwrap();
         let mut set = OutputSet::begin(&out).unwrap();
         // The last file cannot go into place: a file stands where its folder goes.
@@ -481,10 +486,7 @@ mod tests {
         set.stage(&[("zzz/inner".into(), b"x".to_vec())]).unwrap();
         let err = set.commit().unwrap_err().to_string();
         assert!(err.contains("zzz"), "{err}");
-        let mut want = files("a");
-        want.push(("zzz".into(), b"user".to_vec()));
-        want.sort();
-        assert_eq!(listing(&out), want);
+        assert_holds(&out, "a", &[("zzz", b"user")]);
     }
 
     #[test]
@@ -509,9 +511,7 @@ mod tests {
 
     #[test]
     fn a_killed_runs_staging_is_finished_or_removed() {
-        let dir = tempfile::tempdir().unwrap();
-        let out = dir.path().join("out");
-        write(&out, &files("a")).unwrap();
+        let (_dir, out) = folder_with_set_a();
         let dead = u32::MAX - 7;
         // Killed while staging: removed, the earlier set stays.
         let staging = out.join(format!("{STAGING_PREFIX}{dead}-0"));
@@ -540,8 +540,6 @@ mod tests {
             return;
         }
         drop(OutputSet::begin(&out).unwrap());
-        let mut want = files("c");
-        want.sort();
-        assert_eq!(listing(&out), want);
+        assert_holds(&out, "c", &[]);
     }
 }

@@ -334,17 +334,15 @@ impl Artifact for OrientedCloud {
     }
 
     fn decode_payload(r: &mut Reader<'_>) -> Option<Self> {
-        let points = r.vec3_f64()?;
-        let normals = r.vec3_f64()?;
-        let weights = match r.take(1)?[0] {
-            0 => None,
-            1 => Some(r.f32s()?),
-            _ => return None,
-        };
+        // Fields are read in the order written.
         Some(OrientedCloud {
-            points,
-            normals,
-            weights,
+            points: r.vec3_f64()?,
+            normals: r.vec3_f64()?,
+            weights: match r.take(1)?[0] {
+                0 => None,
+                1 => Some(r.f32s()?),
+                _ => return None,
+            },
         })
     }
 }

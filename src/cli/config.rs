@@ -27,120 +27,32 @@ use super::args::{
 };
 use super::usage;
 
-impl From<ModeArg> for Mode {
-    fn from(mode: ModeArg) -> Mode {
-        match mode {
-            ModeArg::Global => Mode::Global,
-            ModeArg::Detail => Mode::Detail,
-        }
-    }
+/// `From<Arg> for Value` for each command-line enum and the library enum it stands for, variant
+/// by variant (the two always have the same variants).
+macro_rules! same_variants {
+    ($($arg:ident => $value:ident { $($variant:ident),+ })+) => {
+        $(impl From<$arg> for $value {
+            fn from(arg: $arg) -> $value {
+                match arg {
+                    $($arg::$variant => $value::$variant,)+
+                }
+            }
+        })+
+    };
 }
 
-impl From<SourceArg> for NormalSource {
-    fn from(source: SourceArg) -> NormalSource {
-        match source {
-            SourceArg::Auto => NormalSource::Auto,
-            SourceArg::Crust => NormalSource::Crust,
-            SourceArg::Pca => NormalSource::Pca,
-            SourceArg::Mesh => NormalSource::Mesh,
-            SourceArg::Input => NormalSource::Input,
-        }
-    }
-}
-
-impl From<MethodArg> for FitMethod {
-    fn from(method: MethodArg) -> FitMethod {
-        match method {
-            MethodArg::ThreeLrr => FitMethod::ThreeLrr,
-            MethodArg::ThreeL => FitMethod::ThreeL,
-            MethodArg::Ls => FitMethod::Ls,
-        }
-    }
-}
-
-impl From<KappaRuleArg> for KappaRule {
-    fn from(rule: KappaRuleArg) -> KappaRule {
-        match rule {
-            KappaRuleArg::Stable => KappaRule::Stable,
-            KappaRuleArg::Paper => KappaRule::Paper,
-        }
-    }
-}
-
-impl From<FormatArg> for OutputFormat {
-    fn from(format: FormatArg) -> OutputFormat {
-        match format {
-            FormatArg::Glb => OutputFormat::Glb,
-            FormatArg::Gltf => OutputFormat::Gltf,
-            FormatArg::Ply => OutputFormat::Ply,
-            FormatArg::Exr => OutputFormat::Exr,
-            FormatArg::Png => OutputFormat::Png,
-            FormatArg::Json => OutputFormat::Json,
-            FormatArg::Vdb => OutputFormat::Vdb,
-            FormatArg::Npy => OutputFormat::Npy,
-        }
-    }
-}
-
-impl From<ViewArg> for View {
-    fn from(view: ViewArg) -> View {
-        match view {
-            ViewArg::Iso => View::Iso,
-            ViewArg::Front => View::Front,
-            ViewArg::Top => View::Top,
-            ViewArg::Side => View::Side,
-        }
-    }
-}
-
-impl From<UnitsArg> for LengthUnit {
-    fn from(units: UnitsArg) -> LengthUnit {
-        match units {
-            UnitsArg::Mm => LengthUnit::Mm,
-            UnitsArg::Cm => LengthUnit::Cm,
-            UnitsArg::M => LengthUnit::M,
-            UnitsArg::In => LengthUnit::In,
-            UnitsArg::Ft => LengthUnit::Ft,
-        }
-    }
-}
-
-impl From<UpArg> for UpAxis {
-    fn from(up: UpArg) -> UpAxis {
-        match up {
-            UpArg::Y => UpAxis::Y,
-            UpArg::Z => UpAxis::Z,
-        }
-    }
-}
-
-impl From<AxisArg> for Axis {
-    fn from(axis: AxisArg) -> Axis {
-        match axis {
-            AxisArg::X => Axis::X,
-            AxisArg::Y => Axis::Y,
-            AxisArg::Z => Axis::Z,
-        }
-    }
-}
-
-impl From<DistanceArg> for DistanceMethod {
-    fn from(distance: DistanceArg) -> DistanceMethod {
-        match distance {
-            DistanceArg::Taubin => DistanceMethod::Taubin,
-            DistanceArg::Exact => DistanceMethod::Exact,
-            DistanceArg::Mesh => DistanceMethod::Mesh,
-        }
-    }
-}
-
-impl From<KeepArg> for Keep {
-    fn from(keep: KeepArg) -> Keep {
-        match keep {
-            KeepArg::All => Keep::All,
-            KeepArg::Data => Keep::Data,
-        }
-    }
+same_variants! {
+    ModeArg => Mode { Global, Detail }
+    SourceArg => NormalSource { Auto, Crust, Pca, Mesh, Input }
+    MethodArg => FitMethod { ThreeLrr, ThreeL, Ls }
+    KappaRuleArg => KappaRule { Stable, Paper }
+    FormatArg => OutputFormat { Glb, Gltf, Ply, Exr, Png, Json, Vdb, Npy }
+    ViewArg => View { Iso, Front, Top, Side }
+    UnitsArg => LengthUnit { Mm, Cm, M, In, Ft }
+    UpArg => UpAxis { Y, Z }
+    AxisArg => Axis { X, Y, Z }
+    DistanceArg => DistanceMethod { Taubin, Exact, Mesh }
+    KeepArg => Keep { All, Data }
 }
 
 /// The cache `--cache-dir`/`--no-cache` ask for.

@@ -178,11 +178,13 @@ impl FromStr for FitMethod {
     /// assert!("qr".parse::<FitMethod>().is_err());
     /// ```
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s.to_ascii_lowercase().as_str() {
-            "3lrr" => Ok(FitMethod::ThreeLrr),
-            "3l" => Ok(FitMethod::ThreeL),
-            "ls" => Ok(FitMethod::Ls),
-            other => Err(format!("unknown fit method {other:?}: use 3lrr, 3l or ls")),
+        let name = s.to_ascii_lowercase();
+        match [FitMethod::ThreeLrr, FitMethod::ThreeL, FitMethod::Ls]
+            .into_iter()
+            .find(|m| m.as_str() == name)
+        {
+            Some(method) => Ok(method),
+            None => Err(format!("unknown fit method {name:?}: use 3lrr, 3l or ls")),
         }
     }
 }
@@ -249,10 +251,13 @@ impl FromStr for KappaRule {
     /// assert_eq!("stable".parse::<KappaRule>(), Ok(KappaRule::Stable));
     /// ```
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s.to_ascii_lowercase().as_str() {
-            "paper" => Ok(KappaRule::Paper),
-            "stable" => Ok(KappaRule::Stable),
-            other => Err(format!("unknown kappa rule {other:?}: use stable or paper")),
+        let name = s.to_ascii_lowercase();
+        match [KappaRule::Paper, KappaRule::Stable]
+            .into_iter()
+            .find(|r| r.as_str() == name)
+        {
+            Some(rule) => Ok(rule),
+            None => Err(format!("unknown kappa rule {name:?}: use stable or paper")),
         }
     }
 }

@@ -66,7 +66,7 @@ use serde::{Deserialize, Serialize};
 
 use super::simplify::{shape, MAX_NORMAL_TURN_COS};
 use crate::implicit::ImplicitFunction;
-use crate::mesh::{triangles_intersect, TriangleMesh};
+use crate::mesh::{triangle_box, triangles_intersect, TriangleMesh};
 use crate::vec3::{cross, dot, norm, sub};
 
 /// Version of the decimation's algorithm: part of the export stage's key when it decimates.
@@ -1015,20 +1015,6 @@ impl<'f, F: ImplicitFunction + ?Sized> State<'f, F> {
     }
 }
 
-/// The box of a triangle.
-fn triangle_box(t: &[u32; 3], positions: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
-    let mut lo = positions[t[0] as usize];
-    let mut hi = lo;
-    for &v in &t[1..] {
-        let p = positions[v as usize];
-        for k in 0..3 {
-            lo[k] = lo[k].min(p[k]);
-            hi[k] = hi[k].max(p[k]);
-        }
-    }
-    (lo, hi)
-}
-
 /// The kind of vertex `v` from its triangles `star`: interior when its link edges (the edge
 /// opposite v in each triangle, as wound) form one closed cycle, boundary when they form one
 /// path, frozen otherwise.
@@ -1083,6 +1069,11 @@ mod tests {
         crate::mesh::lat_long_sphere([0.0; 3], 1.0, rings, sectors)
     }
 
+    /// `mesh` (of the unit sphere) decimated to at most `target_triangles`.
+    fn to_budget(mesh: &TriangleMesh, target_triangles: usize) -> Decimated {
+        decimate(mesh, &unit_sphere(), &DecimateParams { target_triangles })
+    }
+
     fn unit_sphere() -> crate::poly::ImplicitPolynomial {
         crate::poly::ImplicitPolynomial {
             degree: 2,
@@ -1127,13 +1118,7 @@ mod tests {
         let mesh = sphere_mesh(24, 48);
         let before = check(&mesh);
         assert!(before.watertight);
-        let out = decimate(
-            &mesh,
-            &unit_sphere(),
-            &DecimateParams {
-                target_triangles: 300,
-            },
-        );
+        let out = to_budget(&mesh, 300);
         assert!(out.report.reached, "{:?}", out.report);
         assert!(out.mesh.triangles.len() <= 300);
         let after = check(&out.mesh);
@@ -1151,13 +1136,7 @@ mod tests {
     #[test]
     fn within_budget_is_unchanged() {
         let mesh = sphere_mesh(8, 16);
-        let out = decimate(
-            &mesh,
-            &unit_sphere(),
-            &DecimateParams {
-                target_triangles: mesh.triangles.len(),
-            },
-        );
+        let out = to_budget(&mesh, mesh.triangles.len());
         assert_eq!(out.mesh, mesh);
         assert!(out.report.reached);
         assert_eq!(out.report.collapses, 0);
@@ -1166,13 +1145,7 @@ mod tests {
     #[test]
     fn impossible_budget_stops_at_a_legal_mesh() {
         let mesh = sphere_mesh(6, 12);
-        let out = decimate(
-            &mesh,
-            &unit_sphere(),
-            &DecimateParams {
-                target_triangles: 1,
-            },
-        );
+        let out = to_budget(&mesh, 1);
         assert!(!out.report.reached);
         assert!(out.mesh.triangles.len() >= 4);
         let after = check(&out.mesh);

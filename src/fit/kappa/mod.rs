@@ -78,7 +78,7 @@ use certificate::{
     far_positive, far_probe_negative, far_sign, shell_sign, Shell, FAR_POSITIVE_RATIO,
 };
 use pieces::DataPieces;
-use zero_set::{coarse_zero_set, coarse_zero_set_culled, Mesher};
+use zero_set::{coarse_zero_set, coarse_zero_set_culled, CoarseZeroSet, Mesher};
 
 /// The fallback κ when no grid value qualifies.
 const FALLBACK_KAPPA: f64 = 1e-2;
@@ -96,6 +96,23 @@ const MAX_CHECK_POINTS: usize = 20_000;
 /// Logs `what` and the wall time since `start` at the `trace` level.
 fn trace(start: std::time::Instant, what: std::fmt::Arguments) {
     log::trace!("{:>8.2} ms  {what}", start.elapsed().as_secs_f64() * 1e3);
+}
+
+/// [`coarse_zero_set`] in the box of half-side `half`, traced (as `name`) with its time, its
+/// components and vertices, and whether it touches the box.
+fn traced_zero_set(poly: &ImplicitPolynomial, half: f64, name: &str) -> (CoarseZeroSet, Mesher) {
+    let t = std::time::Instant::now();
+    let (zero_set, mesher) = coarse_zero_set(poly, half);
+    trace(
+        t,
+        format_args!(
+            "  {name} mesh: {} components, {} vertices, touches the box {}",
+            zero_set.components.len(),
+            zero_set.components.iter().map(Vec::len).sum::<usize>(),
+            zero_set.touches_box
+        ),
+    );
+    (zero_set, mesher)
 }
 
 /// The κ grid: 0, then 10^(−8 + i/4) for i = 0 … 32 (1e-8 … 1, four steps a decade).
@@ -379,16 +396,7 @@ fn zero_set_check(
     // (c): in the inner box, one component per data piece, each within NEAR_DATA of the data
     // (its closest point; a closed zero set must bridge holes in the data, so not every point
     // can be near it).
-    let t = std::time::Instant::now();
-    let (inner, mesher) = coarse_zero_set(poly, INNER_BOX);
-    trace(
-        t,
-        format_args!(
-            "  inner mesh: {} components, {} vertices",
-            inner.components.len(),
-            inner.components.iter().map(Vec::len).sum::<usize>()
-        ),
-    );
+    let (inner, mesher) = traced_zero_set(poly, INNER_BOX, "inner");
     let t = std::time::Instant::now();
     if inner.components.len() != data.n_pieces {
         return (false, Some(mesher));
@@ -449,16 +457,7 @@ fn zero_set_check(
     }
     let mut mesher = mesher;
     if outer_shell != Shell::Positive {
-        let t = std::time::Instant::now();
-        let (outer, used) = coarse_zero_set(poly, OUTER_BOX);
-        trace(
-            t,
-            format_args!(
-                "  outer mesh: {} components touches {}",
-                outer.components.len(),
-                outer.touches_box
-            ),
-        );
+        let (outer, used) = traced_zero_set(poly, OUTER_BOX, "outer");
         mesher = used;
         if outer.touches_box || outer.components.len() != data.n_pieces {
             return (false, Some(mesher));
