@@ -1180,14 +1180,11 @@ impl<'a> PointIndex<'a> {
             }
             (grid.nearest2(q).map_or(-1.0, f64::sqrt), None)
         });
+        // The queries far from every point (beyond the grid's rings), from the k-d tree.
         let open: Vec<usize> = (0..out.len()).filter(|&j| out[j] < 0.0).collect();
         if !open.is_empty() {
-            let tree = self.tree();
-            let found: Vec<f64> = open
-                .par_iter()
-                .map(|&j| tree.nearest(queries[j]).0.sqrt())
-                .collect();
-            for (j, d) in open.into_iter().zip(found) {
+            let far: Vec<[f64; 3]> = open.iter().map(|&j| queries[j]).collect();
+            for (j, d) in open.into_iter().zip(self.tree_distances(&far)) {
                 out[j] = d;
             }
         }
