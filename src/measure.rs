@@ -9,8 +9,9 @@
 //! and an upper bound on the distance otherwise.
 //!
 //! The other direction, mesh → points ([`nearest_point_distances`]), is the distance from each
-//! mesh vertex to the nearest data point (a k-d tree over the points). The PLY writer stores it
-//! as MeshLab's vertex quality and [`chamfer_distance`] averages it; both use this one function.
+//! mesh vertex to the nearest data point ([`PointIndex`]: a grid of the points, a k-d tree
+//! where the grid is slow). The PLY writer stores it as MeshLab's vertex quality and
+//! [`chamfer_distance`] averages it; both use this one function.
 //!
 //! The symmetric Chamfer distance ([`chamfer_distance`], the accuracy figure of the detail mode,
 //! issue 9): points → mesh is the mean over the data points of the distance to the mesh
@@ -23,12 +24,15 @@
 //! of more than [`ACCURACY_POINTS`]), and mesh → data by *area*
 //! (`mesh_to_points_by_area`): every triangle cut into congruent pieces of at most 0.5% of the
 //! diagonal (`area_samples`), each piece's centroid weighted by its area, its distance to the
-//! nearest data point from the k-d tree below. Its far share (the area farther than 1% of the
+//! nearest data point from the [`PointIndex`] below. Its far share (the area farther than 1% of the
 //! diagonal from every data point) shows surface the data does not support, which the data →
 //! mesh figure cannot see.
 //!
-//! One [`PointIndex`] of the data answers all of an export's nearest-point queries. They (here
-//! and for the seeds of [`crate::distance`]) use
+//! One [`PointIndex`] of the data answers all of an export's nearest-point queries: the
+//! distances from a uniform grid of the points (`NearestGrid`, a counting sort, built in a
+//! fraction of a k-d tree's time over a scan of millions of points), with the k-d tree below
+//! for what the grid leaves open and for the colours' nearest points. The k-d trees (here and
+//! for the seeds of [`crate::distance`]) are
 //! [`PointTree`], a k-d tree (Friedman, Bentley and Finkel 1977) with median splits on the
 //! widest axis, leaves of 16 points and the tight bounding box of every node: a subtree is
 //! entered only when its box is closer than the best distance so far. The queries here lie a
@@ -39,12 +43,14 @@
 //! differ).
 
 use std::borrow::Cow;
+use std::sync::OnceLock;
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::mesh::{TriangleMesh, VertexTriangles};
+use crate::numerics::NearestGrid;
 
 /// Directed and symmetric Chamfer distances (input units).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -675,6 +681,11 @@ impl PointTree {
         if points.is_empty() || points.len() > u32::MAX as usize {
             return None;
         }
+        Some(PointTree::build(points))
+    }
+
+    /// [`PointTree::new`] for a count already checked (1 to `u32::MAX` points).
+    fn build(points: &[[f64; 3]]) -> PointTree {
         // The points are reordered in place (contiguous, so the splits read memory in order).
         let mut entries: Vec<([f64; 3], u32)> = points
             .iter()
@@ -682,7 +693,7 @@ impl PointTree {
             .map(|(i, &p)| (p, i as u32))
             .collect();
         let (nodes, blocks) = build_subtree(&mut entries);
-        Some(PointTree { nodes, blocks })
+        PointTree { nodes, blocks }
     }
 
     /// The point of `q`'s nearest neighbour and its squared distance, among the points closer
@@ -1084,8 +1095,8 @@ fn nearest_in(tree: &PointTree, q: [f64; 3], hint: Option<[f64; 3]>) -> (f64, us
     tree.nearest(q)
 }
 
-/// Distance from each of `queries` to the nearest of `points` (input units), by a k-d tree over
-/// the finite points; a query with a non-finite coordinate gets NaN. Runs in parallel; the result
+/// Distance from each of `queries` to the nearest of `points` (input units), by a
+/// [`PointIndex`] of the finite points; a query with a non-finite coordinate gets NaN. Runs in parallel; the result
 /// does not depend on the thread count. `None` when `points` holds no finite point.
 ///
 /// ```
@@ -1097,11 +1108,19 @@ pub fn nearest_point_distances(queries: &[[f64; 3]], points: &[[f64; 3]]) -> Opt
     Some(PointIndex::new(points)?.distances(queries))
 }
 
-/// The finite points of a set and their [`PointTree`]: built once, it answers every
-/// nearest-point query of the export (the PLY's vertex quality, the mesh → data accuracy).
+/// The finite points of a set, indexed once to answer every nearest-point query of the export
+/// (the PLY's vertex quality, the mesh → data accuracy, the vertex colours).
+///
+/// Distances come from a [`NearestGrid`] (a counting sort of the points into cells, far
+/// cheaper to build than a k-d tree over millions of points); a query the grid does not settle
+/// within a few rings of cells, and every query when the points are too clustered for one cell
+/// size, goes to the [`PointTree`], built the first time it is needed. Both give the same
+/// distances (the minimum of the same squared distances), so which one answers changes the
+/// time, never the result.
 pub struct PointIndex<'a> {
     points: Cow<'a, [[f64; 3]]>,
-    tree: PointTree,
+    grid: Option<NearestGrid>,
+    tree: OnceLock<PointTree>,
 }
 
 impl<'a> PointIndex<'a> {
@@ -1113,8 +1132,19 @@ impl<'a> PointIndex<'a> {
         } else {
             points.iter().copied().filter(is_finite).collect()
         };
-        let tree = PointTree::new(&points)?;
-        Some(PointIndex { points, tree })
+        if points.is_empty() || points.len() > u32::MAX as usize {
+            return None;
+        }
+        let grid = NearestGrid::new(&points);
+        let index = PointIndex {
+            points,
+            grid,
+            tree: OnceLock::new(),
+        };
+        if index.grid.is_none() {
+            index.tree();
+        }
+        Some(index)
     }
 
     /// The indexed (finite) points.
@@ -1122,15 +1152,48 @@ impl<'a> PointIndex<'a> {
         &self.points
     }
 
-    /// The k-d tree over [`PointIndex::points`] (its indices are positions in that slice).
+    /// The k-d tree over [`PointIndex::points`] (its indices are positions in that slice),
+    /// built on the first call.
     pub(crate) fn tree(&self) -> &PointTree {
-        &self.tree
+        if let Some(tree) = self.tree.get() {
+            return tree;
+        }
+        // Built outside the lock (the build runs in parallel, and a thread waiting for its
+        // parallel parts may pick up another query of this index): two first calls at once may
+        // both build it, the same tree, and the first one kept.
+        let tree = PointTree::build(&self.points);
+        self.tree.get_or_init(|| tree)
     }
 
     /// Distance from each of `queries` to the nearest indexed point (input units); a query
     /// with a non-finite coordinate gets NaN. Runs in parallel; the result does not depend on
     /// the thread count.
     pub(crate) fn distances(&self, queries: &[[f64; 3]]) -> Vec<f64> {
+        let Some(grid) = &self.grid else {
+            return self.tree_distances(queries);
+        };
+        // In spatial order for the cache; a query the grid leaves open gets -1 for now.
+        let mut out = in_spatial_order(queries, |j, _: Option<()>| {
+            let q = queries[j];
+            if !is_finite(&q) {
+                return (f64::NAN, None);
+            }
+            (grid.nearest2(q).map_or(-1.0, f64::sqrt), None)
+        });
+        // The queries far from every point (beyond the grid's rings), from the k-d tree.
+        let open: Vec<usize> = (0..out.len()).filter(|&j| out[j] < 0.0).collect();
+        if !open.is_empty() {
+            let far: Vec<[f64; 3]> = open.iter().map(|&j| queries[j]).collect();
+            for (j, d) in open.into_iter().zip(self.tree_distances(&far)) {
+                out[j] = d;
+            }
+        }
+        out
+    }
+
+    /// [`PointIndex::distances`] from the k-d tree alone.
+    fn tree_distances(&self, queries: &[[f64; 3]]) -> Vec<f64> {
+        let tree = self.tree();
         // Queried in spatial order, each query's answer bounds the next search (the distances
         // are the same as without it).
         in_spatial_order(queries, |j, hint| {
@@ -1138,7 +1201,7 @@ impl<'a> PointIndex<'a> {
             if !is_finite(&q) {
                 return (f64::NAN, hint);
             }
-            let (d2, i) = nearest_in(&self.tree, q, hint);
+            let (d2, i) = nearest_in(tree, q, hint);
             (d2.sqrt(), Some(self.points[i]))
         })
     }
@@ -1311,6 +1374,44 @@ mod tests {
                 .fold(f64::INFINITY, f64::min);
             assert_eq!(d[j], brute.sqrt());
         }
+    }
+
+    #[test]
+    fn index_distances_match_brute_force_near_far_and_on_clustered_points() {
+        // A ring of points, and queries near it, far beyond the grid's rings (the k-d tree
+        // answers those) and not finite; then a clump too dense for the grid (the tree alone).
+        let ring: Vec<[f64; 3]> = (0..3000)
+            .map(|i| {
+                let t = i as f64 * 0.0021;
+                [t.cos(), t.sin(), 0.01 * (i % 5) as f64]
+            })
+            .collect();
+        let mut clump: Vec<[f64; 3]> = (0..3000)
+            .map(|i| [1e-9 * (i % 10) as f64, 0.0, 0.0])
+            .collect();
+        clump.extend([[1.0, 1.0, 1.0], [-1.0, 0.0, 2.0]]);
+        for points in [&ring, &clump] {
+            let mut queries: Vec<[f64; 3]> = (0..400)
+                .map(|j| {
+                    let s = j as f64 * 0.37;
+                    let r = if j % 3 == 0 { 50.0 } else { 1.05 };
+                    [r * s.cos(), r * s.sin(), 0.02 * (j % 7) as f64]
+                })
+                .collect();
+            queries.push([f64::NAN, 0.0, 0.0]);
+            let index = PointIndex::new(points).unwrap();
+            let d = index.distances(&queries);
+            assert!(d[400].is_nan());
+            for (q, d) in queries.iter().zip(&d).take(400) {
+                let brute = points
+                    .iter()
+                    .map(|p| dist2(*q, *p))
+                    .fold(f64::INFINITY, f64::min);
+                assert_eq!(d.to_bits(), brute.sqrt().to_bits());
+            }
+            assert_eq!(index.tree().nearest(queries[1]).0.sqrt(), d[1]);
+        }
+        assert!(NearestGrid::new(&ring).is_some() && NearestGrid::new(&clump).is_none());
     }
 
     #[test]

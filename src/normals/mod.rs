@@ -505,39 +505,73 @@ impl<'a> Dedup<'a> {
     fn new(points: &'a [[f64; 3]]) -> Dedup<'a> {
         // `+ 0.0` turns -0.0 into 0.0 so that both compare equal, as they do as numbers.
         let key = |i: usize| points[i].map(|c| (c + 0.0).to_bits());
-        // Equal points have equal hashes: sorting (hash, index) pairs brings every group of
-        // twins together, first occurrence first, and a run of equal hashes (almost always a
-        // single point) is split by the keys themselves.
-        let mut keyed: Vec<(u64, u32)> = (0..points.len())
+        let hashes: Vec<u64> = (0..points.len())
             .into_par_iter()
-            .map(|i| (mix(key(i)), i as u32))
+            .map(|i| mix(key(i)))
             .collect();
-        keyed.par_sort_unstable();
-        // (point, its first occurrence) for every repeated point.
-        let mut twins: Vec<(u32, u32)> = Vec::new();
-        let mut start = 0;
-        while start < keyed.len() {
-            let mut end = start + 1;
-            while end < keyed.len() && keyed[end].0 == keyed[start].0 {
-                end += 1;
+        // Equal points have equal hashes, so every group of twins falls into one bucket of the
+        // hash's high bits. The buckets list their points in index order (a stable counting
+        // sort), and each bucket is swept in that order through a small open-addressing table
+        // of the points seen so far: a point equal to one in the table is a twin of it, which
+        // is its first occurrence (a twin is never inserted).
+        let bits = bucket_bits(points.len());
+        let bucket = |h: u64| {
+            if bits == 0 {
+                0
+            } else {
+                (h >> (64 - bits)) as usize
             }
-            if end > start + 1 {
-                // A run of equal hashes: its points sorted by (key, index) fall into groups of
-                // twins, each led by its first occurrence.
-                let mut run: Vec<u32> = keyed[start..end].iter().map(|e| e.1).collect();
-                run.sort_unstable_by_key(|&i| (key(i as usize), i));
-                let mut lead = 0;
-                for w in 1..run.len() {
-                    if key(run[w] as usize) != key(run[lead] as usize) {
-                        lead = w;
-                    } else {
-                        twins.push((run[w], run[lead]));
-                    }
-                }
-            }
-            start = end;
+        };
+        let mut start = vec![0u32; (1 << bits) + 1];
+        for &h in &hashes {
+            start[bucket(h) + 1] += 1;
         }
-        drop(keyed);
+        for b in 0..1 << bits {
+            start[b + 1] += start[b];
+        }
+        let mut order = vec![(0u64, 0u32); points.len()];
+        let mut next = start.clone();
+        for (i, &h) in hashes.iter().enumerate() {
+            let slot = &mut next[bucket(h)];
+            order[*slot as usize] = (h, i as u32);
+            *slot += 1;
+        }
+        drop((next, hashes));
+        // (point, its first occurrence) for every repeated point, in no particular order.
+        let twins: Vec<(u32, u32)> = start
+            .par_windows(2)
+            .fold(
+                || (Vec::<(u64, u32)>::new(), Vec::<(u32, u32)>::new()),
+                |(mut table, mut twins), w| {
+                    let members = &order[w[0] as usize..w[1] as usize];
+                    let size = (2 * members.len()).next_power_of_two();
+                    table.clear();
+                    table.resize(size, (0, u32::MAX));
+                    let mask = size - 1;
+                    for &(h, i) in members {
+                        let mut slot = h as usize & mask;
+                        loop {
+                            let (hj, j) = table[slot];
+                            if j == u32::MAX {
+                                table[slot] = (h, i);
+                                break;
+                            }
+                            if hj == h && key(j as usize) == key(i as usize) {
+                                twins.push((i, j));
+                                break;
+                            }
+                            slot = (slot + 1) & mask;
+                        }
+                    }
+                    (table, twins)
+                },
+            )
+            .map(|(_, twins)| twins)
+            .reduce(Vec::new, |mut a, b| {
+                a.extend(b);
+                a
+            });
+        drop((order, start));
         if twins.is_empty() {
             return Dedup {
                 unique: Cow::Borrowed(points),
@@ -603,6 +637,12 @@ impl<'a> Dedup<'a> {
     fn n_points(&self) -> usize {
         self.of_point.as_ref().map_or(self.unique.len(), Vec::len)
     }
+}
+
+/// How many high bits of the hash number the buckets of [`Dedup::new`] for `n` points: about a
+/// thousand points per bucket, so that each bucket's table stays in the cache.
+fn bucket_bits(n: usize) -> u32 {
+    (n / 1024).max(1).ilog2().min(16)
 }
 
 /// A 64-bit mix of a point's coordinate bits (equal points, equal values), for [`Dedup`].
@@ -793,6 +833,45 @@ mod tests {
         for i in 0..pts.len() {
             assert_eq!(first[of_point[i] as usize], first_of(i));
         }
+        // Many buckets: 200,000 points, a third of them repeats of earlier ones (some as -0.0).
+        let mut seed = 99u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            seed >> 33
+        };
+        let mut pts: Vec<[f64; 3]> = Vec::new();
+        for i in 0..200_000usize {
+            let r = next();
+            if i > 0 && r % 3 == 0 {
+                let j = (next() as usize) % i;
+                pts.push(pts[j].map(|c| if c == 0.0 { -c } else { c }));
+            } else {
+                pts.push([(r % 1000) as f64 * 0.5, (r / 1000 % 7) as f64, 0.0]);
+            }
+        }
+        let d = Dedup::new(&pts);
+        let mut seen = std::collections::HashMap::new();
+        let mut first = Vec::new();
+        let mut of_point = Vec::new();
+        for (i, p) in pts.iter().enumerate() {
+            let k = p.map(|c| (c + 0.0).to_bits());
+            let u = *seen.entry(k).or_insert_with(|| {
+                first.push(i as u32);
+                first.len() as u32 - 1
+            });
+            of_point.push(u);
+        }
+        assert!(first.len() < pts.len() && bucket_bits(pts.len()) > 4);
+        assert_eq!(d.first.as_ref(), Some(&first));
+        assert_eq!(d.of_point.as_ref(), Some(&of_point));
+        let unique: Vec<[f64; 3]> = first.iter().map(|&i| pts[i as usize]).collect();
+        assert!(d
+            .unique
+            .iter()
+            .zip(&unique)
+            .all(|(a, b)| a.map(f64::to_bits) == b.map(f64::to_bits)));
         let distinct: Vec<[f64; 3]> = (0..500).map(|i| [i as f64, 0.0, 1.0]).collect();
         let d = Dedup::new(&distinct);
         assert!(matches!(d.unique, Cow::Borrowed(_)) && d.first.is_none() && d.of_point.is_none());
