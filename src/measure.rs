@@ -29,7 +29,7 @@
 //! mesh figure cannot see.
 //!
 //! One [`PointIndex`] of the data answers all of an export's nearest-point queries: the
-//! distances from a uniform grid of the points (`NearestGrid`, a counting sort, built in a
+//! distances from a uniform grid of the points (`PointGrid::for_nearest`, a counting sort, built in a
 //! fraction of a k-d tree's time over a scan of millions of points), with the k-d tree below
 //! for what the grid leaves open and for the colours' nearest points. The k-d trees (here and
 //! for the seeds of [`crate::distance`]) are
@@ -50,7 +50,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::mesh::{TriangleMesh, VertexTriangles};
-use crate::numerics::NearestGrid;
+use crate::numerics::PointGrid;
 
 /// Directed and symmetric Chamfer distances (input units).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -1111,15 +1111,16 @@ pub fn nearest_point_distances(queries: &[[f64; 3]], points: &[[f64; 3]]) -> Opt
 /// The finite points of a set, indexed once to answer every nearest-point query of the export
 /// (the PLY's vertex quality, the mesh → data accuracy, the vertex colours).
 ///
-/// Distances come from a [`NearestGrid`] (a counting sort of the points into cells, far
-/// cheaper to build than a k-d tree over millions of points); a query the grid does not settle
+/// Distances come from a uniform grid of the points (`numerics::PointGrid::for_nearest`: a
+/// counting sort of the points into cells, far cheaper to build than a k-d tree over millions
+/// of points); a query the grid does not settle
 /// within a few rings of cells, and every query when the points are too clustered for one cell
 /// size, goes to the [`PointTree`], built the first time it is needed. Both give the same
 /// distances (the minimum of the same squared distances), so which one answers changes the
 /// time, never the result.
 pub struct PointIndex<'a> {
     points: Cow<'a, [[f64; 3]]>,
-    grid: Option<NearestGrid>,
+    grid: Option<PointGrid>,
     tree: OnceLock<PointTree>,
 }
 
@@ -1135,7 +1136,7 @@ impl<'a> PointIndex<'a> {
         if points.is_empty() || points.len() > u32::MAX as usize {
             return None;
         }
-        let grid = NearestGrid::new(&points);
+        let grid = PointGrid::for_nearest(&points);
         let index = PointIndex {
             points,
             grid,
@@ -1266,16 +1267,7 @@ mod tests {
 
     #[test]
     fn distance_to_a_square_made_of_two_triangles() {
-        let mesh = TriangleMesh {
-            positions: vec![
-                [0.0, 0.0, 0.0],
-                [1.0, 0.0, 0.0],
-                [1.0, 1.0, 0.0],
-                [0.0, 1.0, 0.0],
-            ],
-            normals: vec![[0.0, 0.0, 1.0]; 4],
-            triangles: vec![[0, 1, 2], [0, 2, 3]],
-        };
+        let mesh = crate::mesh::unit_square();
         let d = point_to_mesh_distances(&[[0.3, 0.6, 0.25], [2.0, 0.5, 0.0]], &mesh);
         assert!((d[0] - 0.25).abs() < 1e-12);
         assert!((d[1] - 1.0).abs() < 1e-12);
@@ -1411,7 +1403,9 @@ mod tests {
             }
             assert_eq!(index.tree().nearest(queries[1]).0.sqrt(), d[1]);
         }
-        assert!(NearestGrid::new(&ring).is_some() && NearestGrid::new(&clump).is_none());
+        assert!(
+            PointGrid::for_nearest(&ring).is_some() && PointGrid::for_nearest(&clump).is_none()
+        );
     }
 
     #[test]

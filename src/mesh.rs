@@ -957,6 +957,21 @@ pub(crate) fn lat_long_sphere(
     }
 }
 
+/// The unit square [0, 1]² at z = 0 as two triangles facing +z: a fixture of the tests.
+#[cfg(test)]
+pub(crate) fn unit_square() -> TriangleMesh {
+    TriangleMesh {
+        positions: vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+        ],
+        normals: vec![[0.0, 0.0, 1.0]; 4],
+        triangles: vec![[0, 1, 2], [0, 2, 3]],
+    }
+}
+
 /// The axis-aligned box (min, max) of triangle `t`'s corners in `positions`.
 pub(crate) fn triangle_box(t: &[u32; 3], positions: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
     let mut lo = positions[t[0] as usize];

@@ -304,16 +304,7 @@ mod tests {
     use super::*;
 
     fn quad() -> TriangleMesh {
-        TriangleMesh {
-            positions: vec![
-                [0.0, 0.0, 0.0],
-                [1.0, 0.0, 0.0],
-                [1.0, 1.0, 0.0],
-                [0.0, 1.0, 0.0],
-            ],
-            normals: vec![[0.0, 0.0, 1.0]; 4],
-            triangles: vec![[0, 1, 2], [0, 2, 3]],
-        }
+        crate::mesh::unit_square()
     }
 
     #[test]

@@ -9,12 +9,10 @@
 
 pub(crate) mod cholesky;
 mod lcg;
-pub(crate) mod nearest_grid;
 pub(crate) mod point_grid;
 pub(crate) mod predicates;
 pub(crate) mod union_find;
 
 pub use lcg::Lcg;
-pub(crate) use nearest_grid::NearestGrid;
 pub(crate) use point_grid::{Neighbours, PointGrid};
 pub(crate) use union_find::UnionFind;

@@ -1,5 +1,7 @@
-//! Exact k-nearest-neighbour queries on a uniform grid of buckets, for the plane fits of the
-//! `normals` stage and the local sample spacings of `trim`.
+//! Exact k-nearest-neighbour and nearest-distance queries on a uniform grid of buckets: the k
+//! nearest for the plane fits of the `normals` stage and the local sample spacings of `trim`
+//! ([`PointGrid::new`]), the nearest distance for the mesh → data queries of `measure` (the
+//! PLY's vertex quality, the accuracy by area; [`PointGrid::for_nearest`]).
 //!
 //! Input: the points (finite coordinates, any number up to `u32::MAX`). Output: for a point of
 //! the set, its k nearest neighbours, nearest first, ties in distance broken by the smaller
@@ -24,6 +26,16 @@
 //!
 //! Distances are squared Euclidean summed as ((dx² + dy²) + dz²), the same operations as the
 //! `kiddo` crate's, so the order of non-tied neighbours is the one it gave.
+//!
+//! Method of a nearest-distance query ([`PointGrid::nearest2`]): its own cell, then rings of
+//! cells around it (Chebyshev distance 1, 2, …), each row of a ring trimmed to the cells that
+//! can hold a point closer than the best so far, until every cell outside the rings scanned is
+//! at least as far as that best; `None` past [`MAX_RING`] rings (the caller's k-d tree answers
+//! it). Cell bounds are widened by a slack far above the rounding of the cell coordinates and
+//! the face cells reach to infinity (they hold the clamped outliers), so pruning never drops a
+//! point that could be nearer; the answer is the minimum of the same squared distances a k-d
+//! tree computes, bit for bit. Such a grid is a counting sort (O(N)): over millions of scan
+//! points it is built in a fraction of a k-d tree's time (median splits at every level).
 
 use rayon::prelude::*;
 
@@ -31,6 +43,19 @@ use crate::vec3::sub;
 
 /// Largest number of cells the grid may have, per point (the cell size grows to keep it).
 const CELLS_PER_POINT: usize = 2;
+
+/// Rings of cells a [`PointGrid::nearest2`] query searches at most before it gives up (answer
+/// `None`): 9³ cells, so that a query far from every point wastes little before the caller's
+/// k-d tree answers it.
+const MAX_RING: usize = 4;
+
+/// Largest mean number of points sharing a point's cell (Σ count² / N) that
+/// [`PointGrid::for_nearest`] accepts; beyond it the points are too clustered for cells of one
+/// size.
+const MAX_OCCUPANCY: f64 = 256.0;
+
+/// Points sampled per axis for the quantiles of [`PointGrid::for_nearest`]'s box.
+const BOX_SAMPLES: usize = 1 << 16;
 
 /// Points per task of [`PointGrid::all_nearest`] (fixed, so the hints, which only change the
 /// speed, follow the same sequence on any thread count).
@@ -51,6 +76,9 @@ pub(crate) struct PointGrid {
     sorted: Vec<[f64; 3]>,
     /// The input index of each of `sorted`.
     items: Vec<u32>,
+    /// Per axis, the widening of every cell bound in [`PointGrid::nearest2`] (a safe margin
+    /// over the rounding of the cell coordinates).
+    slack: [f64; 3],
 }
 
 /// A key whose integer order is the order of `(distance, index)` by `f64::total_cmp` and then
@@ -70,14 +98,40 @@ fn order_key(distance: f64, index: u32) -> u128 {
 }
 
 impl PointGrid {
-    /// Buckets `points`; `None` when there are none, more than `u32::MAX`, or a non-finite
-    /// coordinate.
+    /// Buckets `points` for k-nearest queries (about one cell per point); `None` when there are
+    /// none, more than `u32::MAX`, or a non-finite coordinate.
     pub(crate) fn new(points: &[[f64; 3]]) -> Option<PointGrid> {
-        let n = points.len();
-        if n == 0 || n > u32::MAX as usize || points.iter().flatten().any(|x| !x.is_finite()) {
+        if !usable(points) {
             return None;
         }
-        let (lo, hi) = robust_box(points);
+        PointGrid::bucketed(points, robust_box(points, usize::MAX), 1.0)
+    }
+
+    /// Buckets `points` for [`PointGrid::nearest2`] (about two cells per point, the box from a
+    /// sample); `None` as [`PointGrid::new`], and when the points are too clustered for cells of
+    /// one size (on average more than [`MAX_OCCUPANCY`] points share a point's cell).
+    pub(crate) fn for_nearest(points: &[[f64; 3]]) -> Option<PointGrid> {
+        if !usable(points) {
+            return None;
+        }
+        let grid = PointGrid::bucketed(points, robust_box(points, BOX_SAMPLES), 2.0)?;
+        let occupancy = grid
+            .start
+            .windows(2)
+            .map(|w| f64::from(w[1] - w[0]).powi(2))
+            .sum::<f64>()
+            / points.len() as f64;
+        (occupancy <= MAX_OCCUPANCY).then_some(grid)
+    }
+
+    /// The grid over `points` (usable) in the box `(lo, hi)` (points outside it go to the cells
+    /// at its faces), with cells sized for about `cells_per_point` cells per point over the box.
+    fn bucketed(
+        points: &[[f64; 3]],
+        (lo, hi): ([f64; 3], [f64; 3]),
+        cells_per_point: f64,
+    ) -> Option<PointGrid> {
+        let n = points.len();
         let extent = [0, 1, 2].map(|a| hi[a] - lo[a]);
         let longest = extent.iter().fold(0.0f64, |m, &e| m.max(e));
         if !longest.is_finite() {
@@ -87,7 +141,7 @@ impl PointGrid {
         // in a cloud that fills its box, a few per occupied cell on a scanned surface.
         let floor = if longest > 0.0 { longest * 1e-6 } else { 1.0 };
         let volume: f64 = extent.iter().map(|&e| e.max(floor)).product();
-        let mut cell = (volume / n as f64).cbrt().max(floor);
+        let mut cell = (volume / (cells_per_point * n as f64)).cbrt().max(floor);
         let dims = loop {
             let dims = extent.map(|e| (e / cell).floor() as usize + 1);
             let cells = dims.iter().try_fold(1usize, |acc, &d| acc.checked_mul(d));
@@ -117,6 +171,7 @@ impl PointGrid {
             *slot += 1;
         }
         let sorted = items.iter().map(|&i| points[i as usize]).collect();
+        let slack = [0, 1, 2].map(|a| 1e-9 * (lo[a].abs() + hi[a].abs() + cell * dims[a] as f64));
         Some(PointGrid {
             origin: lo,
             cell,
@@ -124,6 +179,7 @@ impl PointGrid {
             start,
             sorted,
             items,
+            slack,
         })
     }
 
@@ -146,6 +202,122 @@ impl PointGrid {
         } else {
             (c as usize).min(self.dims[axis] - 1)
         }
+    }
+
+    /// A lower bound of |x − y| along `axis` for x = `q` and y any point of cell `i`: the gap
+    /// between `q` and the cell, less the slack (0 when `q` is within the widened cell). The
+    /// grid's first and last cells reach to −∞ and +∞ (they hold the points clamped into them).
+    fn gap(&self, q: f64, axis: usize, i: usize) -> f64 {
+        let below = if i == 0 {
+            f64::NEG_INFINITY
+        } else {
+            self.origin[axis] + i as f64 * self.cell
+        };
+        let above = if i + 1 == self.dims[axis] {
+            f64::INFINITY
+        } else {
+            self.origin[axis] + (i + 1) as f64 * self.cell
+        };
+        let g = if q < below {
+            below - q
+        } else if q > above {
+            q - above
+        } else {
+            0.0
+        };
+        (g - self.slack[axis] - 1e-9 * q.abs()).max(0.0)
+    }
+
+    /// The smallest squared distance from `q` (finite) to the points, summed as
+    /// `measure::dist2` sums it; `None` when it was not settled within [`MAX_RING`] rings of
+    /// cells around `q`'s cell.
+    pub(crate) fn nearest2(&self, q: [f64; 3]) -> Option<f64> {
+        let c = [0, 1, 2].map(|a| self.cell_of(q[a], a));
+        let mut best = f64::INFINITY;
+        for k in 0..=MAX_RING + 1 {
+            if k > 0 {
+                // Every cell not yet scanned is outside the block of the rings before this one:
+                // beyond one of its faces, so at least that face's gap away.
+                let r = k - 1;
+                let mut outside = f64::INFINITY;
+                for a in 0..3 {
+                    if c[a] > r {
+                        outside = outside.min(self.gap(q[a], a, c[a] - r - 1));
+                    }
+                    if c[a] + r + 1 < self.dims[a] {
+                        outside = outside.min(self.gap(q[a], a, c[a] + r + 1));
+                    }
+                }
+                if outside == f64::INFINITY || lower(outside * outside) >= best {
+                    return Some(best);
+                }
+            }
+            if k > MAX_RING {
+                break;
+            }
+            self.scan_ring(q, c, k, &mut best);
+        }
+        None
+    }
+
+    /// Lowers `best` to the squared distance of any point in the ring of cells at Chebyshev
+    /// distance `k` from cell `c` that is closer.
+    fn scan_ring(&self, q: [f64; 3], c: [usize; 3], k: usize, best: &mut f64) {
+        let range = |a: usize| c[a].saturating_sub(k)..=(c[a] + k).min(self.dims[a] - 1);
+        for z in range(2) {
+            let gz = self.gap(q[2], 2, z);
+            let gz2 = gz * gz;
+            if lower(gz2) >= *best {
+                continue;
+            }
+            let z_face = z.abs_diff(c[2]) == k;
+            for y in range(1) {
+                let gy = self.gap(q[1], 1, y);
+                let gyz2 = gy * gy + gz2;
+                if lower(gyz2) >= *best {
+                    continue;
+                }
+                let row = self.dims[0] * (y + self.dims[1] * z);
+                if z_face || y.abs_diff(c[1]) == k {
+                    let (mut x0, mut x1) = (*range(0).start(), *range(0).end());
+                    // Trimmed to the cells that may hold a closer point.
+                    while x0 < x1 && self.cell_beyond(q[0], x0, gyz2, *best) {
+                        x0 += 1;
+                    }
+                    while x1 > x0 && self.cell_beyond(q[0], x1, gyz2, *best) {
+                        x1 -= 1;
+                    }
+                    if !self.cell_beyond(q[0], x0, gyz2, *best) {
+                        self.scan_min(q, row + x0, row + x1 + 1, best);
+                    }
+                } else {
+                    for x in [c[0].checked_sub(k), Some(c[0] + k)].into_iter().flatten() {
+                        if x < self.dims[0] && !self.cell_beyond(q[0], x, gyz2, *best) {
+                            self.scan_min(q, row + x, row + x + 1, best);
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Whether cell `x` of a row whose (y, z) squared gap is `gyz2` lies at or beyond `best`.
+    #[inline]
+    fn cell_beyond(&self, qx: f64, x: usize, gyz2: f64, best: f64) -> bool {
+        let gx = self.gap(qx, 0, x);
+        lower(gx * gx + gyz2) >= best
+    }
+
+    /// Lowers `best` by the points of cells `from..to` (consecutive in `sorted`).
+    #[inline]
+    fn scan_min(&self, q: [f64; 3], from: usize, to: usize, best: &mut f64) {
+        let (from, to) = (self.start[from] as usize, self.start[to] as usize);
+        let mut b = *best;
+        for p in &self.sorted[from..to] {
+            let d2 = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2);
+            b = b.min(d2);
+        }
+        *best = b;
     }
 
     /// Appends to `keys` the [`order_key`] of every point within squared distance `r2` of `q`;
@@ -184,8 +356,9 @@ impl PointGrid {
         hint2: f64,
         keys: &mut Vec<u128>,
     ) -> (Vec<u32>, f64) {
-        let farthest = self.nearest_keys(points, i, k, hint2, keys);
-        (listed(keys, i, k).collect(), farthest)
+        let mut out = Vec::with_capacity(k);
+        let farthest = self.nearest_into(points, i, k, hint2, keys, &mut out);
+        (out, farthest)
     }
 
     /// [`PointGrid::nearest`], the answer appended to `out` (no allocation once `out` and
@@ -380,33 +553,64 @@ impl Neighbours {
     }
 }
 
-/// The box the grid covers: per axis, the 1% and 99% quantiles of the coordinates widened by a
-/// quarter of their distance, within the points' bounding box. A legitimate object lies inside
-/// it; a few stray points far away (a scan's outliers) fall outside and are kept in the cells
-/// at the grid's faces (cell coordinates are clamped), which keeps the queries exact, while
-/// the cells stay sized for the object: with the plain bounding box, one point 1000 sizes
-/// away made every cell hold the whole object and the queries 30 times slower.
-fn robust_box(points: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
+/// Whether `points` can be bucketed: some, at most `u32::MAX`, all coordinates finite.
+fn usable(points: &[[f64; 3]]) -> bool {
     let n = points.len();
-    let tail = n / 100;
+    n > 0 && n <= u32::MAX as usize && points.iter().flatten().all(|x| x.is_finite())
+}
+
+/// The box the grid covers: per axis, the 1% and 99% quantiles of the coordinates (of every
+/// k-th point when there are more than `most`) widened by a quarter of their distance, within
+/// the points' bounding box. A legitimate object lies inside it; a few stray points far away (a
+/// scan's outliers) fall outside and are kept in the cells at the grid's faces (cell
+/// coordinates are clamped), which keeps the queries exact, while the cells stay sized for the
+/// object: with the plain bounding box, one point 1000 sizes away made every cell hold the
+/// whole object and the queries 30 times slower.
+fn robust_box(points: &[[f64; 3]], most: usize) -> ([f64; 3], [f64; 3]) {
+    let step = points.len().div_ceil(most.max(1)).max(1);
+    let (min, max) = points
+        .par_iter()
+        .fold(
+            || ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
+            |(mut lo, mut hi), p| {
+                for a in 0..3 {
+                    lo[a] = lo[a].min(p[a]);
+                    hi[a] = hi[a].max(p[a]);
+                }
+                (lo, hi)
+            },
+        )
+        .reduce(
+            || ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]),
+            |(l1, h1), (l2, h2)| {
+                (
+                    [0, 1, 2].map(|a| l1[a].min(l2[a])),
+                    [0, 1, 2].map(|a| h1[a].max(h2[a])),
+                )
+            },
+        );
     let mut lo = [0.0; 3];
     let mut hi = [0.0; 3];
-    let mut coordinate: Vec<f64> = Vec::with_capacity(n);
+    let mut coordinate: Vec<f64> = Vec::with_capacity(points.len().div_ceil(step));
     for a in 0..3 {
         coordinate.clear();
-        coordinate.extend(points.iter().map(|p| p[a]));
-        let (min, max) = coordinate
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &x| {
-                (l.min(x), h.max(x))
-            });
+        coordinate.extend(points.iter().step_by(step).map(|p| p[a]));
+        let m = coordinate.len();
+        let tail = m / 100;
         let (_, &mut low, _) = coordinate.select_nth_unstable_by(tail, f64::total_cmp);
-        let (_, &mut high, _) = coordinate.select_nth_unstable_by(n - 1 - tail, f64::total_cmp);
+        let (_, &mut high, _) = coordinate.select_nth_unstable_by(m - 1 - tail, f64::total_cmp);
         let margin = 0.25 * (high - low);
-        lo[a] = (low - margin).max(min);
-        hi[a] = (high + margin).min(max);
+        lo[a] = (low - margin).max(min[a]);
+        hi[a] = (high + margin).min(max[a]);
     }
     (lo, hi)
+}
+
+/// A squared gap made a little smaller, so that rounding never makes it exceed the squared
+/// distance of a point beyond that gap.
+#[inline]
+fn lower(g2: f64) -> f64 {
+    g2 * (1.0 - 1e-12)
 }
 
 /// The squared distance an [`order_key`] was made of (for a non-negative distance).
@@ -418,6 +622,7 @@ fn distance_of_key(key: u128) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::measure::{dist2, PointTree};
 
     /// The k nearest by brute force: all (distance, index) keys sorted.
     fn brute(points: &[[f64; 3]], i: usize, k: usize) -> Vec<u32> {
@@ -444,34 +649,60 @@ mod tests {
         (*seed >> 11) as f64 / (1u64 << 53) as f64
     }
 
-    #[test]
-    fn nearest_is_exact_on_surfaces_clouds_lattices_and_outliers() {
-        let mut seed = 7;
-        let mut sphere: Vec<[f64; 3]> = (0..1500)
+    /// `n` random points on the unit sphere.
+    fn random_sphere(n: usize, seed: &mut u64) -> Vec<[f64; 3]> {
+        (0..n)
             .map(|_| {
-                let (u, v) = (lcg(&mut seed), lcg(&mut seed));
+                let (u, v) = (lcg(seed), lcg(seed));
                 let z = 2.0 * u - 1.0;
                 let r = (1.0 - z * z).sqrt();
                 let a = std::f64::consts::TAU * v;
                 [r * a.cos(), r * a.sin(), z]
             })
-            .collect();
+            .collect()
+    }
+
+    /// `n` random points filling the box [0, 1] × [0, 2] × [0, 0.5].
+    fn random_box(n: usize, seed: &mut u64) -> Vec<[f64; 3]> {
+        (0..n)
+            .map(|_| [lcg(seed), 2.0 * lcg(seed), 0.5 * lcg(seed)])
+            .collect()
+    }
+
+    /// The unit lattice of `side`³ points: many exactly equal distances.
+    fn lattice(side: usize) -> Vec<[f64; 3]> {
+        (0..side.pow(3))
+            .map(|i| {
+                [
+                    (i % side) as f64,
+                    (i / side % side) as f64,
+                    (i / side / side) as f64,
+                ]
+            })
+            .collect()
+    }
+
+    /// A `side` × `side` lattice of spacing 0.1 in the plane z = 3 (one axis flat).
+    fn plane(side: usize) -> Vec<[f64; 3]> {
+        (0..side * side)
+            .map(|i| [(i % side) as f64 * 0.1, (i / side) as f64 * 0.1, 3.0])
+            .collect()
+    }
+
+    #[test]
+    fn nearest_is_exact_on_surfaces_clouds_lattices_and_outliers() {
+        let mut seed = 7;
+        let mut sphere = random_sphere(1500, &mut seed);
         // A far outlier and a dense clump: cells far from uniform.
         sphere.push([40.0, -3.0, 7.0]);
         for t in 0..50 {
             sphere.push([0.2 + 1e-4 * t as f64, 0.1, 0.97]);
         }
-        let cloud: Vec<[f64; 3]> = (0..1000)
-            .map(|_| [lcg(&mut seed), 2.0 * lcg(&mut seed), 0.5 * lcg(&mut seed)])
-            .collect();
+        let cloud = random_box(1000, &mut seed);
         // A lattice: many exactly equal distances, so the ties decide.
-        let lattice: Vec<[f64; 3]> = (0..729)
-            .map(|i| [(i % 9) as f64, (i / 9 % 9) as f64, (i / 81) as f64])
-            .collect();
+        let lattice = lattice(9);
         // A plane (one axis flat) and a line.
-        let plane: Vec<[f64; 3]> = (0..400)
-            .map(|i| [(i % 20) as f64 * 0.1, (i / 20) as f64 * 0.1, 3.0])
-            .collect();
+        let plane = plane(20);
         let line: Vec<[f64; 3]> = (0..100).map(|i| [i as f64, 0.0, 0.0]).collect();
         for points in [&sphere, &cloud, &lattice, &plane, &line] {
             let grid = PointGrid::new(points).unwrap();
@@ -538,5 +769,89 @@ mod tests {
         );
         assert!(PointGrid::new(&[]).is_none());
         assert!(PointGrid::new(&[[f64::NAN, 0.0, 0.0]]).is_none());
+    }
+
+    /// Every query's grid answer, where it gives one, equals the k-d tree's and the brute
+    /// force's bit for bit; returns how many it answered.
+    fn check_nearest2(points: &[[f64; 3]], queries: &[[f64; 3]]) -> usize {
+        let grid = PointGrid::for_nearest(points).expect("grid");
+        let tree = PointTree::new(points).unwrap();
+        let mut answered = 0;
+        for q in queries {
+            let brute = points
+                .iter()
+                .map(|p| dist2(*q, *p))
+                .fold(f64::INFINITY, f64::min);
+            assert_eq!(tree.nearest(*q).0.to_bits(), brute.to_bits());
+            if let Some(d2) = grid.nearest2(*q) {
+                assert_eq!(d2.to_bits(), brute.to_bits(), "query {q:?}");
+                answered += 1;
+            }
+        }
+        answered
+    }
+
+    #[test]
+    fn nearest_matches_the_tree_on_surfaces_clouds_duplicates_and_outliers() {
+        let mut seed = 11;
+        let mut sphere = random_sphere(4000, &mut seed);
+        // Far outliers on every side, clamped into the grid's face cells.
+        sphere.extend([[40.0, -3.0, 7.0], [-25.0, 0.0, 0.0], [0.1, 0.2, -90.0]]);
+        let mut queries: Vec<[f64; 3]> = (0..1500)
+            .map(|_| [0, 1, 2].map(|_| 2.6 * lcg(&mut seed) - 1.3))
+            .collect();
+        // Queries on the points, far outside, beyond the outliers and next to them.
+        queries.extend(sphere.iter().step_by(97).copied());
+        queries.extend([
+            [100.0, 100.0, 100.0],
+            [-1e6, 3.0, 0.0],
+            [39.0, -3.0, 7.5],
+            [0.0, 0.0, -89.0],
+        ]);
+        let answered = check_nearest2(&sphere, &queries);
+        assert!(answered > queries.len() * 9 / 10, "{answered}");
+
+        // A cloud filling its box, a lattice (many equal distances) and duplicate-heavy data.
+        let cloud = random_box(3000, &mut seed);
+        let lattice = lattice(10);
+        let duplicates: Vec<[f64; 3]> = (0..3000)
+            .map(|i| {
+                let v = (i * 7919 % 50) as f64;
+                [v * 0.1, (v * 0.37).sin(), 0.0]
+            })
+            .collect();
+        // A plane (one axis flat) and a line.
+        let plane = plane(30);
+        let line: Vec<[f64; 3]> = (0..300).map(|i| [i as f64 * 0.5, 1.0, -2.0]).collect();
+        for points in [&cloud, &lattice, &duplicates, &plane, &line] {
+            let queries: Vec<[f64; 3]> = (0..800)
+                .map(|j| {
+                    let p = points[j * 13 % points.len()];
+                    let s = if j % 4 == 0 { 20.0 } else { 0.3 };
+                    [0, 1, 2].map(|a| p[a] + s * (lcg(&mut seed) - 0.5))
+                })
+                .chain(points.iter().step_by(31).copied())
+                .collect();
+            let answered = check_nearest2(points, &queries);
+            assert!(answered > queries.len() / 2, "{answered}");
+        }
+        // A single point.
+        assert_eq!(
+            check_nearest2(&[[1.0, 2.0, 3.0]], &[[0.0, 0.0, 0.0], [1.0, 2.0, 3.0]]),
+            2
+        );
+    }
+
+    #[test]
+    fn clustered_and_unusable_sets_are_declined() {
+        // Nearly all points in one tiny clump, a few spread out: one cell would hold the clump.
+        let mut seed = 5;
+        let mut points: Vec<[f64; 3]> = (0..20_000)
+            .map(|_| [0, 1, 2].map(|_| 1e-7 * lcg(&mut seed)))
+            .collect();
+        points.extend((0..4000).map(|_| [0, 1, 2].map(|_| lcg(&mut seed))));
+        assert!(PointGrid::for_nearest(&points).is_none());
+        assert!(PointGrid::for_nearest(&[]).is_none());
+        assert!(PointGrid::for_nearest(&[[f64::NAN, 0.0, 0.0]]).is_none());
     }
 }

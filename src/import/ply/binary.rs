@@ -151,26 +151,12 @@ fn count_hint<const BIG: bool>(body: &[u8], header: &Header, plan: &Plan) -> Opt
     None
 }
 
-/// The error for a face of a binary body that refers to a vertex the header does not declare.
-fn bad_index(
-    path: &str,
-    header: &Header,
-    element: &Element,
-    face: u64,
-    index: i64,
-    pos: usize,
-) -> ImportError {
+/// What is wrong with a face that refers to vertex `index`, which the header does not declare.
+fn bad_index(header: &Header, face: u64, index: i64) -> String {
     let n = header.elements[header_vertex(header)].count;
-    bad_binary(
-        path,
-        header,
-        element,
-        face,
-        pos,
-        format!(
-            "face {face} refers to vertex {index}, but the header declares {n} vertices \
-             (0-based indices 0..{n}); fix or remove that face"
-        ),
+    format!(
+        "face {face} refers to vertex {index}, but the header declares {n} vertices (0-based \
+         indices 0..{n}); fix or remove that face"
     )
 }
 
@@ -201,26 +187,12 @@ fn header_vertex(header: &Header) -> usize {
         .unwrap_or(0)
 }
 
-/// The error for a face of fewer than three corners in a binary body.
-fn short_face(
-    path: &str,
-    header: &Header,
-    element: &Element,
-    face: u64,
-    corners: usize,
-    pos: usize,
-) -> ImportError {
-    bad_binary(
-        path,
-        header,
-        element,
-        face,
-        pos,
-        format!(
-            "face {face} has {corners} corner(s) and a face needs at least three; remove the \
-             face (or, if the counts in the header are wrong, the faces are read from the \
-             wrong bytes: fix the counts)"
-        ),
+/// What is wrong with a face of fewer than three corners.
+fn short_face(face: u64, corners: usize) -> String {
+    format!(
+        "face {face} has {corners} corner(s) and a face needs at least three; remove the face \
+         (or, if the counts in the header are wrong, the faces are read from the wrong bytes: \
+         fix the counts)"
     )
 }
 
@@ -250,6 +222,9 @@ fn read_binary_body<const BIG: bool>(
                 header.body_start + at,
                 element.count
             ),
+        };
+        let bad = |entry: u64, at: usize, message: String| {
+            bad_binary(path, header, element, entry, at, message)
         };
         let stride = element.fixed_stride();
         if let Some(stride) = stride {
@@ -290,10 +265,10 @@ fn read_binary_body<const BIG: bool>(
                 .map_err(|error| match error {
                     FaceError::Truncated { face, at } => truncated(face, at),
                     FaceError::Index { face, index, at } => {
-                        bad_index(path, header, element, face, index, at)
+                        bad(face, at, bad_index(header, face, index))
                     }
                     FaceError::Short { face, corners, at } => {
-                        short_face(path, header, element, face, corners, at)
+                        bad(face, at, short_face(face, corners))
                     }
                 })?;
                 continue;
@@ -334,12 +309,9 @@ fn read_binary_body<const BIG: bool>(
                 cells.push(match polygon.as_slice() {
                     [] => u32::MAX,
                     [v] => vertex_index(*v, n_vertices)
-                        .ok_or_else(|| bad_index(path, header, element, entry, *v, start))?,
+                        .ok_or_else(|| bad(entry, start, bad_index(header, entry, *v)))?,
                     more => {
-                        return Err(bad_binary(
-                            path,
-                            header,
-                            element,
+                        return Err(bad(
                             entry,
                             start,
                             format!(
@@ -352,20 +324,13 @@ fn read_binary_body<const BIG: bool>(
                 });
             } else if list.is_some() {
                 if polygon.len() < 3 {
-                    return Err(short_face(
-                        path,
-                        header,
-                        element,
-                        entry,
-                        polygon.len(),
-                        start,
-                    ));
+                    return Err(bad(entry, start, short_face(entry, polygon.len())));
                 }
                 polygon_u32.clear();
                 for &v in &polygon {
                     polygon_u32.push(
                         vertex_index(v, n_vertices)
-                            .ok_or_else(|| bad_index(path, header, element, entry, v, start))?,
+                            .ok_or_else(|| bad(entry, start, bad_index(header, entry, v)))?,
                     );
                 }
                 push_fan(&mut triangles, &polygon_u32);
