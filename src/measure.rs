@@ -1278,20 +1278,11 @@ mod tests {
     #[test]
     fn area_samples_cover_the_area_and_find_the_far_part() {
         // A unit square (two triangles) at z = 0 and a second one at z = 1; data on the first.
-        let mesh = TriangleMesh {
-            positions: vec![
-                [0.0, 0.0, 0.0],
-                [1.0, 0.0, 0.0],
-                [1.0, 1.0, 0.0],
-                [0.0, 1.0, 0.0],
-                [0.0, 0.0, 1.0],
-                [1.0, 0.0, 1.0],
-                [1.0, 1.0, 1.0],
-                [0.0, 1.0, 1.0],
-            ],
-            normals: vec![[0.0, 0.0, 1.0]; 8],
-            triangles: vec![[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]],
-        };
+        let mut mesh = crate::mesh::unit_square();
+        let lifted: Vec<[f64; 3]> = mesh.positions.iter().map(|p| [p[0], p[1], 1.0]).collect();
+        mesh.positions.extend(lifted);
+        mesh.normals.extend([[0.0, 0.0, 1.0]; 4]);
+        mesh.triangles.extend([[4, 5, 6], [4, 6, 7]]);
         let (points, weights) = area_samples(&mesh, 0.3);
         // Longest edge √2 → 5 pieces per side, 25 samples per triangle.
         assert_eq!(points.len(), 4 * 25);
