@@ -1,4 +1,4 @@
-//! Detail mode benchmark (issue 9): the Stanford bunny's detail fit + meshing (depth 7, no
+//! Detail mode benchmark: the Stanford bunny's detail fit + meshing (depth 7, no
 //! topology-guard levels), with its Chamfer distance, and the growth with the number of points
 //! (35k, 140k, 1M points sampled on the bunny's triangles), printed once before the criterion
 //! measurement: wall time, CPU time (all threads, the steadier figure on a shared machine) and

@@ -13,8 +13,8 @@
 //! where the grid is slow). The PLY writer stores it as MeshLab's vertex quality and
 //! [`chamfer_distance`] averages it; both use this one function.
 //!
-//! The symmetric Chamfer distance ([`chamfer_distance`], the accuracy figure of the detail mode,
-//! issue 9): points → mesh is the mean over the data points of the distance to the mesh
+//! The symmetric Chamfer distance ([`chamfer_distance`], the accuracy figure of the detail
+//! mode): points → mesh is the mean over the data points of the distance to the mesh
 //! ([`point_to_mesh_distances`]); mesh → points is the mean over the mesh *vertices* of the
 //! distance to the nearest data point, unweighted by area. The symmetric figure is the mean of
 //! the two, which is how the issue's prototype measured Poisson's 1.19e-3 (divide by the data
@@ -24,18 +24,18 @@
 //! of more than [`ACCURACY_POINTS`]), and mesh → data by *area*
 //! (`mesh_to_points_by_area`): every triangle cut into congruent pieces of at most 0.5% of the
 //! diagonal (`area_samples`), each piece's centroid weighted by its area, its distance to the
-//! nearest data point from the [`PointIndex`] below. Its far share (the area farther than 1% of the
-//! diagonal from every data point) shows surface the data does not support, which the data →
+//! nearest data point from the [`PointIndex`] below. Its far share (the area farther than 1% of
+//! the diagonal from every data point) shows surface the data does not support, which the data →
 //! mesh figure cannot see.
 //!
 //! One [`PointIndex`] of the data answers all of an export's nearest-point queries: the
-//! distances from a uniform grid of the points (`PointGrid::for_nearest`, a counting sort, built in a
-//! fraction of a k-d tree's time over a scan of millions of points), with the k-d tree below
-//! for what the grid leaves open and for the colours' nearest points. The k-d trees (here and
-//! for the seeds of [`crate::distance`]) are
-//! [`PointTree`], a k-d tree (Friedman, Bentley and Finkel 1977) with median splits on the
-//! widest axis, leaves of 16 points and the tight bounding box of every node: a subtree is
-//! entered only when its box is closer than the best distance so far. The queries here lie a
+//! distances from a uniform grid of the points (`PointGrid::for_nearest`, a counting sort,
+//! built in a fraction of a k-d tree's time over a scan of millions of points), with the k-d
+//! tree below for what the grid leaves open and for the colours' nearest points. The k-d trees
+//! (here and for the seeds of [`crate::distance`]) are [`PointTree`], a k-d tree (Friedman,
+//! Bentley and Finkel 1977) with median splits on the widest axis, leaves of 16 points and the
+//! tight bounding box of every node: a subtree is entered only when its box is closer than the
+//! best distance so far. The queries here lie a
 //! few sample spacings off the other set's surface (scan points vs. mesh vertices), where the
 //! ball around a query crosses many split planes but few tight boxes. On the bunny's export
 //! its queries took about a fifth less CPU time than kiddo's `nearest_n_within` (perf
@@ -1096,8 +1096,9 @@ fn nearest_in(tree: &PointTree, q: [f64; 3], hint: Option<[f64; 3]>) -> (f64, us
 }
 
 /// Distance from each of `queries` to the nearest of `points` (input units), by a
-/// [`PointIndex`] of the finite points; a query with a non-finite coordinate gets NaN. Runs in parallel; the result
-/// does not depend on the thread count. `None` when `points` holds no finite point.
+/// [`PointIndex`] of the finite points; a query with a non-finite coordinate gets NaN. Runs in
+/// parallel; the result does not depend on the thread count. `None` when `points` holds no
+/// finite point.
 ///
 /// ```
 /// use stablesurf::measure::nearest_point_distances;
@@ -1113,11 +1114,10 @@ pub fn nearest_point_distances(queries: &[[f64; 3]], points: &[[f64; 3]]) -> Opt
 ///
 /// Distances come from a uniform grid of the points (`numerics::PointGrid::for_nearest`: a
 /// counting sort of the points into cells, far cheaper to build than a k-d tree over millions
-/// of points); a query the grid does not settle
-/// within a few rings of cells, and every query when the points are too clustered for one cell
-/// size, goes to the [`PointTree`], built the first time it is needed. Both give the same
-/// distances (the minimum of the same squared distances), so which one answers changes the
-/// time, never the result.
+/// of points); a query the grid does not settle within a few rings of cells, and every query
+/// when the points are too clustered for one cell size, goes to the [`PointTree`], built the
+/// first time it is needed. Both give the same distances (the minimum of the same squared
+/// distances), so which one answers changes the time, never the result.
 pub struct PointIndex<'a> {
     points: Cow<'a, [[f64; 3]]>,
     grid: Option<PointGrid>,

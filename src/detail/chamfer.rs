@@ -1,5 +1,5 @@
 //! The symmetric Chamfer distance between a mesh and a point set, the accuracy figure of the
-//! detail mode (issue 9 compares it with Poisson reconstruction's).
+//! detail mode (docs/benchmarks.md compares it with Poisson reconstruction's).
 //!
 //! The measure lives with the other accuracy measures in [`crate::measure`] (one k-d tree
 //! query path for the PLY vertex quality and the Chamfer mesh → points term); this module

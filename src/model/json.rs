@@ -76,7 +76,7 @@ struct ModelFile {
 ///
 /// ```
 /// use std::path::Path;
-/// use stablesurf::export::model::{read_model, write_model};
+/// use stablesurf::model::json::{read_model, write_model};
 /// use stablesurf::{ImplicitModel, ImplicitPolynomial};
 /// let mut coefficients = vec![0.0; 10];
 /// coefficients[0] = -1.0;
@@ -133,7 +133,7 @@ pub fn write_model(model: &ImplicitModel, out: &mut impl Write) -> Result<(), Mo
 ///
 /// ```
 /// use std::path::Path;
-/// use stablesurf::export::model::read_model;
+/// use stablesurf::model::json::read_model;
 /// let text = r#"{"format": "stablesurf.implicit-polynomial", "version": 1, "degree": 2,
 ///   "coefficients": [-1, 0, 0, 0, 1, 0, 0, 1, 0, 1],
 ///   "normalization": {"center": [0, 0, 0], "scale": 1}}"#;

@@ -1,4 +1,4 @@
-//! Detail mode (issue 9): the multi-level partition of unity of local 3LRR fits, meshed by the
+//! Detail mode: the multi-level partition of unity of local 3LRR fits, meshed by the
 //! polygonize stage, and its `stablesurf.mpu` file.
 //!
 //! Analytic shapes (sphere, torus) check topology and distance to the truth; a rigid motion of
