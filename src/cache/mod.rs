@@ -282,12 +282,21 @@ fn root_state(root: &Path) -> RootState {
     if !is_dir {
         return RootState::Foreign("it is a file, not a folder".into());
     }
-    if let Ok(text) = fs::read_to_string(root.join(MARKER)) {
+    // The marker's verdict, when there is a marker to read.
+    let marker = || {
+        let text = fs::read_to_string(root.join(MARKER)).ok()?;
         let mut lines = text.lines();
-        if lines.next() == Some(MARKER_SIGNATURE) && lines.any(|l| l.starts_with(MARKER_OWNER)) {
-            return RootState::Marked;
-        }
-        return RootState::Foreign(format!("its {MARKER} belongs to another program"));
+        Some(
+            if lines.next() == Some(MARKER_SIGNATURE) && lines.any(|l| l.starts_with(MARKER_OWNER))
+            {
+                RootState::Marked
+            } else {
+                RootState::Foreign(format!("its {MARKER} belongs to another program"))
+            },
+        )
+    };
+    if let Some(state) = marker() {
+        return state;
     }
     // Another run's temporary, while it writes the marker, leaves the folder empty.
     let items: Vec<_> = listing(root)
@@ -296,6 +305,13 @@ fn root_state(root: &Path) -> RootState {
         .collect();
     if items.is_empty() {
         return RootState::Empty;
+    }
+    // Another run making the cache may have put its marker in place since it was read above
+    // (the marker is renamed into place whole): read it again.
+    if items.iter().any(|(name, ..)| name == MARKER) {
+        if let Some(state) = marker() {
+            return state;
+        }
     }
     // A cache of format 1: every item a stage folder of shard folders of entries.
     let legacy = items.iter().all(|(name, path, meta)| {
