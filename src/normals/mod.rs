@@ -834,13 +834,8 @@ mod tests {
             assert_eq!(first[of_point[i] as usize], first_of(i));
         }
         // Many buckets: 200,000 points, a third of them repeats of earlier ones (some as -0.0).
-        let mut seed = 99u64;
-        let mut next = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            seed >> 33
-        };
+        let mut lcg = crate::numerics::Lcg::new(99);
+        let mut next = || lcg.bits31();
         let mut pts: Vec<[f64; 3]> = Vec::new();
         for i in 0..200_000usize {
             let r = next();
