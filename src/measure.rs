@@ -1087,10 +1087,10 @@ const QUERY_CHUNK: usize = 512;
 /// radius is widened by 1e-9 relative so the hint itself is always inside), so the answer is
 /// the same as an unbounded search's and only found sooner.
 fn nearest_in(tree: &PointTree, q: [f64; 3], hint: Option<[f64; 3]>) -> (f64, usize) {
-    if let Some(h) = hint {
-        if let Some(n) = tree.nearest_within(q, dist2(q, h) * (1.0 + 1e-9)) {
-            return n;
-        }
+    if let Some(h) = hint
+        && let Some(n) = tree.nearest_within(q, dist2(q, h) * (1.0 + 1e-9))
+    {
+        return n;
     }
     tree.nearest(q)
 }

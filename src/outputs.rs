@@ -120,13 +120,13 @@ impl OutputSet {
     /// killed run's files cannot be put back in order.
     pub(crate) fn begin(dir: &Path) -> Result<OutputSet, OutputError> {
         let created_dir = !dir.exists();
-        if let Ok(meta) = fs::metadata(dir) {
-            if !meta.is_dir() {
-                return Err(OutputError::other(format!(
-                    "the output folder {} is a file; choose another folder with -o",
-                    dir.display()
-                )));
-            }
+        if let Ok(meta) = fs::metadata(dir)
+            && !meta.is_dir()
+        {
+            return Err(OutputError::other(format!(
+                "the output folder {} is a file; choose another folder with -o",
+                dir.display()
+            )));
         }
         fs::create_dir_all(dir)
             .map_err(|e| OutputError::io("create the output folder", dir, &e))?;
@@ -377,10 +377,10 @@ fn recover(dir: &Path) -> Result<(), OutputError> {
         let name = entry.file_name().to_string_lossy().into_owned();
         let path = entry.path();
         let is_dir = fs::symlink_metadata(&path).is_ok_and(|m| m.is_dir());
-        if let Some(pid) = pid_after(&name, STAGING_PREFIX).filter(|_| is_dir) {
-            if process_is_gone(pid, &path) {
-                finish_or_discard(dir, &path)?;
-            }
+        if let Some(pid) = pid_after(&name, STAGING_PREFIX).filter(|_| is_dir)
+            && process_is_gone(pid, &path)
+        {
+            finish_or_discard(dir, &path)?;
         }
     }
     crate::export::remove_stale_temporaries(dir, is_run_output);

@@ -308,10 +308,10 @@ fn root_state(root: &Path) -> RootState {
     }
     // Another run making the cache may have put its marker in place since it was read above
     // (the marker is renamed into place whole): read it again.
-    if items.iter().any(|(name, ..)| name == MARKER) {
-        if let Some(state) = marker() {
-            return state;
-        }
+    if items.iter().any(|(name, ..)| name == MARKER)
+        && let Some(state) = marker()
+    {
+        return state;
     }
     // A cache of format 1: every item a stage folder of shard folders of entries.
     let legacy = items.iter().all(|(name, path, meta)| {
@@ -644,10 +644,10 @@ impl Puts {
                     errors.push(e);
                 }
                 for (path, bytes) in receiver {
-                    if errors.is_empty() {
-                        if let Err(e) = write_entry(&path, &bytes) {
-                            errors.push(e);
-                        }
+                    if errors.is_empty()
+                        && let Err(e) = write_entry(&path, &bytes)
+                    {
+                        errors.push(e);
                     }
                 }
                 errors

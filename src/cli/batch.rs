@@ -394,9 +394,10 @@ pub fn run_batch(
             out.display()
         )
     })?;
-    if verbosity != Verbosity::Quiet {
-        if let (Some(folder), false) = (&plan.folder, plan.skipped.is_empty()) {
-            eprintln!(
+    if verbosity != Verbosity::Quiet
+        && let (Some(folder), false) = (&plan.folder, plan.skipped.is_empty())
+    {
+        eprintln!(
                 "stablesurf: note: {}: skipped {} (a batch runs the files named .{} directly in the folder; it does not look into subfolders): {}",
                 folder.display(),
                 if plan.skipped.len() == 1 {
@@ -407,7 +408,6 @@ pub fn run_batch(
                 import::SCAN_EXTENSIONS.join(" ."),
                 plan.skipped.join(", ")
             );
-        }
     }
     let n = plan.inputs.len();
     let mut rows = Vec::with_capacity(n);

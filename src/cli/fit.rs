@@ -90,13 +90,13 @@ fn fit_from_moments(args: FitArgs, verbosity: Verbosity) -> Result<()> {
     })?;
     let model = Model::Global(model);
     config::write_model(&model, &args.output)?;
-    if let (Model::Global(m), true) = (&model, verbosity != Verbosity::Quiet) {
-        if let (Some(f), Some(d)) = (&m.fit, &m.diagnostics) {
-            eprintln!(
-                "stablesurf: degree {} {} fit from {} points, kappa {:e} ({}), bounded {}",
-                m.polynomial.degree, f.method, f.n_points, f.kappa, f.kappa_rule, d.bounded
-            );
-        }
+    if let (Model::Global(m), true) = (&model, verbosity != Verbosity::Quiet)
+        && let (Some(f), Some(d)) = (&m.fit, &m.diagnostics)
+    {
+        eprintln!(
+            "stablesurf: degree {} {} fit from {} points, kappa {:e} ({}), bounded {}",
+            m.polynomial.degree, f.method, f.n_points, f.kappa, f.kappa_rule, d.bounded
+        );
     }
     if args.json {
         config::print_json(&model.report())?;

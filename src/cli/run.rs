@@ -37,13 +37,13 @@ pub fn run(args: RunArgs, verbosity: Verbosity) -> Result<()> {
         return batch::run_batch(&args, &plan, &config, &cache, verbosity);
     }
     let source = ScanSource::from_inputs(&args.input);
-    if args.input.len() > 1 {
-        if let Some(conf) = args.input.iter().find(|p| import::conf::is_conf(p)) {
-            return Err(usage(format!(
+    if args.input.len() > 1
+        && let Some(conf) = args.input.iter().find(|p| import::conf::is_conf(p))
+    {
+        return Err(usage(format!(
                 "{} is a registration file: give it alone, or give the scans without it (or add --batch to run each input on its own)",
                 conf.display()
             )));
-        }
     }
     let report = run_source(&args, &source, &args.output, &config, &cache, verbosity)?;
     if args.json {

@@ -480,14 +480,14 @@ pub fn fit_detail(cloud: &OrientedCloud, params: &DetailParams) -> Result<MpuMod
             n_normals: cloud.normals.len(),
         });
     }
-    if let Some(w) = &cloud.weights {
-        if w.len() != n || w.iter().any(|&x| !(x.is_finite() && x > 0.0)) {
-            return Err(DetailError::InvalidParams(format!(
-                "the cloud has {} confidence weights for {n} points (each must be finite and \
+    if let Some(w) = &cloud.weights
+        && (w.len() != n || w.iter().any(|&x| !(x.is_finite() && x > 0.0)))
+    {
+        return Err(DetailError::InvalidParams(format!(
+            "the cloud has {} confidence weights for {n} points (each must be finite and \
                  positive); give one per point or none",
-                w.len()
-            )));
-        }
+            w.len()
+        )));
     }
     let n_min = ((1.2 * n_coefficients(params.degree) as f64).ceil() as usize).max(15);
     let n_min_grown = ((1.2 * n_coefficients(params.degree.min(2)) as f64).ceil() as usize).max(15);

@@ -214,11 +214,11 @@ impl ExactDistance {
         for (slot, n) in near.items.iter_mut().zip(nearest) {
             *slot = n.1;
         }
-        if let Some(n) = nearest.first() {
-            if n.0.sqrt() < best {
-                best = n.0.sqrt();
-                foot = Some(self.seeds[n.1 as usize]);
-            }
+        if let Some(n) = nearest.first()
+            && n.0.sqrt() < best
+        {
+            best = n.0.sqrt();
+            foot = Some(self.seeds[n.1 as usize]);
         }
         // Refine from the nearest seed, then from up to N_REFINE − 1 more that lie more than two
         // cells from every point explored so far (seeds that close share a Newton basin) and

@@ -278,13 +278,13 @@ fn encode(
 ) -> Result<Encoded, ExportError> {
     let n_vertices = mesh.positions.len();
     check_mesh(mesh)?;
-    if let Some(c) = colours {
-        if c.len() != n_vertices {
-            return Err(ExportError::InvalidMesh(format!(
-                "{} colours for {n_vertices} vertices",
-                c.len()
-            )));
-        }
+    if let Some(c) = colours
+        && c.len() != n_vertices
+    {
+        return Err(ExportError::InvalidMesh(format!(
+            "{} colours for {n_vertices} vertices",
+            c.len()
+        )));
     }
 
     // Positions and normals in f32, with min/max taken from the f32 values actually written.

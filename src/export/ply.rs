@@ -135,21 +135,21 @@ pub fn write(
     }
     crate::export::gltf::check_vertices(mesh)?;
     let n_vertices = mesh.positions.len();
-    if let Some(q) = opts.quality {
-        if q.len() != n_vertices {
-            return Err(ExportError::InvalidMesh(format!(
-                "{} quality values for {n_vertices} vertices",
-                q.len()
-            )));
-        }
+    if let Some(q) = opts.quality
+        && q.len() != n_vertices
+    {
+        return Err(ExportError::InvalidMesh(format!(
+            "{} quality values for {n_vertices} vertices",
+            q.len()
+        )));
     }
-    if let Some(c) = opts.colours {
-        if c.len() != n_vertices {
-            return Err(ExportError::InvalidMesh(format!(
-                "{} colours for {n_vertices} vertices",
-                c.len()
-            )));
-        }
+    if let Some(c) = opts.colours
+        && c.len() != n_vertices
+    {
+        return Err(ExportError::InvalidMesh(format!(
+            "{} colours for {n_vertices} vertices",
+            c.len()
+        )));
     }
     if n_vertices > i32::MAX as usize {
         return Err(ExportError::InvalidMesh(format!(

@@ -407,14 +407,14 @@ pub fn export_mesh(
     colours: Option<&[[u16; 3]]>,
     params: &ExportParams,
 ) -> Result<ExportOutput, ExportError> {
-    if let Some(c) = colours {
-        if c.len() != points.len() {
-            return Err(ExportError::InvalidMesh(format!(
-                "{} colours for {} data points",
-                c.len(),
-                points.len()
-            )));
-        }
+    if let Some(c) = colours
+        && c.len() != points.len()
+    {
+        return Err(ExportError::InvalidMesh(format!(
+            "{} colours for {} data points",
+            c.len(),
+            points.len()
+        )));
     }
     let data_diagonal = Aabb::from_points(points).map_or(0.0, |b| b.diagonal());
     // One index of the data points for every nearest-point query below.

@@ -458,10 +458,10 @@ fn check_params(params: &FitParams) -> Result<(), FitError> {
     if params.method != FitMethod::Ls {
         check_degree_epsilon(degree, params.epsilon)?;
     }
-    if let Kappa::Fixed(kappa) = params.kappa {
-        if !(kappa.is_finite() && kappa >= 0.0) {
-            return Err(FitError::InvalidKappa { kappa });
-        }
+    if let Kappa::Fixed(kappa) = params.kappa
+        && !(kappa.is_finite() && kappa >= 0.0)
+    {
+        return Err(FitError::InvalidKappa { kappa });
     }
     let auto_kappa = params.method == FitMethod::ThreeLrr && params.kappa == Kappa::Auto;
     if auto_kappa && degree % 2 == 1 {

@@ -620,14 +620,14 @@ fn validate(cloud: &PointCloud, path: &str) -> Result<(), ImportError> {
             });
         }
     }
-    if let Some(normals) = &cloud.normals {
-        if normals.len() != n_points {
-            return Err(ImportError::NormalCountMismatch {
-                path: path.to_owned(),
-                normals: normals.len(),
-                points: n_points,
-            });
-        }
+    if let Some(normals) = &cloud.normals
+        && normals.len() != n_points
+    {
+        return Err(ImportError::NormalCountMismatch {
+            path: path.to_owned(),
+            normals: normals.len(),
+            points: n_points,
+        });
     }
     // The readers make these one per point; this catches clouds built elsewhere.
     let per_point = [

@@ -161,10 +161,10 @@ pub(crate) fn read(
                     u64::from(index) + 1
                 ),
             };
-        if let Some(t) = face_vt.get(face).copied().flatten() {
-            if t as usize >= n_vt {
-                return Err(out_of_range("texture", t, n_vt, "vt"));
-            }
+        if let Some(t) = face_vt.get(face).copied().flatten()
+            && t as usize >= n_vt
+        {
+            return Err(out_of_range("texture", t, n_vt, "vt"));
         }
         for corners in corner_normals.get(first_triangle..end).unwrap_or(&[]) {
             if let Some(&n) = corners

@@ -73,11 +73,12 @@ pub(crate) fn read(
                 column_names = Some((line_number, text.trim().to_owned()));
                 continue;
             }
-            if let ([count], None) = (values.as_slice(), bad_token) {
-                if count.fract() == 0.0 && *count >= 0.0 {
-                    stated_count = Some((*count as u64, line_number));
-                    continue;
-                }
+            if let ([count], None) = (values.as_slice(), bad_token)
+                && count.fract() == 0.0
+                && *count >= 0.0
+            {
+                stated_count = Some((*count as u64, line_number));
+                continue;
             }
         }
         // Before any point, a bad line says more about the file than about the line.
@@ -177,15 +178,15 @@ pub(crate) fn read(
              value outside 0–255; the cloud keeps x y z and intensity"
         ));
     }
-    if let Some((declared, line)) = stated_count {
-        if declared != points.len() as u64 {
-            return Err(ImportError::HeaderCountMismatch {
-                path: path.to_owned(),
-                what: format!("points (line {line})"),
-                declared,
-                found: points.len() as u64,
-            });
-        }
+    if let Some((declared, line)) = stated_count
+        && declared != points.len() as u64
+    {
+        return Err(ImportError::HeaderCountMismatch {
+            path: path.to_owned(),
+            what: format!("points (line {line})"),
+            declared,
+            found: points.len() as u64,
+        });
     }
     let normals = (!normals.is_empty()).then_some(normals);
     Ok(PointCloud {

@@ -413,10 +413,10 @@ fn fan_normal(
             return None;
         }
     }
-    if let Some(v) = pole {
-        if dot(&v, &unit).abs() < cos_max {
-            return None;
-        }
+    if let Some(v) = pole
+        && dot(&v, &unit).abs() < cos_max
+    {
+        return None;
     }
     Some(unit)
 }

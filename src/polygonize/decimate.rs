@@ -950,17 +950,16 @@ impl<'f, F: ImplicitFunction + ?Sized> State<'f, F> {
                 let places = self.placements(a, b);
                 // Lazy evaluation: an edge whose cheapest placement costs more than the next
                 // edge's bound goes back with that cost and waits its turn.
-                if !entry.placed {
-                    if let (Some(first), Some(next)) = (places.first(), self.heap.peek()) {
-                        if first.cost > next.cost {
-                            self.heap.push(Entry {
-                                cost: first.cost,
-                                placed: true,
-                                ..entry
-                            });
-                            continue;
-                        }
-                    }
+                if !entry.placed
+                    && let (Some(first), Some(next)) = (places.first(), self.heap.peek())
+                    && first.cost > next.cost
+                {
+                    self.heap.push(Entry {
+                        cost: first.cost,
+                        placed: true,
+                        ..entry
+                    });
+                    continue;
                 }
                 let keep = match (self.kind[a as usize], self.kind[b as usize]) {
                     (_, Kind::Boundary) => b,
@@ -1008,7 +1007,7 @@ impl<'f, F: ImplicitFunction + ?Sized> State<'f, F> {
             .triangles
             .iter()
             .zip(&self.alive)
-            .filter(|(_, &alive)| alive)
+            .filter(|&(_, &alive)| alive)
             .map(|(t, _)| t.map(|v| index[v as usize]))
             .collect();
         out

@@ -512,7 +512,7 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
         let mut moved: Vec<u32> = flags
             .iter()
             .zip(&mesh.triangles)
-            .filter(|(&f, _)| f)
+            .filter(|&(&f, _)| f)
             .flat_map(|(_, t)| *t)
             .filter(|&v| level[v as usize] < 2)
             .collect();
@@ -559,7 +559,7 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
         stuck_vertices = flags
             .iter()
             .zip(&mesh.triangles)
-            .filter(|(&f, _)| f)
+            .filter(|&(&f, _)| f)
             .flat_map(|(_, t)| t.map(|v| edge_of[v as usize]))
             .collect();
         stuck_vertices.sort_unstable();

@@ -732,7 +732,7 @@ impl Swept {
         self.triangles
             .iter()
             .zip(&self.alive)
-            .filter(|(_, &a)| a)
+            .filter(|&(_, &a)| a)
             .map(|(t, _)| *t)
     }
 }
@@ -854,12 +854,13 @@ fn simplify_local(
         let mut best: Option<(f64, u32)> = None;
         for &(_, i) in &candidates {
             let limit = MAX_EDGE * size_u.min(sizes[cycle[i] as usize]);
-            if let Some(q) = mesh.collapse_quality(&ring, i, limit * limit, (&mark, stamp)) {
-                if q >= floor && best.is_none_or(|(b, _)| q > b) {
-                    best = Some((q, cycle[i]));
-                    if q >= GOOD_QUALITY {
-                        break;
-                    }
+            if let Some(q) = mesh.collapse_quality(&ring, i, limit * limit, (&mark, stamp))
+                && q >= floor
+                && best.is_none_or(|(b, _)| q > b)
+            {
+                best = Some((q, cycle[i]));
+                if q >= GOOD_QUALITY {
+                    break;
                 }
             }
         }

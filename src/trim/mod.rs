@@ -302,7 +302,7 @@ pub fn trim(
     report.removed_area = areas
         .iter()
         .zip(&removed)
-        .filter(|(_, &r)| r)
+        .filter(|&(_, &r)| r)
         .map(|(a, _)| a)
         .sum();
     report.removed_area_share = if total_area > 0.0 {
@@ -314,7 +314,7 @@ pub fn trim(
         .triangles
         .iter()
         .zip(&removed)
-        .filter(|(_, &r)| !r)
+        .filter(|&(_, &r)| !r)
         .map(|(t, _)| *t)
         .collect();
     let (filled, fill_triangles) =

@@ -181,7 +181,7 @@ fn text_prefix(bytes: &[u8], n: usize) -> Vec<u8> {
     let end = bytes
         .iter()
         .enumerate()
-        .filter(|(_, &b)| b == b'\n')
+        .filter(|&(_, &b)| b == b'\n')
         .nth(n.saturating_sub(1))
         .map_or(bytes.len(), |(i, _)| i + 1);
     bytes[..end].to_vec()
@@ -450,24 +450,24 @@ fn check(bytes: &[u8], name: &str, other_ext: &str) -> Result<(), String> {
                     path.display()
                 ));
             }
-            if let Some(normals) = &scan.cloud.normals {
-                if normals.len() != n {
-                    return Err(format!(
-                        "{}: {} normals, {n} points",
-                        path.display(),
-                        normals.len()
-                    ));
-                }
+            if let Some(normals) = &scan.cloud.normals
+                && normals.len() != n
+            {
+                return Err(format!(
+                    "{}: {} normals, {n} points",
+                    path.display(),
+                    normals.len()
+                ));
             }
             let _ = scan_info(&scan);
         }
-        if let Ok(cloud) = import_bytes(bytes, path) {
-            if cloud.points.is_empty() || cloud.points.iter().flatten().any(|c| !c.is_finite()) {
-                return Err(format!(
-                    "{}: import_bytes broke its invariants",
-                    path.display()
-                ));
-            }
+        if let Ok(cloud) = import_bytes(bytes, path)
+            && (cloud.points.is_empty() || cloud.points.iter().flatten().any(|c| !c.is_finite()))
+        {
+            return Err(format!(
+                "{}: import_bytes broke its invariants",
+                path.display()
+            ));
         }
     }
     for format in [
@@ -501,10 +501,10 @@ fn mutated_files_never_panic_any_reader() {
     // Every seed reads as its format before it is mutated (a seed that is already broken would
     // fuzz only the first error path), except the raw prefixes, which are truncated on purpose.
     for (name, bytes) in &seeds {
-        if !name.starts_with("prefix-") {
-            if let Err(e) = read_scan_bytes(bytes, Path::new(name)) {
-                panic!("seed {name} does not read: {e}");
-            }
+        if !name.starts_with("prefix-")
+            && let Err(e) = read_scan_bytes(bytes, Path::new(name))
+        {
+            panic!("seed {name} does not read: {e}");
         }
     }
     let seed = env_u64("FUZZ_SEED").unwrap_or(SEED);

@@ -252,27 +252,25 @@ fn read_binary_body<const BIG: bool>(
             continue;
         }
         // The common face element, a single index list: read it without the general walk.
-        if let ([only], Some((f, _))) = (element.properties.as_slice(), plan.face) {
-            if let (true, PropertyType::List { count, item }) = (f == e, only.ty) {
-                pos = read_face_lists::<BIG>(
-                    body,
-                    pos,
-                    element.count,
-                    (count, item),
-                    n_vertices,
-                    &mut triangles,
-                )
-                .map_err(|error| match error {
-                    FaceError::Truncated { face, at } => truncated(face, at),
-                    FaceError::Index { face, index, at } => {
-                        bad(face, at, bad_index(header, face, index))
-                    }
-                    FaceError::Short { face, corners, at } => {
-                        bad(face, at, short_face(face, corners))
-                    }
-                })?;
-                continue;
-            }
+        if let ([only], Some((f, _))) = (element.properties.as_slice(), plan.face)
+            && let (true, PropertyType::List { count, item }) = (f == e, only.ty)
+        {
+            pos = read_face_lists::<BIG>(
+                body,
+                pos,
+                element.count,
+                (count, item),
+                n_vertices,
+                &mut triangles,
+            )
+            .map_err(|error| match error {
+                FaceError::Truncated { face, at } => truncated(face, at),
+                FaceError::Index { face, index, at } => {
+                    bad(face, at, bad_index(header, face, index))
+                }
+                FaceError::Short { face, corners, at } => bad(face, at, short_face(face, corners)),
+            })?;
+            continue;
         }
         // Elements with lists: walk each entry.
         let mut slots = Vec::new();

@@ -368,10 +368,10 @@ impl Delaunay {
             // three are this tetrahedron's, already in cache): once the neighbour records
             // are in, request those four points together too.
             for &u in &tet.n {
-                if u != NO_NEIGHBOUR {
-                    if let Some(nt) = self.tets.get((u >> 2) as usize) {
-                        prefetch(self.pts.get(nt.v[(u & 3) as usize] as usize));
-                    }
+                if u != NO_NEIGHBOUR
+                    && let Some(nt) = self.tets.get((u >> 2) as usize)
+                {
+                    prefetch(self.pts.get(nt.v[(u & 3) as usize] as usize));
                 }
             }
             if !needed {
