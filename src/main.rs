@@ -13,6 +13,7 @@ use clap::Parser;
 mod cli;
 
 fn main() -> ExitCode {
+    cli::allocator::keep_freed_memory();
     let args = cli::Cli::parse();
     match cli::run(args) {
         Ok(()) => ExitCode::SUCCESS,

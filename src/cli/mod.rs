@@ -8,6 +8,7 @@
 //! stderr for everything else. A command line that parses but makes no sense is a
 //! [`UsageError`] (exit code 2); every other error is a runtime error (exit code 1).
 
+pub mod allocator;
 mod args;
 mod batch;
 mod cache;
