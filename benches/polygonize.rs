@@ -1,5 +1,5 @@
-//! Criterion benches of the `polygonize` stage on degree-8 models (the speed target: a
-//! degree-8 model at depth 8 in under 1 s on a 2-core machine).
+//! Criterion benches of the `polygonize` stage on degree-8 models (the speed target: a degree-8
+//! model at depth 8 in under 1 s on a 2-core machine).
 //!
 //! Run: `cargo bench --bench polygonize`.
 

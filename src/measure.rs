@@ -17,8 +17,7 @@
 //! mode): points → mesh is the mean over the data points of the distance to the mesh
 //! ([`point_to_mesh_distances`]); mesh → points is the mean over the mesh *vertices* of the
 //! distance to the nearest data point, unweighted by area. The symmetric figure is the mean of
-//! the two, which is how the prototype measured Poisson's 1.19e-3 (divide by the data
-//! diagonal for the relative figure).
+//! the two (divide by the data diagonal for the relative figure).
 //!
 //! The run's report uses [`accuracy`]: data → mesh as above (over every k-th point of a cloud
 //! of more than [`ACCURACY_POINTS`]), and mesh → data by *area*
@@ -28,18 +27,17 @@
 //! the diagonal from every data point) shows surface the data does not support, which the data →
 //! mesh figure cannot see.
 //!
-//! One [`PointIndex`] of the data answers all of an export's nearest-point queries: the
-//! distances from a uniform grid of the points (`PointGrid::for_nearest`, a counting sort,
-//! built in a fraction of a k-d tree's time over a scan of millions of points), with the k-d
-//! tree below for what the grid leaves open and for the colours' nearest points. The k-d trees
-//! (here and for the seeds of [`crate::distance`]) are [`PointTree`], a k-d tree (Friedman,
-//! Bentley and Finkel 1977) with median splits on the widest axis, leaves of 16 points and the
-//! tight bounding box of every node: a subtree is entered only when its box is closer than the
-//! best distance so far. The queries here lie a
-//! few sample spacings off the other set's surface (scan points vs. mesh vertices), where the
-//! ball around a query crosses many split planes but few tight boxes. On the bunny's export
-//! its queries took about a fifth less CPU time than kiddo's `nearest_n_within` (perf
-//! samples), with the same answers (only the order of points at exactly equal distance may
+//! One [`PointIndex`] of the data answers all of an export's nearest-point queries: the distances
+//! from a uniform grid of the points (`PointGrid::for_nearest`, a counting sort, built in a
+//! fraction of a k-d tree's time over a scan of millions of points), with the k-d tree below for
+//! what the grid leaves open and for the colours' nearest points. The k-d trees (here and for the
+//! seeds of [`crate::distance`]) are [`PointTree`], a k-d tree (Friedman, Bentley and Finkel 1977)
+//! with median splits on the widest axis, leaves of 16 points and the tight bounding box of every
+//! node: a subtree is entered only when its box is closer than the best distance so far. The
+//! queries here lie a few sample spacings off the other set's surface (scan points vs. mesh
+//! vertices), where the ball around a query crosses many split planes but few tight boxes. On the
+//! bunny's export its queries took about a fifth less CPU time than kiddo's `nearest_n_within`
+//! (perf samples), with the same answers (only the order of points at exactly equal distance may
 //! differ).
 
 use std::borrow::Cow;

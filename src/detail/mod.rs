@@ -34,7 +34,7 @@
 //!   └─ otherwise → leaf: (ball, Q) joins the blend
 //! ```
 //!
-//! Safeguards against spurious pieces, from the issue's prototype: every cell's centre and
+//! Safeguards against spurious pieces: every cell's centre and
 //! corners become auxiliary rows whose target is the mean tangent-plane distance nⱼ·(q − pⱼ) of
 //! the 6 nearest data points, kept only where those 6 agree in sign (MPU's off-surface points);
 //! grown cells are fitted at degree 2 at most and never subdivided; the local ridge κ ≈ 1e-2
