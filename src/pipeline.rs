@@ -113,6 +113,11 @@ pub struct PipelineConfig {
     pub detail: DetailParams,
     /// Polygonize stage parameters (see [`PipelineConfig::for_mode`]).
     pub polygonize: PolygonizeParams,
+    /// Whether the meshing depth comes from the points' spacing
+    /// ([`polygonize::depth_for_data`]: 6 or 7) rather than `polygonize.depth`: on in detail
+    /// mode unless a depth is asked for (`--depth`), off in global mode, whose polynomial is
+    /// meshed at `polygonize.depth` whatever the sampling.
+    pub depth_from_data: bool,
     /// Which zero-set components the mesh keeps (see [`PipelineConfig::for_mode`]).
     pub keep: Keep,
     /// Trim stage parameters (see [`PipelineConfig::for_mode`]).
@@ -170,6 +175,7 @@ impl PipelineConfig {
             fit: FitParams::default(),
             detail: DetailParams::default(),
             polygonize: PolygonizeParams::default(),
+            depth_from_data: false,
             keep: export.keep,
             trim: export.trim,
             slices: export.slices,
@@ -189,6 +195,7 @@ impl PipelineConfig {
                     data_levels: 2,
                     ..global.polygonize
                 },
+                depth_from_data: true,
                 keep: Keep::Data,
                 trim: TrimParams::default(),
                 slices: crate::distance::SliceParams {
@@ -886,6 +893,8 @@ pub fn run(
     oriented.cloud.normals = Vec::new();
     oriented.cloud.weights = None;
     let points = oriented.input_points();
+    let resolved = with_data_depth(config, points, &model);
+    let config = &resolved;
     let colours = oriented.colours.as_deref();
 
     let polygonize_params = cache::params_bytes(&config.polygonize);
@@ -994,6 +1003,19 @@ pub fn run(
     Ok(report)
 }
 
+/// `config` with the meshing depth of the `points`' spacing when it asks for it
+/// ([`PipelineConfig::depth_from_data`]; its own depth when the spacing cannot be measured).
+fn with_data_depth(config: &PipelineConfig, points: &[[f64; 3]], model: &Model) -> PipelineConfig {
+    let mut resolved = config.clone();
+    if config.depth_from_data {
+        if let Some(depth) = polygonize::depth_for_data(points, &model.region()) {
+            resolved.polygonize.depth = depth;
+        }
+        resolved.depth_from_data = false;
+    }
+    resolved
+}
+
 /// The polygonize stage of `model` through the cache: its mesh and key, at the finest depth
 /// near the input `points` (the model's key covers them). The stage's figures say whether the
 /// meshing proved the mesh embedded (`"embedded"`).
@@ -1018,6 +1040,7 @@ fn polygonize_stage(
                 &config.polygonize,
             )?;
             let figures = serde_json::json!({
+                "depth": config.polygonize.depth,
                 "vertices": out.mesh.positions.len(),
                 "triangles": out.mesh.triangles.len(),
                 "evaluations": out.evaluations,
@@ -1175,6 +1198,8 @@ pub fn reconstruct(
     let start = Instant::now();
     let mut ctx = Ctx::new(&Cache::disabled(), observer)?;
     let (oriented, model, model_key) = fit_stages(&mut ctx, source, config)?;
+    let resolved = with_data_depth(config, oriented.input_points(), &model);
+    let config = &resolved;
     let (mesh, _) = polygonize_stage(
         &mut ctx,
         &model,

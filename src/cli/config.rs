@@ -143,6 +143,7 @@ pub fn run_config(args: &RunArgs) -> Result<PipelineConfig> {
     config.fit = fit_params(&args.fit)?;
     config.detail = detail_params(&args.detail);
     config.polygonize = polygonize_params(&args.mesh, mode);
+    config.depth_from_data &= args.mesh.depth.is_none();
     config.decimate = decimate_params(&args.mesh);
     if let Some(keep) = args.keep {
         config.keep = keep.into();

@@ -92,7 +92,11 @@ pub fn run_source(
                 " by default; --mode global fits one polynomial"
             },
             spelling(&args.normals.source),
-            config.polygonize.depth,
+            if config.depth_from_data {
+                "from the points' spacing".to_string()
+            } else {
+                config.polygonize.depth.to_string()
+            },
             match config.keep {
                 Keep::All => "all",
                 Keep::Data => "data",

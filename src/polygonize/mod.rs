@@ -100,6 +100,7 @@
 //! ```
 
 pub mod decimate;
+mod depth;
 mod extract;
 mod grid;
 mod octree;
@@ -107,6 +108,7 @@ pub mod shapes;
 mod simplify;
 
 pub use crate::implicit::ImplicitFunction;
+pub use depth::{depth_for_data, DATA_DEPTH_MAX, DATA_DEPTH_MIN};
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
