@@ -124,6 +124,7 @@ pub fn polygonize_params(opts: &MeshOpts, mode: Mode) -> PolygonizeParams {
     let defaults = PipelineConfig::for_mode(mode).polygonize;
     PolygonizeParams {
         depth: opts.depth.unwrap_or(defaults.depth),
+        fit_chords: opts.fit_chords,
         ..defaults
     }
 }

@@ -10,11 +10,12 @@
 //!
 //! Measured in detail mode on the oriented points of ../shared/data against Open3D's Poisson
 //! at depth 8 (symmetric Chamfer distance / diagonal, CPU seconds of the whole run): the sparse
-//! scans (L / s between 30 and 70: quadknot, patella, fandisk, spot, duck) keep their accuracy
-//! at depth 6 within 1% of depth 7's, or better than Poisson's, at half the CPU; fertility and
-//! Max Planck (L / s ≈ 100) lose 2.5–4% at depth 6, so they stay at 7, as do the bunny, the
-//! teapot and the 20,000-point synthetic shapes (L / s above 120). Depths above 7 are left to
-//! `--depth`: at a million points depth 8 costs twice the CPU of depth 7.
+//! scans (L / s between 30 and 70: quadknot, patella, fandisk, spot, duck) cost about half the
+//! CPU at depth 6, and their Chamfer distance grows by 0.2–2.5% over depth 7's: still below
+//! Poisson's except the duck's (1.004× Poisson's, 0.99× at depth 7). Fertility and Max Planck
+//! (L / s ≈ 100) lose 3.5–4% at depth 6, more than Poisson's, so they stay at 7, as do the
+//! bunny, the teapot and the 20,000-point synthetic shapes (L / s above 120). Depths above 7
+//! are left to `--depth`: on a million points depth 8 costs 1.5× the CPU of depth 7.
 //!
 //! Deterministic: the sample is every k-th point in input order and the nearest-neighbour
 //! search is exact.
@@ -69,7 +70,10 @@ pub fn depth_for_data(points: &[[f64; 3]], region: &Aabb) -> Option<u32> {
 fn median_spacing(points: &[[f64; 3]]) -> Option<f64> {
     let grid = PointGrid::new(points)?;
     let stride = points.len().div_ceil(SPACING_SAMPLES).max(1);
-    let sample: Vec<u32> = (0..points.len()).step_by(stride).map(|i| i as u32).collect();
+    let sample: Vec<u32> = (0..points.len())
+        .step_by(stride)
+        .map(|i| i as u32)
+        .collect();
     // The point itself, and a duplicate or two, may come first.
     let neighbours = grid.nearest_of(points, &sample, 4);
     let mut distances: Vec<f64> = sample
@@ -82,7 +86,9 @@ fn median_spacing(points: &[[f64; 3]]) -> Option<f64> {
                 .iter()
                 .map(|&j| crate::measure::dist2(p, points[j as usize]))
                 .filter(|&d2| d2 > 0.0)
-                .fold(None, |best: Option<f64>, d2| Some(best.map_or(d2, |b| b.min(d2))))
+                .fold(None, |best: Option<f64>, d2| {
+                    Some(best.map_or(d2, |b| b.min(d2)))
+                })
         })
         .collect();
     if distances.is_empty() {

@@ -15,7 +15,9 @@
 //! that survives there too is counted by [`crate::mesh::check`]; every vertex satisfies
 //! |f|/|∇f| ≤ 10⁻⁷ × the region's diagonal unless ∇f vanishes there or step 5 had to fall back
 //! to its linear position (reported in [`Polygonized::max_projection_residual`]); the output is
-//! byte-identical for any number of threads.
+//! byte-identical for any number of threads. With [`PolygonizeParams::fit_chords`] the
+//! vertices are then moved off the zero set by the facets' chord error (step 6), keeping the
+//! triangles and the absence of crossings.
 //!
 //! # Algorithm
 //!
@@ -75,6 +77,11 @@
 //!    `bun.conf`); if a crossing survives that too, the whole mesh is made without collapses,
 //!    at about twice the triangles ([`Polygonized::simplified`] is then false).
 //!
+//! 6. **Chords** (`chords`, [`PolygonizeParams::fit_chords`], `--fit-chords`): each vertex
+//!    moves along its normal by a quarter of its umbrella vector's normal part (at most 5% of
+//!    its edges' length), so the flat facets straddle the curved surface instead of lying under
+//!    it; a move that makes a crossing is undone.
+//!
 //! Determinism: the octree visits children in a fixed order and concatenates their results;
 //! leaves and edges are processed in fixed-size chunks collected in order; the simplification
 //! sweeps fixed chunks, each sequentially in a fixed order; a vertex is placed (step 4) as soon
@@ -99,6 +106,7 @@
 //! # Ok::<(), stablesurf::polygonize::PolygonizeError>(())
 //! ```
 
+mod chords;
 pub mod decimate;
 mod depth;
 mod extract;
@@ -180,6 +188,16 @@ pub struct PolygonizeParams {
     /// What is done to the marching-tetrahedra mesh before its vertices are projected.
     /// Default [`Simplification::EdgeCollapse`].
     pub simplification: Simplification,
+    /// Step 6: move the vertices off the zero set by the facets' chord error, so that the mesh
+    /// straddles the surface rather than lying under it where it curves (see `chords`;
+    /// the triangles, the topology and the absence of crossings are kept). Default `false`
+    /// (every vertex on the zero set); `--fit-chords`.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub fit_chords: bool,
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 
 /// Post-processing of the extracted mesh (see the module docs, step 3).
@@ -202,6 +220,7 @@ impl Default for PolygonizeParams {
             guard_levels: 3,
             data_levels: 0,
             simplification: Simplification::EdgeCollapse,
+            fit_chords: false,
         }
     }
 }
@@ -365,10 +384,13 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
     }
     let Repaired {
         vertices,
-        mesh,
+        mut mesh,
         crossings_left,
         ..
     } = done;
+    if params.fit_chords && !crossings_left {
+        chords::fit_chords(&mut mesh);
+    }
     let max_residual = vertices.iter().map(|v| v.residual).fold(0.0, f64::max);
     Ok(Polygonized {
         mesh,
