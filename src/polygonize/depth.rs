@@ -9,7 +9,9 @@
 //! costs about 4× the time a level; one coarser blurs what the data shows.
 //!
 //! Measured in detail mode on the oriented points of ../shared/data against Open3D's Poisson
-//! at depth 8 (symmetric Chamfer distance / diagonal, CPU seconds of the whole run): the sparse
+//! at depth 8 (symmetric Chamfer distance / diagonal, CPU seconds of the whole run; L / s of
+//! the points' own box, which detail mode's meshing box exceeds by 10% per side, +0.26 in
+//! log₂; docs/defaults.md has the table): the sparse
 //! scans (L / s between 30 and 70: quadknot, patella, fandisk, spot, duck) cost about half the
 //! CPU at depth 6, and their Chamfer distance grows by 0.2–2.5% over depth 7's: still below
 //! Poisson's except the duck's (1.004× Poisson's, 0.99× at depth 7). Fertility and Max Planck
