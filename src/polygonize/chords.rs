@@ -43,14 +43,11 @@ pub fn fit_chords(mesh: &mut TriangleMesh) -> usize {
     let mut sum = vec![[0.0f64; 3]; n];
     let mut count = vec![0u32; n];
     let mut length = vec![0.0f64; n];
-    // Each directed edge of a triangle once: on a closed manifold every undirected edge twice,
-    // once from each end; an edge seen once (a boundary edge) marks its ends.
-    let mut boundary = vec![false; n];
-    let mut directed: Vec<(u32, u32)> = Vec::with_capacity(3 * mesh.triangles.len());
+    // Every edge of every triangle from both ends: on a closed manifold each neighbour is
+    // counted twice, which leaves the mean unchanged.
     for t in &mesh.triangles {
         for k in 0..3 {
             let (a, b) = (t[k], t[(k + 1) % 3]);
-            directed.push((a, b));
             for (from, to) in [(a, b), (b, a)] {
                 let (p, q) = (mesh.positions[from as usize], mesh.positions[to as usize]);
                 let s = &mut sum[from as usize];
@@ -62,14 +59,11 @@ pub fn fit_chords(mesh: &mut TriangleMesh) -> usize {
             }
         }
     }
-    directed.sort_unstable();
-    for &(a, b) in &directed {
-        if directed.binary_search(&(b, a)).is_err() {
-            boundary[a as usize] = true;
-            boundary[b as usize] = true;
-        }
+    let mut boundary = vec![false; n];
+    for [a, b] in crate::mesh::boundary_edges(&mesh.triangles) {
+        boundary[a as usize] = true;
+        boundary[b as usize] = true;
     }
-    drop(directed);
     let original = mesh.positions.clone();
     let mut moved = 0;
     for v in 0..n {
