@@ -35,7 +35,11 @@
 //! the face cells reach to infinity (they hold the clamped outliers), so pruning never drops a
 //! point that could be nearer; the answer is the minimum of the same squared distances a k-d
 //! tree computes, bit for bit. Such a grid is a counting sort (O(N)): over millions of scan
-//! points it is built in a fraction of a k-d tree's time (median splits at every level).
+//! points it is built in a fraction of a k-d tree's time (median splits at every level). The
+//! same search also gives the nearest point's index ([`PointGrid::nearest_item`], the smallest
+//! index at equal distance) and a point's nearest *positive* distance with the count of points
+//! at distance 0 ([`PointGrid::nearest_positive2`]: points at the query all lie in its own cell,
+//! which is always scanned whole).
 
 use rayon::prelude::*;
 
@@ -43,6 +47,20 @@ use crate::vec3::sub;
 
 /// Largest number of cells the grid may have, per point (the cell size grows to keep it).
 const CELLS_PER_POINT: usize = 2;
+
+/// Modes of the ring search (`PointGrid::ring_search`): the nearest squared distance; the
+/// nearest positive one and the count of points at zero; the nearest with its index.
+const PLAIN: u8 = 0;
+const POSITIVE: u8 = 1;
+const ITEM: u8 = 2;
+
+/// What a ring search found (see its mode).
+#[derive(Clone, Copy, Debug)]
+struct Found {
+    d2: f64,
+    zeros: u32,
+    item: u32,
+}
 
 /// Rings of cells a [`PointGrid::nearest2`] query searches at most before it gives up (answer
 /// `None`): 9³ cells, so that a query far from every point wastes little before the caller's
@@ -232,8 +250,36 @@ impl PointGrid {
     /// `measure::dist2` sums it; `None` when it was not settled within [`MAX_RING`] rings of
     /// cells around `q`'s cell.
     pub(crate) fn nearest2(&self, q: [f64; 3]) -> Option<f64> {
+        self.ring_search::<PLAIN>(q).map(|found| found.d2)
+    }
+
+    /// The nearest point to `q` (finite): its squared distance and index, the smallest index
+    /// among equally near points; `None` when not settled within [`MAX_RING`] rings.
+    pub(crate) fn nearest_item(&self, q: [f64; 3]) -> Option<(f64, u32)> {
+        self.ring_search::<ITEM>(q)
+            .map(|found| (found.d2, found.item))
+    }
+
+    /// The smallest *positive* squared distance from `q` (finite) to the points (∞ when every
+    /// point coincides with `q`) and the number of points at `q` itself; `None` when not
+    /// settled within [`MAX_RING`] rings. Points at `q` all lie in `q`'s own cell, which every
+    /// search scans in full, so the count is exact.
+    pub(crate) fn nearest_positive2(&self, q: [f64; 3]) -> Option<(f64, u32)> {
+        self.ring_search::<POSITIVE>(q)
+            .map(|found| (found.d2, found.zeros))
+    }
+
+    /// The search of [`PointGrid::nearest2`] (`MODE` [`PLAIN`]),
+    /// [`PointGrid::nearest_positive2`] ([`POSITIVE`]) or [`PointGrid::nearest_item`]
+    /// ([`ITEM`]): rings of cells around `q`'s cell until no unscanned cell can hold a nearer
+    /// point.
+    fn ring_search<const MODE: u8>(&self, q: [f64; 3]) -> Option<Found> {
         let c = [0, 1, 2].map(|a| self.cell_of(q[a], a));
-        let mut best = f64::INFINITY;
+        let mut best = Found {
+            d2: f64::INFINITY,
+            zeros: 0,
+            item: u32::MAX,
+        };
         for k in 0..=MAX_RING + 1 {
             if k > 0 {
                 // Every cell not yet scanned is outside the block of the rings before this one:
@@ -248,52 +294,52 @@ impl PointGrid {
                         outside = outside.min(self.gap(q[a], a, c[a] + r + 1));
                     }
                 }
-                if outside == f64::INFINITY || lower(outside * outside) >= best {
+                if outside == f64::INFINITY || lower(outside * outside) >= best.d2 {
                     return Some(best);
                 }
             }
             if k > MAX_RING {
                 break;
             }
-            self.scan_ring(q, c, k, &mut best);
+            self.scan_ring::<MODE>(q, c, k, &mut best);
         }
         None
     }
 
     /// Lowers `best` to the squared distance of any point in the ring of cells at Chebyshev
     /// distance `k` from cell `c` that is closer.
-    fn scan_ring(&self, q: [f64; 3], c: [usize; 3], k: usize, best: &mut f64) {
+    fn scan_ring<const MODE: u8>(&self, q: [f64; 3], c: [usize; 3], k: usize, found: &mut Found) {
         let range = |a: usize| c[a].saturating_sub(k)..=(c[a] + k).min(self.dims[a] - 1);
         for z in range(2) {
             let gz = self.gap(q[2], 2, z);
             let gz2 = gz * gz;
-            if lower(gz2) >= *best {
+            if lower(gz2) >= found.d2 {
                 continue;
             }
             let z_face = z.abs_diff(c[2]) == k;
             for y in range(1) {
                 let gy = self.gap(q[1], 1, y);
                 let gyz2 = gy * gy + gz2;
-                if lower(gyz2) >= *best {
+                if lower(gyz2) >= found.d2 {
                     continue;
                 }
                 let row = self.dims[0] * (y + self.dims[1] * z);
                 if z_face || y.abs_diff(c[1]) == k {
                     let (mut x0, mut x1) = (*range(0).start(), *range(0).end());
                     // Trimmed to the cells that may hold a closer point.
-                    while x0 < x1 && self.cell_beyond(q[0], x0, gyz2, *best) {
+                    while x0 < x1 && self.cell_beyond(q[0], x0, gyz2, found.d2) {
                         x0 += 1;
                     }
-                    while x1 > x0 && self.cell_beyond(q[0], x1, gyz2, *best) {
+                    while x1 > x0 && self.cell_beyond(q[0], x1, gyz2, found.d2) {
                         x1 -= 1;
                     }
-                    if !self.cell_beyond(q[0], x0, gyz2, *best) {
-                        self.scan_min(q, row + x0, row + x1 + 1, best);
+                    if !self.cell_beyond(q[0], x0, gyz2, found.d2) {
+                        self.scan_min::<MODE>(q, row + x0, row + x1 + 1, found);
                     }
                 } else {
                     for x in [c[0].checked_sub(k), Some(c[0] + k)].into_iter().flatten() {
-                        if x < self.dims[0] && !self.cell_beyond(q[0], x, gyz2, *best) {
-                            self.scan_min(q, row + x, row + x + 1, best);
+                        if x < self.dims[0] && !self.cell_beyond(q[0], x, gyz2, found.d2) {
+                            self.scan_min::<MODE>(q, row + x, row + x + 1, found);
                         }
                     }
                 }
@@ -308,16 +354,27 @@ impl PointGrid {
         lower(gx * gx + gyz2) >= best
     }
 
-    /// Lowers `best` by the points of cells `from..to` (consecutive in `sorted`).
+    /// Lowers `found` by the points of cells `from..to` (consecutive in `sorted`); in mode
+    /// [`POSITIVE`] by those at a positive distance only, counting the others; in mode [`ITEM`]
+    /// keeping the nearest point's index (the smallest at equal distance).
     #[inline]
-    fn scan_min(&self, q: [f64; 3], from: usize, to: usize, best: &mut f64) {
+    fn scan_min<const MODE: u8>(&self, q: [f64; 3], from: usize, to: usize, found: &mut Found) {
         let (from, to) = (self.start[from] as usize, self.start[to] as usize);
-        let mut b = *best;
-        for p in &self.sorted[from..to] {
+        let mut b = found.d2;
+        for (p, &item) in self.sorted[from..to].iter().zip(&self.items[from..to]) {
             let d2 = (p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2);
-            b = b.min(d2);
+            match MODE {
+                POSITIVE if d2 == 0.0 => found.zeros += 1,
+                ITEM => {
+                    if d2 < b || (d2 == b && item < found.item) {
+                        b = d2;
+                        found.item = item;
+                    }
+                }
+                _ => b = b.min(d2),
+            }
         }
-        *best = b;
+        found.d2 = b;
     }
 
     /// Appends to `keys` the [`order_key`] of every point within squared distance `r2` of `q`;
@@ -786,6 +843,23 @@ mod tests {
             if let Some(d2) = grid.nearest2(*q) {
                 assert_eq!(d2.to_bits(), brute.to_bits(), "query {q:?}");
                 answered += 1;
+            }
+            // The nearest point's index: the smallest at that distance.
+            if let Some((d2, item)) = grid.nearest_item(*q) {
+                assert_eq!(d2.to_bits(), brute.to_bits(), "query {q:?}");
+                let first = points.iter().position(|p| dist2(*q, *p) == brute);
+                assert_eq!(Some(item as usize), first, "query {q:?}");
+            }
+            // The nearest positive distance and the points at the query.
+            if let Some((d2, zeros)) = grid.nearest_positive2(*q) {
+                let positive = points
+                    .iter()
+                    .map(|p| dist2(*q, *p))
+                    .filter(|&d| d > 0.0)
+                    .fold(f64::INFINITY, f64::min);
+                assert_eq!(d2.to_bits(), positive.to_bits(), "query {q:?}");
+                let at = points.iter().filter(|p| dist2(*q, **p) == 0.0).count();
+                assert_eq!(zeros as usize, at, "query {q:?}");
             }
         }
         answered

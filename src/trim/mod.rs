@@ -20,8 +20,10 @@
 //!    non-coincident neighbour. A median of nearest distances follows the scan's line and row
 //!    spacing and ignores the sparse rows at a scan's grazing edge, which a k-th-neighbour
 //!    distance would take as the spacing there.
-//! 2. *Support of a triangle*: its centroid is supported when the nearest data point (the
-//!    measure module's k-d tree) is within `support_factor` × that point's spacing.
+//! 2. *Support of a triangle*: its centroid is supported when the nearest data point (from the
+//!    same bucket grid, the smallest index among equally near points; the measure module's k-d
+//!    tree for a centroid beyond the grid's search rings) is within `support_factor` × that
+//!    point's spacing.
 //! 3. *Regions*: the unsupported triangles joined by edges. A region is removed when it
 //!    reaches the mesh's own boundary (a sheet cut by the meshing box) or when it holds more
 //!    than `keep_area_share` of the mesh's area (the unseen back of a closed blob). When such a
@@ -232,24 +234,34 @@ pub fn trim(
         }));
     }
     let grid = PointGrid::new(points).ok_or(TrimError::NoData)?;
-    let tree = PointTree::new(points).ok_or(TrimError::NoData)?;
+    // The k-d tree only for centroids the grid's rings leave open (far from every point).
+    let tree = std::sync::OnceLock::new();
+    let nearest_of = |q: [f64; 3]| match grid.nearest_item(q) {
+        Some((d2, j)) => Ok((d2, j as usize)),
+        None => tree
+            .get_or_init(|| PointTree::new(points))
+            .as_ref()
+            .map(|tree: &PointTree| tree.nearest(q))
+            .ok_or(TrimError::NoData),
+    };
     let diagonal = crate::cloud::Aabb::from_points(points).map_or(0.0, |b| b.diagonal());
     let areas: Vec<f64> = mesh
         .triangles
         .iter()
         .map(|t| triangle_area(&mesh.positions, *t))
         .collect();
-    // Per triangle: the distance from its centroid to the nearest data point, and that point.
+    // Per triangle: the distance from its centroid to the nearest data point, and that point
+    // (the smallest index among equally near ones).
     let nearest: Vec<(f64, usize)> = mesh
         .triangles
         .par_iter()
         .map(|t| {
             let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
             let centroid = [0, 1, 2].map(|k| (a[k] + b[k] + c[k]) / 3.0);
-            let (d2, j) = tree.nearest(centroid);
-            (d2.sqrt(), j)
+            let (d2, j) = nearest_of(centroid)?;
+            Ok((d2.sqrt(), j))
         })
-        .collect();
+        .collect::<Result<_, TrimError>>()?;
     // The local spacing at those points only (a dense scan has many more points than the mesh
     // has triangles).
     let mut wanted: Vec<u32> = nearest.iter().map(|&(_, j)| j as u32).collect();

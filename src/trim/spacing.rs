@@ -34,22 +34,30 @@ pub(super) fn local_spacing(
     around.dedup();
     let dist = |i: usize, j: u32| norm(sub(points[i], points[j as usize]));
     // The first neighbour at a positive distance among the k nearest (sorted by distance) is
-    // at the smallest positive distance, so the nearest neighbour alone answers unless it
-    // coincides with the point; only those points ask for all k (the same values, at a
-    // fraction of the cost: most of `around` is the wanted points' neighbours).
-    let first = grid.nearest_of(points, &around, 1);
-    let mut nearest: Vec<f64> = around
+    // at the smallest positive distance unless k or more other points coincide with the point
+    // (then 0): one ring search of the grid answers that, counting the coincident points (the
+    // same values as the k-nearest lists give). A point whose search the grid leaves open
+    // (beyond its rings) asks for its k nearest instead.
+    let answers: Vec<Option<f64>> = around
         .par_iter()
-        .enumerate()
-        .map(|(r, &i)| first.row(r).first().map_or(0.0, |&j| dist(i as usize, j)))
+        .map(|&i| {
+            let (best2, zeros) = grid.nearest_positive2(points[i as usize])?;
+            // `zeros` counts the point itself.
+            Some(if zeros as usize > k || best2 == f64::INFINITY {
+                0.0
+            } else {
+                best2.sqrt()
+            })
+        })
         .collect();
-    if k > 1 {
-        let coincident: Vec<u32> = (0..around.len() as u32)
-            .filter(|&r| nearest[r as usize] == 0.0)
-            .collect();
-        let of: Vec<u32> = coincident.iter().map(|&r| around[r as usize]).collect();
+    let open: Vec<u32> = (0..around.len() as u32)
+        .filter(|&r| answers[r as usize].is_none())
+        .collect();
+    let mut nearest: Vec<f64> = answers.iter().map(|a| a.unwrap_or(0.0)).collect();
+    if !open.is_empty() {
+        let of: Vec<u32> = open.iter().map(|&r| around[r as usize]).collect();
         let all = grid.nearest_of(points, &of, k);
-        for (row, &r) in coincident.iter().enumerate() {
+        for (row, &r) in open.iter().enumerate() {
             let i = around[r as usize] as usize;
             nearest[r as usize] = all
                 .row(row)
