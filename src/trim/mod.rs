@@ -46,6 +46,8 @@
 //! Deterministic: every step runs in a fixed order (the parallel parts compute one value per
 //! point or triangle), so the output is the same on any number of threads.
 
+use std::sync::OnceLock;
+
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -234,15 +236,24 @@ pub fn trim(
         }));
     }
     let grid = PointGrid::new(points).ok_or(TrimError::NoData)?;
-    // The k-d tree only for centroids the grid's rings leave open (far from every point).
-    let tree = std::sync::OnceLock::new();
-    let nearest_of = |q: [f64; 3]| match grid.nearest_item(q) {
-        Some((d2, j)) => Ok((d2, j as usize)),
-        None => tree
-            .get_or_init(|| PointTree::new(points))
-            .as_ref()
-            .map(|tree: &PointTree| tree.nearest(q))
-            .ok_or(TrimError::NoData),
+    // The k-d tree only for centroids the grid's rings leave open (far from every point). It
+    // is built outside the lock: its build runs in parallel, and a thread waiting for its
+    // parts may pick up another centroid's query (two first queries may both build it).
+    let tree: OnceLock<Option<PointTree>> = OnceLock::new();
+    let nearest_of = |q: [f64; 3]| {
+        if let Some((d2, j)) = grid.nearest_item(q) {
+            return Ok((d2, j as usize));
+        }
+        let tree = match tree.get() {
+            Some(tree) => tree,
+            None => {
+                let built = PointTree::new(points);
+                tree.get_or_init(|| built)
+            }
+        };
+        tree.as_ref()
+            .map(|tree| tree.nearest(q))
+            .ok_or(TrimError::NoData)
     };
     let diagonal = crate::cloud::Aabb::from_points(points).map_or(0.0, |b| b.diagonal());
     let areas: Vec<f64> = mesh
@@ -533,6 +544,33 @@ mod tests {
             .positions
             .iter()
             .all(|p| p[0] <= 0.5 + 4.0 * 0.05 + 1e-9));
+    }
+
+    #[test]
+    fn centroids_beyond_the_grids_rings_get_their_nearest_point_from_the_tree() {
+        // Data on a line along x: the bucket grid is one row of thin cells, so a centroid
+        // half the sheet away from the line is not settled within the grid's rings and asks
+        // the k-d tree (built once, outside its lock, while other centroids are queried).
+        let mesh = grid(20);
+        let points: Vec<[f64; 3]> = (0..2000).map(|i| [i as f64 / 1999.0, 0.0, 0.0]).collect();
+        let grid_index = PointGrid::new(&points).unwrap();
+        assert!(grid_index.nearest_item([0.5, 0.5, 0.0]).is_none());
+        let out = trim(&mesh, &points, &TrimParams::default()).unwrap();
+        let r = out.report;
+        // Everything but the strip along the line lies many spacings from the data and reaches
+        // the mesh's boundary: removed.
+        assert!(r.removed_area_share > 0.9, "{r:?}");
+        assert!(
+            out.mesh.positions.iter().all(|p| p[1] <= 0.1 + 1e-9),
+            "{r:?}"
+        );
+        // The same on one thread.
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let one = pool.install(|| trim(&mesh, &points, &TrimParams::default()).unwrap());
+        assert_eq!(one.mesh, out.mesh);
     }
 
     #[test]
