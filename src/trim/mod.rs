@@ -550,7 +550,7 @@ mod tests {
     fn centroids_beyond_the_grids_rings_get_their_nearest_point_from_the_tree() {
         // Data on a line along x: the bucket grid is one row of thin cells, so a centroid
         // half the sheet away from the line is not settled within the grid's rings and asks
-        // the k-d tree (built once, outside its lock, while other centroids are queried).
+        // the k-d tree (built outside its lock while other centroids are being queried).
         let mesh = grid(20);
         let points: Vec<[f64; 3]> = (0..2000).map(|i| [i as f64 / 1999.0, 0.0, 0.0]).collect();
         let grid_index = PointGrid::new(&points).unwrap();
