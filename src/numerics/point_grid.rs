@@ -43,7 +43,7 @@
 
 use rayon::prelude::*;
 
-use crate::vec3::sub;
+use crate::vec3::{norm, sub};
 
 /// Largest number of cells the grid may have, per point (the cell size grows to keep it).
 const CELLS_PER_POINT: usize = 2;
@@ -491,6 +491,43 @@ impl PointGrid {
         self.nearest_in_order(points, k, &self.items, |i| i)
     }
 
+    /// For each of the points `of` (indices into `points`, the points the grid was made of),
+    /// its distance to the nearest other point at a positive distance, as the first positive
+    /// distance of its `k`-nearest list gives it: `None` when `k` or more other points coincide
+    /// with it, or none lies apart from it. One ring search each
+    /// ([`PointGrid::nearest_positive2`], counting the coincident points); the points it
+    /// leaves open (beyond its rings) get their `k`-nearest lists.
+    pub(crate) fn nearest_positive_of(
+        &self,
+        points: &[[f64; 3]],
+        of: &[u32],
+        k: usize,
+    ) -> Vec<Option<f64>> {
+        // `Err(())`: left open by the ring search.
+        let mut out: Vec<Result<Option<f64>, ()>> = of
+            .par_iter()
+            .map(|&i| {
+                let (best2, zeros) = self.nearest_positive2(points[i as usize]).ok_or(())?;
+                // `zeros` counts the point itself.
+                Ok((zeros as usize <= k && best2 < f64::INFINITY).then(|| best2.sqrt()))
+            })
+            .collect();
+        let open: Vec<usize> = (0..out.len()).filter(|&r| out[r].is_err()).collect();
+        if !open.is_empty() {
+            let open_of: Vec<u32> = open.iter().map(|&r| of[r]).collect();
+            let lists = self.nearest_of(points, &open_of, k);
+            for (row, &r) in open.iter().enumerate() {
+                let p = points[of[r] as usize];
+                out[r] = Ok(lists
+                    .row(row)
+                    .iter()
+                    .map(|&j| norm(sub(p, points[j as usize])))
+                    .find(|&d| d > 0.0));
+            }
+        }
+        out.into_iter().map(|r| r.unwrap_or(None)).collect()
+    }
+
     /// The `k` nearest neighbours of the points `of` (indices into `points`, the points the
     /// grid was made of), as [`PointGrid::nearest`] gives them: row r holds those of `of[r]`.
     pub(crate) fn nearest_of(&self, points: &[[f64; 3]], of: &[u32], k: usize) -> Neighbours {
@@ -908,6 +945,23 @@ mod tests {
                 .collect();
             let answered = check_nearest2(points, &queries);
             assert!(answered > queries.len() / 2, "{answered}");
+            // Each point's nearest positive distance, `None` when k or more others coincide.
+            let grid = PointGrid::new(points).unwrap();
+            let of: Vec<u32> = (0..points.len() as u32).step_by(7).collect();
+            for k in [1, 4, 8] {
+                let got = grid.nearest_positive_of(points, &of, k);
+                for (&i, d) in of.iter().zip(got) {
+                    let p = points[i as usize];
+                    let at = points.iter().filter(|q| dist2(p, **q) == 0.0).count() - 1;
+                    let positive = points
+                        .iter()
+                        .map(|q| dist2(p, *q))
+                        .filter(|&d2| d2 > 0.0)
+                        .fold(f64::INFINITY, f64::min);
+                    let expected = (at < k && positive.is_finite()).then(|| positive.sqrt());
+                    assert_eq!(d, expected, "point {i}, k {k}");
+                }
+            }
         }
         // A single point.
         assert_eq!(

@@ -92,29 +92,19 @@ fn median_spacing(points: &[[f64; 3]]) -> Option<f64> {
         .step_by(stride)
         .map(|i| i as u32)
         .collect();
-    // The point itself, and a duplicate or two, may come first.
-    let neighbours = grid.nearest_of(points, &sample, 4);
-    let mut distances: Vec<f64> = sample
-        .iter()
-        .enumerate()
-        .filter_map(|(row, &i)| {
-            let p = points[i as usize];
-            neighbours
-                .row(row)
-                .iter()
-                .map(|&j| crate::measure::dist2(p, points[j as usize]))
-                .filter(|&d2| d2 > 0.0)
-                .fold(None, |best: Option<f64>, d2| {
-                    Some(best.map_or(d2, |b| b.min(d2)))
-                })
-        })
+    // The point itself, and a duplicate or two, are skipped (a point with 4 or more
+    // duplicates is left out).
+    let mut distances: Vec<f64> = grid
+        .nearest_positive_of(points, &sample, 4)
+        .into_iter()
+        .flatten()
         .collect();
     if distances.is_empty() {
         return None;
     }
     let mid = distances.len() / 2;
     let (_, median, _) = distances.select_nth_unstable_by(mid, f64::total_cmp);
-    Some(median.sqrt())
+    Some(*median)
 }
 
 #[cfg(test)]

@@ -8,7 +8,6 @@
 use rayon::prelude::*;
 
 use crate::numerics::PointGrid;
-use crate::vec3::{norm, sub};
 
 /// The local spacing (step 1 of the module docs) at each of the points `wanted` (indices into
 /// `points`, sorted, distinct), in their order.
@@ -32,41 +31,14 @@ pub(super) fn local_spacing(
         .collect();
     around.sort_unstable();
     around.dedup();
-    let dist = |i: usize, j: u32| norm(sub(points[i], points[j as usize]));
     // The first neighbour at a positive distance among the k nearest (sorted by distance) is
     // at the smallest positive distance unless k or more other points coincide with the point
-    // (then 0): one ring search of the grid answers that, counting the coincident points (the
-    // same values as the k-nearest lists give). A point whose search the grid leaves open
-    // (beyond its rings) asks for its k nearest instead.
-    let answers: Vec<Option<f64>> = around
-        .par_iter()
-        .map(|&i| {
-            let (best2, zeros) = grid.nearest_positive2(points[i as usize])?;
-            // `zeros` counts the point itself.
-            Some(if zeros as usize > k || best2 == f64::INFINITY {
-                0.0
-            } else {
-                best2.sqrt()
-            })
-        })
+    // (then 0).
+    let nearest: Vec<f64> = grid
+        .nearest_positive_of(points, &around, k)
+        .into_iter()
+        .map(|d| d.unwrap_or(0.0))
         .collect();
-    let open: Vec<u32> = (0..around.len() as u32)
-        .filter(|&r| answers[r as usize].is_none())
-        .collect();
-    let mut nearest: Vec<f64> = answers.iter().map(|a| a.unwrap_or(0.0)).collect();
-    if !open.is_empty() {
-        let of: Vec<u32> = open.iter().map(|&r| around[r as usize]).collect();
-        let all = grid.nearest_of(points, &of, k);
-        for (row, &r) in open.iter().enumerate() {
-            let i = around[r as usize] as usize;
-            nearest[r as usize] = all
-                .row(row)
-                .iter()
-                .map(|&j| dist(i, j))
-                .find(|&d| d > 0.0)
-                .unwrap_or(0.0);
-        }
-    }
     let nearest_of = |j: u32| nearest[around.binary_search(&j).unwrap_or(0)];
     wanted
         .par_iter()
