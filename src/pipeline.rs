@@ -365,7 +365,7 @@ const MERGE_VERSION: u32 = 1;
 const OUTLIERS_VERSION: u32 = 1;
 const NORMALS_VERSION: u32 = 4;
 const FIT_VERSION: u32 = 3;
-const POLYGONIZE_VERSION: u32 = 2;
+const POLYGONIZE_VERSION: u32 = 3;
 // The export stage's version is `export::STAGE_VERSION`, beside its params.
 
 struct Ctx<'a> {
@@ -737,6 +737,11 @@ impl Oriented {
     fn input_points(&self) -> &[[f64; 3]] {
         &self.cloud.points[..self.n_input]
     }
+
+    /// The input points' normals, while the cloud still has them.
+    fn input_normals(&self) -> Option<&[[f64; 3]]> {
+        self.cloud.normals.get(..self.n_input)
+    }
 }
 
 /// The global fit or the detail fit of the oriented cloud.
@@ -889,10 +894,17 @@ pub fn run(
     let cache = &ctx.cache.clone();
     let input_name = source.name();
     let (mut oriented, model, model_key) = fit_stages(&mut ctx, source, config)?;
-    // From here on only the input points are needed (the accuracy is measured against them).
-    oriented.cloud.normals = Vec::new();
+    // From here on only the input points are needed (the accuracy is measured against them),
+    // with their normals when the meshing coarsens where they are flat.
+    if config.polygonize.data_levels > 0 {
+        oriented.cloud.normals.truncate(oriented.n_input);
+        oriented.cloud.normals.shrink_to_fit();
+    } else {
+        oriented.cloud.normals = Vec::new();
+    }
     oriented.cloud.weights = None;
     let points = oriented.input_points();
+    let normals = oriented.input_normals();
     let resolved = with_data_depth(config, points, &model);
     let config = &resolved;
     let colours = oriented.colours.as_deref();
@@ -924,7 +936,7 @@ pub fn run(
         if early_from_model {
             scope.spawn(|_| early_slices = export::model_slices(&model, &export_params));
         }
-        let polygonized = polygonize_stage(&mut ctx, &model, &model_key, points, config);
+        let polygonized = polygonize_stage(&mut ctx, &model, &model_key, points, normals, config);
         let export_start = Instant::now();
         let embedded = polygonized.is_ok() && ctx.last_figures()["embedded"] == true;
         let parts = match &polygonized {
@@ -1017,13 +1029,14 @@ fn with_data_depth(config: &PipelineConfig, points: &[[f64; 3]], model: &Model) 
 }
 
 /// The polygonize stage of `model` through the cache: its mesh and key, at the finest depth
-/// near the input `points` (the model's key covers them). The stage's figures say whether the
-/// meshing proved the mesh embedded (`"embedded"`).
+/// near the input `points` where their `normals` are not flat (the model's key covers both).
+/// The stage's figures say whether the meshing proved the mesh embedded (`"embedded"`).
 fn polygonize_stage(
     ctx: &mut Ctx<'_>,
     model: &Model,
     model_key: &Key,
     points: &[[f64; 3]],
+    normals: Option<&[[f64; 3]]>,
     config: &PipelineConfig,
 ) -> Result<(crate::mesh::TriangleMesh, Key), PipelineError> {
     let region = model.region();
@@ -1037,6 +1050,7 @@ fn polygonize_stage(
                 model.function(),
                 &region,
                 points,
+                normals,
                 &config.polygonize,
             )?;
             let figures = serde_json::json!({
@@ -1205,6 +1219,7 @@ pub fn reconstruct(
         &model,
         &model_key,
         oriented.input_points(),
+        oriented.input_normals(),
         config,
     )?;
     let embedded = ctx.last_figures()["embedded"] == true;

@@ -8,8 +8,8 @@ use stablesurf::mesh::{
     check, component_labels, drop_components_far_from, MeshReport, TriangleMesh,
 };
 use stablesurf::polygonize::{
-    polygonize, polygonize_with_data, shapes, ImplicitFunction, PolygonizeParams, Polygonized,
-    Simplification,
+    polygonize, polygonize_with_data, shapes, ImplicitFunction, PolygonizeError, PolygonizeParams,
+    Polygonized, Simplification,
 };
 use stablesurf::{Aabb, ImplicitPolynomial};
 
@@ -621,9 +621,9 @@ fn data_levels_keep_the_fine_level_where_the_data_is_and_a_closed_embedded_mesh(
     };
     let uniform = polygonize(&f, &region, &params).expect("valid input");
     // With no data (or through `polygonize`) the data levels change nothing.
-    let no_data = polygonize_with_data(&f, &region, &[], &params).expect("valid input");
+    let no_data = polygonize_with_data(&f, &region, &[], None, &params).expect("valid input");
     assert_eq!(uniform.mesh, no_data.mesh);
-    let adaptive = polygonize_with_data(&f, &region, &data, &params).expect("valid input");
+    let adaptive = polygonize_with_data(&f, &region, &data, None, &params).expect("valid input");
     for out in [&uniform, &adaptive] {
         let report = check(&out.mesh);
         assert_closed(&report, 1, 2);
@@ -648,6 +648,107 @@ fn data_levels_keep_the_fine_level_where_the_data_is_and_a_closed_embedded_mesh(
         .num_threads(1)
         .build()
         .unwrap()
-        .install(|| polygonize_with_data(&f, &region, &data, &params).expect("valid input"));
+        .install(|| polygonize_with_data(&f, &region, &data, None, &params).expect("valid input"));
     assert_eq!(single.mesh, adaptive.mesh);
+}
+
+#[test]
+fn flat_data_stays_coarse_and_curved_data_keeps_the_fine_level() {
+    let params = PolygonizeParams {
+        depth: 6,
+        data_levels: 2,
+        ..PolygonizeParams::default()
+    };
+    // The plane z = 0.1 (coefficients 1, x, y, z), data on it finer than a level-6 cell, with
+    // its normal: flat everywhere, so the mesh stays at level 4 (edges ~4× as long).
+    let plane = ImplicitPolynomial {
+        degree: 1,
+        coefficients: vec![-0.1, 0.0, 0.0, 1.0],
+        center: [0.0; 3],
+        scale: 1.0,
+    };
+    let region = boxed([-1.0; 3], [1.0; 3]);
+    let mut data = Vec::new();
+    for i in 0..100 {
+        for j in 0..100 {
+            data.push([-0.99 + 0.02 * i as f64, -0.99 + 0.02 * j as f64, 0.1]);
+        }
+    }
+    let up = vec![[0.0, 0.0, 1.0]; data.len()];
+    let fine = polygonize_with_data(&plane, &region, &data, None, &params).expect("valid input");
+    let flat =
+        polygonize_with_data(&plane, &region, &data, Some(&up), &params).expect("valid input");
+    assert!(
+        flat.mesh.triangles.len() * 8 < fine.mesh.triangles.len(),
+        "{} vs {}",
+        flat.mesh.triangles.len(),
+        fine.mesh.triangles.len()
+    );
+    for out in [&fine, &flat] {
+        let report = check(&out.mesh);
+        assert!(report.orientation_consistent && report.non_manifold_edges == 0);
+        assert_eq!(report.components, 1);
+        assert_eq!(report.self_intersecting_faces, 0);
+        for p in &out.mesh.positions {
+            assert!((p[2] - 0.1).abs() < 1e-9, "{p:?}");
+        }
+    }
+
+    // The unit sphere with data on it: with its exact normals nothing is flat at these levels
+    // (the same mesh as without normals); with the normals of a plane declared for the upper cap,
+    // the cap is meshed coarsely, and the mesh stays closed, embedded and on the sphere.
+    let sphere = shapes::sphere(1.0);
+    let region = boxed([-1.3; 3], [1.3; 3]);
+    let data: Vec<[f64; 3]> = (0..8000)
+        .map(|i| {
+            let z = -1.0 + 2.0 * (i as f64 + 0.5) / 8000.0;
+            let (r, a) = ((1.0 - z * z).sqrt(), 2.399963 * i as f64);
+            [r * a.cos(), r * a.sin(), z]
+        })
+        .collect();
+    let exact = data.clone();
+    let declared: Vec<[f64; 3]> = data
+        .iter()
+        .map(|&p| if p[2] > 0.5 { [0.0, 0.0, 1.0] } else { p })
+        .collect();
+    let plain = polygonize_with_data(&sphere, &region, &data, None, &params).expect("valid input");
+    let curved =
+        polygonize_with_data(&sphere, &region, &data, Some(&exact), &params).expect("valid input");
+    assert_eq!(plain.mesh, curved.mesh);
+    let capped = polygonize_with_data(&sphere, &region, &data, Some(&declared), &params)
+        .expect("valid input");
+    let report = check(&capped.mesh);
+    assert_closed(&report, 1, 2);
+    assert_eq!(report.self_intersecting_faces, 0);
+    assert!(capped.embedded);
+    for p in &capped.mesh.positions {
+        let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+        assert!((r - 1.0).abs() < 1e-6, "{r}");
+    }
+    // Near the pole (centroid z > 0.85, cells whose whole block holds declared normals), the
+    // edges are about 4× as long (two levels coarser): at least 2.5× here.
+    let polar_edge = |mesh: &TriangleMesh| {
+        let (mut sum, mut count) = (0.0, 0usize);
+        for t in &mesh.triangles {
+            let p = t.map(|v| mesh.positions[v as usize]);
+            if p[0][2] + p[1][2] + p[2][2] > 3.0 * 0.85 {
+                for i in 0..3 {
+                    let (a, b) = (p[i], p[(i + 1) % 3]);
+                    sum += (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt();
+                    count += 1;
+                }
+            }
+        }
+        sum / count as f64
+    };
+    let (coarse, kept) = (polar_edge(&capped.mesh), polar_edge(&plain.mesh));
+    assert!(coarse > 2.5 * kept, "{coarse} vs {kept}");
+    assert!(capped.mesh.triangles.len() < plain.mesh.triangles.len());
+
+    // Normals that do not match the data in number are refused.
+    let err = polygonize_with_data(&sphere, &region, &data, Some(&exact[1..]), &params);
+    assert!(
+        matches!(err, Err(PolygonizeError::InvalidData(_))),
+        "{err:?}"
+    );
 }
