@@ -154,12 +154,19 @@ fn mpu_file_round_trips_byte_identically() {
     };
     let model = fit_detail(&cloud, &params).unwrap();
     assert!(model.cells.iter().any(|c| c.poly.degree == 3));
-    // Grown cells: a quadric, or a plane where their own ball held almost no data.
+    // Grown cells: a quadric, or a plane where their own ball held almost no data, or, where
+    // it held none, the parent's cubic.
+    let holds_data = |c: &stablesurf::detail::MpuCell| {
+        cloud.points.iter().any(|p| {
+            (0..3).map(|a| (p[a] - c.center[a]).powi(2)).sum::<f64>() < c.radius * c.radius
+        })
+    };
     assert!(model.cells.iter().all(|c| if c.grown {
-        c.poly.degree <= 2
+        c.poly.degree <= 2 || !holds_data(c)
     } else {
         c.poly.degree == 3
     }));
+    assert!(model.cells.iter().any(|c| c.grown && c.poly.degree == 3));
     let mut first = Vec::new();
     write_mpu(&model, &mut first).unwrap();
     assert!(is_mpu(&first));
