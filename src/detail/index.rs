@@ -151,20 +151,6 @@ pub struct BallIndex {
     side: f64,
 }
 
-/// Whether the ball (centre `c`, radius² `r2`) meets the closed box `[min, min + side]³`
-/// grown by `pad`.
-#[inline]
-fn ball_meets_cube(c: [f64; 3], r2: f64, min: [f64; 3], side: f64, pad: f64) -> bool {
-    let mut d2 = 0.0;
-    for a in 0..3 {
-        let lo = min[a] - pad;
-        let hi = min[a] + side + pad;
-        let d = (lo - c[a]).max(c[a] - hi).max(0.0);
-        d2 += d * d;
-    }
-    d2 < r2
-}
-
 impl BallIndex {
     /// Builds the index of `cells`' balls.
     pub fn new(cells: &[MpuCell]) -> BallIndex {
@@ -231,16 +217,32 @@ impl BallIndex {
         // A little slack so that a point the query sends to a child on a rounding boundary is
         // still covered by the child's list.
         let pad = 1e-9 * side;
-        for octant in 0..8 {
-            let cmin = child_min(min, half, octant);
-            let sub: Vec<u32> = candidates
-                .iter()
-                .copied()
-                .filter(|&i| {
-                    let b = &self.balls[i as usize];
-                    ball_meets_cube(b.center, b.r2, cmin, half, pad)
+        // A ball goes to each child (the closed cube grown by `pad`) it meets: its squared
+        // distance to the cube, summed over the axes, is below r². Along an axis the gap takes
+        // one of two values (lower or upper half), so the 8 children's sums reuse 6 terms.
+        let mut subs: [Vec<u32>; 8] = Default::default();
+        for &i in &candidates {
+            let b = &self.balls[i as usize];
+            let gap2 = [0, 1, 2].map(|a| {
+                [min[a], min[a] + half].map(|cmin| {
+                    let (lo, hi) = (cmin - pad, cmin + half + pad);
+                    let d = (lo - b.center[a]).max(b.center[a] - hi).max(0.0);
+                    d * d
                 })
-                .collect();
+            });
+            for (octant, sub) in subs.iter_mut().enumerate() {
+                let mut d2 = 0.0;
+                for (a, g) in gap2.iter().enumerate() {
+                    d2 += g[(octant >> a) & 1];
+                }
+                if d2 < b.r2 {
+                    sub.push(i);
+                }
+            }
+        }
+        drop(candidates);
+        for (octant, sub) in subs.into_iter().enumerate() {
+            let cmin = child_min(min, half, octant);
             self.fill(first + octant, cmin, half, depth + 1, sub);
         }
     }
