@@ -925,35 +925,19 @@ fn visit(
         child_radius * child_radius,
     );
     let tasks: Vec<([u32; 3], Vec<u32>)> = children.into_iter().zip(balls).collect();
+    let visit_child = |(c, b): ([u32; 3], Vec<u32>), cache: &mut AuxCache| {
+        let ancestors = [Some(own), ancestors[0]];
+        visit(ctx, c, level + 1, b, Some(&fit.poly), ancestors, cache)
+    };
     let parts: Vec<Part> = if level < PARALLEL_LEVELS {
         tasks
             .into_par_iter()
-            .map(|(c, b)| {
-                visit(
-                    ctx,
-                    c,
-                    level + 1,
-                    b,
-                    Some(&fit.poly),
-                    [Some(own), ancestors[0]],
-                    &mut AuxCache::default(),
-                )
-            })
+            .map(|task| visit_child(task, &mut AuxCache::default()))
             .collect()
     } else {
         tasks
             .into_iter()
-            .map(|(c, b)| {
-                visit(
-                    ctx,
-                    c,
-                    level + 1,
-                    b,
-                    Some(&fit.poly),
-                    [Some(own), ancestors[0]],
-                    cache,
-                )
-            })
+            .map(|task| visit_child(task, cache))
             .collect()
     };
     for p in parts {
