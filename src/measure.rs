@@ -777,16 +777,7 @@ impl PointTree {
                 let d = d[l];
                 let bound = if *len == k { out[k - 1].0 } else { radius2 };
                 if d < bound {
-                    // Insert in order; a tie goes after the points already held.
-                    let mut at = (*len).min(k - 1);
-                    if *len < k {
-                        *len += 1;
-                    }
-                    while at > 0 && out[at - 1].0 > d {
-                        out[at] = out[at - 1];
-                        at -= 1;
-                    }
-                    out[at] = (d, block.items[l]);
+                    insert_nearest(out, len, d, block.items[l]);
                 }
             }
             return;
@@ -799,6 +790,23 @@ impl PointTree {
             }
         }
     }
+}
+
+/// Inserts `(d, item)` among the first `*len` entries of `out` (nearest first), keeping the
+/// `out.len()` nearest (`*len` grows until `out` is full); a tie goes after the entries already
+/// held. The caller has checked `d` against its bound (the last entry's when `out` is full).
+#[inline]
+pub(crate) fn insert_nearest(out: &mut [(f64, u32)], len: &mut usize, d: f64, item: u32) {
+    let k = out.len();
+    let mut at = (*len).min(k - 1);
+    if *len < k {
+        *len += 1;
+    }
+    while at > 0 && out[at - 1].0 > d {
+        out[at] = out[at - 1];
+        at -= 1;
+    }
+    out[at] = (d, item);
 }
 
 /// Squared distance from `q` to the bounding box of `n`, summed as [`dist2`] sums: never more

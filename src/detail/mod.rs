@@ -78,7 +78,7 @@ use serde::{Deserialize, Serialize};
 use crate::cloud::{Aabb, OrientedCloud};
 #[cfg(doc)]
 use crate::implicit::ImplicitFunction;
-use crate::measure::{dist2, PointTree};
+use crate::measure::{dist2, insert_nearest, PointTree};
 use crate::poly::{n_coefficients, ImplicitPolynomial};
 
 use local::{even_subsample, fit_local, AuxPoint, Constraints, SUBSAMPLE_ABOVE};
@@ -727,16 +727,7 @@ impl Cover<'_> {
             let d = dist2(points[i as usize], q);
             let limit = if len == k { out[k - 1].0 } else { bound2 };
             if d < limit {
-                // Insert in order; a tie goes after the points already held.
-                let mut at = len.min(k - 1);
-                if len < k {
-                    len += 1;
-                }
-                while at > 0 && out[at - 1].0 > d {
-                    out[at] = out[at - 1];
-                    at -= 1;
-                }
-                out[at] = (d, i);
+                insert_nearest(out, &mut len, d, i);
             }
         }
         (len == k).then_some(k)

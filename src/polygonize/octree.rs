@@ -258,18 +258,14 @@ fn block_flatness(
 ) -> Flatness {
     let mut total = [0.0f64; 3];
     let mut count = 0u32;
-    for dz in -1i64..=1 {
-        for dy in -1i64..=1 {
-            for dx in -1i64..=1 {
-                let c = [dx, dy, dz];
-                let mut at = [0u32; 3];
-                let mut inside = true;
-                for a in 0..3 {
-                    let v = i64::from(coords[a]) + c[a];
-                    inside &= (0..=i64::from(u32::MAX)).contains(&v);
-                    at[a] = v.clamp(0, i64::from(u32::MAX)) as u32;
-                }
-                if let Some((s, k)) = inside.then(|| sums.get(&at)).flatten() {
+    for dz in -1i32..=1 {
+        for dy in -1i32..=1 {
+            for dx in -1i32..=1 {
+                let step = [dx, dy, dz];
+                let at = [0, 1, 2].map(|a| coords[a].checked_add_signed(step[a]));
+                if let [Some(x), Some(y), Some(z)] = at
+                    && let Some((s, k)) = sums.get(&[x, y, z])
+                {
                     for a in 0..3 {
                         total[a] += s[a];
                     }
