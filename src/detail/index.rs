@@ -220,22 +220,41 @@ impl BallIndex {
         // A ball goes to each child (the closed cube grown by `pad`) it meets: its squared
         // distance to the cube, summed over the axes, is below r². Along an axis the gap takes
         // one of two values (lower or upper half), so the 8 children's sums reuse 6 terms.
-        let mut subs: [Vec<u32>; 8] = Default::default();
-        for &i in &candidates {
-            let b = &self.balls[i as usize];
-            let gap2 = [0, 1, 2].map(|a| {
-                [min[a], min[a] + half].map(|cmin| {
-                    let (lo, hi) = (cmin - pad, cmin + half + pad);
-                    let d = (lo - b.center[a]).max(b.center[a] - hi).max(0.0);
-                    d * d
-                })
-            });
-            for (octant, sub) in subs.iter_mut().enumerate() {
-                let mut d2 = 0.0;
-                for (a, g) in gap2.iter().enumerate() {
-                    d2 += g[(octant >> a) & 1];
+        // The octants each ball meets (one bit each), then each child's list at its exact size.
+        let masks: Vec<u8> = candidates
+            .iter()
+            .map(|&i| {
+                let b = &self.balls[i as usize];
+                let gap2 = [0, 1, 2].map(|a| {
+                    [min[a], min[a] + half].map(|cmin| {
+                        let (lo, hi) = (cmin - pad, cmin + half + pad);
+                        let d = (lo - b.center[a]).max(b.center[a] - hi).max(0.0);
+                        d * d
+                    })
+                });
+                let mut mask = 0u8;
+                for octant in 0..8 {
+                    let mut d2 = 0.0;
+                    for (a, g) in gap2.iter().enumerate() {
+                        d2 += g[(octant >> a) & 1];
+                    }
+                    if d2 < b.r2 {
+                        mask |= 1 << octant;
+                    }
                 }
-                if d2 < b.r2 {
+                mask
+            })
+            .collect();
+        let mut counts = [0usize; 8];
+        for &mask in &masks {
+            for (octant, count) in counts.iter_mut().enumerate() {
+                *count += usize::from((mask >> octant) & 1);
+            }
+        }
+        let mut subs: [Vec<u32>; 8] = counts.map(Vec::with_capacity);
+        for (&i, &mask) in candidates.iter().zip(&masks) {
+            for (octant, sub) in subs.iter_mut().enumerate() {
+                if (mask >> octant) & 1 == 1 {
                     sub.push(i);
                 }
             }
@@ -306,13 +325,11 @@ impl BallIndex {
             scratch.generation = 1;
         }
         let generation = scratch.generation;
-        // Depth-first; at most 7 pending siblings per level.
-        let mut stack = [(0u32, [0.0; 3], 0.0); 8 * (MAX_QUERY_DEPTH as usize + 2)];
-        stack[0] = (0, self.origin, self.side);
-        let mut top = 1;
-        while top > 0 {
-            top -= 1;
-            let (id, min, side) = stack[top];
+        // Depth-first (at most 7 pending siblings per level), on a stack kept in the scratch.
+        let stack = &mut scratch.stack;
+        stack.clear();
+        stack.push((0, self.origin, self.side));
+        while let Some((id, min, side)) = stack.pop() {
             if (0..3).any(|a| b.max[a] < min[a] || b.min[a] > min[a] + side) {
                 continue;
             }
@@ -326,14 +343,24 @@ impl BallIndex {
                     }
                 }
             } else {
+                // Only the children the box meets (the test above, per axis for the lower and
+                // the upper half), in the same order as pushing all eight and testing each.
                 let half = 0.5 * side;
-                for octant in (0..8).rev() {
-                    stack[top] = (
-                        node.children + octant,
-                        child_min(min, half, octant as usize),
-                        half,
-                    );
-                    top += 1;
+                let meets = [0, 1, 2].map(|a| {
+                    let mid = min[a] + half;
+                    [
+                        !(b.max[a] < min[a] || b.min[a] > min[a] + half),
+                        !(b.max[a] < mid || b.min[a] > mid + half),
+                    ]
+                });
+                for octant in (0..8usize).rev() {
+                    if (0..3).all(|a| meets[a][(octant >> a) & 1]) {
+                        stack.push((
+                            node.children + octant as u32,
+                            child_min(min, half, octant),
+                            half,
+                        ));
+                    }
                 }
             }
         }
@@ -348,6 +375,8 @@ struct Scratch {
     generation: u32,
     found: Vec<u32>,
     local: Vec<LocalBound>,
+    /// The pending nodes of a box query: (node, lower corner, side).
+    stack: Vec<(u32, [f64; 3], f64)>,
 }
 
 thread_local! {
