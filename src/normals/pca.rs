@@ -213,12 +213,15 @@ pub fn adaptive_normals(
 /// Closed form (Smith 1961): with q = tr(a)/3, p = √(tr((a − qI)²)/6) and B = (a − qI)/p, the
 /// eigenvalues are q + 2p·cos(φ + 2πk/3), φ = acos(det(B)/2)/3; the smallest is k = 1, and its
 /// eigenvector the largest of the cross products of two rows of a − λ₀I (a rank-2 matrix
-/// whose rows span the plane orthogonal to it). λ₀ is then exact to about ε·λ₂ (λ₁ to about √ε·λ₂ when λ₁ ≈ λ₂), the
-/// vector to about ε·λ₂/(λ₁ − λ₀) once refined by the Rayleigh quotient (below): on a neighbourhood of a surface, where λ₀ ≪ λ₁, it agrees
-/// with an iterative (Jacobi) solution to ~1e-15, in a tenth of its time. A diagonal matrix,
-/// or a smallest eigenvalue of multiplicity two or three (a line-like or degenerate
-/// neighbourhood, where any vector of its eigenspace is a valid answer), gets an axis or a vector
-/// orthogonal to the matrix's largest row.
+/// whose rows span the plane orthogonal to it), computed twice: from the angle form's λ₀, then
+/// from that vector's Rayleigh quotient, which restores the digits the angle form loses near a
+/// double λ₁ = λ₂ (a disc-like neighbourhood, the common case). λ₀ is then exact to about
+/// ε·λ₂, the vector to about ε·λ₂/(λ₁ − λ₀), λ₁ to about √ε·λ₂ when λ₁ ≈ λ₂ (it only enters
+/// the thickness ratio). On curved, thin neighbourhoods it agrees with cyclic Jacobi rotations
+/// to 1e-10 rad (unit test) at a fraction of their cost (the 1M-point torus's `pca` normals:
+/// CPU −8%). A diagonal matrix, or a smallest eigenvalue of multiplicity two or three (a
+/// line-like or degenerate neighbourhood, where any vector of its eigenspace is a valid
+/// answer), gets an axis or a vector orthogonal to the matrix's largest row.
 fn smallest_eigen(a: [[f64; 3]; 3]) -> ([f64; 3], f64, f64) {
     let off = a[0][1] * a[0][1] + a[0][2] * a[0][2] + a[1][2] * a[1][2];
     let diag = [a[0][0], a[1][1], a[2][2]];
@@ -255,9 +258,7 @@ fn smallest_eigen(a: [[f64; 3]; 3]) -> ([f64; 3], f64, f64) {
     let phi = (0.5 * det).clamp(-1.0, 1.0).acos() / 3.0;
     let largest = q + 2.0 * p * phi.cos();
     let smallest = q + 2.0 * p * (phi + 2.0 * std::f64::consts::FRAC_PI_3).cos();
-    // The vector from a − λ₀I, then once more from the Rayleigh quotient of that vector: the
-    // angle form loses about half the digits of λ₀ near a double λ₁ = λ₂ (a disc-like
-    // neighbourhood, the common case), the quotient recovers them.
+    // The vector from a − λ₀I, then once more from its Rayleigh quotient (see above).
     let first = null_vector(a, smallest);
     let refined = rayleigh(a, first);
     let e = null_vector(a, refined);
@@ -409,7 +410,7 @@ mod tests {
     fn eigen_solver_matches_known_decompositions() {
         // Flat, thick, line-like and nearly isotropic neighbourhoods in many orientations: the
         // vector of the smallest eigenvalue within 1e-12 rad whenever λ₁ − λ₀ ≥ 1e-3·λ₂ (where
-        // it is well defined), and the eigenvalues within 1e-13·λ₂.
+        // it is well defined), λ₀ within 1e-13·λ₂ and λ₁ within 1e-7·λ₂.
         let spectra = [
             [0.0, 1.0, 2.0],
             [1e-9, 0.7, 1.3],
