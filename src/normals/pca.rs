@@ -372,6 +372,16 @@ mod tests {
         ]
     }
 
+    /// A deterministic stream of numbers in [−0.5, 0.5) (xorshift64).
+    fn uniform(mut state: u64) -> impl FnMut() -> f64 {
+        move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        }
+    }
+
     /// The symmetric matrix with eigenvalues `d` along the rows of the rotation `u`.
     fn compose(u: [[f64; 3]; 3], d: [f64; 3]) -> [[f64; 3]; 3] {
         let mut m = [[0.0; 3]; 3];
@@ -421,13 +431,7 @@ mod tests {
             [0.0, 0.0, 1.0],
             [2.0, 2.0, 2.0],
         ];
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = uniform(0x9e37_79b9_7f4a_7c15);
         for d in spectra {
             for _ in 0..200 {
                 let u = rotation(next(), next(), next(), next());
@@ -523,13 +527,7 @@ mod tests {
     /// Jacobi reference within 1e-10 rad, λ₀ within 1e-14 of the in-plane spread, λ₁ within 1e-6.
     #[test]
     fn eigen_solver_agrees_with_jacobi_on_curved_neighbourhoods() {
-        let mut state = 0x2545_f491_4f6c_dd1du64;
-        let mut next = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = uniform(0x2545_f491_4f6c_dd1d);
         let mut worst: f64 = 0.0;
         for _ in 0..2000 {
             let (k1, k2) = (4.0 * next(), 4.0 * next());
