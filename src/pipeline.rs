@@ -778,10 +778,10 @@ fn model_stages(
             let (model, key) = ctx.stage(
                 "detail",
                 detail::STAGE_VERSION,
-                &cache::params_bytes(&config.detail),
+                &cache::params_bytes(&detail_params(config)),
                 &oriented_key,
                 || {
-                    let model = detail::fit_detail(oriented, &config.detail)?;
+                    let model = detail::fit_detail(oriented, &detail_params(config))?;
                     let d = &model.diagnostics;
                     let figures = serde_json::json!({
                         "cells": d.cells,
@@ -1015,6 +1015,16 @@ pub fn run(
     Ok(report)
 }
 
+/// The detail fit's params of `config`: its own, with the octree deep enough for a meshing
+/// depth asked for (`--depth D`: at least D + 1, a level finer than the mesh).
+fn detail_params(config: &PipelineConfig) -> DetailParams {
+    let mut params = config.detail.clone();
+    if !config.depth_from_data {
+        params.max_depth = params.max_depth.max(config.polygonize.depth + 1);
+    }
+    params
+}
+
 /// `config` with the meshing depth of the `points`' spacing when it asks for it
 /// ([`PipelineConfig::depth_from_data`]; its own depth when the spacing cannot be measured).
 fn with_data_depth(config: &PipelineConfig, points: &[[f64; 3]], model: &Model) -> PipelineConfig {
@@ -1135,7 +1145,7 @@ fn run_report(
     if let (Model::Detail(_), Some(map)) = (model, fit.as_object_mut()) {
         map.insert(
             "params".into(),
-            serde_json::to_value(&config.detail).unwrap_or_default(),
+            serde_json::to_value(detail_params(config)).unwrap_or_default(),
         );
     }
     if figures.clipped {
