@@ -1259,3 +1259,21 @@ pub fn reconstruct(
         report,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_asked_meshing_depth_deepens_the_detail_octree_and_the_default_keeps_it() {
+        let default = PipelineConfig::for_mode(Mode::Detail);
+        assert!(default.depth_from_data);
+        assert_eq!(detail_params(&default), DetailParams::default());
+        for (depth, expected) in [(6, 8), (7, 8), (8, 9), (11, 12)] {
+            let mut asked = default.clone();
+            asked.depth_from_data = false;
+            asked.polygonize.depth = depth;
+            assert_eq!(detail_params(&asked).max_depth, expected, "--depth {depth}");
+        }
+    }
+}
