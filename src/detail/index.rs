@@ -326,13 +326,15 @@ impl BallIndex {
         }
         let generation = scratch.generation;
         // Depth-first (at most 7 pending siblings per level), on a stack kept in the scratch.
+        // A node is pushed only when the box meets it (the root tested here, a child before
+        // its push).
+        if (0..3).any(|a| b.max[a] < self.origin[a] || b.min[a] > self.origin[a] + self.side) {
+            return;
+        }
         let stack = &mut scratch.stack;
         stack.clear();
         stack.push((0, self.origin, self.side));
         while let Some((id, min, side)) = stack.pop() {
-            if (0..3).any(|a| b.max[a] < min[a] || b.min[a] > min[a] + side) {
-                continue;
-            }
             let node = &self.nodes[id as usize];
             if node.children == 0 {
                 for &i in &self.lists[node.start as usize..(node.start + node.len) as usize] {
@@ -343,7 +345,7 @@ impl BallIndex {
                     }
                 }
             } else {
-                // Only the children the box meets (the test above, per axis for the lower and
+                // Only the children the box meets (the root's test, per axis for the lower and
                 // the upper half), in the same order as pushing all eight and testing each.
                 let half = 0.5 * side;
                 let meets = [0, 1, 2].map(|a| {

@@ -18,7 +18,7 @@
 
 use rayon::prelude::*;
 
-use crate::normals::vec3::{dot, normalized, sub};
+use crate::normals::vec3::{cross, dot, normalized, sub};
 use crate::normals::NormalsParams;
 use crate::numerics::{Neighbours, PointGrid};
 
@@ -283,17 +283,10 @@ fn null_vector(a: [[f64; 3]; 3], lambda: f64) -> [f64; 3] {
         row[r] -= lambda;
         row
     });
-    let cross = |u: [f64; 3], v: [f64; 3]| {
-        [
-            u[1] * v[2] - u[2] * v[1],
-            u[2] * v[0] - u[0] * v[2],
-            u[0] * v[1] - u[1] * v[0],
-        ]
-    };
     let candidates = [
-        cross(rows[0], rows[1]),
-        cross(rows[0], rows[2]),
-        cross(rows[1], rows[2]),
+        cross(&rows[0], &rows[1]),
+        cross(&rows[0], &rows[2]),
+        cross(&rows[1], &rows[2]),
     ];
     let mut best = (0.0, [0.0; 3]);
     for c in candidates {
@@ -317,7 +310,7 @@ fn null_vector(a: [[f64; 3]; 3], lambda: f64) -> [f64; 3] {
             .min_by(|&i, &j| r[i].abs().total_cmp(&r[j].abs()))
             .unwrap_or(2);
         axis[k] = 1.0;
-        cross(r, axis)
+        cross(&r, &axis)
     };
     normalized(&e).unwrap_or([0.0, 0.0, 1.0])
 }
@@ -362,14 +355,6 @@ mod tests {
         }
         let e = smallest_eigenvector(m);
         assert!((abs_cos(&e, &[s, s, 0.0]) - 1.0).abs() < 1e-12);
-    }
-
-    fn cross3(u: &[f64; 3], v: &[f64; 3]) -> [f64; 3] {
-        [
-            u[1] * v[2] - u[2] * v[1],
-            u[2] * v[0] - u[0] * v[2],
-            u[0] * v[1] - u[1] * v[0],
-        ]
     }
 
     /// A deterministic stream of numbers in [−0.5, 0.5) (xorshift64).
@@ -441,7 +426,7 @@ mod tests {
                 assert!((dot(&e, &e) - 1.0).abs() < 1e-14);
                 if d[1] - d[0] >= 1e-3 * d[2] {
                     // |sin| of the angle to the true axis.
-                    let c = cross3(&e, &u[0]);
+                    let c = cross(&e, &u[0]);
                     assert!(dot(&c, &c).sqrt() < 1e-12, "{e:?} vs {:?}", u[0]);
                 } else if d[1] < d[2] {
                     // λ₀ = λ₁ < λ₂: any vector orthogonal to the largest axis.
@@ -549,7 +534,7 @@ mod tests {
             }
             let (e, l0, l1) = smallest_eigen(cov);
             let (f, m0, m1) = jacobi_reference(cov);
-            let c = cross3(&e, &f);
+            let c = cross(&e, &f);
             worst = worst.max(dot(&c, &c).sqrt());
             assert!((l0 - m0).abs() < 1e-14 * cov[0][0].abs().max(cov[1][1].abs()));
             assert!((l1 - m1).abs() < 1e-6 * m1, "{l1} vs {m1}");
