@@ -12,7 +12,7 @@
 //!        ─▶ summed in chunk order (deterministic for any thread count) ─▶ MᵀM, Mᵀb, β
 //! ```
 //!
-//! Inside a chunk the rows are processed in blocks of 64 in structure-of-arrays form: for each
+//! Inside a chunk the rows are processed in blocks of 256 in structure-of-arrays form: for each
 //! (a, b) the product x^a y^b is formed once for the block and dotted with four powers z^c at a
 //! time. With AVX2 + FMA (detected at run time) the dot products use fused multiply-adds;
 //! otherwise the same eight-lane order with separate multiplies and adds. Either way the result
@@ -31,7 +31,7 @@ use crate::cloud::OrientedCloud;
 use crate::poly::{exponents, monomial_index, n_coefficients};
 
 /// Rows per structure-of-arrays block.
-const BLOCK: usize = 64;
+const BLOCK: usize = 256;
 /// Points per chunk (the unit of parallel work and of the fixed reduction order).
 const CHUNK_POINTS: usize = 2048;
 /// Chunks processed in parallel before their sums are added (in order) to the total; bounds
@@ -603,7 +603,7 @@ unsafe fn tile_group(
 }
 
 /// Adds the sums of one group of a [`Tile`] of R pairs to `out`: the powers c0 … c0 + C − 1,
-/// R × C 8-lane accumulators over the block's 64 rows, then [`reduce8`] per pair.
+/// R × C 8-lane accumulators over the block's rows, then [`reduce8`] per pair.
 ///
 /// # Safety
 /// The CPU must support AVX-512F.
