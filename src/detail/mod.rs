@@ -85,7 +85,7 @@ use local::{even_subsample, fit_local, AuxPoint, Constraints, SUBSAMPLE_ABOVE};
 
 /// Version of this stage's algorithm; if you change any input to its cache key or anything
 /// that changes its output for the same input and params, bump it.
-pub const STAGE_VERSION: u32 = 8;
+pub const STAGE_VERSION: u32 = 9;
 
 /// Levels near the root whose children are fitted in parallel (8³ tasks at most).
 const PARALLEL_LEVELS: u32 = 3;
@@ -701,8 +701,9 @@ fn points_in_balls<const N: usize>(
 }
 
 /// Largest ball [`Cover::nearest`] scans; beyond it a search of the k-d tree is cheaper than
-/// measuring every point.
-const COVER_SCAN_MAX: usize = 128;
+/// measuring every point (512 against 128: the six merged raw bunny views 2.6% less CPU, the
+/// bunny 1–3%).
+const COVER_SCAN_MAX: usize = 512;
 
 /// A ball of the fit and every data point strictly inside it: all points at squared distance
 /// below `radius2` from `center`.
