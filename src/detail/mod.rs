@@ -700,9 +700,8 @@ fn points_in_balls<const N: usize>(
     out
 }
 
-/// Largest ball [`Cover::nearest`] scans; beyond it a search of the k-d tree is cheaper than
-/// measuring every point (512 against 128: the six merged raw bunny views 2.6% less CPU, the
-/// bunny 1–3%).
+/// Largest ball [`Cover::nearest`] scans before the k-d tree is searched instead (512 against
+/// 128: the six merged raw bunny views 2.6% less CPU, the bunny 1–3%; larger not measured).
 const COVER_SCAN_MAX: usize = 512;
 
 /// A ball of the fit and every data point strictly inside it: all points at squared distance
