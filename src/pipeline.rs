@@ -775,13 +775,15 @@ fn model_stages(
             (Model::Global(model), key)
         }
         Mode::Detail => {
+            // One value for the cache key and the fit, so the key says what was fitted.
+            let params = detail_params(config);
             let (model, key) = ctx.stage(
                 "detail",
                 detail::STAGE_VERSION,
-                &cache::params_bytes(&detail_params(config)),
+                &cache::params_bytes(&params),
                 &oriented_key,
                 || {
-                    let model = detail::fit_detail(oriented, &detail_params(config))?;
+                    let model = detail::fit_detail(oriented, &params)?;
                     let d = &model.diagnostics;
                     let figures = serde_json::json!({
                         "cells": d.cells,
