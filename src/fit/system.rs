@@ -306,33 +306,29 @@ fn accumulate_chunk(
         if scratch.len == 0 {
             return;
         }
+        // The power tables and the sums, both compiled for the widest vectors the CPU has.
         #[cfg(target_arch = "x86_64")]
         if use_avx512 {
             // SAFETY: only called when the CPU reports AVX-512F.
-            unsafe { fill_powers_avx512(scratch, two_n) };
-        } else if use_fma {
-            // SAFETY: only called when the CPU reports AVX2 and FMA.
-            unsafe { fill_powers_avx2(scratch, two_n) };
-        } else {
-            fill_powers(scratch, two_n);
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        fill_powers(scratch, two_n);
-        #[cfg(target_arch = "x86_64")]
-        if use_avx512 {
-            // SAFETY: only called when the CPU reports AVX-512F.
-            unsafe { accumulate_block_avx512(scratch, n, gram_layout, rhs_layout, partial) };
+            unsafe {
+                fill_powers_avx512(scratch, two_n);
+                accumulate_block_avx512(scratch, n, gram_layout, rhs_layout, partial);
+            }
             scratch.len = 0;
             return;
         }
         #[cfg(target_arch = "x86_64")]
         if use_fma {
             // SAFETY: only called when the CPU reports AVX2 and FMA.
-            unsafe { accumulate_block_fma(scratch, n, gram_layout, rhs_layout, partial) };
+            unsafe {
+                fill_powers_avx2(scratch, two_n);
+                accumulate_block_fma(scratch, n, gram_layout, rhs_layout, partial);
+            }
             scratch.len = 0;
             return;
         }
         let _ = use_fma;
+        fill_powers(scratch, two_n);
         accumulate_block::<PortableDots>(scratch, n, gram_layout, rhs_layout, partial);
         scratch.len = 0;
     };
@@ -423,7 +419,7 @@ unsafe fn fill_powers_avx2(s: &mut BlockScratch, two_n: usize) {
 
 /// Power tables of the block; padding rows get x⁰ = 0 so every product involving them is 0.
 /// Each entry is one product of two doubles, so the tables are the same whatever the vector
-/// width the loops are compiled for (the run-time dispatch above picks the widest).
+/// width the loops are compiled for (`accumulate_chunk` picks the widest at run time).
 #[inline(always)]
 fn fill_powers(s: &mut BlockScratch, two_n: usize) {
     for t in 0..BLOCK {
