@@ -259,12 +259,45 @@ pub(crate) fn accumulate(
     }
 }
 
+/// Padding after each row of a power table, in f64: rows of exactly [`BLOCK`] f64 (2 KiB) would
+/// put the same offset of every row in the same few L1 cache sets, and the kernels read a dozen
+/// rows at the same offset at once.
+const ROW_PAD: usize = 8;
+
+/// One row of a power table: the block's values, then [`ROW_PAD`] unused f64.
+#[derive(Clone, Copy)]
+#[repr(C)]
+struct PowerRow {
+    values: [f64; BLOCK],
+    _pad: [f64; ROW_PAD],
+}
+
+impl PowerRow {
+    const ZERO: PowerRow = PowerRow {
+        values: [0.0; BLOCK],
+        _pad: [0.0; ROW_PAD],
+    };
+}
+
+impl std::ops::Deref for PowerRow {
+    type Target = [f64; BLOCK];
+    fn deref(&self) -> &[f64; BLOCK] {
+        &self.values
+    }
+}
+
+impl std::ops::DerefMut for PowerRow {
+    fn deref_mut(&mut self) -> &mut [f64; BLOCK] {
+        &mut self.values
+    }
+}
+
 /// Structure-of-arrays scratch for one block of rows.
 struct BlockScratch {
     /// px[e][t] = x_t^e, e ≤ 2n (x⁰ is 0 for padding rows, so they contribute nothing).
-    px: Vec<[f64; BLOCK]>,
-    py: Vec<[f64; BLOCK]>,
-    pz: Vec<[f64; BLOCK]>,
+    px: Vec<PowerRow>,
+    py: Vec<PowerRow>,
+    pz: Vec<PowerRow>,
     /// Row weights b (targets) for Mᵀb.
     w: [f64; BLOCK],
     xs: [f64; BLOCK],
@@ -290,10 +323,10 @@ fn accumulate_chunk(
         beta: vec![0.0; n + 1],
     };
     let mut scratch = BlockScratch {
-        px: vec![[0.0; BLOCK]; two_n + 1],
-        py: vec![[0.0; BLOCK]; two_n + 1],
+        px: vec![PowerRow::ZERO; two_n + 1],
+        py: vec![PowerRow::ZERO; two_n + 1],
         // Extra powers of z pad the last group of four dot products.
-        pz: vec![[0.0; BLOCK]; two_n + Z_PADDING],
+        pz: vec![PowerRow::ZERO; two_n + Z_PADDING],
         w: [0.0; BLOCK],
         xs: [0.0; BLOCK],
         ys: [0.0; BLOCK],
@@ -618,9 +651,12 @@ unsafe fn tile_group(
 ) {
     macro_rules! dispatch {
         ($($r:literal, $c:literal);*) => {
-            match (rows, group) {
+            match (rows, group, tile.weighted) {
                 // SAFETY: AVX-512F as this function.
-                $(($r, $c) => unsafe { tile_sums::<$r, $c>(s, tile, c0, out) },)*
+                $(
+                    ($r, $c, false) => unsafe { tile_sums::<$r, $c, false>(s, tile, c0, out) },
+                    ($r, $c, true) => unsafe { tile_sums::<$r, $c, true>(s, tile, c0, out) },
+                )*
                 _ => unreachable!("a tile has 1 to {TILE_PAIRS} pairs and 1 to 8 powers"),
             }
         };
@@ -640,30 +676,35 @@ unsafe fn tile_group(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 #[inline]
-unsafe fn tile_sums<const R: usize, const C: usize>(
+unsafe fn tile_sums<const R: usize, const C: usize, const WEIGHTED: bool>(
     s: &BlockScratch,
     tile: &Tile<'_>,
     c0: usize,
     out: &mut [f64],
 ) {
     use std::arch::x86_64::*;
-    let xa = &s.px[tile.a];
+    // Every table row the loop reads, looked up (and bounds-checked) once: the loop itself is
+    // loads and arithmetic only, so its R × C sums stay in registers.
+    let xa = s.px[tile.a].as_ptr();
+    let w = s.w.as_ptr();
+    let ys: [*const f64; R] = std::array::from_fn(|r| s.py[tile.b0 + r].as_ptr());
+    let zs: [*const f64; C] = std::array::from_fn(|k| s.pz[c0 + k].as_ptr());
     let mut acc = [[_mm512_setzero_pd(); 8]; R];
-    for i in 0..BLOCK / 8 {
-        // SAFETY: i * 8 + 8 ≤ BLOCK, so every load is in bounds; c0 + C − 1 ≤ 2n < pz.len().
+    for i in (0..BLOCK).step_by(8) {
+        // SAFETY: i + 8 ≤ BLOCK and every pointer starts a row of BLOCK f64, so every load is
+        // in bounds.
         unsafe {
-            let x = _mm512_loadu_pd(xa.as_ptr().add(i * 8));
-            let w = _mm512_loadu_pd(s.w.as_ptr().add(i * 8));
-            let mut xy = [x; R];
-            for (r, v) in xy.iter_mut().enumerate() {
-                let y = _mm512_loadu_pd(s.py[tile.b0 + r].as_ptr().add(i * 8));
-                *v = _mm512_mul_pd(x, y);
-                if tile.weighted {
-                    *v = _mm512_mul_pd(*v, w);
+            let x = _mm512_loadu_pd(xa.add(i));
+            let xy: [__m512d; R] = std::array::from_fn(|r| {
+                let v = _mm512_mul_pd(x, _mm512_loadu_pd(ys[r].add(i)));
+                if WEIGHTED {
+                    _mm512_mul_pd(v, _mm512_loadu_pd(w.add(i)))
+                } else {
+                    v
                 }
-            }
-            for k in 0..C {
-                let z = _mm512_loadu_pd(s.pz[c0 + k].as_ptr().add(i * 8));
+            });
+            for (k, zk) in zs.iter().enumerate() {
+                let z = _mm512_loadu_pd(zk.add(i));
                 for (sums, &x) in acc.iter_mut().zip(&xy) {
                     sums[k] = _mm512_fmadd_pd(x, z, sums[k]);
                 }
@@ -763,7 +804,7 @@ fn accumulate_block<D: Dots>(
 /// with the extra powers the table holds (their sums are dropped), which is cheaper than
 /// single dot products that cannot hide the add latency.
 #[inline(always)]
-fn add_dots<D: Dots>(x: &[f64; BLOCK], pz: &[[f64; BLOCK]], run: &mut [f64]) {
+fn add_dots<D: Dots>(x: &[f64; BLOCK], pz: &[PowerRow], run: &mut [f64]) {
     let mut c = 0;
     while c < run.len() {
         let sums = D::dot4(x, [&pz[c], &pz[c + 1], &pz[c + 2], &pz[c + 3]]);
@@ -799,9 +840,9 @@ mod tests {
     /// A block of `len` rows for degree `n`: row t at `row(t)` = (x, y, z, w), powers filled.
     fn test_block(n: usize, len: usize, row: impl Fn(usize) -> [f64; 4]) -> BlockScratch {
         let mut s = BlockScratch {
-            px: vec![[0.0; BLOCK]; 2 * n + 1],
-            py: vec![[0.0; BLOCK]; 2 * n + 1],
-            pz: vec![[0.0; BLOCK]; 2 * n + Z_PADDING],
+            px: vec![PowerRow::ZERO; 2 * n + 1],
+            py: vec![PowerRow::ZERO; 2 * n + 1],
+            pz: vec![PowerRow::ZERO; 2 * n + Z_PADDING],
             w: [0.0; BLOCK],
             xs: [0.0; BLOCK],
             ys: [0.0; BLOCK],
