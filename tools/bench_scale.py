@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """How stablesurf's time and memory grow with the number of points, stage by stage.
 
-Usage: python3 tools/bench_scale.py [--quick] [--sizes 100k,1M,3M,10M] [--work DIR] [--bin PATH]
-[--detail-max N] [--pca-max N] [--poisson-max N] [--no-poisson] [--out FILE.md]
+Usage: python3 tools/bench_scale.py [--quick] [--sizes 100k,1M,3M,10M] [--repeat R] [--work DIR]
+[--bin PATH] [--detail-max N] [--pca-max N] [--poisson-max N] [--no-poisson] [--out FILE.md]
 
 Build first: cargo build --release --bin stablesurf --features tools --example bench_peers_inputs
 
@@ -20,7 +20,9 @@ Per size, each in its own child process, in this order:
                   tools/validate/.venv (or --python) imports open3d, for N <= --poisson-max
                   (default 3M)
 Measures of each child (os.wait4): wall time, CPU (user + sys), peak RSS (ru_maxrss), and for
-stablesurf the seconds of each stage from OUT/report.json. The growth exponent of a column is the
+stablesurf the seconds of each stage from OUT/report.json. With --repeat R (default 3) the runs of a
+size go round R times, alternating the modes (so a burst of other work on the machine falls on all of
+them alike), and every figure is the median of its R values. The growth exponent of a column is the
 least-squares slope of log(value) against log(N) over the sizes measured.
 
 Prints the tables and the acceptance figures, then writes them as the "## Scale" section of
@@ -147,6 +149,23 @@ def stablesurf_cmd(bin_path, inp, out, mode):
     if mode == "global, --normals pca":
         cmd += ["--normals", "pca"]
     return cmd
+
+
+def median(values):
+    v = sorted(values)
+    m = len(v) // 2
+    return v[m] if len(v) % 2 else 0.5 * (v[m - 1] + v[m])
+
+
+def median_result(rs):
+    """The median of each figure over the runs RS (stages: of each stage the runs report)."""
+    out = {k: median([r[k] for r in rs]) for k in ("wall", "cpu", "rss")}
+    if "stages" in rs[0]:
+        names = []
+        for r in rs:
+            names += [s for s in r["stages"] if s not in names]
+        out["stages"] = {s: median([r["stages"][s] for r in rs if s in r["stages"]]) for s in names}
+    return out
 
 
 def stage_seconds(report):
@@ -284,7 +303,9 @@ def section(results, meta):
            f"a PLY, whole Python process with `OMP_WAIT_POLICY=passive` (Python start-up and `import open3d` "
            f"alone: {meta['baseline']:.2f} CPU-s), as in `tools/bench_peers`. " if meta.get("baseline") is not None
            else f"*{POISSON}* not measured ({meta['poisson_skipped']}). ")
-        + "*wall s*: wall time of the child; *CPU s*: its user + sys time; *peak RSS MB*: its `ru_maxrss` "
+        + f"Each figure is the median of {meta['repeat']} run{'s' if meta['repeat'] > 1 else ''} per size, the "
+        "modes alternated round by round. "
+        "*wall s*: wall time of the child; *CPU s*: its user + sys time; *peak RSS MB*: its `ru_maxrss` "
         "(MB = 10⁶ bytes); *bytes / point*: peak RSS / N; *STAGE s*: that stage's seconds in the run's "
         "`report.json`. *growth exponent*: least-squares slope of log(value) against log(N) over the sizes "
         "named (1 = linear).\n"
@@ -336,6 +357,7 @@ def main():
     ap.add_argument("--pca-max", type=parse_count, default=1_000_000, help="largest N of the --normals pca run (default 1M)")
     ap.add_argument("--poisson-max", type=parse_count, default=3_000_000, help="largest N of Open3D Poisson (default 3M)")
     ap.add_argument("--no-poisson", action="store_true", help="skip Open3D Poisson")
+    ap.add_argument("--repeat", type=int, default=3, help="rounds per size, modes alternated; figures are medians (default 3)")
     ap.add_argument("--python", default=str(ROOT / "tools/validate/.venv/bin/python"), help="Python with open3d, for Poisson")
     ap.add_argument("--peer", nargs=2, metavar=("IN", "OUT"), help=argparse.SUPPRESS)
     a = ap.parse_args()
@@ -344,6 +366,8 @@ def main():
         return
     if a.sizes and a.quick:
         ap.error("--sizes and --quick exclude each other")
+    if a.repeat < 1:
+        ap.error("--repeat must be at least 1")
     try:
         sizes = sorted({parse_size(s) for s in a.sizes.split(",")}) if a.sizes else (
             [100_000, 1_000_000] if a.quick else [100_000, 1_000_000, 3_000_000, 10_000_000])
@@ -365,41 +389,45 @@ def main():
     work = Path(tempfile.mkdtemp(prefix="bench_scale-")) if own_work else Path(a.work).resolve()
     work.mkdir(parents=True, exist_ok=True)
     start, load_before = time.perf_counter(), os.getloadavg()
-    results = {m: {} for m in MODES}
     baseline = None
     try:
         inputs = {n: make_input(gen, work, n) for n in sizes}
         peer_env = dict(os.environ, OMP_WAIT_POLICY="passive", PYTHONDONTWRITEBYTECODE="1")
         if not poisson_skipped:
             _, _, baseline, _, _ = run_child([a.python, "-c", "import open3d"], peer_env)
+        runs = {m: {} for m in MODES}
         for n in sizes:
-            for mode in MODES:
-                if (mode == "detail" and n > a.detail_max) or (mode == "global, --normals pca" and n > a.pca_max) \
-                        or (mode == POISSON and (poisson_skipped or n > a.poisson_max)):
-                    continue
-                out = work / "out" / f"{mode.split(',')[0].split()[0].lower()}{'-pca' if 'pca' in mode else ''}-{label(n)}"
-                shutil.rmtree(out, ignore_errors=True)
-                out.mkdir(parents=True)
-                if mode == POISSON:
-                    cmd, env = [a.python, str(Path(__file__).resolve()), "--peer", str(inputs[n]), str(out / "mesh.ply")], peer_env
-                else:
-                    cmd, env = stablesurf_cmd(bin_path, inputs[n], out, mode), None
-                code, wall, cpu, rss, err = run_child(cmd, env)
-                if code != 0:
-                    fail(f"{mode} on {label(n)} points failed (exit {code}): {err or 'no message'}\n  command: {' '.join(cmd)}\n"
-                         "  nothing written")
-                r = {"wall": wall, "cpu": cpu, "rss": rss}
-                if mode != POISSON:
-                    r["stages"] = stage_seconds(out / "report.json")
-                results[mode][n] = r
-                shutil.rmtree(out)
-                print(f"bench_scale: {label(n):>4s} {mode:22s} wall {wall:7.2f} s  CPU {cpu:7.2f} s  peak {rss / MB:8.1f} MB",
-                      file=sys.stderr)
+            for round_ in range(a.repeat):
+                for mode in MODES:
+                    if (mode == "detail" and n > a.detail_max) or (mode == "global, --normals pca" and n > a.pca_max) \
+                            or (mode == POISSON and (poisson_skipped or n > a.poisson_max)):
+                        continue
+                    out = work / "out" / f"{mode.split(',')[0].split()[0].lower()}{'-pca' if 'pca' in mode else ''}-{label(n)}"
+                    shutil.rmtree(out, ignore_errors=True)
+                    out.mkdir(parents=True)
+                    if mode == POISSON:
+                        cmd, env = [a.python, str(Path(__file__).resolve()), "--peer", str(inputs[n]), str(out / "mesh.ply")], peer_env
+                    else:
+                        cmd, env = stablesurf_cmd(bin_path, inputs[n], out, mode), None
+                    code, wall, cpu, rss, err = run_child(cmd, env)
+                    if code != 0:
+                        fail(f"{mode} on {label(n)} points failed (exit {code}): {err or 'no message'}\n  command: {' '.join(cmd)}\n"
+                             "  nothing written")
+                    r = {"wall": wall, "cpu": cpu, "rss": rss}
+                    if mode != POISSON:
+                        r["stages"] = stage_seconds(out / "report.json")
+                    runs[mode].setdefault(n, []).append(r)
+                    shutil.rmtree(out)
+                    print(f"bench_scale: {label(n):>4s} {mode:22s} round {round_ + 1}/{a.repeat}  wall {wall:7.2f} s  "
+                          f"CPU {cpu:7.2f} s  peak {rss / MB:8.1f} MB", file=sys.stderr)
+        results = {m: {n: median_result(rs) for n, rs in by_n.items()} for m, by_n in runs.items()}
     finally:
         if own_work:
             shutil.rmtree(work, ignore_errors=True)
 
     command = "python3 tools/bench_scale.py" + (" --quick" if a.quick else f" --sizes {','.join(label(n) for n in sizes)}")
+    if a.repeat != 3:
+        command += f" --repeat {a.repeat}"
     if any(n > a.detail_max for n in sizes) or a.detail_max != 3_000_000:
         command += f" --detail-max {label(a.detail_max)}"
     if any(n > a.pca_max for n in sizes) or a.pca_max != 1_000_000:
@@ -410,7 +438,8 @@ def main():
         command += f" --poisson-max {label(a.poisson_max)}"
     meta = {"date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
             "total": time.perf_counter() - start, "command": command, "load_before": load_before,
-            "load_after": os.getloadavg(), "baseline": baseline, "poisson_skipped": poisson_skipped}
+            "load_after": os.getloadavg(), "baseline": baseline, "poisson_skipped": poisson_skipped,
+            "repeat": a.repeat}
     lines = section(results, meta)
     print("\n".join(lines[1:-1]))
     if not a.no_write:
