@@ -159,8 +159,9 @@ impl Accuracy {
 /// The threshold of [`AreaDistanceSummary::far_area_share`]: 1% of the data's diagonal.
 pub const FAR_RELATIVE: f64 = 0.01;
 
-/// Largest side of the pieces [`area_samples`] cuts a triangle into, relative to the data's
-/// diagonal: half of [`FAR_RELATIVE`], so a sample stands for points at most that far from it.
+/// How far from its nearest sample a point of the mesh may lie in [`area_samples`], relative to
+/// the data's diagonal: half of [`FAR_RELATIVE`], so a sample stands for points at most that far
+/// from it (the distance to the data changes by at most as much between them).
 const AREA_SAMPLE_RELATIVE: f64 = 0.005;
 
 /// Most pieces per side [`area_samples`] cuts a triangle into (at most 256 samples per
@@ -168,10 +169,12 @@ const AREA_SAMPLE_RELATIVE: f64 = 0.005;
 const AREA_SAMPLE_MAX_SPLITS: usize = 16;
 
 /// Points spread over the mesh by area, and the area each stands for: every triangle is cut
-/// into s × s congruent pieces (s = ⌈longest edge / `piece`⌉, from 1 to 16) and each piece gives
-/// its centroid. Deterministic: triangles in order, pieces in a fixed order. Triangles with an
-/// index out of range or a non-finite vertex give nothing.
-pub(crate) fn area_samples(mesh: &TriangleMesh, piece: f64) -> (Vec<[f64; 3]>, Vec<f64>) {
+/// into s × s congruent pieces and each piece gives its centroid, which lies within 2/3 of the
+/// piece's longest edge of every point of the piece; s = ⌈(2/3) · longest edge / `reach`⌉
+/// (from 1 to 16), so every point of the mesh is within `reach` of a sample. Deterministic:
+/// triangles in order, pieces in a fixed order. Triangles with an index out of range or a
+/// non-finite vertex give nothing.
+pub(crate) fn area_samples(mesh: &TriangleMesh, reach: f64) -> (Vec<[f64; 3]>, Vec<f64>) {
     let n = mesh.positions.len();
     let mut points = Vec::with_capacity(mesh.triangles.len());
     let mut weights = Vec::with_capacity(mesh.triangles.len());
@@ -186,8 +189,10 @@ pub(crate) fn area_samples(mesh: &TriangleMesh, piece: f64) -> (Vec<[f64; 3]>, V
         let (ab, ac) = (crate::vec3::sub(b, a), crate::vec3::sub(c, a));
         let area = 0.5 * crate::vec3::norm(crate::vec3::cross(ab, ac));
         let longest = dist(a, b).max(dist(b, c)).max(dist(c, a));
-        let s = if piece > 0.0 && longest > piece {
-            ((longest / piece).ceil() as usize).min(AREA_SAMPLE_MAX_SPLITS)
+        // A piece's centroid is within 2/3 of its longest edge of each of its points.
+        let cover = 2.0 / 3.0 * longest;
+        let s = if reach > 0.0 && cover > reach {
+            ((cover / reach).ceil() as usize).min(AREA_SAMPLE_MAX_SPLITS)
         } else {
             1
         };
@@ -209,8 +214,8 @@ pub(crate) fn area_samples(mesh: &TriangleMesh, piece: f64) -> (Vec<[f64; 3]>, V
     (points, weights)
 }
 
-/// Mesh → data distances by area: [`area_samples`] with pieces of at most half a percent of
-/// `diagonal`, each sample's distance to the nearest data point of `data`, summed in sample
+/// Mesh → data distances by area: [`area_samples`] within half a percent of `diagonal` of every
+/// point of the mesh, each sample's distance to the nearest data point of `data`, summed in sample
 /// order. `far_relative` × `diagonal` is the threshold of the far share. `None` when there is no
 /// usable triangle.
 pub(crate) fn mesh_to_points_by_area(
@@ -1290,8 +1295,8 @@ mod tests {
         mesh.normals.extend([[0.0, 0.0, 1.0]; 4]);
         mesh.triangles.extend([[4, 5, 6], [4, 6, 7]]);
         let (points, weights) = area_samples(&mesh, 0.3);
-        // Longest edge √2 → 5 pieces per side, 25 samples per triangle.
-        assert_eq!(points.len(), 4 * 25);
+        // Longest edge √2: (2/3)·√2 / 0.3 = 3.14 → 4 pieces per side, 16 samples per triangle.
+        assert_eq!(points.len(), 4 * 16);
         assert!((weights.iter().sum::<f64>() - 2.0).abs() < 1e-12);
         let data: Vec<[f64; 3]> = (0..=20)
             .flat_map(|i| (0..=20).map(move |j| [i as f64 / 20.0, j as f64 / 20.0, 0.0]))
