@@ -21,8 +21,9 @@
 //!
 //! The run's report uses [`accuracy`]: data → mesh as above (over every k-th point of a cloud
 //! of more than [`ACCURACY_POINTS`]), and mesh → data by *area*
-//! (`mesh_to_points_by_area`): every triangle cut into congruent pieces of at most 0.5% of the
-//! diagonal (`area_samples`), each piece's centroid weighted by its area, its distance to the
+//! (`mesh_to_points_by_area`): every triangle cut into congruent pieces small enough that each
+//! point of the mesh lies within 0.5% of the diagonal of a piece's centroid (`area_samples`),
+//! each centroid weighted by its piece's area, its distance to the
 //! nearest data point from the [`PointIndex`] below. Its far share (the area farther than 1% of
 //! the diagonal from every data point) shows surface the data does not support, which the data →
 //! mesh figure cannot see.
