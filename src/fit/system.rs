@@ -306,6 +306,23 @@ struct BlockScratch {
     len: usize,
 }
 
+impl BlockScratch {
+    /// An empty scratch for a fit of degree `n`: power tables up to 2n (z's padded for the
+    /// last group of four dot products).
+    fn new(n: usize) -> BlockScratch {
+        BlockScratch {
+            px: vec![PowerRow::ZERO; 2 * n + 1],
+            py: vec![PowerRow::ZERO; 2 * n + 1],
+            pz: vec![PowerRow::ZERO; 2 * n + Z_PADDING],
+            w: [0.0; BLOCK],
+            xs: [0.0; BLOCK],
+            ys: [0.0; BLOCK],
+            zs: [0.0; BLOCK],
+            len: 0,
+        }
+    }
+}
+
 #[allow(clippy::too_many_arguments)]
 fn accumulate_chunk(
     cloud: &OrientedCloud,
@@ -322,17 +339,7 @@ fn accumulate_chunk(
         rhs: vec![0.0; rhs_layout.len],
         beta: vec![0.0; n + 1],
     };
-    let mut scratch = BlockScratch {
-        px: vec![PowerRow::ZERO; two_n + 1],
-        py: vec![PowerRow::ZERO; two_n + 1],
-        // Extra powers of z pad the last group of four dot products.
-        pz: vec![PowerRow::ZERO; two_n + Z_PADDING],
-        w: [0.0; BLOCK],
-        xs: [0.0; BLOCK],
-        ys: [0.0; BLOCK],
-        zs: [0.0; BLOCK],
-        len: 0,
-    };
+    let mut scratch = BlockScratch::new(n);
     let use_fma = fma_available();
     let use_avx512 = use_fma && avx512_available();
     let flush = |scratch: &mut BlockScratch, partial: &mut Partial| {
@@ -839,16 +846,8 @@ mod tests {
 
     /// A block of `len` rows for degree `n`: row t at `row(t)` = (x, y, z, w), powers filled.
     fn test_block(n: usize, len: usize, row: impl Fn(usize) -> [f64; 4]) -> BlockScratch {
-        let mut s = BlockScratch {
-            px: vec![PowerRow::ZERO; 2 * n + 1],
-            py: vec![PowerRow::ZERO; 2 * n + 1],
-            pz: vec![PowerRow::ZERO; 2 * n + Z_PADDING],
-            w: [0.0; BLOCK],
-            xs: [0.0; BLOCK],
-            ys: [0.0; BLOCK],
-            zs: [0.0; BLOCK],
-            len,
-        };
+        let mut s = BlockScratch::new(n);
+        s.len = len;
         for t in 0..len {
             [s.xs[t], s.ys[t], s.zs[t], s.w[t]] = row(t);
         }
