@@ -37,6 +37,7 @@ import json
 import math
 import os
 import platform
+import statistics
 import shutil
 import subprocess
 import sys
@@ -151,20 +152,14 @@ def stablesurf_cmd(bin_path, inp, out, mode):
     return cmd
 
 
-def median(values):
-    v = sorted(values)
-    m = len(v) // 2
-    return v[m] if len(v) % 2 else 0.5 * (v[m - 1] + v[m])
-
-
 def median_result(rs):
     """The median of each figure over the runs RS (stages: of each stage the runs report)."""
-    out = {k: median([r[k] for r in rs]) for k in ("wall", "cpu", "rss")}
+    out = {k: statistics.median([r[k] for r in rs]) for k in ("wall", "cpu", "rss")}
     if "stages" in rs[0]:
         names = []
         for r in rs:
             names += [s for s in r["stages"] if s not in names]
-        out["stages"] = {s: median([r["stages"][s] for r in rs if s in r["stages"]]) for s in names}
+        out["stages"] = {s: statistics.median([r["stages"][s] for r in rs if s in r["stages"]]) for s in names}
     return out
 
 
