@@ -1,5 +1,5 @@
-//! Export throughput: writing a 1M-triangle mesh as .glb and as binary PLY, and computing
-//! distance slices.
+//! Export throughput: writing a 1M-triangle mesh as .glb and as binary PLY, computing
+//! distance slices, and the report's exact self-intersection count.
 //!
 //! The mesh is a closed torus grid of 1000 × 500 vertices (500 000 vertices, 1 000 000
 //! triangles), written to an in-memory buffer, so the figures are encoding cost without disk.
@@ -16,6 +16,7 @@ use stablesurf::cloud::Aabb;
 use stablesurf::distance::{slices, slices_from_mesh, DistanceMethod, SliceParams};
 use stablesurf::export::gltf::{write_glb, GltfOptions};
 use stablesurf::export::ply::{self, PlyEncoding, PlyOptions};
+use stablesurf::mesh::self_intersecting_faces;
 use stablesurf::poly::{monomial_index, n_coefficients};
 use stablesurf::{ImplicitPolynomial, TriangleMesh};
 
@@ -154,5 +155,32 @@ fn bench_slices(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_export, bench_slices);
+/// The report's exact self-intersection count on the torus polygonized at depth 8 (450,814
+/// triangles).
+fn bench_mesh_check(c: &mut Criterion) {
+    let region = Aabb {
+        min: [-1.6, -1.6, -0.6],
+        max: [1.6, 1.6, 0.6],
+    };
+    let mesh = stablesurf::polygonize::polygonize(
+        &torus_polynomial(),
+        &region,
+        &stablesurf::polygonize::PolygonizeParams {
+            depth: 8,
+            ..Default::default()
+        },
+    )
+    .unwrap()
+    .mesh;
+    let n_triangles = mesh.triangles.len();
+    let mut group = c.benchmark_group("mesh_check");
+    group.sample_size(10);
+    group.throughput(Throughput::Elements(n_triangles as u64));
+    group.bench_function(format!("self_intersections/tris={n_triangles}"), |b| {
+        b.iter(|| self_intersecting_faces(black_box(&mesh)))
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench_export, bench_slices, bench_mesh_check);
 criterion_main!(benches);

@@ -759,9 +759,10 @@ fn intersect_with_axes(
 /// Number of triangles of `mesh` that intersect another of its triangles other than at the
 /// vertices and edges they share (see [`triangles_intersect`] for what counts exactly).
 ///
-/// Broad phase: the triangles' bounding boxes in a uniform grid of cubes about twice the mean
-/// box size, sorted by cube (in parallel); each pair of triangles whose boxes overlap is tested
-/// once, in the cube holding the lowest corner of the boxes' overlap. The count is an integer
+/// Broad phase: the triangles' bounding boxes in a uniform grid of cubes three times the mean
+/// box side, sorted by cube (a radix sort of the dense cube numbers); each pair of triangles
+/// whose boxes overlap is tested once (the cubes in parallel), in the cube holding the lowest
+/// corner of the boxes' overlap. The count is an integer
 /// computed from exact predicates, so it is the same for any number of threads.
 ///
 /// ```
@@ -782,6 +783,17 @@ pub fn self_intersecting_faces(mesh: &TriangleMesh) -> usize {
 /// [`self_intersecting_faces`]).
 pub fn intersecting_triangles(mesh: &TriangleMesh) -> Vec<bool> {
     intersecting_triangles_among(mesh, None)
+}
+
+/// A triangle in the broad phase of [`intersecting_triangles_among`]: its bounding box, the
+/// grid cube of the box's lowest corner, its index, and whether its pairs are tested.
+#[derive(Clone, Copy)]
+struct Boxed {
+    lo: [f64; 3],
+    hi: [f64; 3],
+    low_cube: [u32; 3],
+    tri: u32,
+    active: bool,
 }
 
 /// [`intersecting_triangles`] testing only the pairs with at least one triangle `t` such that
@@ -841,73 +853,89 @@ pub(crate) fn intersecting_triangles_among(
     }
     let mean = size / (3.0 * present.len() as f64);
     let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
-    // Cubes of about twice the mean box size, at most 2^20 per axis.
-    let cell = (1.5 * mean)
+    // Cubes of three times the mean box side (fewest pairs and entries on polygonized meshes of
+    // 10⁵ triangles), at most 2^20 per axis.
+    let cell = (3.0 * mean)
         .max(extent / f64::from(1u32 << 20))
         .max(f64::MIN_POSITIVE);
-    let cube = |x: f64, a: usize| (((x - lo[a]) / cell).floor().max(0.0) as u64).min((1 << 20) - 1);
-    let key = |c: [u64; 3]| (c[0] << 40) | (c[1] << 20) | c[2];
-    // (cube, triangle) for every cube a box overlaps.
-    let mut entries: Vec<(u64, u32)> = boxes
+    // x ≥ lo[a], so truncation is the floor; monotone in x, so the cube of the larger of two
+    // coordinates is the larger of their cubes.
+    let cube = |x: f64, a: usize| (((x - lo[a]) / cell) as u32).min((1 << 20) - 1);
+    // Cubes numbered densely (x-major), so that the keys are as short as the grid allows.
+    let dims = [0, 1, 2].map(|a| u64::from(cube(hi[a], a)) + 1);
+    let key =
+        |c: [u32; 3]| (u64::from(c[0]) * dims[1] + u64::from(c[1])) * dims[2] + u64::from(c[2]);
+    // Each testable triangle's box and the cube of its lowest corner.
+    let cells: Vec<Option<Boxed>> = boxes
         .par_iter()
+        .zip(&axes)
         .enumerate()
-        .flat_map_iter(|(ti, b)| {
-            let mut out = Vec::new();
-            if axes[ti] == u8::MAX {
-                return out;
-            }
-            if let Some((l, h)) = b {
-                let cl = [0, 1, 2].map(|a| cube(l[a], a));
-                let ch = [0, 1, 2].map(|a| cube(h[a], a));
-                for x in cl[0]..=ch[0] {
-                    for y in cl[1]..=ch[1] {
-                        for z in cl[2]..=ch[2] {
-                            out.push((key([x, y, z]), ti as u32));
-                        }
-                    }
-                }
-            }
-            out
+        .map(|(ti, (b, &axis))| {
+            let (l, h) = (*b)?;
+            (axis != u8::MAX).then(|| Boxed {
+                lo: l,
+                hi: h,
+                low_cube: [0, 1, 2].map(|a| cube(l[a], a)),
+                tri: ti as u32,
+                active: is_active(ti as u32),
+            })
         })
         .collect();
-    entries.par_sort_unstable();
+    // (cube, triangle) for every cube a box overlaps, by cube, then by triangle.
+    let mut entries: Vec<(u64, u32)> = Vec::new();
+    for c in cells.iter().flatten() {
+        let cl = c.low_cube;
+        let ch = [0, 1, 2].map(|a| cube(c.hi[a], a));
+        for x in cl[0]..=ch[0] {
+            for y in cl[1]..=ch[1] {
+                for z in cl[2]..=ch[2] {
+                    entries.push((key([x, y, z]), c.tri));
+                }
+            }
+        }
+    }
+    crate::numerics::sort_pairs_by_key(&mut entries);
     // Group starts.
     let mut starts: Vec<usize> = (0..entries.len())
         .into_par_iter()
         .filter(|&i| i == 0 || entries[i].0 != entries[i - 1].0)
         .collect();
     starts.push(entries.len());
-    starts.par_windows(2).for_each(|w| {
-        let group = &entries[w[0]..w[1]];
-        if active.is_some() && !group.iter().any(|&(_, t)| is_active(t)) {
-            return;
-        }
-        let here = group[0].0;
-        for (x, &(_, i)) in group.iter().enumerate() {
-            let (li, hi_) = boxes[i as usize].expect("boxed");
-            let active_i = is_active(i);
-            for &(_, j) in &group[x + 1..] {
-                if !active_i && !is_active(j) {
-                    continue;
-                }
-                let (lj, hj) = boxes[j as usize].expect("boxed");
-                if (0..3).any(|a| li[a] > hj[a] || lj[a] > hi_[a]) {
-                    continue;
-                }
-                // Test the pair only in the cube holding the overlap's lowest corner.
-                let corner = [0, 1, 2].map(|a| cube(li[a].max(lj[a]), a));
-                if key(corner) != here {
-                    continue;
-                }
-                let (ti, tj) = (tris[i as usize], tris[j as usize]);
-                let (ai, aj) = (axes[i as usize] as usize, axes[j as usize] as usize);
-                if intersect_with_axes(ti, tj, ai, aj, positions) {
-                    flags[i as usize].store(true, Ordering::Relaxed);
-                    flags[j as usize].store(true, Ordering::Relaxed);
+    starts
+        .par_windows(2)
+        .for_each_init(Vec::new, |group: &mut Vec<Boxed>, w| {
+            let here = entries[w[0]].0;
+            group.clear();
+            group.extend(
+                entries[w[0]..w[1]]
+                    .iter()
+                    .map(|&(_, t)| cells[t as usize].expect("boxed")),
+            );
+            if active.is_some() && !group.iter().any(|c| c.active) {
+                return;
+            }
+            for (x, ci) in group.iter().enumerate() {
+                for cj in &group[x + 1..] {
+                    if !ci.active && !cj.active {
+                        continue;
+                    }
+                    if (0..3).any(|a| ci.lo[a] > cj.hi[a] || cj.lo[a] > ci.hi[a]) {
+                        continue;
+                    }
+                    // Test the pair only in the cube holding the overlap's lowest corner.
+                    let corner = [0, 1, 2].map(|a| ci.low_cube[a].max(cj.low_cube[a]));
+                    if key(corner) != here {
+                        continue;
+                    }
+                    let (i, j) = (ci.tri as usize, cj.tri as usize);
+                    let (ai, aj) = (axes[i] as usize, axes[j] as usize);
+                    if intersect_with_axes(tris[i], tris[j], ai, aj, positions) {
+                        flags[i].store(true, Ordering::Relaxed);
+                        flags[j].store(true, Ordering::Relaxed);
+                    }
                 }
             }
-        }
-    });
+        });
     flags.into_iter().map(AtomicBool::into_inner).collect()
 }
 
