@@ -489,9 +489,7 @@ fn read_vertex_records<const BIG: bool>(
             PropertyType::List { .. } => (0, Scalar::U8),
         }
     };
-    let xyz = plan.coords.map(field);
     let n_records = records.len() / stride;
-    points.reserve(n_records);
     // Every offset plus its size is within the stride, so the reads below cannot fail; the
     // `unwrap_or(NaN)` is never taken and keeps this path free of panics.
     let read = |r: &[u8], (o, s): (usize, Scalar)| -> f64 {
@@ -499,20 +497,9 @@ fn read_vertex_records<const BIG: bool>(
             .and_then(|b| scalar_f64::<BIG>(b, s))
             .unwrap_or(f64::NAN)
     };
-    // Written out rather than with `array::map`, which profiling showed was not inlined here.
-    for record in records.chunks_exact(stride) {
-        points.push([
-            read(record, xyz[0]),
-            read(record, xyz[1]),
-            read(record, xyz[2]),
-        ]);
-    }
+    read_triples::<BIG>(records, stride, plan.coords.map(field), points);
     if let (Some(out), Some(n)) = (normals.as_mut(), plan.normals) {
-        let n = n.map(field);
-        out.reserve(n_records);
-        for record in records.chunks_exact(stride) {
-            out.push([read(record, n[0]), read(record, n[1]), read(record, n[2])]);
-        }
+        read_triples::<BIG>(records, stride, n.map(field), out);
     }
     if let (Some(out), Some((c, _))) = (colours.as_mut(), plan.colours) {
         let c = c.map(field);
@@ -525,6 +512,50 @@ fn read_vertex_records<const BIG: bool>(
             out.extend(plan.colour(&values));
         }
     }
+}
+
+/// Appends the three scalars at `fields` (offset, type) of every record of `records` to `out`,
+/// as f64: the reads of [`scalar_f64`], with a loop of its own for the common all-`float`
+/// triple (no dispatch on the type per value: a 3M-point file of `float x y z nx ny nz` is read
+/// about twice as fast).
+fn read_triples<const BIG: bool>(
+    records: &[u8],
+    stride: usize,
+    fields: [(usize, Scalar); 3],
+    out: &mut Vec<[f64; 3]>,
+) {
+    out.reserve(records.len() / stride);
+    // Every offset plus its size is within the stride (`Element::fixed_stride`), so the reads
+    // below cannot fail; the NaN is never taken and keeps this path free of panics.
+    if fields.iter().all(|&(_, s)| s == Scalar::F32) {
+        let offsets = fields.map(|(o, _)| o);
+        let f32_at = |r: &[u8], o: usize| -> f64 {
+            match r.get(o..o + 4).and_then(|b| <[u8; 4]>::try_from(b).ok()) {
+                Some(raw) if BIG => f64::from(f32::from_be_bytes(raw)),
+                Some(raw) => f64::from(f32::from_le_bytes(raw)),
+                None => f64::NAN,
+            }
+        };
+        out.extend(records.chunks_exact(stride).map(|r| {
+            [
+                f32_at(r, offsets[0]),
+                f32_at(r, offsets[1]),
+                f32_at(r, offsets[2]),
+            ]
+        }));
+        return;
+    }
+    let read = |r: &[u8], (o, s): (usize, Scalar)| -> f64 {
+        r.get(o..)
+            .and_then(|b| scalar_f64::<BIG>(b, s))
+            .unwrap_or(f64::NAN)
+    };
+    // Written out rather than with `array::map`, which profiling showed was not inlined here.
+    out.extend(
+        records
+            .chunks_exact(stride)
+            .map(|r| [read(r, fields[0]), read(r, fields[1]), read(r, fields[2])]),
+    );
 }
 
 /// Walks one binary entry from `pos`, storing wanted scalars and the wanted list.
