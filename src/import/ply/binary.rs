@@ -490,13 +490,7 @@ fn read_vertex_records<const BIG: bool>(
         }
     };
     let n_records = records.len() / stride;
-    // Every offset plus its size is within the stride, so the reads below cannot fail; the
-    // `unwrap_or(NaN)` is never taken and keeps this path free of panics.
-    let read = |r: &[u8], (o, s): (usize, Scalar)| -> f64 {
-        r.get(o..)
-            .and_then(|b| scalar_f64::<BIG>(b, s))
-            .unwrap_or(f64::NAN)
-    };
+    let read = field_f64::<BIG>;
     read_triples::<BIG>(records, stride, plan.coords.map(field), points);
     if let (Some(out), Some(n)) = (normals.as_mut(), plan.normals) {
         read_triples::<BIG>(records, stride, n.map(field), out);
@@ -545,17 +539,24 @@ fn read_triples<const BIG: bool>(
         }));
         return;
     }
-    let read = |r: &[u8], (o, s): (usize, Scalar)| -> f64 {
-        r.get(o..)
-            .and_then(|b| scalar_f64::<BIG>(b, s))
-            .unwrap_or(f64::NAN)
-    };
+    let read = field_f64::<BIG>;
     // Written out rather than with `array::map`, which profiling showed was not inlined here.
     out.extend(
         records
             .chunks_exact(stride)
             .map(|r| [read(r, fields[0]), read(r, fields[1]), read(r, fields[2])]),
     );
+}
+
+/// The scalar at `field` (offset, type) of `record`, as f64. Every offset plus its size is
+/// within the stride of a fixed-stride element, so the read cannot fail there; the NaN is never
+/// taken and keeps the path free of panics.
+#[inline(always)]
+fn field_f64<const BIG: bool>(record: &[u8], (offset, ty): (usize, Scalar)) -> f64 {
+    record
+        .get(offset..)
+        .and_then(|b| scalar_f64::<BIG>(b, ty))
+        .unwrap_or(f64::NAN)
 }
 
 /// Walks one binary entry from `pos`, storing wanted scalars and the wanted list.
