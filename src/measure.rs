@@ -44,7 +44,6 @@
 use std::borrow::Cow;
 use std::sync::OnceLock;
 
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -463,7 +462,7 @@ pub struct GridMeshDistance<'a> {
     /// Distinct neighbours of each vertex (offsets, list), for the walks.
     neighbours: (Vec<u32>, Vec<u32>),
     seeds: Vec<u32>,
-    seed_tree: ImmutableKdTree<f64, 3>,
+    seed_tree: PointTree,
     cell: f64,
 }
 
@@ -509,7 +508,7 @@ impl<'a> GridMeshDistance<'a> {
             }
         }
         let points: Vec<[f64; 3]> = seeds.iter().map(|&i| mesh.positions[i as usize]).collect();
-        let seed_tree = ImmutableKdTree::<f64, 3>::new_from_slice(&points).ok()?;
+        let seed_tree = PointTree::new(&points)?;
         Some(GridMeshDistance {
             neighbours: index.neighbours(),
             mesh: index,
@@ -561,23 +560,19 @@ impl<'a> GridMeshDistance<'a> {
             ends[0] = v;
             n_ends = 1;
         }
-        let k = std::num::NonZero::new(N_WALKS.min(self.seeds.len()))
-            .unwrap_or(std::num::NonZero::<usize>::MIN);
         // Seeds beyond best + two cells are not walked, so a warm start bounds the search.
-        let query = self
-            .seed_tree
-            .query(&p)
-            .nearest_n::<SquaredEuclidean<f64>>(k);
-        let nearest = if best.0.is_finite() {
-            query.within((best.0 + 2.0 * self.cell).powi(2)).execute()
+        let mut nearest = [(0.0, 0u32); N_WALKS];
+        let radius2 = if best.0.is_finite() {
+            (best.0 + 2.0 * self.cell).powi(2)
         } else {
-            query.execute()
+            f64::INFINITY
         };
-        for n in &nearest {
-            if n.distance.sqrt() > best.0 + 2.0 * self.cell {
+        let found = self.seed_tree.nearest_n_within(p, radius2, &mut nearest);
+        for &(d2, seed) in &nearest[..found] {
+            if d2.sqrt() > best.0 + 2.0 * self.cell {
                 break;
             }
-            let v = self.descend(p, self.seeds[n.item as usize] as usize);
+            let v = self.descend(p, self.seeds[seed as usize] as usize);
             if ends[..n_ends].contains(&v) {
                 continue;
             }
