@@ -762,8 +762,8 @@ fn intersect_with_axes(
 /// Broad phase: the triangles' bounding boxes in a uniform grid of cubes three times the mean
 /// box side, sorted by cube (a radix sort of the dense cube numbers); each pair of triangles
 /// whose boxes overlap is tested once (the cubes in parallel), in the cube holding the lowest
-/// corner of the boxes' overlap. The count is an integer
-/// computed from exact predicates, so it is the same for any number of threads.
+/// corner of the boxes' overlap. The count is an integer computed from exact predicates, so it
+/// is the same for any number of threads.
 ///
 /// ```
 /// use stablesurf::mesh::{self_intersecting_faces, TriangleMesh};
@@ -906,10 +906,11 @@ pub(crate) fn intersecting_triangles_among(
         .for_each_init(Vec::new, |group: &mut Vec<Boxed>, w| {
             let here = entries[w[0]].0;
             group.clear();
+            // Every entry's triangle has a box (the entries are made from the boxes).
             group.extend(
                 entries[w[0]..w[1]]
                     .iter()
-                    .map(|&(_, t)| cells[t as usize].expect("boxed")),
+                    .filter_map(|&(_, t)| cells[t as usize]),
             );
             if active.is_some() && !group.iter().any(|c| c.active) {
                 return;
