@@ -113,12 +113,29 @@ fn torus_polynomial() -> ImplicitPolynomial {
     }
 }
 
+/// The box around [`torus_polynomial`]'s zero set that the slices and the meshing cover.
+const TORUS_REGION: Aabb = Aabb {
+    min: [-1.6, -1.6, -0.6],
+    max: [1.6, 1.6, 0.6],
+};
+
+/// [`torus_polynomial`] polygonized over [`TORUS_REGION`] at `depth`.
+fn polygonized_torus(depth: u32) -> TriangleMesh {
+    stablesurf::polygonize::polygonize(
+        &torus_polynomial(),
+        &TORUS_REGION,
+        &stablesurf::polygonize::PolygonizeParams {
+            depth,
+            ..Default::default()
+        },
+    )
+    .unwrap()
+    .mesh
+}
+
 fn bench_slices(c: &mut Criterion) {
     let poly = torus_polynomial();
-    let region = Aabb {
-        min: [-1.6, -1.6, -0.6],
-        max: [1.6, 1.6, 0.6],
-    };
+    let region = TORUS_REGION;
     let mut group = c.benchmark_group("slices");
     group.sample_size(10);
     group.throughput(Throughput::Elements(4 * 128 * 128));
@@ -133,16 +150,7 @@ fn bench_slices(c: &mut Criterion) {
             b.iter(|| slices(black_box(&poly), &region, &params).unwrap())
         });
     }
-    let mesh = stablesurf::polygonize::polygonize(
-        &poly,
-        &region,
-        &stablesurf::polygonize::PolygonizeParams {
-            depth: 7,
-            ..Default::default()
-        },
-    )
-    .unwrap()
-    .mesh;
+    let mesh = polygonized_torus(7);
     let params = SliceParams {
         count: 4,
         resolution: 128,
@@ -158,20 +166,7 @@ fn bench_slices(c: &mut Criterion) {
 /// The report's exact self-intersection count on the torus polygonized at depth 8 (450,814
 /// triangles).
 fn bench_mesh_check(c: &mut Criterion) {
-    let region = Aabb {
-        min: [-1.6, -1.6, -0.6],
-        max: [1.6, 1.6, 0.6],
-    };
-    let mesh = stablesurf::polygonize::polygonize(
-        &torus_polynomial(),
-        &region,
-        &stablesurf::polygonize::PolygonizeParams {
-            depth: 8,
-            ..Default::default()
-        },
-    )
-    .unwrap()
-    .mesh;
+    let mesh = polygonized_torus(8);
     let n_triangles = mesh.triangles.len();
     let mut group = c.benchmark_group("mesh_check");
     group.sample_size(10);
