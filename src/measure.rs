@@ -396,13 +396,19 @@ impl<'a> MeshDistance<'a> {
 
     /// Distance from `p` to the triangles that touch vertex `v` or one of its neighbours (the
     /// closest triangle of a sliver-rich mesh need not touch the closest vertex, but it is one
-    /// of these unless its edges are longer than the ring).
-    fn ring_distance(&self, p: [f64; 3], v: usize) -> f64 {
+    /// of these unless its edges are longer than the ring), given `fan`, the distance to the
+    /// triangles around `v` ([`Self::fan_distance`]), which are not measured again.
+    fn ring_distance(&self, p: [f64; 3], v: usize, fan: f64) -> f64 {
         // Each triangle of the ring is reached from up to three of its vertices: measure it once
-        // (the first RING_MEMORY distinct ones are remembered, which covers any usual ring).
+        // (the first RING_MEMORY distinct ones are remembered, which covers any usual ring); the
+        // fan's are remembered from the start.
         let mut seen = [u32::MAX; RING_MEMORY];
         let mut n_seen = 0;
-        let mut best = f64::INFINITY;
+        for &ti in self.around.of(v).iter().take(RING_MEMORY) {
+            seen[n_seen] = ti;
+            n_seen += 1;
+        }
+        let mut best = fan;
         for &ti in self.around.of(v) {
             for w in self.mesh.triangles[ti as usize] {
                 for &tj in self.around.of(w as usize) {
@@ -584,7 +590,7 @@ impl<'a> GridMeshDistance<'a> {
             }
         }
         let (d, v) = best;
-        (d.min(self.mesh.ring_distance(p, v)), v)
+        (self.mesh.ring_distance(p, v, d), v)
     }
 }
 
