@@ -387,11 +387,11 @@ impl<'a> MeshDistance<'a> {
 
     /// Distance from `p` to the triangles around vertex `v`.
     fn fan_distance(&self, p: [f64; 3], v: usize) -> f64 {
-        let mut best = f64::INFINITY;
+        let mut best2 = f64::INFINITY;
         for &ti in self.around.of(v) {
-            best = best.min(self.triangle_distance(p, ti));
+            best2 = best2.min(self.triangle_distance2(p, ti));
         }
-        best
+        best2.sqrt()
     }
 
     /// Distance from `p` to the triangles that touch vertex `v` or one of its neighbours (the
@@ -408,7 +408,7 @@ impl<'a> MeshDistance<'a> {
             seen[n_seen] = ti;
             n_seen += 1;
         }
-        let mut best = fan;
+        let mut best2 = f64::INFINITY;
         for &ti in self.around.of(v) {
             for w in self.mesh.triangles[ti as usize] {
                 for &tj in self.around.of(w as usize) {
@@ -419,16 +419,18 @@ impl<'a> MeshDistance<'a> {
                         seen[n_seen] = tj;
                         n_seen += 1;
                     }
-                    best = best.min(self.triangle_distance(p, tj));
+                    best2 = best2.min(self.triangle_distance2(p, tj));
                 }
             }
         }
-        best
+        fan.min(best2.sqrt())
     }
 
-    fn triangle_distance(&self, p: [f64; 3], ti: u32) -> f64 {
+    /// Squared distance from `p` to triangle `ti` (the square root of the smallest is the
+    /// smallest distance, so a minimum over triangles takes one root).
+    fn triangle_distance2(&self, p: [f64; 3], ti: u32) -> f64 {
         let [a, b, c] = self.mesh.triangles[ti as usize].map(|i| self.mesh.positions[i as usize]);
-        dist(p, closest_point_on_triangle(p, a, b, c))
+        dist2(p, closest_point_on_triangle(p, a, b, c))
     }
 
     /// The distinct neighbours of every vertex, in the order the triangles around it list
