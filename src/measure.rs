@@ -401,12 +401,14 @@ impl<'a> MeshDistance<'a> {
     fn ring_distance(&self, p: [f64; 3], v: usize, fan: f64) -> f64 {
         // Each triangle of the ring is reached from up to three of its vertices: measure it once
         // (the first RING_MEMORY distinct ones are remembered, which covers any usual ring); the
-        // fan's are remembered from the start.
+        // fan's are remembered from the start when `fan` is a distance (not a placeholder).
         let mut seen = [u32::MAX; RING_MEMORY];
         let mut n_seen = 0;
-        for &ti in self.around.of(v).iter().take(RING_MEMORY) {
-            seen[n_seen] = ti;
-            n_seen += 1;
+        if fan.is_finite() {
+            for &ti in self.around.of(v).iter().take(RING_MEMORY) {
+                seen[n_seen] = ti;
+                n_seen += 1;
+            }
         }
         let mut best2 = f64::INFINITY;
         for &ti in self.around.of(v) {
