@@ -1,7 +1,8 @@
 //! Shared numerical kernels that several stages use: a union-find over indices, a dense
 //! Cholesky factorization with its triangular solves, grid indices for exact k-nearest
 //! neighbour and nearest-distance queries, exact orientation and insphere predicates, a stable
-//! radix sort of keyed pairs, and a deterministic pseudo-random generator for synthetic data and tests.
+//! radix sort of keyed pairs, and a deterministic pseudo-random generator for synthetic data and
+//! tests.
 //!
 //! This module belongs to no stage; stages import these kernels from here instead of keeping
 //! copies of their own. Each kernel is sequential and performs its floating-point operations in
