@@ -679,14 +679,19 @@ fn orient(
     cloud_key: Key,
     config: &PipelineConfig,
 ) -> Result<(Oriented, Key), PipelineError> {
-    let (cloud, cloud_key) = without_outliers(ctx, cloud, cloud_key, &config.outliers);
+    let (mut cloud, cloud_key) = without_outliers(ctx, cloud, cloud_key, &config.outliers);
+    let n_input = cloud.points.len();
+    // The normals stage keeps the input points first and in order (duplicates too), so the
+    // cloud's colours are those of the input points.
+    let colours = cloud.colours.take().filter(|c| c.len() == n_input);
     let (oriented, oriented_key) = ctx.stage(
         "normals",
         NORMALS_VERSION,
         &cache::params_bytes(&config.normals),
         &cloud_key,
-        || {
-            let normals = normals::estimate_normals(&cloud, &config.normals)?;
+        // The cloud is given to the stage: its arrays become the oriented cloud's.
+        move || {
+            let normals = normals::estimate_normals_owned(cloud, &config.normals)?;
             let figures = serde_json::json!({
                 "source": normals.source_used.as_str(),
                 "surface_samples": normals.surface_samples,
@@ -696,10 +701,6 @@ fn orient(
         },
     )?;
     ctx.warn_figures();
-    let n_input = cloud.points.len();
-    // The normals stage keeps the input points first and in order (duplicates too), so the
-    // cloud's colours are those of the input points.
-    let colours = cloud.colours.filter(|c| c.len() == n_input);
     Ok((
         Oriented {
             cloud: oriented,

@@ -345,7 +345,8 @@ const CHECK_SAMPLE: usize = 50_000;
 /// time.
 const CHECK_NEIGHBOURS_FROM: usize = 1_000_000;
 
-/// Unit outward normals from the file's normals. Returns the normals and warnings.
+/// Unit outward normals from the file's normals `given` (one per point; their array becomes the
+/// result). Returns the normals and warnings.
 ///
 /// Zero or non-finite normals are replaced by plane fits. The signs are checked on a sample of
 /// at most [`CHECK_SAMPLE`] points: a sign conflict is a pair of neighbours on one sheet (their
@@ -360,27 +361,24 @@ const CHECK_NEIGHBOURS_FROM: usize = 1_000_000;
 /// normals point in (no graph of all points: a million given normals cost one pass).
 pub fn input_normals(
     points: &[[f64; 3]],
-    given: &[[f64; 3]],
+    given: Vec<[f64; 3]>,
     params: &NormalsParams,
 ) -> (Vec<[f64; 3]>, Vec<String>) {
     let mut warnings = Vec::new();
     let n = points.len();
-    // One pass: the unit normals, and the points whose given normal is unusable (their slot
-    // holds +z until the plane fits below replace it).
+    // One pass, in place: the unit normals, and the points whose given normal is unusable
+    // (their slot holds +z until the plane fits below replace it).
     let mut bad: Vec<usize> = Vec::new();
-    let mut normals: Vec<[f64; 3]> = given
-        .iter()
-        .enumerate()
-        .map(
-            |(i, g)| match normalized(g).filter(|_| g.iter().all(|c| c.is_finite())) {
-                Some(u) => u,
-                None => {
-                    bad.push(i);
-                    [0.0, 0.0, 1.0]
-                }
-            },
-        )
-        .collect();
+    let mut normals = given;
+    for (i, g) in normals.iter_mut().enumerate() {
+        *g = match normalized(g).filter(|_| g.iter().all(|c| c.is_finite())) {
+            Some(u) => u,
+            None => {
+                bad.push(i);
+                [0.0, 0.0, 1.0]
+            }
+        };
+    }
     // An index of all points only when plane fits need their neighbours.
     let index = if bad.is_empty() {
         None

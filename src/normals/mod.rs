@@ -266,6 +266,26 @@ pub fn estimate_normals(
     cloud: &PointCloud,
     params: &NormalsParams,
 ) -> Result<Normals, NormalsError> {
+    estimate(Cow::Borrowed(cloud), params)
+}
+
+/// [`estimate_normals`] of a cloud given away: the result holds the cloud's own arrays (its
+/// points, and its normals normalized in place when they are the source), so no array of the
+/// cloud's size is copied.
+///
+/// # Errors
+/// As [`estimate_normals`].
+pub fn estimate_normals_owned(
+    cloud: PointCloud,
+    params: &NormalsParams,
+) -> Result<Normals, NormalsError> {
+    estimate(Cow::Owned(cloud), params)
+}
+
+fn estimate(
+    mut cloud: Cow<'_, PointCloud>,
+    params: &NormalsParams,
+) -> Result<Normals, NormalsError> {
     if params.k_neighbours < 3 || params.k_neighbours > 1000 {
         return Err(NormalsError::InvalidParams(format!(
             "k_neighbours is {}, choose a value between 3 and 1000",
@@ -310,6 +330,12 @@ pub fn estimate_normals(
             }
         }
         s => s,
+    };
+    // The given normals, taken from an owned cloud before the points are borrowed below.
+    let given = match (source, &mut cloud) {
+        (NormalSource::Input, Cow::Owned(c)) => c.normals.take(),
+        (NormalSource::Input, Cow::Borrowed(c)) => c.normals.clone(),
+        _ => None,
     };
     let dedup = Dedup::new(&cloud.points);
     let mut warnings = Vec::new();
@@ -376,7 +402,7 @@ pub fn estimate_normals(
             mesh.normals
         }
         NormalSource::Input => {
-            let given = cloud.normals.as_ref().ok_or(NormalsError::NoInputNormals)?;
+            let given = given.ok_or(NormalsError::NoInputNormals)?;
             if given.is_empty() {
                 return Err(NormalsError::NoInputNormals);
             }
@@ -386,17 +412,22 @@ pub fn estimate_normals(
                     n_points: cloud.points.len(),
                 });
             }
-            let unique_given: Cow<[[f64; 3]]> = match &dedup.first {
+            let unique_given = match &dedup.first {
                 Some(first) => first.iter().map(|&i| given[i as usize]).collect(),
-                None => Cow::Borrowed(given),
+                None => given,
             };
-            let (normals, warnings) = faces::input_normals(&dedup.unique, &unique_given, params);
+            let (normals, warnings) = faces::input_normals(&dedup.unique, unique_given, params);
             out.warnings.extend(warnings);
             normals
         }
     };
-    let mut points = cloud.points.clone();
     let mut normals = dedup.expand(unique_normals);
+    drop(dedup);
+    let n_input = cloud.points.len();
+    let (mut points, cloud) = match cloud {
+        Cow::Owned(mut c) => (std::mem::take(&mut c.points), Cow::Owned(c)),
+        Cow::Borrowed(c) => (c.points.clone(), Cow::Borrowed(c)),
+    };
     // Samples on large faces (a mesh, never a range grid) follow the input points.
     out.surface_samples = samples.0.len();
     points.extend(samples.0);
@@ -406,7 +437,7 @@ pub fn estimate_normals(
         // follow the input points belong to no scan).
         let mut start = 0;
         for scan in scans {
-            let end = (start + scan.n_points).min(cloud.points.len());
+            let end = (start + scan.n_points).min(n_input);
             toward_viewpoint(&points[start..end], &mut normals[start..end], scan.sensor);
             start = end;
         }
@@ -426,7 +457,7 @@ pub fn estimate_normals(
     let weights = cloud
         .range
         .as_ref()
-        .map(|r| confidence(&cloud.points, &normals, r));
+        .map(|r| confidence(&points[..n_input], &normals, r));
     out.cloud = OrientedCloud {
         points,
         normals,
@@ -871,5 +902,37 @@ mod tests {
         let d = Dedup::new(&distinct);
         assert!(matches!(d.unique, Cow::Borrowed(_)) && d.first.is_none() && d.of_point.is_none());
         assert_eq!(d.first(7), 7);
+    }
+    #[test]
+    fn an_owned_cloud_gives_the_same_normals_as_a_borrowed_one() {
+        // Given normals of mixed length and sign, one zero (replaced by a plane fit), and
+        // repeated points (the duplicate path): every source must agree bit for bit.
+        let mut points = fibonacci_sphere(400);
+        points.extend_from_within(10..20);
+        let normals: Vec<[f64; 3]> = points
+            .iter()
+            .enumerate()
+            .map(|(i, p)| match i {
+                5 => [0.0; 3],
+                _ if i % 7 == 0 => p.map(|c| -3.0 * c),
+                _ => p.map(|c| 0.5 * c),
+            })
+            .collect();
+        let cloud = PointCloud {
+            points,
+            normals: Some(normals),
+            ..Default::default()
+        };
+        for source in [NormalSource::Input, NormalSource::Pca, NormalSource::Crust] {
+            let params = NormalsParams {
+                source,
+                ..Default::default()
+            };
+            let borrowed = estimate_normals(&cloud, &params).unwrap();
+            let owned = estimate_normals_owned(cloud.clone(), &params).unwrap();
+            assert_eq!(borrowed.cloud, owned.cloud, "{source:?}");
+            assert_eq!(borrowed.warnings, owned.warnings, "{source:?}");
+            assert_eq!(borrowed.cloud.points, cloud.points, "{source:?}");
+        }
     }
 }
