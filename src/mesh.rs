@@ -304,25 +304,47 @@ pub fn check_with(mesh: &TriangleMesh, known_embedded: bool) -> MeshReport {
     }
 }
 
-/// Every use of an edge by `triangles`: (the edge as (min, max), as it runs in its triangle
-/// a → b), sorted, so that the uses of one edge are adjacent.
-fn edge_uses(triangles: &[[u32; 3]]) -> Vec<([u32; 2], [u32; 2])> {
-    let mut edges: Vec<([u32; 2], [u32; 2])> = triangles
+/// Every use of an edge by `triangles`, as (the edge's key, the index of the triangle that uses
+/// it), sorted by key (a radix sort; the uses of one edge are adjacent, in triangle order). The
+/// key of the edge between vertices a and b is `edge_key(a, b, n)` with `n` the second value
+/// returned: one more than the largest vertex index.
+fn edge_uses(triangles: &[[u32; 3]]) -> (Vec<(u64, u32)>, u64) {
+    let n = triangles
         .iter()
-        .flat_map(|t| (0..3).map(move |k| (t[k], t[(k + 1) % 3])))
-        .map(|(a, b)| ([a.min(b), a.max(b)], [a, b]))
+        .flatten()
+        .max()
+        .map_or(0, |&m| u64::from(m) + 1);
+    let mut uses: Vec<(u64, u32)> = triangles
+        .iter()
+        .enumerate()
+        .flat_map(|(t, tri)| (0..3).map(move |k| (edge_key(tri[k], tri[(k + 1) % 3], n), t as u32)))
         .collect();
-    edges.sort_unstable();
-    edges
+    crate::numerics::sort_pairs_by_key(&mut uses);
+    (uses, n)
+}
+
+/// The key of the undirected edge between vertices `a` and `b` below `n`: min · n + max (it
+/// fits: n ≤ 2³²).
+#[inline]
+fn edge_key(a: u32, b: u32, n: u64) -> u64 {
+    u64::from(a.min(b)) * n + u64::from(a.max(b))
 }
 
 /// The boundary edges of `triangles` (edges used once), each as it runs in its triangle
 /// (a → b), sorted.
 pub fn boundary_edges(triangles: &[[u32; 3]]) -> Vec<[u32; 2]> {
-    let mut out: Vec<[u32; 2]> = edge_uses(triangles)
+    let (uses, n) = edge_uses(triangles);
+    let mut out: Vec<[u32; 2]> = uses
         .chunk_by(|x, y| x.0 == y.0)
         .filter(|uses| uses.len() == 1)
-        .map(|uses| uses[0].1)
+        .filter_map(|uses| {
+            // Used once, so its triangle holds it once: one of its sides has the key.
+            let (key, t) = uses[0];
+            let tri = triangles[t as usize];
+            (0..3)
+                .map(|k| [tri[k], tri[(k + 1) % 3]])
+                .find(|&[a, b]| edge_key(a, b, n) == key)
+        })
         .collect();
     out.sort_unstable();
     out
@@ -458,6 +480,7 @@ pub fn drop_small_nested_components(
     // is dropped.
     let triangles: Vec<[u32; 3]> = valid_triangles(mesh).collect();
     if !edge_uses(&triangles)
+        .0
         .chunk_by(|x, y| x.0 == y.0)
         .all(|uses| uses.len() == 2)
     {
@@ -1234,5 +1257,41 @@ mod tests {
             .remove("self_intersecting_faces");
         let r: MeshReport = serde_json::from_value(value).unwrap();
         assert_eq!(r.self_intersecting_faces, 0);
+    }
+    #[test]
+    fn boundary_edges_are_the_edges_used_once_as_they_run() {
+        // A sphere with triangles removed (holes), a fold (an edge used three times), a
+        // degenerate triangle (an edge used twice by one triangle) and a lone triangle; more
+        // than the radix sort's threshold of uses.
+        let sphere = lat_long_sphere([0.0; 3], 1.0, 40, 60);
+        let mut triangles: Vec<[u32; 3]> = sphere
+            .triangles
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| i % 97 != 5)
+            .map(|(_, &t)| t)
+            .collect();
+        let [a, b, _] = triangles[100];
+        triangles.push([a, b, 7]);
+        triangles.push([3, 9, 3]);
+        triangles.push([5000, 5001, 5002]);
+        assert!(3 * triangles.len() > 4096);
+        // The reference: every use, sorted by comparison.
+        let mut uses: Vec<([u32; 2], [u32; 2])> = triangles
+            .iter()
+            .flat_map(|t| (0..3).map(move |k| (t[k], t[(k + 1) % 3])))
+            .map(|(a, b)| ([a.min(b), a.max(b)], [a, b]))
+            .collect();
+        uses.sort_unstable();
+        let mut expected: Vec<[u32; 2]> = uses
+            .chunk_by(|x, y| x.0 == y.0)
+            .filter(|u| u.len() == 1)
+            .map(|u| u[0].1)
+            .collect();
+        expected.sort_unstable();
+        assert!(expected.len() > 100 && expected.contains(&[5000, 5001]));
+        assert_eq!(boundary_edges(&triangles), expected);
+        assert!(boundary_edges(&sphere.triangles).is_empty());
+        assert!(boundary_edges(&[]).is_empty());
     }
 }
