@@ -1258,6 +1258,7 @@ mod tests {
         let r: MeshReport = serde_json::from_value(value).unwrap();
         assert_eq!(r.self_intersecting_faces, 0);
     }
+
     #[test]
     fn boundary_edges_are_the_edges_used_once_as_they_run() {
         // A sphere with triangles removed (holes), a fold (an edge used three times), a

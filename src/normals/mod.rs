@@ -282,6 +282,7 @@ pub fn estimate_normals_owned(
     estimate(Cow::Owned(cloud), params)
 }
 
+/// The normals stage on a borrowed or an owned cloud (an owned one's arrays are reused).
 fn estimate(
     mut cloud: Cow<'_, PointCloud>,
     params: &NormalsParams,
@@ -903,6 +904,7 @@ mod tests {
         assert!(matches!(d.unique, Cow::Borrowed(_)) && d.first.is_none() && d.of_point.is_none());
         assert_eq!(d.first(7), 7);
     }
+
     #[test]
     fn an_owned_cloud_gives_the_same_normals_as_a_borrowed_one() {
         // Given normals of mixed length and sign, one zero (replaced by a plane fit), and
