@@ -12,7 +12,8 @@ use super::progress::Verbosity;
 pub fn normals(args: NormalsArgs, verbosity: Verbosity) -> Result<()> {
     let params = config::normals_params(&args.normals);
     let cloud = config::read_cloud(&args.input)?;
-    let result = normals::estimate_normals(&cloud, &params)
+    // The cloud is given to the stage, and its result's arrays to the files: no copies.
+    let result = normals::estimate_normals_owned(cloud, &params)
         .with_context(|| format!("estimating normals of {}", args.input.display()))?;
     if verbosity != Verbosity::Quiet {
         for w in &result.warnings {
@@ -25,15 +26,15 @@ pub fn normals(args: NormalsArgs, verbosity: Verbosity) -> Result<()> {
         );
     }
     let points = TriangleMesh {
-        positions: result.cloud.points.clone(),
-        normals: result.cloud.normals.clone(),
+        positions: result.cloud.points,
+        normals: result.cloud.normals,
         triangles: Vec::new(),
     };
     let opts = export::ply::PlyOptions::default();
     export::write_atomic(&args.output, |w| export::ply::write(&points, w, &opts))?;
     if let Some(mesh_path) = &args.mesh {
         let crust = TriangleMesh {
-            triangles: result.crust_triangles.clone(),
+            triangles: result.crust_triangles,
             ..points
         };
         export::write_atomic(mesh_path, |w| export::ply::write(&crust, w, &opts))?;
