@@ -332,10 +332,14 @@ fn estimate(
         }
         s => s,
     };
-    // The given normals, taken from an owned cloud before the points are borrowed below.
-    let given = match (source, &mut cloud) {
-        (NormalSource::Input, Cow::Owned(c)) => c.normals.take(),
-        (NormalSource::Input, Cow::Borrowed(c)) => c.normals.clone(),
+    // The given normals: taken from an owned cloud (before the points are borrowed below),
+    // borrowed from a borrowed one.
+    let given: Option<Cow<'_, [[f64; 3]]>> = match (source, &mut cloud) {
+        (NormalSource::Input, Cow::Owned(c)) => c.normals.take().map(Cow::Owned),
+        (NormalSource::Input, Cow::Borrowed(c)) => {
+            let c: &PointCloud = c;
+            c.normals.as_deref().map(Cow::Borrowed)
+        }
         _ => None,
     };
     let dedup = Dedup::new(&cloud.points);
@@ -415,7 +419,7 @@ fn estimate(
             }
             let unique_given = match &dedup.first {
                 Some(first) => first.iter().map(|&i| given[i as usize]).collect(),
-                None => given,
+                None => given.into_owned(),
             };
             let (normals, warnings) = faces::input_normals(&dedup.unique, unique_given, params);
             out.warnings.extend(warnings);
