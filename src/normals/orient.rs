@@ -28,43 +28,60 @@ use crate::numerics::{Neighbours, PointGrid};
 /// Points per block of graph rows.
 const BLOCK: usize = 4096;
 
-/// Symmetric neighbour graph in compressed rows, with the edge weights of the spanning tree, in
-/// blocks of [`BLOCK`] rows (built in parallel and kept as built, without a copy into one
-/// array). Points are numbered in the sweep order of [`orient_consistently`].
+/// Symmetric neighbour graph in compressed rows, in blocks of [`BLOCK`] rows (built in parallel
+/// and kept as built, without a copy into one array). Points are numbered in the sweep order of
+/// [`orient_consistently`]. A row holds each neighbour once, crust neighbours first: an entry's
+/// weight in the spanning tree, penalty + 1 − |nᵢ·nⱼ|, is computed where the tree needs it
+/// ([`Graph::weight`]) instead of stored (4 bytes an entry instead of 12).
 struct Graph {
     blocks: Vec<GraphBlock>,
+    /// The penalty of a row's entries after its crust neighbours: 1 when there is a crust.
+    knn_penalty: u32,
 }
 
 struct GraphBlock {
     /// `start[r]..start[r + 1]` are the entries of the block's row r.
     start: Vec<u32>,
+    /// `start[r]..crust_end[r]` are the row's crust neighbours (penalty 0), the rest its
+    /// k-nearest ones (penalty [`Graph::knn_penalty`]).
+    crust_end: Vec<u32>,
     /// The neighbour of each entry.
     neighbour: Vec<u32>,
-    /// The weight of each entry, penalty + 1 − |nᵢ·nⱼ| ≥ 0, as its bits (for non-negative
-    /// values their order is the numbers').
-    weight: Vec<u64>,
 }
 
 impl Graph {
-    /// The neighbours and weights of point `u`'s row.
-    fn row(&self, u: usize) -> (&[u32], &[u64]) {
+    /// The neighbours of point `u`'s row, and how many of them (the first) are crust
+    /// neighbours.
+    fn row(&self, u: usize) -> (&[u32], usize) {
         let block = &self.blocks[u / BLOCK];
         let r = u % BLOCK;
-        let range = block.start[r] as usize..block.start[r + 1] as usize;
-        (&block.neighbour[range.clone()], &block.weight[range])
+        let (start, crust_end) = (block.start[r] as usize, block.crust_end[r] as usize);
+        (
+            &block.neighbour[start..block.start[r + 1] as usize],
+            crust_end - start,
+        )
+    }
+
+    /// The weight of the edge between points with unit normals `a` and `b`, that is
+    /// penalty + 1 − |a·b| (at least 0), as its bits: for non-negative values their order is
+    /// the numbers'. It does not depend on the signs (|a·b| has the same bits either way
+    /// round), so flipping normals while the tree grows leaves it unchanged.
+    #[inline]
+    fn weight(penalty: u32, a: &[f64; 3], b: &[f64; 3]) -> u64 {
+        let w = f64::from(penalty) + 1.0 - dot(a, b).abs().min(1.0);
+        w.max(0.0).to_bits()
     }
 }
 
-/// The graph over points renumbered by `rank` (`perm` its inverse), `normals` in the new
-/// numbering, triangles and k-nearest lists in the input's.
+/// The graph over points renumbered by `rank` (`perm` its inverse), triangles and k-nearest
+/// lists in the input's numbering.
 fn build_graph(
-    normals: &[[f64; 3]],
+    n: usize,
     perm: &[u32],
     rank: &[u32],
     triangles: &[[u32; 3]],
     knn: &Neighbours,
 ) -> Graph {
-    let n = normals.len();
     let knn_penalty = u32::from(!triangles.is_empty());
     // The triangles at each point (input numbering), in compressed rows.
     let (tri_start, tri_rows) = rows_by_point(
@@ -75,34 +92,26 @@ fn build_graph(
                 .map(move |&v| (v, t as u32))
         }),
     );
-    // The k-nearest lists renumbered (u32::MAX for an entry out of range), and the points whose
-    // lists name each point.
-    let stride = knn.stride();
-    let mut near = vec![u32::MAX; n * stride];
-    near.par_chunks_mut(stride.max(1))
-        .enumerate()
-        .for_each(|(u, row)| {
-            for (slot, &j) in row.iter_mut().zip(knn.row(perm[u] as usize)) {
-                if (j as usize) < n {
-                    *slot = rank[j as usize];
-                }
-            }
-        });
-    let (named_start, named_by) = named_by(n, stride, &near);
-    // Each point's row: its crust neighbours (penalty 0), its k nearest and the points that
-    // count it among theirs (penalty 1 when there is a crust), each neighbour once with its
-    // smallest penalty. The rows are independent, so they are built in parallel; the order
-    // inside a row does not matter to the spanning tree (see `orient_consistently`). Edge
-    // weights do not depend on the signs (|nᵢ·nⱼ|, the same bits either way round), so they
-    // are computed here.
+    // The k nearest of sweep point u, renumbered (entries out of range dropped).
+    let near = |u: usize| {
+        knn.row(perm[u] as usize)
+            .iter()
+            .filter(|&&j| (j as usize) < n)
+            .map(|&j| rank[j as usize])
+    };
+    let (named_start, named_by) = named_by(n, rank, knn);
+    // Each point's row: its crust neighbours (penalty 0), then the others among its k nearest
+    // and the points that count it among theirs (penalty 1 when there is a crust), each
+    // neighbour once. The rows are independent, so they are built in parallel; the order
+    // inside a row does not matter to the spanning tree (see `orient_consistently`).
     let blocks: Vec<GraphBlock> = (0..n.div_ceil(BLOCK))
         .into_par_iter()
         .map(|b| {
             let block = b * BLOCK..((b + 1) * BLOCK).min(n);
             let mut start = Vec::with_capacity(block.len() + 1);
+            let mut crust_end = Vec::with_capacity(block.len());
             start.push(0u32);
             let mut neighbour = Vec::new();
-            let mut weight = Vec::new();
             let mut row: Vec<(u32, u32)> = Vec::new();
             for u in block {
                 row.clear();
@@ -115,48 +124,54 @@ fn build_graph(
                             continue;
                         }
                         if a == v {
-                            row.push((rank[b], 0));
+                            row.push((0, rank[b]));
                         } else if b == v {
-                            row.push((rank[a], 0));
+                            row.push((0, rank[a]));
                         }
                     }
                 }
-                for &j in near[u * stride..(u + 1) * stride]
-                    .iter()
-                    .chain(&named_by[named_start[u]..named_start[u + 1]])
+                for j in near(u).chain(named_by[named_start[u]..named_start[u + 1]].iter().copied())
                 {
-                    if j as usize != u && (j as usize) < n {
-                        row.push((j, knn_penalty));
+                    if j as usize != u {
+                        row.push((knn_penalty, j));
                     }
                 }
-                row.sort_unstable();
-                row.dedup_by_key(|e| e.0);
-                for &(j, penalty) in &row {
-                    let w = f64::from(penalty) + 1.0
-                        - dot(&normals[u], &normals[j as usize]).abs().min(1.0);
-                    neighbour.push(j);
-                    weight.push(w.max(0.0).to_bits());
-                }
+                // Each neighbour once, with its smallest penalty; crust neighbours first.
+                row.sort_unstable_by_key(|&(penalty, j)| (j, penalty));
+                row.dedup_by_key(|e| e.1);
+                neighbour.extend(row.iter().filter(|e| e.0 == 0).map(|e| e.1));
+                crust_end.push(neighbour.len() as u32);
+                neighbour.extend(row.iter().filter(|e| e.0 != 0).map(|e| e.1));
                 start.push(neighbour.len() as u32);
             }
+            neighbour.shrink_to_fit();
             GraphBlock {
                 start,
+                crust_end,
                 neighbour,
-                weight,
             }
         })
         .collect();
-    Graph { blocks }
+    Graph {
+        blocks,
+        knn_penalty,
+    }
 }
 
-/// For each of the `n` points, the points whose rows of `near` (rows of `stride`, entries
-/// `n` and above ignored) name it, in increasing order, in compressed rows (a counting sort):
-/// row starts and points.
-fn named_by(n: usize, stride: usize, near: &[u32]) -> (Vec<usize>, Vec<u32>) {
+/// For each of the `n` points (sweep numbering), the points whose k-nearest lists name it, in
+/// compressed rows (a counting sort): row starts and points. The lists are read in the input's
+/// order, which is the order of `knn` in memory, so a row's points are in input order.
+fn named_by(n: usize, rank: &[u32], knn: &Neighbours) -> (Vec<usize>, Vec<u32>) {
+    let named = |i: usize| {
+        knn.row(i)
+            .iter()
+            .filter(|&&j| (j as usize) < n)
+            .map(|&j| rank[j as usize] as usize)
+    };
     let mut start = vec![0usize; n + 1];
-    for &j in near {
-        if (j as usize) < n {
-            start[j as usize + 1] += 1;
+    for i in 0..n {
+        for j in named(i) {
+            start[j + 1] += 1;
         }
     }
     for i in 0..n {
@@ -164,12 +179,10 @@ fn named_by(n: usize, stride: usize, near: &[u32]) -> (Vec<usize>, Vec<u32>) {
     }
     let mut fill = start.clone();
     let mut by = vec![0u32; start[n]];
-    for (i, list) in near.chunks_exact(stride.max(1)).enumerate() {
-        for &j in list {
-            if (j as usize) < n {
-                by[fill[j as usize]] = i as u32;
-                fill[j as usize] += 1;
-            }
+    for (i, &u) in rank.iter().enumerate().take(n) {
+        for j in named(i) {
+            by[fill[j]] = u;
+            fill[j] += 1;
         }
     }
     (start, by)
@@ -319,7 +332,7 @@ pub fn orient_consistently(
         rank[v as usize] = u as u32;
     }
     let mut local: Vec<[f64; 3]> = perm.par_iter().map(|&v| normals[v as usize]).collect();
-    let graph = build_graph(&local, &perm, &rank, triangles, knn);
+    let graph = build_graph(n, &perm, &rank, triangles, knn);
     // Prim's algorithm from the lowest unlabelled point (input index): the next point to join
     // is always the frontier's least (weight, point), through `from`, the tree point of its
     // least (weight, from) edge to the tree (an offer replaces the standing one only when its
@@ -347,12 +360,14 @@ pub fn orient_consistently(
                 local[to] = scale(&local[to], -1.0);
             }
             let id = perm[to];
-            let (neighbours, weights) = graph.row(to);
-            for (&j, &w) in neighbours.iter().zip(weights) {
+            let (neighbours, n_crust) = graph.row(to);
+            for (e, &j) in neighbours.iter().enumerate() {
                 let j = j as usize;
                 if label[j] != u32::MAX {
                     continue;
                 }
+                let penalty = if e < n_crust { 0 } else { graph.knn_penalty };
+                let w = Graph::weight(penalty, &local[to], &local[j]);
                 let better = match frontier.weight_of(j) {
                     None => true,
                     Some(standing) => (w, id) < (standing, perm[from[j] as usize]),
@@ -440,14 +455,32 @@ mod tests {
 
     /// The spanning-tree orientation written plainly: the symmetric k-nearest graph as a map,
     /// a lazy heap of (weight, point, from) entries, input numbering throughout.
-    fn reference(points: &[[f64; 3]], normals: &mut [[f64; 3]], knn: &Neighbours) -> Vec<u32> {
+    /// Crust edges (of `triangles`) weigh 1 less than k-nearest ones when there are triangles.
+    fn reference(
+        points: &[[f64; 3]],
+        normals: &mut [[f64; 3]],
+        triangles: &[[u32; 3]],
+        knn: &Neighbours,
+    ) -> Vec<u32> {
         let n = points.len();
         let mut rows: Vec<BTreeMap<u32, u64>> = vec![BTreeMap::new(); n];
+        let mut link = |i: usize, j: usize, penalty: f64| {
+            let w = penalty + 1.0 - dot(&normals[i], &normals[j]).abs().min(1.0);
+            let w = w.max(0.0).to_bits();
+            for (a, b) in [(i, j), (j, i)] {
+                let entry = rows[a].entry(b as u32).or_insert(w);
+                *entry = (*entry).min(w);
+            }
+        };
+        let knn_penalty = if triangles.is_empty() { 0.0 } else { 1.0 };
         for i in 0..n {
             for &j in knn.row(i) {
-                let w = 1.0 - dot(&normals[i], &normals[j as usize]).abs().min(1.0);
-                rows[i].insert(j, w.max(0.0).to_bits());
-                rows[j as usize].insert(i as u32, w.max(0.0).to_bits());
+                link(i, j as usize, knn_penalty);
+            }
+        }
+        for t in triangles {
+            for k in 0..3 {
+                link(t[k] as usize, t[(k + 1) % 3] as usize, 0.0);
             }
         }
         let mut label = vec![u32::MAX; n];
@@ -499,7 +532,8 @@ mod tests {
         for i in (1..points.len()).rev() {
             points.swap(i, next() as usize % (i + 1));
         }
-        let directions = [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 0.8, -0.6]];
+        // a·b > 0, b·c > 0 and a·c < 0: the signs found depend on the path, so on the tree.
+        let directions = [[1.0, 0.0, 0.0], [0.6, 0.8, 0.0], [-0.6, 0.8, 0.0]];
         let normals: Vec<[f64; 3]> = (0..points.len())
             .map(|_| {
                 let d = directions[next() as usize % 3];
@@ -510,15 +544,24 @@ mod tests {
                 }
             })
             .collect();
-        for k in [4, 8] {
+        // Some triangles over random point triples: crust edges, preferred over k-nearest ones
+        // (they need not be near: the weights are what matters).
+        let triangles: Vec<[u32; 3]> = (0..120)
+            .map(|_| [0; 3].map(|_| next() as u32 % points.len() as u32))
+            .filter(|t| t[0] != t[1] && t[1] != t[2] && t[0] != t[2])
+            .collect();
+        for (k, triangles) in [(4, &[][..]), (8, &[][..]), (4, &triangles[..])] {
             let knn = PointGrid::new(&points).unwrap().all_nearest(&points, k);
             let mut expected = normals.clone();
-            let expected_label = reference(&points, &mut expected, &knn);
+            let expected_label = reference(&points, &mut expected, triangles, &knn);
             let mut got = normals.clone();
-            let label = orient_consistently(&points, &mut got, &[], &knn);
-            assert_eq!(label, expected_label, "k {k}");
-            assert_eq!(got, expected, "k {k}");
-            assert_eq!(label.iter().max(), Some(&1), "two pieces, k {k}");
+            let label = orient_consistently(&points, &mut got, triangles, &knn);
+            let case = format!("k {k}, {} triangles", triangles.len());
+            assert_eq!(label, expected_label, "{case}");
+            assert_eq!(got, expected, "{case}");
+            if triangles.is_empty() {
+                assert_eq!(label.iter().max(), Some(&1), "two pieces, {case}");
+            }
         }
     }
 }
