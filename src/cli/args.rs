@@ -72,7 +72,8 @@ pub enum CommandArgs {
 /// Options of the normals stage.
 #[derive(Debug, Args, Clone)]
 pub struct NormalsOpts {
-    /// Where normals come from: auto (file normals, else mesh faces, else crust), crust
+    /// Where normals come from: auto (file normals, else mesh faces, else crust up to 200,000
+    /// points and pca beyond), crust
     /// (Voronoi/Delaunay crust, paper section 5), pca (k-nearest-neighbour planes), mesh (the
     /// file's faces), input (the file's normals).
     #[arg(long = "normals", value_name = "SOURCE", default_value = "auto",
@@ -166,7 +167,7 @@ pub enum ModeArg {
 /// `--normals`: where the normals come from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum SourceArg {
-    /// The file's normals, else its faces, else the crust.
+    /// The file's normals, else its faces, else the crust (pca beyond 200,000 points).
     Auto,
     /// The Voronoi/Delaunay crust.
     Crust,
