@@ -543,7 +543,7 @@ fn crust_normals_timed(
             }
         }
     }
-    orient::orient_outward(points, &mut normals, &c.triangles, &knn);
+    orient::orient_outward(points, &mut normals, &c.triangles, knn);
     laps.lap("orientation", times);
     let mut warnings = Vec::new();
     if n_plane_fits > 0 {

@@ -327,7 +327,7 @@ fn fill_missing(points: &[[f64; 3]], normals: &mut [Option<[f64; 3]>], params: &
             .iter()
             .map(|x| x.unwrap_or([0.0, 0.0, 1.0]))
             .collect();
-        orient::orient_outward(points, &mut all, &[], &knn);
+        orient::orient_outward(points, &mut all, &[], knn);
         for (i, a) in all.into_iter().enumerate() {
             normals[i] = Some(a);
         }
@@ -461,7 +461,7 @@ pub fn input_normals(
             ));
         }
         let knn = pca::knn(points, params.k_neighbours);
-        let label = orient::orient_consistently(points, &mut normals, &[], &knn);
+        let label = orient::orient_consistently(points, &mut normals, &[], knn);
         orient::orient_outward_pieces(points, &mut normals, &label)
     } else {
         orient::orient_outward_pieces(points, &mut normals, &vec![0; n])

@@ -74,13 +74,14 @@ impl Graph {
 }
 
 /// The graph over points renumbered by `rank` (`perm` its inverse), triangles and k-nearest
-/// lists in the input's numbering.
+/// lists in the input's numbering. The lists are consumed: they are renumbered into the sweep
+/// order and dropped, so only one copy is held.
 fn build_graph(
     n: usize,
     perm: &[u32],
     rank: &[u32],
     triangles: &[[u32; 3]],
-    knn: &Neighbours,
+    knn: Neighbours,
 ) -> Graph {
     let knn_penalty = u32::from(!triangles.is_empty());
     // The triangles at each point (input numbering), in compressed rows.
@@ -92,14 +93,28 @@ fn build_graph(
                 .map(move |&v| (v, t as u32))
         }),
     );
-    // The k nearest of sweep point u, renumbered (entries out of range dropped).
+    // The k-nearest lists in the sweep order, renumbered (u32::MAX for an entry out of range),
+    // and the points whose lists name each point. Both read and write near the sweep index,
+    // so they stay in cache however the input is ordered.
+    let stride = knn.stride();
+    let mut near = vec![u32::MAX; n * stride];
+    near.par_chunks_mut(stride.max(1))
+        .enumerate()
+        .for_each(|(u, row)| {
+            for (slot, &j) in row.iter_mut().zip(knn.row(perm[u] as usize)) {
+                if (j as usize) < n {
+                    *slot = rank[j as usize];
+                }
+            }
+        });
+    drop(knn);
+    let (named_start, named_by) = named_by(n, stride, &near);
     let near = |u: usize| {
-        knn.row(perm[u] as usize)
+        near[u * stride..(u + 1) * stride]
             .iter()
-            .filter(|&&j| (j as usize) < n)
-            .map(|&j| rank[j as usize])
+            .copied()
+            .filter(|&j| (j as usize) < n)
     };
-    let (named_start, named_by) = named_by(n, rank, knn);
     // Each point's row: its crust neighbours (penalty 0), then the others among its k nearest
     // and the points that count it among theirs (penalty 1 when there is a crust), each
     // neighbour once. The rows are independent, so they are built in parallel; the order
@@ -158,20 +173,14 @@ fn build_graph(
     }
 }
 
-/// For each of the `n` points (sweep numbering), the points whose k-nearest lists name it, in
-/// compressed rows (a counting sort): row starts and points. The lists are read in the input's
-/// order, which is the order of `knn` in memory, so a row's points are in input order.
-fn named_by(n: usize, rank: &[u32], knn: &Neighbours) -> (Vec<usize>, Vec<u32>) {
-    let named = |i: usize| {
-        knn.row(i)
-            .iter()
-            .filter(|&&j| (j as usize) < n)
-            .map(|&j| rank[j as usize] as usize)
-    };
+/// For each of the `n` points, the points whose rows of `near` (rows of `stride`, entries
+/// `n` and above ignored) name it, in increasing order, in compressed rows (a counting sort):
+/// row starts and points.
+fn named_by(n: usize, stride: usize, near: &[u32]) -> (Vec<usize>, Vec<u32>) {
     let mut start = vec![0usize; n + 1];
-    for i in 0..n {
-        for j in named(i) {
-            start[j + 1] += 1;
+    for &j in near {
+        if (j as usize) < n {
+            start[j as usize + 1] += 1;
         }
     }
     for i in 0..n {
@@ -179,10 +188,12 @@ fn named_by(n: usize, rank: &[u32], knn: &Neighbours) -> (Vec<usize>, Vec<u32>) 
     }
     let mut fill = start.clone();
     let mut by = vec![0u32; start[n]];
-    for (i, &u) in rank.iter().enumerate().take(n) {
-        for j in named(i) {
-            by[fill[j]] = u;
-            fill[j] += 1;
+    for (i, list) in near.chunks_exact(stride.max(1)).enumerate() {
+        for &j in list {
+            if (j as usize) < n {
+                by[fill[j as usize]] = i as u32;
+                fill[j as usize] += 1;
+            }
         }
     }
     (start, by)
@@ -310,13 +321,14 @@ impl Frontier {
     }
 }
 
-/// Makes the signs of `normals` consistent along a minimum spanning tree of the neighbour graph.
-/// Returns the connected pieces as a label per point.
+/// Makes the signs of `normals` consistent along a minimum spanning tree of the neighbour graph
+/// (the crust `triangles` and the k-nearest lists `knn`, which it consumes to renumber them in
+/// place of a copy). Returns the connected pieces as a label per point.
 pub fn orient_consistently(
     points: &[[f64; 3]],
     normals: &mut [[f64; 3]],
     triangles: &[[u32; 3]],
-    knn: &Neighbours,
+    knn: Neighbours,
 ) -> Vec<u32> {
     let n = points.len().min(normals.len());
     // The work runs on the points renumbered in the grid's cell order (`perm[u]` is the input
@@ -441,7 +453,7 @@ pub fn orient_outward(
     points: &[[f64; 3]],
     normals: &mut [[f64; 3]],
     triangles: &[[u32; 3]],
-    knn: &Neighbours,
+    knn: Neighbours,
 ) {
     let label = orient_consistently(points, normals, triangles, knn);
     orient_outward_pieces(points, normals, &label);
@@ -555,7 +567,7 @@ mod tests {
             let mut expected = normals.clone();
             let expected_label = reference(&points, &mut expected, triangles, &knn);
             let mut got = normals.clone();
-            let label = orient_consistently(&points, &mut got, triangles, &knn);
+            let label = orient_consistently(&points, &mut got, triangles, knn);
             let case = format!("k {k}, {} triangles", triangles.len());
             assert_eq!(label, expected_label, "{case}");
             assert_eq!(got, expected, "{case}");

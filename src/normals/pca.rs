@@ -321,7 +321,7 @@ pub fn pca_normals(points: &[[f64; 3]], params: &NormalsParams) -> Vec<[f64; 3]>
     let (mut normals, _) =
         adaptive_normals(points, index.as_ref(), &neighbours, params.max_k_neighbours);
     drop(index);
-    crate::normals::orient::orient_outward(points, &mut normals, &[], &neighbours);
+    crate::normals::orient::orient_outward(points, &mut normals, &[], neighbours);
     normals
 }
 

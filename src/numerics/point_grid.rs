@@ -628,6 +628,11 @@ impl Neighbours {
         self.n
     }
 
+    /// Length of every row.
+    pub(crate) fn stride(&self) -> usize {
+        self.stride
+    }
+
     /// The neighbours of point `i`, nearest first (empty for `i` out of range).
     pub(crate) fn row(&self, i: usize) -> &[u32] {
         if i >= self.n {
@@ -849,9 +854,9 @@ mod tests {
         let one = [[5.0, 5.0, 5.0]];
         let grid = PointGrid::new(&one).unwrap();
         let all = grid.all_nearest(&one, 4);
-        assert_eq!((all.len(), all.stride, all.row(0)), (1, 0, &[][..]));
+        assert_eq!((all.len(), all.stride(), all.row(0)), (1, 0, &[][..]));
         let all = PointGrid::new(&points).unwrap().all_nearest(&points, 16);
-        assert_eq!((all.len(), all.stride), (3, 2));
+        assert_eq!((all.len(), all.stride()), (3, 2));
         assert_eq!(
             [all.row(0), all.row(1), all.row(2)],
             [[1, 2], [0, 2], [0, 1]]
