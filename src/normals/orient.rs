@@ -127,7 +127,9 @@ fn build_graph(
             let mut crust_end = Vec::with_capacity(block.len());
             start.push(0u32);
             let mut neighbour = Vec::new();
-            let mut row: Vec<(u32, u32)> = Vec::new();
+            // Entries as neighbour << 1 | penalty: sorting the numbers orders by neighbour,
+            // then penalty.
+            let mut row: Vec<u64> = Vec::new();
             for u in block {
                 row.clear();
                 let v = perm[u] as usize;
@@ -139,24 +141,32 @@ fn build_graph(
                             continue;
                         }
                         if a == v {
-                            row.push((0, rank[b]));
+                            row.push(u64::from(rank[b]) << 1);
                         } else if b == v {
-                            row.push((0, rank[a]));
+                            row.push(u64::from(rank[a]) << 1);
                         }
                     }
                 }
                 for j in near(u).chain(named_by[named_start[u]..named_start[u + 1]].iter().copied())
                 {
                     if j as usize != u {
-                        row.push((knn_penalty, j));
+                        row.push(u64::from(j) << 1 | u64::from(knn_penalty));
                     }
                 }
                 // Each neighbour once, with its smallest penalty; crust neighbours first.
-                row.sort_unstable_by_key(|&(penalty, j)| (j, penalty));
-                row.dedup_by_key(|e| e.1);
-                neighbour.extend(row.iter().filter(|e| e.0 == 0).map(|e| e.1));
+                row.sort_unstable();
+                row.dedup_by_key(|e| *e >> 1);
+                neighbour.extend(
+                    row.iter()
+                        .filter(|&&e| e & 1 == 0)
+                        .map(|&e| (e >> 1) as u32),
+                );
                 crust_end.push(neighbour.len() as u32);
-                neighbour.extend(row.iter().filter(|e| e.0 != 0).map(|e| e.1));
+                neighbour.extend(
+                    row.iter()
+                        .filter(|&&e| e & 1 != 0)
+                        .map(|&e| (e >> 1) as u32),
+                );
                 start.push(neighbour.len() as u32);
             }
             neighbour.shrink_to_fit();
