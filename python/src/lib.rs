@@ -501,7 +501,8 @@ impl Reconstruction {
 /// `points` is an array of shape (N, 3), or a `Scan` from `read_points` (then exactly what
 /// `stablesurf run FILE` computes). `normals` (N, 3) and `faces` (F, 3) are optional, as in a
 /// scan file: with `normal_source="auto"` the normals come from them when given, else from the
-/// crust (plane fits beyond 200,000 points). `mode` is "detail" (blended local fits, `run`'s default) or "global" (one polynomial).
+/// crust (plane fits beyond 200,000 points). `mode` is "detail" (blended local fits, `run`'s
+/// default) or "global" (one polynomial).
 /// The other keywords are the command line's options, with its defaults: `depth`, `trim`
 /// ("auto", "off" or a factor), `keep` ("data" or "all"), `degree`, `kappa` ("auto" or a
 /// number), `kappa_rule`, `epsilon`, `method`, `local_degree`, `tolerance`, `normal_source`,
