@@ -344,12 +344,8 @@ fn estimate(
     }
     delaunay::check_spans_3d(&cloud.points)?;
     let has_input_normals = cloud.normals.as_ref().is_some_and(|n| !n.is_empty());
-    let mut auto_notes = Vec::new();
-    let mut for_points = |n: usize| {
-        let (source, note) = bare_points_source(n);
-        auto_notes.extend(note);
-        source
-    };
+    // Why `auto` took plane fits instead of the crust, when it did.
+    let mut auto_note = None;
     let mut source = match params.source {
         NormalSource::Auto => {
             if has_input_normals {
@@ -357,7 +353,9 @@ fn estimate(
             } else if !cloud.triangles.is_empty() {
                 NormalSource::Mesh
             } else {
-                for_points(cloud.points.len())
+                let (source, note) = bare_points_source(cloud.points.len());
+                auto_note = note;
+                source
             }
         }
         s => s,
@@ -386,7 +384,7 @@ fn estimate(
                     n_faces: faces.len(),
                 });
             }
-            source = for_points(cloud.points.len());
+            (source, auto_note) = bare_points_source(cloud.points.len());
             warnings.push(format!(
                 "all {} faces are degenerate (their corners coincide or lie on one line); normals from {} instead",
                 faces.len(),
@@ -394,7 +392,7 @@ fn estimate(
             ));
         }
     }
-    warnings.extend(auto_notes);
+    warnings.extend(auto_note);
     let mut out = Normals {
         source_used: source,
         warnings,

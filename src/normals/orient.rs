@@ -42,8 +42,9 @@ struct Graph {
 struct GraphBlock {
     /// `start[r]..start[r + 1]` are the entries of the block's row r.
     start: Vec<u32>,
-    /// `start[r]..crust_end[r]` are the row's crust neighbours (penalty 0), the rest its
-    /// k-nearest ones (penalty [`Graph::knn_penalty`]).
+    /// `start[r]..crust_end[r]` are the row's entries of penalty 0 (its crust neighbours, or
+    /// all of them when there is no crust), the rest its other k-nearest ones (penalty
+    /// [`Graph::knn_penalty`]).
     crust_end: Vec<u32>,
     /// The neighbour of each entry.
     neighbour: Vec<u32>,
