@@ -363,7 +363,7 @@ const MERGE_VERSION: u32 = 1;
 /// The outlier filter is not cached (it is a linear pass), but its output's key chains
 /// through it when it leaves points out.
 const OUTLIERS_VERSION: u32 = 1;
-const NORMALS_VERSION: u32 = 6;
+const NORMALS_VERSION: u32 = 7;
 const FIT_VERSION: u32 = 4;
 const POLYGONIZE_VERSION: u32 = 3;
 // The export stage's version is `export::STAGE_VERSION`, beside its params.

@@ -973,11 +973,12 @@ fn range_scans_face_out_of_the_zippered_bunny() {
 
 #[test]
 fn flipped_input_normals_are_found_by_the_sampled_check() {
-    // 120,000 points: the sign check looks at a sample of 50,000. With every 20th normal
-    // flipped (5% of the points, about 10% of the pairs on one sheet) the sample must see the
-    // conflicts and the normals must come out consistent and outward; unflipped, they must
-    // come out unchanged.
-    let s = sphere(120_000, 77);
+    // 300,000 points: the sign check looks at a sample of 20,000 and their neighbours among
+    // every second point. With every 20th normal flipped (5% of the points, about 10% of the
+    // pairs on one sheet) the sample must see the conflicts and the normals must come out
+    // consistent and outward; unflipped, they must come out unchanged; all flipped (inward),
+    // the vote of the checked points must turn them all out.
+    let s = sphere(300_000, 77);
     let flipped: Vec<[f64; 3]> = s
         .normals
         .iter()
@@ -988,7 +989,8 @@ fn flipped_input_normals_are_found_by_the_sampled_check() {
         source: NormalSource::Input,
         ..Default::default()
     };
-    for (given, must_warn) in [(flipped, true), (s.normals.clone(), false)] {
+    let inward: Vec<[f64; 3]> = s.normals.iter().map(|n| n.map(|c| -c)).collect();
+    for (given, must_warn) in [(flipped, true), (s.normals.clone(), false), (inward, true)] {
         let cloud = PointCloud {
             points: s.points.clone(),
             normals: Some(given),
