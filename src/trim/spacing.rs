@@ -8,6 +8,7 @@
 use rayon::prelude::*;
 
 use crate::numerics::PointGrid;
+use crate::vec3::{norm, sub};
 
 /// The local spacing (step 1 of the module docs) at each of the points `wanted` (indices into
 /// `points`, sorted, distinct), in their order.
@@ -23,23 +24,38 @@ pub(super) fn local_spacing(
     }
     let neighbours = grid.nearest_of(points, wanted, k);
     // Each point's distance to its nearest neighbour at a positive distance (0 when all its k
-    // neighbours coincide with it), for the wanted points and their neighbours.
-    let mut around: Vec<u32> = wanted
+    // neighbours coincide with it), for the wanted points and their neighbours. A wanted
+    // point's is the first entry of its own row at a positive distance (the rows are sorted by
+    // distance, the same sums as the search's); the other points are searched for it.
+    let first_positive = |i: u32, row: &[u32]| {
+        let p = points[i as usize];
+        row.iter()
+            .map(|&j| norm(sub(p, points[j as usize])))
+            .find(|&d| d > 0.0)
+            .unwrap_or(0.0)
+    };
+    let own: Vec<f64> = wanted
+        .par_iter()
+        .enumerate()
+        .map(|(r, &i)| first_positive(i, neighbours.row(r)))
+        .collect();
+    let mut others: Vec<u32> = neighbours
+        .flat()
         .iter()
         .copied()
-        .chain(neighbours.flat().iter().copied())
+        .filter(|j| wanted.binary_search(j).is_err())
         .collect();
-    around.sort_unstable();
-    around.dedup();
-    // The first neighbour at a positive distance among the k nearest (sorted by distance) is
-    // at the smallest positive distance unless k or more other points coincide with the point
-    // (then 0).
-    let nearest: Vec<f64> = grid
-        .nearest_positive_of(points, &around, k)
+    others.sort_unstable();
+    others.dedup();
+    let others_nearest: Vec<f64> = grid
+        .nearest_positive_of(points, &others, k)
         .into_iter()
         .map(|d| d.unwrap_or(0.0))
         .collect();
-    let nearest_of = |j: u32| nearest[around.binary_search(&j).unwrap_or(0)];
+    let nearest_of = |j: u32| match wanted.binary_search(&j) {
+        Ok(r) => own[r],
+        Err(_) => others_nearest[others.binary_search(&j).unwrap_or(0)],
+    };
     wanted
         .par_iter()
         .enumerate()
