@@ -390,8 +390,7 @@ impl Artifact for crate::detail::MpuModel {
     const VERSION: u32 = crate::detail::STAGE_VERSION;
 
     fn encode_payload(&self, out: &mut Vec<u8>) {
-        let mut file = Vec::new();
-        crate::model::mpu::write_mpu(self, &mut file).expect("writing to memory cannot fail");
+        let file = crate::model::mpu::mpu_bytes(self).expect("plain diagnostics always encode");
         out.extend_from_slice(&(file.len() as u64).to_le_bytes());
         out.extend_from_slice(&file);
     }

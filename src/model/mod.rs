@@ -128,16 +128,13 @@ impl Model {
     /// # Errors
     /// [`ModelError`] from the writer.
     pub fn file(&self) -> Result<(&'static str, Vec<u8>), ModelError> {
-        let mut bytes = Vec::new();
         match self {
             Model::Global(m) => {
+                let mut bytes = Vec::new();
                 json::write_model(m, &mut bytes)?;
                 Ok(("model.json", bytes))
             }
-            Model::Detail(m) => {
-                mpu::write_mpu(m, &mut bytes)?;
-                Ok(("model.mpu", bytes))
-            }
+            Model::Detail(m) => Ok(("model.mpu", mpu::mpu_bytes(m)?)),
         }
     }
 }

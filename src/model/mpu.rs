@@ -55,7 +55,23 @@ pub fn is_mpu(bytes: &[u8]) -> bool {
 /// # Errors
 /// [`ModelError::Write`] when the stream fails.
 pub fn write_mpu(model: &MpuModel, out: &mut impl Write) -> Result<(), ModelError> {
-    let mut buf: Vec<u8> = Vec::with_capacity(64 + model.cells.len() * 160);
+    out.write_all(&mpu_bytes(model)?).map_err(ModelError::Write)
+}
+
+/// The bytes [`write_mpu`] writes, in one buffer of their exact size (a detail model of the bunny
+/// is 13 MB: growing or copying it again costs more than encoding it).
+///
+/// # Errors
+/// [`ModelError::Format`] when the diagnostics cannot be encoded.
+pub fn mpu_bytes(model: &MpuModel) -> Result<Vec<u8>, ModelError> {
+    let diagnostics = serde_json::to_vec(&model.diagnostics)
+        .map_err(|e| ModelError::Format(format!("cannot encode the diagnostics: {e}")))?;
+    let cells: usize = model
+        .cells
+        .iter()
+        .map(|c| 3 * 8 + 8 + 8 + 4 + 1 + 4 + 3 * 8 + 8 + 8 * c.poly.coefficients.len())
+        .sum();
+    let mut buf: Vec<u8> = Vec::with_capacity(16 + 4 + 13 * 8 + 8 + cells + 8 + diagnostics.len());
     buf.extend_from_slice(MAGIC);
     buf.extend_from_slice(&VERSION.to_le_bytes());
     for b in [&model.region, &model.root] {
@@ -82,11 +98,10 @@ pub fn write_mpu(model: &MpuModel, out: &mut impl Write) -> Result<(), ModelErro
             buf.extend_from_slice(&v.to_le_bytes());
         }
     }
-    let diagnostics = serde_json::to_vec(&model.diagnostics)
-        .map_err(|e| ModelError::Format(format!("cannot encode the diagnostics: {e}")))?;
     buf.extend_from_slice(&(diagnostics.len() as u64).to_le_bytes());
     buf.extend_from_slice(&diagnostics);
-    out.write_all(&buf).map_err(ModelError::Write)
+    debug_assert_eq!(buf.len(), buf.capacity());
+    Ok(buf)
 }
 
 /// A cursor over the file's bytes that reports truncation with the path.
