@@ -469,16 +469,21 @@ pub fn input_normals(
         let label = orient::orient_consistently(points, &mut normals, &[], knn);
         orient::orient_outward_pieces(points, &mut normals, &label)
     } else {
-        // One piece, turned outward by the vote of the check's points (all of them, or every
-        // k-th of a large cloud: the farthest fiftieth of a fixed share of the points votes).
-        let mut voters = check_normals.into_owned();
-        let flip = orient::orient_outward_pieces(&check_points, &mut voters, &vec![0; m]);
-        if flip > 0 {
-            for g in &mut normals {
-                *g = scale(g, -1.0);
+        // One piece, turned outward by the vote of the check's points: every k-th of a large
+        // cloud (the farthest fiftieth of a fixed share of the points votes, on their copy),
+        // else all of them, in place.
+        match check_normals {
+            Cow::Owned(mut voters) => {
+                let flip = orient::orient_outward_pieces(&check_points, &mut voters, &vec![0; m]);
+                if flip > 0 {
+                    for g in &mut normals {
+                        *g = scale(g, -1.0);
+                    }
+                }
+                flip
             }
+            Cow::Borrowed(_) => orient::orient_outward_pieces(points, &mut normals, &vec![0; n]),
         }
-        flip
     };
     if flipped > 0 {
         warnings.push(format!(
