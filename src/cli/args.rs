@@ -124,11 +124,11 @@ pub struct DetailOpts {
           allow_negative_numbers = true, value_parser = LOCAL_DEGREE.whole::<u32>())]
     pub local_degree: u32,
     /// Detail mode: split a cell while its fit is farther than this from its points (fraction
-    /// of the bounding-box diagonal).
-    #[arg(long, default_value_t = 3.5e-4, value_name = "T",
-          help = TOLERANCE.help("Detail mode: split a cell while its fit is farther than this from its points, as a fraction of the bounding-box diagonal"),
+    /// of the bounding-box diagonal). Default: the library's, halved by `run` on points much
+    /// finer than the mesh's cells.
+    #[arg(long, value_name = "T", help = tolerance_help(),
           allow_negative_numbers = true, value_parser = TOLERANCE.real())]
-    pub tolerance: f64,
+    pub tolerance: Option<f64>,
 }
 
 /// Options of the polygonize stage.
@@ -709,6 +709,16 @@ fn depth_help() -> String {
         stablesurf::polygonize::PolygonizeParams::default().depth,
         stablesurf::polygonize::DATA_DEPTH_MIN,
         stablesurf::polygonize::DATA_DEPTH_MAX,
+    )
+}
+
+/// The help of `--tolerance`, whose default is the library's (`DetailParams::default()`).
+fn tolerance_help() -> String {
+    format!(
+        "{} [default: {}; `run`: × {} where the points are much finer than the mesh's cells]",
+        TOLERANCE.help("Detail mode: split a cell while its fit is farther than this from its points, as a fraction of the bounding-box diagonal"),
+        stablesurf::detail::DetailParams::default().tolerance,
+        stablesurf::pipeline::DENSE_TOLERANCE,
     )
 }
 

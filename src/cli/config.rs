@@ -105,13 +105,16 @@ pub fn fit_params(opts: &FitOpts) -> Result<fit::FitParams> {
 
 /// Detail-fit parameters (`--local-degree` and `--tolerance` are within range::LOCAL_DEGREE and
 /// range::TOLERANCE). The finest cells split down to `--tolerance` or 1e-3, whichever is
-/// smaller.
+/// smaller; without it, the library's default tolerance.
 pub fn detail_params(opts: &DetailOpts) -> DetailParams {
-    DetailParams {
+    let params = DetailParams {
         degree: opts.local_degree,
         ..DetailParams::default()
+    };
+    match opts.tolerance {
+        Some(t) => params.with_tolerance(t),
+        None => params,
     }
-    .with_tolerance(opts.tolerance)
 }
 
 /// Meshing parameters for a model of `mode`: the mode's defaults
@@ -145,6 +148,7 @@ pub fn run_config(args: &RunArgs) -> Result<PipelineConfig> {
     config.detail = detail_params(&args.detail);
     config.polygonize = polygonize_params(&args.mesh, mode);
     config.depth_from_data &= args.mesh.depth.is_none();
+    config.tolerance_from_data &= args.detail.tolerance.is_none();
     config.decimate = decimate_params(&args.mesh);
     if let Some(keep) = args.keep {
         config.keep = keep.into();

@@ -79,7 +79,15 @@ pub fn run_source(
             ),
             Mode::Detail => format!(
                 "local degree {}, tolerance {}",
-                args.detail.local_degree, args.detail.tolerance
+                args.detail.local_degree,
+                match args.detail.tolerance {
+                    Some(t) => t.to_string(),
+                    None => format!(
+                        "{} (x {} on dense points)",
+                        config.detail.tolerance,
+                        stablesurf::pipeline::DENSE_TOLERANCE
+                    ),
+                }
             ),
         };
         eprintln!(

@@ -1,26 +1,33 @@
-//! The meshing depth that matches the data: the finest cells about as large as the spacing of
-//! the points, as Poisson reconstruction's octree adapts to its samples.
+//! The meshing resolution that matches the data: the finest cells about as large as the
+//! spacing of the points, as Poisson reconstruction's octree adapts to its samples, and facets
+//! fitted to the surface where the points are much denser than those cells.
 //!
-//! Input: the data points and the meshing region. Output: a depth in
-//! [`DATA_DEPTH_MIN`]..=[`DATA_DEPTH_MAX`]: `round(log₂(L / s))`, where L is the region's
-//! longest side and s the median distance from a point to its nearest other point (measured
-//! on an even sample of at most [`SPACING_SAMPLES`] points). Above [`FULL_CLOUD_MAX`] points
-//! the neighbours are searched among every k-th point only (about that many), and their
-//! spacing scaled by √(kept / all), the law of points spread over a surface, so the cost does
-//! not grow with the cloud (those clouds are dense enough for the finest depth unless their
-//! surface is huge). A mesh much finer than the spacing adds triangles the data cannot place, and
-//! costs about 4× the time a level; one coarser blurs what the data shows.
+//! Input: the data points and the meshing region. Output: a [`DataResolution`]: the points'
+//! level log₂(L / s), where L is the region's longest side and s the median distance from a
+//! point to its nearest other point (measured on an even sample of at most
+//! [`SPACING_SAMPLES`] points). Above [`FULL_CLOUD_MAX`] points the neighbours are searched
+//! among every k-th point only (about that many), and their spacing scaled by √(kept / all),
+//! the law of points spread over a surface, so the cost does not grow with the cloud.
+//!
+//! - **Depth**: the coarsest whose finest cells are at most 2^¼ ≈ 1.19 times the spacing,
+//!   `ceil(log₂(L / s) − ¼)`, clamped to [`DATA_DEPTH_MIN`]..=[`DATA_DEPTH_MAX`]. A mesh much
+//!   finer than the spacing adds triangles the data cannot place, and costs about 4× the time
+//!   a level; one coarser blurs what the data shows.
+//! - **Chords**: when the points are [`DENSE_LEVELS`] levels or more finer than the mesh (more
+//!   than 2^1.5 ≈ 2.8 points across a cell), the flat facets' chord error, not the fit, is most
+//!   of the distance from the points to the mesh: the vertices then move off the zero set so
+//!   the facets straddle the surface ([`super::PolygonizeParams::fit_chords`]), which a level
+//!   finer would do at 1.5–4× the CPU; `run` also halves detail mode's split tolerance there
+//!   (`pipeline::DENSE_TOLERANCE`). Sparser data keeps every vertex on the zero set.
 //!
 //! Measured in detail mode on the oriented points of ../shared/data against Open3D's Poisson
-//! at depth 8 (symmetric Chamfer distance / diagonal, CPU seconds of the whole run; L / s of
-//! the points' own box, which detail mode's meshing box exceeds by 10% per side, +0.26 in
-//! log₂; docs/defaults.md has the table): the sparse
-//! scans (L / s between 30 and 70: quadknot, patella, fandisk, spot, duck) cost about half the
-//! CPU at depth 6, and their Chamfer distance grows by 0.2–2.5% over depth 7's: still below
-//! Poisson's except the duck's (1.004× Poisson's, 0.99× at depth 7). Fertility and Max Planck
-//! (L / s ≈ 100) lose 3.5–4% at depth 6, more than Poisson's, so they stay at 7, as do the
-//! bunny, the teapot and the 20,000-point synthetic shapes (L / s above 120). Depths above 7
-//! are left to `--depth`: on a million points depth 8 costs 1.5× the CPU of depth 7.
+//! at depth 8 (symmetric Chamfer distance / diagonal, CPU seconds of the whole run; docs/defaults.md
+//! has the table): depth 6 halves the CPU of the sparsest scans (quadknot, patella, fandisk,
+//! spot: log₂(L / s) of the meshing box 5.2–6.2) at a Chamfer cost of 0.1–2.8% over depth 7's,
+//! still below Poisson's; the duck (6.36) loses 1.1% and crosses Poisson's (1.006×), so the
+//! rule gives it depth 7 (0.995×). A 1,000,000-point torus (10.8) at depth 7: the chords take
+//! its Chamfer distance from 1.023× Poisson's to 1.000× for about 3% more CPU; depth 8
+//! gives 1.013× for 1.7× the CPU.
 //!
 //! Deterministic: the sample is every k-th point in input order and the nearest-neighbour
 //! search is exact.
@@ -34,6 +41,13 @@ pub const DATA_DEPTH_MIN: u32 = 6;
 /// The finest depth the rule picks.
 pub const DATA_DEPTH_MAX: u32 = 7;
 
+/// The finest cells may be up to 2^this times the spacing (see the module docs).
+const CELL_OVER_SPACING_LOG2: f64 = 0.25;
+
+/// How many levels finer than the mesh the points must be for the facets to be fitted to the
+/// surface (see the module docs).
+pub const DENSE_LEVELS: f64 = 1.5;
+
 /// At most this many points are measured for their nearest-neighbour distance.
 const SPACING_SAMPLES: usize = 20_000;
 
@@ -41,9 +55,44 @@ const SPACING_SAMPLES: usize = 20_000;
 /// scaled to the whole cloud.
 const FULL_CLOUD_MAX: usize = 80_000;
 
-/// The depth whose finest cells are about the spacing of `points` inside `region` (see the
-/// module docs); `None` when the spacing cannot be measured (fewer than two distinct points,
-/// or a non-finite coordinate).
+/// How finely a cloud samples its meshing region (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DataResolution {
+    /// log₂(L / s): L the region's longest side, s the points' median nearest-neighbour
+    /// distance.
+    pub level: f64,
+}
+
+impl DataResolution {
+    /// The resolution of `points` inside `region`; `None` when the spacing cannot be measured
+    /// (fewer than two distinct points, or a non-finite coordinate) or the region is empty.
+    pub fn of(points: &[[f64; 3]], region: &Aabb) -> Option<DataResolution> {
+        let spacing = median_spacing(points)?;
+        let longest = (0..3)
+            .map(|a| region.max[a] - region.min[a])
+            .fold(0.0, f64::max);
+        let level = (longest / spacing).log2();
+        level.is_finite().then_some(DataResolution { level })
+    }
+
+    /// The meshing depth: the coarsest whose finest cells are at most 2^¼ times the spacing,
+    /// within [`DATA_DEPTH_MIN`]..=[`DATA_DEPTH_MAX`].
+    pub fn depth(&self) -> u32 {
+        (self.level - CELL_OVER_SPACING_LOG2)
+            .ceil()
+            .clamp(f64::from(DATA_DEPTH_MIN), f64::from(DATA_DEPTH_MAX)) as u32
+    }
+
+    /// Whether the points are dense for the mesh of [`DataResolution::depth`]: at least
+    /// [`DENSE_LEVELS`] levels finer than its cells, so its facets are fitted to the surface.
+    pub fn dense(&self) -> bool {
+        self.level >= f64::from(self.depth()) + DENSE_LEVELS
+    }
+}
+
+/// The depth whose finest cells are about the spacing of `points` inside `region`
+/// ([`DataResolution::depth`]; see the module docs); `None` when the spacing cannot be measured
+/// (fewer than two distinct points, or a non-finite coordinate).
 ///
 /// ```
 /// use stablesurf::polygonize::depth_for_data;
@@ -63,15 +112,7 @@ const FULL_CLOUD_MAX: usize = 80_000;
 /// assert_eq!(depth_for_data(&sparse, &region), Some(6));
 /// ```
 pub fn depth_for_data(points: &[[f64; 3]], region: &Aabb) -> Option<u32> {
-    let spacing = median_spacing(points)?;
-    let longest = (0..3)
-        .map(|a| region.max[a] - region.min[a])
-        .fold(0.0, f64::max);
-    if !(longest.is_finite() && longest > 0.0) {
-        return None;
-    }
-    let level = (longest / spacing).log2().round();
-    Some(level.clamp(f64::from(DATA_DEPTH_MIN), f64::from(DATA_DEPTH_MAX)) as u32)
+    DataResolution::of(points, region).map(|r| r.depth())
 }
 
 /// The median distance from a point of an even sample of `points` to its nearest other point
@@ -150,5 +191,21 @@ mod tests {
         // Points 1e-4 apart: L / s = 10⁴, far above it.
         let dense: Vec<[f64; 3]> = (0..1000).map(|i| [i as f64 * 1e-4, 0.5, 0.5]).collect();
         assert_eq!(depth_for_data(&dense, &region), Some(DATA_DEPTH_MAX));
+    }
+
+    /// The depth is the coarsest whose cells are at most 2^¼ spacings: a level of 6.3 (cells
+    /// of 2^0.3 spacings at depth 6) goes to 7, 6.2 stays at 6; the chords start 1.5 levels
+    /// finer than the mesh.
+    #[test]
+    fn thresholds_of_the_rule() {
+        let at = |level| DataResolution { level };
+        assert_eq!(at(6.2).depth(), 6);
+        assert_eq!(at(6.3).depth(), 7);
+        assert_eq!(at(7.26).depth(), 7);
+        assert!(!at(8.49).dense());
+        assert!(at(8.5).dense());
+        // Only the finest depth can be dense: below it the depth follows the level.
+        assert!(!at(7.5).dense());
+        assert!(!at(5.0).dense());
     }
 }

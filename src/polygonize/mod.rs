@@ -122,7 +122,7 @@ pub mod shapes;
 mod simplify;
 
 pub use crate::implicit::ImplicitFunction;
-pub use depth::{depth_for_data, DATA_DEPTH_MAX, DATA_DEPTH_MIN};
+pub use depth::{depth_for_data, DataResolution, DATA_DEPTH_MAX, DATA_DEPTH_MIN, DENSE_LEVELS};
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
