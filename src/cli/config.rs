@@ -269,6 +269,11 @@ mod tests {
         assert_eq!(config.polygonize.depth, 5);
         assert_eq!(config.polygonize.guard_levels, 0);
         assert_eq!(config.decimate, None);
+        // A depth or a tolerance asked for is not replaced by the data's.
+        assert!(!config.depth_from_data && config.tolerance_from_data);
+        let tolerant = run_config(&run_args(&["--tolerance", "2e-4"])).unwrap();
+        assert!(tolerant.depth_from_data && !tolerant.tolerance_from_data);
+        assert_eq!(tolerant.detail.tolerance, 2e-4);
         let decimating = run_config(&run_args(&["--target-triangles", "5000"])).unwrap();
         assert_eq!(
             decimating
