@@ -119,9 +119,9 @@ pub struct PipelineConfig {
     /// mode unless a depth is asked for (`--depth`), off in global mode, whose polynomial is
     /// meshed at `polygonize.depth` whatever the sampling.
     pub depth_from_data: bool,
-    /// Whether detail mode's split tolerance is halved where the points are much finer than the
-    /// mesh ([`polygonize::DataResolution::dense`]): on in detail mode unless a tolerance is
-    /// asked for (`--tolerance`).
+    /// Whether detail mode's split tolerance is halved where the points are far finer than the
+    /// mesh ([`polygonize::DataResolution::very_dense`]): on in detail mode unless a tolerance
+    /// is asked for (`--tolerance`).
     pub tolerance_from_data: bool,
     /// Which zero-set components the mesh keeps (see [`PipelineConfig::for_mode`]).
     pub keep: Keep,
@@ -1026,10 +1026,11 @@ pub fn run(
     Ok(report)
 }
 
-/// Detail mode's split tolerance on dense points is this share of the one asked for: the
-/// points then pin the surface more tightly than the cells can show, and the mesh's facets are
-/// fitted to it (a 1,000,000-point torus: Chamfer distance 2.522e-4 → 2.516e-4 of the
-/// diagonal, 1.000× → 0.998× Open3D Poisson's at depth 8, for 8% more CPU).
+/// Detail mode's split tolerance on very dense points
+/// ([`polygonize::DataResolution::very_dense`]) is this share of the default: the points then
+/// pin the surface more tightly than the default asks, and after the chords the fit's error is
+/// most of the distance to them (a 1,000,000-point torus: Chamfer distance 2.522e-4 → 2.516e-4
+/// of the diagonal, 1.000× → 0.998× Open3D Poisson's at depth 8, for 12% more CPU).
 pub const DENSE_TOLERANCE: f64 = 0.5;
 
 /// The detail fit's params of `config`: its own, with the octree deep enough for a meshing
@@ -1050,7 +1051,7 @@ fn detail_params(config: &PipelineConfig) -> DetailParams {
 ///   the spacing cannot be measured), and the facets fitted to the surface when the points are
 ///   much finer than that depth's cells ([`polygonize::DataResolution`]);
 /// - with [`PipelineConfig::tolerance_from_data`], the split tolerance × [`DENSE_TOLERANCE`]
-///   on such dense points.
+///   on very dense points.
 ///
 /// The flags are cleared: the result asks for nothing more.
 fn resolve_for_data(config: &PipelineConfig, oriented: &Oriented) -> PipelineConfig {
@@ -1064,7 +1065,7 @@ fn resolve_for_data(config: &PipelineConfig, oriented: &Oriented) -> PipelineCon
                 resolved.polygonize.depth = data.depth();
                 resolved.polygonize.fit_chords |= data.dense();
             }
-            if config.tolerance_from_data && data.dense() {
+            if config.tolerance_from_data && data.very_dense() {
                 let t = resolved.detail.tolerance * DENSE_TOLERANCE;
                 resolved.detail = resolved.detail.with_tolerance(t);
             }
@@ -1333,19 +1334,24 @@ mod tests {
         }
     }
 
-    /// Points 700 to the side (log₂(1.2 · 699) ≈ 9.7 levels, 2.7 finer than depth 7) get
-    /// depth 7, fitted chords and half the tolerance; 100 to the side (≈ 6.9) depth 7 and
-    /// neither; a tolerance or a depth asked for is kept.
+    /// Points 1000 to the side (log₂(1.2 · 999) ≈ 10.2 levels, 3.2 finer than depth 7) get
+    /// depth 7, fitted chords and half the tolerance; 400 to the side (≈ 8.9) the chords only;
+    /// 100 to the side (≈ 6.9) depth 7 and neither; a tolerance or a depth asked for is kept.
     #[test]
     fn dense_points_get_fitted_chords_and_half_the_tolerance() {
         let default = PipelineConfig::for_mode(Mode::Detail);
         let tolerance = DetailParams::default().tolerance;
-        let dense = resolve_for_data(&default, &grid(700));
+        let dense = resolve_for_data(&default, &grid(1000));
         assert_eq!(dense.polygonize.depth, 7);
         assert!(dense.polygonize.fit_chords);
         assert_eq!(dense.detail.tolerance, tolerance * DENSE_TOLERANCE);
         assert_eq!(dense.detail.finest_tolerance, tolerance * DENSE_TOLERANCE);
         assert!(!dense.depth_from_data && !dense.tolerance_from_data);
+
+        let chords = resolve_for_data(&default, &grid(400));
+        assert_eq!(chords.polygonize.depth, 7);
+        assert!(chords.polygonize.fit_chords);
+        assert_eq!(chords.detail, DetailParams::default());
 
         let sparse = resolve_for_data(&default, &grid(100));
         assert_eq!(sparse.polygonize.depth, 7);
@@ -1356,7 +1362,7 @@ mod tests {
         asked.tolerance_from_data = false;
         asked.depth_from_data = false;
         asked.polygonize.depth = 8;
-        let kept = resolve_for_data(&asked, &grid(700));
+        let kept = resolve_for_data(&asked, &grid(1000));
         assert_eq!(kept.polygonize.depth, 8);
         assert!(!kept.polygonize.fit_chords);
         assert_eq!(kept.detail.tolerance, tolerance);

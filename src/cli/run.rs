@@ -83,7 +83,7 @@ pub fn run_source(
                 match args.detail.tolerance {
                     Some(t) => t.to_string(),
                     None => format!(
-                        "{} (x {} on dense points)",
+                        "{} (x {} on very dense points)",
                         config.detail.tolerance,
                         stablesurf::pipeline::DENSE_TOLERANCE
                     ),

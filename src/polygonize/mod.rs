@@ -122,7 +122,9 @@ pub mod shapes;
 mod simplify;
 
 pub use crate::implicit::ImplicitFunction;
-pub use depth::{depth_for_data, DataResolution, DATA_DEPTH_MAX, DATA_DEPTH_MIN, DENSE_LEVELS};
+pub use depth::{
+    depth_for_data, DataResolution, DATA_DEPTH_MAX, DATA_DEPTH_MIN, DENSE_LEVELS, VERY_DENSE_LEVELS,
+};
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
