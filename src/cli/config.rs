@@ -117,6 +117,13 @@ pub fn detail_params(opts: &DetailOpts) -> DetailParams {
     }
 }
 
+/// Sets `config`'s detail fit from `opts` ([`detail_params`]); a `--tolerance` given is kept
+/// over the one the data's resolution would choose ([`PipelineConfig::tolerance_from_data`]).
+pub fn set_detail(config: &mut PipelineConfig, opts: &DetailOpts) {
+    config.detail = detail_params(opts);
+    config.tolerance_from_data &= opts.tolerance.is_none();
+}
+
 /// Meshing parameters for a model of `mode`: the mode's defaults
 /// ([`PipelineConfig::for_mode`]) with `--depth` when given (within range::DEPTH). Every mesh
 /// vertex is projected onto the zero set, so a finer mesh only flattens the facets between
@@ -145,10 +152,9 @@ pub fn run_config(args: &RunArgs) -> Result<PipelineConfig> {
     config.outliers.keep = args.keep_outliers;
     config.normals = normals_params(&args.normals);
     config.fit = fit_params(&args.fit)?;
-    config.detail = detail_params(&args.detail);
+    set_detail(&mut config, &args.detail);
     config.polygonize = polygonize_params(&args.mesh, mode);
     config.depth_from_data &= args.mesh.depth.is_none();
-    config.tolerance_from_data &= args.detail.tolerance.is_none();
     config.decimate = decimate_params(&args.mesh);
     if let Some(keep) = args.keep {
         config.keep = keep.into();

@@ -22,8 +22,7 @@ pub fn fit(args: FitArgs, verbosity: Verbosity) -> Result<()> {
     config.outliers.keep = args.keep_outliers;
     config.normals = config::normals_params(&args.normals);
     config.fit = config::fit_params(&args.fit)?;
-    config.detail = config::detail_params(&args.detail);
-    config.tolerance_from_data &= args.detail.tolerance.is_none();
+    config::set_detail(&mut config, &args.detail);
     let mut observer = StderrObserver::new(verbosity);
     let (model, _, _) = pipeline::fit_model(
         &ScanSource::File(input.clone()),

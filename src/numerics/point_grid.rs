@@ -517,12 +517,11 @@ impl PointGrid {
             let open_of: Vec<u32> = open.iter().map(|&r| of[r]).collect();
             let lists = self.nearest_of(points, &open_of, k);
             for (row, &r) in open.iter().enumerate() {
-                let p = points[of[r] as usize];
-                out[r] = Ok(lists
-                    .row(row)
-                    .iter()
-                    .map(|&j| norm(sub(p, points[j as usize])))
-                    .find(|&d| d > 0.0));
+                out[r] = Ok(first_positive_distance(
+                    points,
+                    points[of[r] as usize],
+                    lists.row(row),
+                ));
             }
         }
         out.into_iter().map(|r| r.unwrap_or(None)).collect()
@@ -645,6 +644,19 @@ impl Neighbours {
     pub(crate) fn flat(&self) -> &[u32] {
         &self.list
     }
+}
+
+/// The distance from `p` to the first point of `row` (indices into `points`, nearest first, as
+/// [`Neighbours::row`] holds them) at a positive distance: its nearest such neighbour among the
+/// row's; `None` when every one coincides with `p`.
+pub(crate) fn first_positive_distance(
+    points: &[[f64; 3]],
+    p: [f64; 3],
+    row: &[u32],
+) -> Option<f64> {
+    row.iter()
+        .map(|&j| norm(sub(p, points[j as usize])))
+        .find(|&d| d > 0.0)
 }
 
 /// Whether `points` can be bucketed: some, at most `u32::MAX`, all coordinates finite.

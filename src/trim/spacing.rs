@@ -7,8 +7,8 @@
 
 use rayon::prelude::*;
 
+use crate::numerics::point_grid::first_positive_distance;
 use crate::numerics::PointGrid;
-use crate::vec3::{norm, sub};
 
 /// The local spacing (step 1 of the module docs) at each of the points `wanted` (indices into
 /// `points`, sorted, distinct), in their order.
@@ -27,17 +27,12 @@ pub(super) fn local_spacing(
     // neighbours coincide with it), for the wanted points and their neighbours. A wanted
     // point's is the first entry of its own row at a positive distance (the rows are sorted by
     // distance, the same sums as the search's); the other points are searched for it.
-    let first_positive = |i: u32, row: &[u32]| {
-        let p = points[i as usize];
-        row.iter()
-            .map(|&j| norm(sub(p, points[j as usize])))
-            .find(|&d| d > 0.0)
-            .unwrap_or(0.0)
-    };
     let own: Vec<f64> = wanted
         .par_iter()
         .enumerate()
-        .map(|(r, &i)| first_positive(i, neighbours.row(r)))
+        .map(|(r, &i)| {
+            first_positive_distance(points, points[i as usize], neighbours.row(r)).unwrap_or(0.0)
+        })
         .collect();
     let mut others: Vec<u32> = neighbours
         .flat()
