@@ -17,11 +17,11 @@
 //! point torus meshed at depth 7 in detail mode the RMS distance to the exact surface falls from
 //! 2.8e-5 to 1.6e-5 of the diagonal.
 //!
-//! Guarantees: the triangles, and so the topology and winding, are unchanged; the mesh stays
-//! free of crossings: the triangles that cross another after the move are found with the exact
-//! test of [`crate::mesh::intersecting_triangles`], their vertices go back to the zero set, and
-//! the pairs around them are tested again until none is left. Deterministic: every step is a
-//! function of the mesh alone.
+//! Guarantees: the triangles, and so the topology and winding, are unchanged. The positions are
+//! a function of the mesh alone. They are the first positions step 5 of the stage tests for
+//! crossings: the vertices of a triangle that crosses another go back to the zero set (and on
+//! to step 5's own fallbacks), so the fitted mesh is as free of crossings as the interpolating
+//! one, for one exact test of the whole mesh.
 
 use crate::mesh::TriangleMesh;
 use crate::vec3::{dot, sub};
@@ -33,12 +33,9 @@ pub const ALPHA: f64 = 0.25;
 /// umbrella vector is long and the quadratic model does not hold).
 const MAX_MOVE: f64 = 0.05;
 
-/// Rounds of putting the vertices of crossing triangles back before all moves are undone.
-const MAX_ROUNDS: usize = 8;
-
-/// Moves the vertices of `mesh` off the zero set by their chord error (see the module docs);
-/// returns how many vertices moved.
-pub fn fit_chords(mesh: &mut TriangleMesh) -> usize {
+/// The positions of `mesh`'s vertices moved off the zero set by their chord error (see the
+/// module docs); vertices on the mesh's boundary, and vertices in no triangle, stay.
+pub fn chord_positions(mesh: &TriangleMesh) -> Vec<[f64; 3]> {
     let n = mesh.positions.len();
     let mut sum = vec![[0.0f64; 3]; n];
     let mut count = vec![0u32; n];
@@ -64,54 +61,22 @@ pub fn fit_chords(mesh: &mut TriangleMesh) -> usize {
         boundary[a as usize] = true;
         boundary[b as usize] = true;
     }
-    let original = mesh.positions.clone();
-    let mut moved = 0;
-    for v in 0..n {
+    let mut positions = mesh.positions.clone();
+    for (v, position) in positions.iter_mut().enumerate() {
         if boundary[v] || count[v] == 0 {
             continue;
         }
         let c = f64::from(count[v]);
-        let p = original[v];
+        let p = *position;
         let umbrella = [0, 1, 2].map(|a| sum[v][a] / c - p[a]);
         let normal = mesh.normals[v];
         let cap = MAX_MOVE * length[v] / c;
         let step = (-ALPHA * dot(umbrella, normal)).clamp(-cap, cap);
         if step != 0.0 && step.is_finite() {
-            mesh.positions[v] = [0, 1, 2].map(|a| p[a] + step * normal[a]);
-            moved += 1;
+            *position = [0, 1, 2].map(|a| p[a] + step * normal[a]);
         }
     }
-    // Put the vertices of crossing triangles back on the zero set until no crossing is left.
-    let mut active: Option<Vec<bool>> = None;
-    for round in 0..=MAX_ROUNDS {
-        let flags = crate::mesh::intersecting_triangles_among(mesh, active.as_deref());
-        if !flags.iter().any(|&f| f) {
-            return moved;
-        }
-        let mut back = vec![false; n];
-        for (t, _) in mesh.triangles.iter().zip(&flags).filter(|(_, f)| **f) {
-            for &v in t {
-                back[v as usize] = true;
-            }
-        }
-        if round == MAX_ROUNDS {
-            break;
-        }
-        for v in 0..n {
-            if back[v] && mesh.positions[v] != original[v] {
-                mesh.positions[v] = original[v];
-                moved -= 1;
-            }
-        }
-        active = Some(
-            mesh.triangles
-                .iter()
-                .map(|t| t.iter().any(|&v| back[v as usize]))
-                .collect(),
-        );
-    }
-    mesh.positions = original;
-    0
+    positions
 }
 
 #[cfg(test)]
@@ -121,7 +86,7 @@ mod tests {
     use crate::polygonize::{polygonize, PolygonizeParams};
     use crate::Aabb;
 
-    fn sphere_mesh(depth: u32) -> TriangleMesh {
+    fn sphere_mesh(depth: u32, fit_chords: bool) -> crate::polygonize::Polygonized {
         let mut coefficients = vec![0.0; 10];
         coefficients[0] = -1.0;
         for l in [4, 7, 9] {
@@ -139,9 +104,10 @@ mod tests {
         };
         let params = PolygonizeParams {
             depth,
+            fit_chords,
             ..Default::default()
         };
-        polygonize(&sphere, &region, &params).unwrap().mesh
+        polygonize(&sphere, &region, &params).unwrap()
     }
 
     /// Mean signed distance (r − 1) of the unit sphere's mesh over its area, by the midpoint
@@ -165,21 +131,26 @@ mod tests {
 
     /// On the unit sphere the interpolating mesh lies under the surface by about h²/8; the
     /// fitted one straddles it: its mean signed error is at least 5× smaller, the triangles
-    /// are unchanged and the mesh stays embedded.
+    /// are unchanged, every vertex has moved and the mesh is embedded.
     #[test]
     fn the_sphere_mesh_straddles_the_surface() {
-        let before = sphere_mesh(5);
-        let mut after = before.clone();
-        let moved = fit_chords(&mut after);
-        assert_eq!(moved, before.positions.len());
-        assert_eq!(after.triangles, before.triangles);
+        let before = sphere_mesh(5, false);
+        let after = sphere_mesh(5, true);
+        assert!(before.embedded && after.embedded);
+        assert_eq!(after.mesh.triangles, before.mesh.triangles);
+        assert_eq!(after.evaluations, before.evaluations);
+        let moved = (after.mesh.positions.iter())
+            .zip(&before.mesh.positions)
+            .filter(|(a, b)| a != b)
+            .count();
+        assert_eq!(moved, before.mesh.positions.len());
         let (e0, e1) = (
-            mean_signed_radius_error(&before),
-            mean_signed_radius_error(&after),
+            mean_signed_radius_error(&before.mesh),
+            mean_signed_radius_error(&after.mesh),
         );
         assert!(e0 < -1e-4, "interpolating mesh under the sphere: {e0}");
         assert!(e1.abs() < e0.abs() / 5.0, "before {e0}, after {e1}");
-        assert!(!crate::mesh::intersecting_triangles(&after)
+        assert!(!crate::mesh::intersecting_triangles(&after.mesh)
             .iter()
             .any(|&f| f));
     }
@@ -204,17 +175,14 @@ mod tests {
             positions,
             triangles,
         };
-        let before = grid.positions.clone();
-        assert_eq!(fit_chords(&mut grid), 0);
-        assert_eq!(grid.positions, before);
+        assert_eq!(chord_positions(&grid), grid.positions);
         // Lift the centre: its neighbours lie under its tangent plane, so it rises; the
         // boundary stays.
         grid.positions[12][2] = 0.1;
-        let lifted = grid.positions.clone();
-        assert!(fit_chords(&mut grid) > 0);
-        assert!(grid.positions[12][2] > 0.1);
+        let fitted = chord_positions(&grid);
+        assert!(fitted[12][2] > 0.1);
         for v in [0, 4, 20, 24, 2, 10] {
-            assert_eq!(grid.positions[v], lifted[v]);
+            assert_eq!(fitted[v], grid.positions[v]);
         }
     }
 }

@@ -86,7 +86,9 @@
 //! 6. **Chords** (`chords`, [`PolygonizeParams::fit_chords`], `--fit-chords`): each vertex
 //!    moves along its normal by a quarter of its umbrella vector's normal part (at most 5% of
 //!    its edges' length), so the flat facets straddle the curved surface instead of lying under
-//!    it; a move that makes a crossing is undone.
+//!    it. These are the positions step 5 tests first: a vertex of a crossing triangle goes back
+//!    to its projection before its other fallbacks, so one exact test of the whole mesh covers
+//!    both steps.
 //!
 //! Determinism: the octree visits children in a fixed order and concatenates their results;
 //! leaves and edges are processed in fixed-size chunks collected in order; the simplification
@@ -361,6 +363,7 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
         params.simplification,
         &[],
         tolerance,
+        params.fit_chords,
     );
     let mut spent_before = 0;
     let mut pinned_vertices = 0;
@@ -390,6 +393,7 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
             Simplification::EdgeCollapse,
             &pinned,
             tolerance,
+            params.fit_chords,
         );
         if done.crossings_left {
             spent_before += done.vertices.iter().map(|v| v.evaluations).sum::<u64>();
@@ -404,18 +408,16 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
                 Simplification::None,
                 &[],
                 tolerance,
+                params.fit_chords,
             );
         }
     }
     let Repaired {
         vertices,
-        mut mesh,
+        mesh,
         crossings_left,
         ..
     } = done;
-    if params.fit_chords && !crossings_left {
-        chords::fit_chords(&mut mesh);
-    }
     let max_residual = vertices.iter().map(|v| v.residual).fold(0.0, f64::max);
     Ok(Polygonized {
         mesh,
@@ -444,6 +446,29 @@ struct Repaired {
     /// The vertices (as lattice-edge indices) of the triangles still crossing another, sorted;
     /// empty when `crossings_left` is false.
     stuck: Vec<u32>,
+}
+
+/// Where step 5 has a vertex, in the order of its fallbacks (see [`place_and_repair`]).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Fallback {
+    /// Off the zero set by its chord error (step 6).
+    Chord,
+    /// Projected onto the zero set (step 4).
+    Projected,
+    /// At the root of f on its own lattice edge.
+    EdgeRoot,
+    /// At the linear interpolation on its lattice edge: the last fallback.
+    Linear,
+}
+
+impl Fallback {
+    fn next(self) -> Fallback {
+        match self {
+            Fallback::Chord => Fallback::Projected,
+            Fallback::Projected => Fallback::EdgeRoot,
+            Fallback::EdgeRoot | Fallback::Linear => Fallback::Linear,
+        }
+    }
 }
 
 /// Rings of the marching-tetrahedra mesh around a surviving crossing whose vertices step 5's
@@ -495,6 +520,7 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
     simplification: Simplification,
     pinned: &[bool],
     tolerance: f64,
+    chords: bool,
 ) -> Repaired {
     // The output vertices, their triangles, and each vertex's crossed lattice edge.
     let (mut vertices, triangles, edge_of): (Vec<extract::PlacedVertex>, Vec<[u32; 3]>, Vec<u32>) =
@@ -537,16 +563,26 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
         normals: vertices.iter().map(|v| v.normal).collect(),
         triangles,
     };
+    // Step 6 first, when asked for: the vertices start off the zero set by their chord error,
+    // and step 5 tests those positions.
+    if chords {
+        mesh.positions = chords::chord_positions(&mesh);
+    }
     // Step 5: the projection (step 4) moves vertices off their lattice edges, by up to a few
     // cells where ∇f turns, and can push a triangle through its neighbours. Every vertex of a
-    // triangle that crosses another is put back on its own lattice edge, at the root of f there
-    // (still on the zero set); should a crossing remain with all its vertices there (an edge
-    // collapse judged on the linearly interpolated positions), they go to that linear
-    // interpolation, the geometry the collapses were checked on. Rounds repeat until no triangle
-    // crosses another or every vertex involved is at its last fallback. Deterministic: the
-    // crossing test is exact and each fallback position a function of the vertex's edge alone.
-    // (fallback level per vertex: 0 projected, 1 edge root, 2 linear interpolation)
-    let mut level = vec![0u8; vertices.len()];
+    // triangle that crosses another goes one fallback further: from its chord position (step 6)
+    // back to its projection, then to its own lattice edge, at the root of f there (still on
+    // the zero set); should a crossing remain with all its vertices there (an edge collapse
+    // judged on the linearly interpolated positions), they go to that linear interpolation, the
+    // geometry the collapses were checked on. Rounds repeat until no triangle crosses another
+    // or every vertex involved is at its last fallback. Deterministic: the crossing test is
+    // exact and each fallback position a function of the vertex's edge alone.
+    let first = if chords {
+        Fallback::Chord
+    } else {
+        Fallback::Projected
+    };
+    let mut level = vec![first; vertices.len()];
     let mut changed: Option<Vec<bool>> = None;
     // Whether some round saw a crossing triangle with every vertex at its last fallback.
     let mut stuck = false;
@@ -557,42 +593,51 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
         stuck |= flags
             .iter()
             .zip(&mesh.triangles)
-            .any(|(&f, t)| f && t.iter().all(|&v| level[v as usize] >= 2));
+            .any(|(&f, t)| f && t.iter().all(|&v| level[v as usize] == Fallback::Linear));
         let mut moved: Vec<u32> = flags
             .iter()
             .zip(&mesh.triangles)
             .filter(|&(&f, _)| f)
             .flat_map(|(_, t)| *t)
-            .filter(|&v| level[v as usize] < 2)
+            .filter(|&v| level[v as usize] != Fallback::Linear)
             .collect();
         moved.sort_unstable();
         moved.dedup();
         if moved.is_empty() {
             break;
         }
-        let placed: Vec<extract::PlacedVertex> = moved
+        let placed: Vec<Option<extract::PlacedVertex>> = moved
             .par_iter()
             .map(|&v| {
                 let e = edge_of[v as usize] as usize;
                 let on_edge =
-                    extract::place_on_edge(function, grid, edges[e], end_values[e], tolerance);
-                if level[v as usize] == 0 {
-                    on_edge
-                } else {
-                    extract::place_linear(function, grid, edges[e], end_values[e], on_edge)
+                    || extract::place_on_edge(function, grid, edges[e], end_values[e], tolerance);
+                match level[v as usize] {
+                    Fallback::Chord => None,
+                    Fallback::Projected => Some(on_edge()),
+                    Fallback::EdgeRoot | Fallback::Linear => Some(extract::place_linear(
+                        function,
+                        grid,
+                        edges[e],
+                        end_values[e],
+                        on_edge(),
+                    )),
                 }
             })
             .collect();
         for (&v, p) in moved.iter().zip(placed) {
             let v = v as usize;
-            let spent = vertices[v].evaluations + p.evaluations;
-            vertices[v] = extract::PlacedVertex {
-                evaluations: spent,
-                ..p
-            };
-            mesh.positions[v] = p.position;
-            mesh.normals[v] = p.normal;
-            level[v] += 1;
+            if let Some(p) = p {
+                let spent = vertices[v].evaluations + p.evaluations;
+                vertices[v] = extract::PlacedVertex {
+                    evaluations: spent,
+                    ..p
+                };
+                mesh.normals[v] = p.normal;
+            }
+            // Back to the projection from the chord position, or to the new placement.
+            mesh.positions[v] = vertices[v].position;
+            level[v] = level[v].next();
         }
         changed = Some(
             mesh.triangles
