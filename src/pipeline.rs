@@ -199,6 +199,7 @@ impl PipelineConfig {
                 polygonize: PolygonizeParams {
                     guard_levels: 0,
                     data_levels: 2,
+                    fit_chords: true,
                     ..global.polygonize
                 },
                 depth_from_data: true,
@@ -1048,8 +1049,7 @@ fn detail_params(config: &PipelineConfig) -> DetailParams {
 ///   for ([`detail_params`]);
 /// - with [`PipelineConfig::depth_from_data`], the meshing depth of the input points' spacing
 ///   in the detail model's region (the points' box grown by 10% per side; its own depth when
-///   the spacing cannot be measured), and the facets fitted to the surface when the points are
-///   much finer than that depth's cells ([`polygonize::DataResolution`]);
+///   the spacing cannot be measured; [`polygonize::DataResolution`]);
 /// - with [`PipelineConfig::tolerance_from_data`], the split tolerance × [`DENSE_TOLERANCE`]
 ///   on very dense points.
 ///
@@ -1063,7 +1063,6 @@ fn resolve_for_data(config: &PipelineConfig, oriented: &Oriented) -> PipelineCon
         if let Some(data) = data {
             if config.depth_from_data {
                 resolved.polygonize.depth = data.depth();
-                resolved.polygonize.fit_chords |= data.dense();
             }
             if config.tolerance_from_data && data.very_dense() {
                 let t = resolved.detail.tolerance * DENSE_TOLERANCE;
@@ -1335,10 +1334,11 @@ mod tests {
     }
 
     /// Points 1000 to the side (log₂(1.2 · 999) ≈ 10.2 levels, 3.2 finer than depth 7) get
-    /// depth 7, fitted chords and half the tolerance; 400 to the side (≈ 8.9) the chords only;
-    /// 100 to the side (≈ 6.9) depth 7 and neither; a tolerance or a depth asked for is kept.
+    /// depth 7 and half the tolerance; 400 to the side (≈ 8.9) and 100 to the side (≈ 6.9)
+    /// depth 7 and the default tolerance; the facets are fitted in every case; a tolerance or a
+    /// depth asked for is kept.
     #[test]
-    fn dense_points_get_fitted_chords_and_half_the_tolerance() {
+    fn dense_points_get_half_the_tolerance() {
         let default = PipelineConfig::for_mode(Mode::Detail);
         let tolerance = DetailParams::default().tolerance;
         let dense = resolve_for_data(&default, &grid(1000));
@@ -1348,15 +1348,12 @@ mod tests {
         assert_eq!(dense.detail.finest_tolerance, tolerance * DENSE_TOLERANCE);
         assert!(!dense.depth_from_data && !dense.tolerance_from_data);
 
-        let chords = resolve_for_data(&default, &grid(400));
-        assert_eq!(chords.polygonize.depth, 7);
-        assert!(chords.polygonize.fit_chords);
-        assert_eq!(chords.detail, DetailParams::default());
-
-        let sparse = resolve_for_data(&default, &grid(100));
-        assert_eq!(sparse.polygonize.depth, 7);
-        assert!(!sparse.polygonize.fit_chords);
-        assert_eq!(sparse.detail, DetailParams::default());
+        for n in [400, 100] {
+            let resolved = resolve_for_data(&default, &grid(n));
+            assert_eq!(resolved.polygonize.depth, 7);
+            assert!(resolved.polygonize.fit_chords);
+            assert_eq!(resolved.detail, DetailParams::default());
+        }
 
         let mut asked = default.clone();
         asked.tolerance_from_data = false;
@@ -1364,7 +1361,7 @@ mod tests {
         asked.polygonize.depth = 8;
         let kept = resolve_for_data(&asked, &grid(1000));
         assert_eq!(kept.polygonize.depth, 8);
-        assert!(!kept.polygonize.fit_chords);
+        assert!(kept.polygonize.fit_chords);
         assert_eq!(kept.detail.tolerance, tolerance);
         assert_eq!(kept.detail.max_depth, 9);
     }

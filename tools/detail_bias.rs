@@ -3,10 +3,13 @@
 //! `fit_detail` and the default `DetailParams`, meshed by `polygonize` (guard levels 0).
 //!
 //! Usage: `cargo run --release --features tools --example detail_bias -- [--points N] [--depth D]
-//! [--epsilon E] [--kappa K] [--tolerance T] [--gradient|--three-levels] [--no-aux]` (`--gradient`:
-//! the local fits' gradient rows ∇Q = n instead of the 3L rows at ±ε, the default). Prints, per shape: cells, fit time, vertices, and the mean and
-//! rms signed radial (sphere) / tube (torus) error of the mesh vertices as fractions of the
-//! diagonal of the points' bounding box (positive: outside the truth).
+//! [--epsilon E] [--kappa K] [--tolerance T] [--gradient|--three-levels] [--no-aux]
+//! [--fit-chords]` (`--gradient`: the local fits' gradient rows ∇Q = n instead of the 3L rows at
+//! ±ε, the default; `--fit-chords`: the meshing's fitted chords, as `run` does in detail mode).
+//! Prints, per shape: cells, fit time, vertices, the mean and rms signed radial (sphere) / tube
+//! (torus) error of the mesh vertices, and the mean over the mesh's area (each triangle's three
+//! edge midpoints, weighted by its area), as fractions of the diagonal of the points' bounding
+//! box (positive: outside the truth).
 
 use std::time::Instant;
 
@@ -92,6 +95,7 @@ fn main() -> anyhow::Result<()> {
     let mut params = DetailParams::default();
     let mut n = 20_000;
     let mut depth = 7;
+    let mut fit_chords = false;
     while !args.is_empty() {
         let a = args.remove(0);
         match a.as_str() {
@@ -105,6 +109,10 @@ fn main() -> anyhow::Result<()> {
             }
             "--no-aux" => {
                 params.auxiliary = AuxiliaryPoints::None;
+                continue;
+            }
+            "--fit-chords" => {
+                fit_chords = true;
                 continue;
             }
             _ => {}
@@ -125,9 +133,12 @@ fn main() -> anyhow::Result<()> {
     let mesh_params = PolygonizeParams {
         depth,
         guard_levels: 0,
+        fit_chords,
         ..PolygonizeParams::default()
     };
-    println!("shape\tpoints\tcells\tfit_s\tvertices\tmean_rel\trms_rel\tmax_abs_rel");
+    println!(
+        "shape\tpoints\tcells\tfit_s\tvertices\tmean_rel\trms_rel\tmax_abs_rel\tarea_mean_rel"
+    );
     for (name, (cloud, sd)) in [("sphere", sphere(n)), ("torus", torus(n))] {
         let lo = (0..3).map(|a| cloud.points.iter().map(|p| p[a]).fold(f64::MAX, f64::min));
         let hi = (0..3).map(|a| cloud.points.iter().map(|p| p[a]).fold(f64::MIN, f64::max));
@@ -145,14 +156,33 @@ fn main() -> anyhow::Result<()> {
         let mean = errors.iter().sum::<f64>() / k;
         let rms = (errors.iter().map(|e| e * e).sum::<f64>() / k).sqrt();
         let worst = errors.iter().fold(0.0f64, |m, e| m.max(e.abs()));
+        // The edge-midpoint rule on each triangle (exact for quadratics), weighted by area.
+        let (mut weighted, mut area) = (0.0, 0.0);
+        for t in &mesh.triangles {
+            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+            let (u, v) = (
+                [0, 1, 2].map(|k| b[k] - a[k]),
+                [0, 1, 2].map(|k| c[k] - a[k]),
+            );
+            let cross = [
+                u[1] * v[2] - u[2] * v[1],
+                u[2] * v[0] - u[0] * v[2],
+                u[0] * v[1] - u[1] * v[0],
+            ];
+            let w = 0.5 * cross.iter().map(|x| x * x).sum::<f64>().sqrt();
+            let mid = |p: [f64; 3], q: [f64; 3]| [0, 1, 2].map(|k| 0.5 * (p[k] + q[k]));
+            weighted += w * (sd(mid(a, b)) + sd(mid(b, c)) + sd(mid(c, a))) / 3.0;
+            area += w;
+        }
         println!(
-            "{name}\t{}\t{}\t{fit_s:.2}\t{}\t{:+.3e}\t{:.3e}\t{:.3e}",
+            "{name}\t{}\t{}\t{fit_s:.2}\t{}\t{:+.3e}\t{:.3e}\t{:.3e}\t{:+.3e}",
             cloud.points.len(),
             model.cells.len(),
             mesh.positions.len(),
             mean / diagonal,
             rms / diagonal,
-            worst / diagonal
+            worst / diagonal,
+            weighted / area / diagonal
         );
     }
     Ok(())

@@ -150,9 +150,13 @@ pub struct MeshOpts {
     pub target_triangles: Option<usize>,
     /// Move the vertices off the zero set by the facets' chord error, so the mesh straddles the
     /// surface instead of lying under it where it curves: a smaller mean distance to the
-    /// surface at the same triangles, with the vertices no longer exactly on it.
-    #[arg(long)]
+    /// surface at the same triangles, with the vertices no longer exactly on it. The default
+    /// for a detail model; a global model keeps its vertices on the polynomial's zero set.
+    #[arg(long, overrides_with = "no_fit_chords")]
     pub fit_chords: bool,
+    /// Keep every vertex on the model's zero set (the default for a global model).
+    #[arg(long, overrides_with = "fit_chords")]
+    pub no_fit_chords: bool,
 }
 
 /// `--mode`: which model to fit.

@@ -125,16 +125,20 @@ pub fn set_detail(config: &mut PipelineConfig, opts: &DetailOpts) {
 }
 
 /// Meshing parameters for a model of `mode`: the mode's defaults
-/// ([`PipelineConfig::for_mode`]) with `--depth` when given (within range::DEPTH). Every mesh
-/// vertex is projected onto the zero set, so a finer mesh only flattens the facets between
-/// them: on the ten scans of ../shared/data a global (polynomial) model meshed at depth 8 has 4×
+/// ([`PipelineConfig::for_mode`]) with `--depth` (within range::DEPTH) and `--fit-chords` or
+/// `--no-fit-chords` when given. A global model's mesh vertices are projected onto the zero
+/// set, so a finer mesh only flattens the facets between them: on the ten scans of ../shared/data a global (polynomial) model meshed at depth 8 has 4×
 /// the triangles of depth 7, the same topology (watertight, components, Euler characteristic)
 /// and a mean point-to-mesh distance within 4.6e-6 of the diagonal of depth 7's (README).
 pub fn polygonize_params(opts: &MeshOpts, mode: Mode) -> PolygonizeParams {
     let defaults = PipelineConfig::for_mode(mode).polygonize;
     PolygonizeParams {
         depth: opts.depth.unwrap_or(defaults.depth),
-        fit_chords: opts.fit_chords,
+        fit_chords: match (opts.fit_chords, opts.no_fit_chords) {
+            (true, _) => true,
+            (_, true) => false,
+            _ => defaults.fit_chords,
+        },
         ..defaults
     }
 }
@@ -292,5 +296,13 @@ mod tests {
         assert_eq!(global.trim.support_factor, 3.0);
         assert_eq!(global.trim.mode, stablesurf::trim::TrimMode::Support);
         assert_eq!(global.slices.method, DistanceMethod::Exact);
+        // Fitted chords: detail mode's default, not global mode's; either flag overrides it,
+        // the last one given wins.
+        let chords = |flags: &[&str]| run_config(&run_args(flags)).unwrap().polygonize.fit_chords;
+        assert!(chords(&[]));
+        assert!(!chords(&["--no-fit-chords"]));
+        assert!(!chords(&["--mode", "global"]));
+        assert!(chords(&["--mode", "global", "--fit-chords"]));
+        assert!(!chords(&["--fit-chords", "--no-fit-chords"]));
     }
 }

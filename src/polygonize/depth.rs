@@ -1,6 +1,5 @@
 //! The meshing resolution that matches the data: the finest cells about as large as the
-//! spacing of the points, as Poisson reconstruction's octree adapts to its samples, and facets
-//! fitted to the surface where the points are much denser than those cells.
+//! spacing of the points, as Poisson reconstruction's octree adapts to its samples.
 //!
 //! Input: the data points and the meshing region. Output: a [`DataResolution`]: the points'
 //! level log₂(L / s), where L is the region's longest side and s the median distance from a
@@ -13,27 +12,21 @@
 //!   `ceil(log₂(L / s) − ¼)`, clamped to [`DATA_DEPTH_MIN`]..=[`DATA_DEPTH_MAX`]. A mesh much
 //!   finer than the spacing adds triangles the data cannot place, and costs about 4× the time
 //!   a level; one coarser blurs what the data shows.
-//! - **Chords**: when the points are [`DENSE_LEVELS`] levels or more finer than the mesh (more
-//!   than 2^1.5 ≈ 2.8 points across a cell), the flat facets' chord error, not the fit, is most
-//!   of the distance from the points to the mesh: the vertices then move off the zero set so
-//!   the facets straddle the surface ([`super::PolygonizeParams::fit_chords`]), which a level
-//!   finer would do at 1.5–4× the CPU. Sparser data keeps every vertex on the zero set.
-//! - **Tolerance**: when the points are [`VERY_DENSE_LEVELS`] levels or more finer (more than 8
-//!   across a cell), the fit's own error is most of what the chords leave, and `run` halves
-//!   detail mode's split tolerance (`pipeline::DENSE_TOLERANCE`). Not below: on the raw range
-//!   views of ../shared/data (8.4–8.6 levels) halving cost 25–30% of the CPU for 0.3–0.4% of
-//!   Chamfer distance after the chords' 1%.
+//! - **Tolerance**: when the points are [`VERY_DENSE_LEVELS`] levels or more finer than the
+//!   mesh (more than 8 across a cell), the fit's own error is most of what the fitted chords
+//!   ([`super::PolygonizeParams::fit_chords`]) leave, and `run` halves detail mode's split
+//!   tolerance (`pipeline::DENSE_TOLERANCE`). Not below: on the raw range views of
+//!   ../shared/data (8.4–8.6 levels) halving cost 25–30% of the CPU for 0.3–0.4% of Chamfer
+//!   distance after the chords' 1%.
 //!
 //! Measured in detail mode on the oriented points of ../shared/data against Open3D's Poisson
 //! at depth 8 (symmetric Chamfer distance / diagonal, CPU seconds of the whole run; docs/defaults.md
 //! has the table): depth 6 halves the CPU of the sparsest scans (quadknot, patella, fandisk,
 //! spot: log₂(L / s) of the meshing box 5.2–6.2) at a Chamfer cost of 0.1–2.8% over depth 7's,
 //! still below Poisson's; the duck (6.36) loses 1.1% and crosses Poisson's (1.006×), so the
-//! rule gives it depth 7 (0.995×). A 1,000,000-point torus (10.8) at depth 7: the chords take
-//! its Chamfer distance from 1.023× Poisson's to 1.000× for about 3% more CPU, and the halved
-//! tolerance to 0.998× for 12% more; depth 8 gives 1.013× for 1.7× the CPU. The raw bunny
-//! views bun000, bun180 and top2 (8.5–8.6): the chords take 1.0–1.2% off their Chamfer
-//! distance for 3–5% more CPU.
+//! rule gives it depth 7 (0.995×). A 1,000,000-point torus (10.8) at depth 7: the halved
+//! tolerance takes its Chamfer distance from 1.000× Poisson's (with the chords) to 0.998× for
+//! 12% more CPU; depth 8 gives 1.013× (without the chords) for 1.7× the CPU.
 //!
 //! Deterministic: the sample is every k-th point in input order and the nearest-neighbour
 //! search is exact.
@@ -49,10 +42,6 @@ pub const DATA_DEPTH_MAX: u32 = 7;
 
 /// The finest cells may be up to 2^this times the spacing (see the module docs).
 const CELL_OVER_SPACING_LOG2: f64 = 0.25;
-
-/// How many levels finer than the mesh the points must be for the facets to be fitted to the
-/// surface (see the module docs).
-pub const DENSE_LEVELS: f64 = 1.5;
 
 /// How many levels finer than the mesh the points must be for `run` to halve detail mode's
 /// split tolerance (see the module docs).
@@ -91,12 +80,6 @@ impl DataResolution {
         (self.level - CELL_OVER_SPACING_LOG2)
             .ceil()
             .clamp(f64::from(DATA_DEPTH_MIN), f64::from(DATA_DEPTH_MAX)) as u32
-    }
-
-    /// Whether the points are dense for the mesh of [`DataResolution::depth`]: at least
-    /// [`DENSE_LEVELS`] levels finer than its cells, so its facets are fitted to the surface.
-    pub fn dense(&self) -> bool {
-        self.level >= f64::from(self.depth()) + DENSE_LEVELS
     }
 
     /// Whether the points are at least [`VERY_DENSE_LEVELS`] levels finer than the cells of
@@ -210,20 +193,18 @@ mod tests {
     }
 
     /// The depth is the coarsest whose cells are at most 2^¼ spacings: a level of 6.3 (cells
-    /// of 2^0.3 spacings at depth 6) goes to 7, 6.2 stays at 6; the chords start 1.5 levels
-    /// finer than the mesh, the halved tolerance 3.
+    /// of 2^0.3 spacings at depth 6) goes to 7, 6.2 stays at 6; the halved tolerance starts 3
+    /// levels finer than the mesh.
     #[test]
     fn thresholds_of_the_rule() {
         let at = |level| DataResolution { level };
         assert_eq!(at(6.2).depth(), 6);
         assert_eq!(at(6.3).depth(), 7);
         assert_eq!(at(7.26).depth(), 7);
-        assert!(!at(8.49).dense());
-        assert!(at(8.5).dense());
         assert!(!at(9.99).very_dense());
-        assert!(at(10.0).very_dense() && at(10.0).dense());
-        // Only the finest depth can be dense: below it the depth follows the level.
-        assert!(!at(7.5).dense());
-        assert!(!at(5.0).dense());
+        assert!(at(10.0).very_dense());
+        // Only the finest depth can be very dense: below it the depth follows the level.
+        assert!(!at(8.5).very_dense());
+        assert!(!at(5.0).very_dense());
     }
 }

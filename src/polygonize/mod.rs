@@ -125,7 +125,7 @@ mod simplify;
 
 pub use crate::implicit::ImplicitFunction;
 pub use depth::{
-    depth_for_data, DataResolution, DATA_DEPTH_MAX, DATA_DEPTH_MIN, DENSE_LEVELS, VERY_DENSE_LEVELS,
+    depth_for_data, DataResolution, DATA_DEPTH_MAX, DATA_DEPTH_MIN, VERY_DENSE_LEVELS,
 };
 
 use rayon::prelude::*;
@@ -205,7 +205,8 @@ pub struct PolygonizeParams {
     /// Step 6: move the vertices off the zero set by the facets' chord error, so that the mesh
     /// straddles the surface rather than lying under it where it curves (see `chords`;
     /// the triangles, the topology and the absence of crossings are kept). Default `false`
-    /// (every vertex on the zero set); `--fit-chords`.
+    /// (every vertex on the zero set); detail mode's `run` sets it (`--fit-chords`,
+    /// `--no-fit-chords`).
     #[serde(default, skip_serializing_if = "is_false")]
     pub fit_chords: bool,
 }
