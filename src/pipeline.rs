@@ -372,7 +372,7 @@ const MERGE_VERSION: u32 = 1;
 /// through it when it leaves points out.
 const OUTLIERS_VERSION: u32 = 1;
 const NORMALS_VERSION: u32 = 7;
-const FIT_VERSION: u32 = 4;
+const FIT_VERSION: u32 = 5;
 const POLYGONIZE_VERSION: u32 = 4;
 // The export stage's version is `export::STAGE_VERSION`, beside its params.
 

@@ -86,7 +86,7 @@ use local::{even_subsample, fit_local, AuxPoint, Constraints, SUBSAMPLE_ABOVE};
 
 /// Version of this stage's algorithm; if you change any input to its cache key or anything
 /// that changes its output for the same input and params, bump it.
-pub const STAGE_VERSION: u32 = 9;
+pub const STAGE_VERSION: u32 = 10;
 
 /// Levels near the root whose children are fitted in parallel (8³ tasks at most).
 const PARALLEL_LEVELS: u32 = 3;
