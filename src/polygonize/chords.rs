@@ -1,11 +1,11 @@
 //! Step 6 of the `polygonize` stage (`--fit-chords`): the mesh is moved off the zero set by its
 //! chord error, so that it straddles the surface instead of lying under it.
 //!
-//! Input: the embedded mesh with its vertices on the zero set and their normals. Output: the
-//! same triangles with each interior vertex moved along its normal by −α (L·n), where L is
-//! the umbrella vector (the mean of its neighbours minus the vertex) and α = [`ALPHA`], the
-//! move capped at [`MAX_MOVE`] × the vertex's mean edge length; vertices on the region's
-//! boundary stay.
+//! Input: the mesh of step 4, its vertices projected onto the zero set, with their normals.
+//! Output: the positions of its vertices, each interior vertex moved along its normal by
+//! −α (L·n), where L is the umbrella vector (the mean of its neighbours minus the vertex) and
+//! α = [`ALPHA`], the move capped at [`MAX_MOVE`] × the vertex's mean edge length; vertices on
+//! the region's boundary stay.
 //!
 //! Why: a flat triangle whose corners lie on a surface of curvature κ lies under it, by
 //! κ·h²/8 on average for an equilateral triangle of side h (the linear interpolation error of
