@@ -289,6 +289,42 @@ pub fn accuracy(data: &PointIndex<'_>, mesh: &TriangleMesh, diagonal: f64) -> Ac
     }
 }
 
+/// The mean of `f` over the area of `mesh`: on each triangle the mean of f at its three edge
+/// midpoints (a rule exact for quadratic f), weighted by the triangle's area; 0 for a mesh
+/// without area. For signed errors against a known surface (f its signed distance).
+///
+/// ```
+/// use stablesurf::measure::area_mean;
+/// use stablesurf::mesh::TriangleMesh;
+/// // The unit square in z = 0 as two triangles: the mean of x is 1/2, of x² 1/3.
+/// let square = TriangleMesh {
+///     positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]],
+///     normals: vec![[0.0, 0.0, 1.0]; 4],
+///     triangles: vec![[0, 1, 2], [0, 2, 3]],
+/// };
+/// assert!((area_mean(&square, |p| p[0]) - 0.5).abs() < 1e-15);
+/// assert!((area_mean(&square, |p| p[0] * p[0]) - 1.0 / 3.0).abs() < 1e-15);
+/// ```
+pub fn area_mean(mesh: &TriangleMesh, f: impl Fn([f64; 3]) -> f64) -> f64 {
+    let (mut weighted, mut area) = (0.0, 0.0);
+    for t in &mesh.triangles {
+        let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+        let w = 0.5
+            * crate::vec3::norm(crate::vec3::cross(
+                crate::vec3::sub(b, a),
+                crate::vec3::sub(c, a),
+            ));
+        let mid = |p: [f64; 3], q: [f64; 3]| [0, 1, 2].map(|k| 0.5 * (p[k] + q[k]));
+        weighted += w * (f(mid(a, b)) + f(mid(b, c)) + f(mid(c, a))) / 3.0;
+        area += w;
+    }
+    if area > 0.0 {
+        weighted / area
+    } else {
+        0.0
+    }
+}
+
 /// Closest point to `p` on the triangle `(a, b, c)`.
 pub fn closest_point_on_triangle(p: [f64; 3], a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> [f64; 3] {
     let sub = |u: [f64; 3], v: [f64; 3]| [u[0] - v[0], u[1] - v[1], u[2] - v[2]];

@@ -157,23 +157,7 @@ fn main() -> anyhow::Result<()> {
         let rms = (errors.iter().map(|e| e * e).sum::<f64>() / k).sqrt();
         let worst = errors.iter().fold(0.0f64, |m, e| m.max(e.abs()));
         // The edge-midpoint rule on each triangle (exact for quadratics), weighted by area.
-        let (mut weighted, mut area) = (0.0, 0.0);
-        for t in &mesh.triangles {
-            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-            let (u, v) = (
-                [0, 1, 2].map(|k| b[k] - a[k]),
-                [0, 1, 2].map(|k| c[k] - a[k]),
-            );
-            let cross = [
-                u[1] * v[2] - u[2] * v[1],
-                u[2] * v[0] - u[0] * v[2],
-                u[0] * v[1] - u[1] * v[0],
-            ];
-            let w = 0.5 * cross.iter().map(|x| x * x).sum::<f64>().sqrt();
-            let mid = |p: [f64; 3], q: [f64; 3]| [0, 1, 2].map(|k| 0.5 * (p[k] + q[k]));
-            weighted += w * (sd(mid(a, b)) + sd(mid(b, c)) + sd(mid(c, a))) / 3.0;
-            area += w;
-        }
+        let area_mean = stablesurf::measure::area_mean(&mesh, &sd);
         println!(
             "{name}\t{}\t{}\t{fit_s:.2}\t{}\t{:+.3e}\t{:.3e}\t{:.3e}\t{:+.3e}",
             cloud.points.len(),
@@ -182,7 +166,7 @@ fn main() -> anyhow::Result<()> {
             mean / diagonal,
             rms / diagonal,
             worst / diagonal,
-            weighted / area / diagonal
+            area_mean / diagonal
         );
     }
     Ok(())

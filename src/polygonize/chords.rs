@@ -110,23 +110,9 @@ mod tests {
         polygonize(&sphere, &region, &params).unwrap()
     }
 
-    /// Mean signed distance (r − 1) of the unit sphere's mesh over its area, by the midpoint
-    /// rule on every triangle (the mean at its three sides' midpoints).
+    /// Mean signed distance (r − 1) of the unit sphere's mesh over its area.
     fn mean_signed_radius_error(mesh: &TriangleMesh) -> f64 {
-        let (mut total, mut area) = (0.0, 0.0);
-        for t in &mesh.triangles {
-            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-            let cr = crate::vec3::cross(sub(b, a), sub(c, a));
-            let w = 0.5 * dot(cr, cr).sqrt();
-            let at = |u: f64, v: f64| {
-                let p = [0, 1, 2].map(|k| a[k] + u * (b[k] - a[k]) + v * (c[k] - a[k]));
-                dot(p, p).sqrt() - 1.0
-            };
-            let mean = (at(0.5, 0.0) + at(0.0, 0.5) + at(0.5, 0.5)) / 3.0;
-            total += w * mean;
-            area += w;
-        }
-        total / area
+        crate::measure::area_mean(mesh, |p| dot(p, p).sqrt() - 1.0)
     }
 
     /// On the unit sphere the interpolating mesh lies under the surface by about h²/8; the

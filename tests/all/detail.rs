@@ -11,6 +11,7 @@ use std::path::Path;
 
 use stablesurf::detail::{chamfer_distance, fit_detail, DetailError, DetailParams, MpuModel};
 use stablesurf::fit::study::{sample, Shape, Variant};
+use stablesurf::measure::area_mean;
 use stablesurf::mesh::check;
 use stablesurf::model::mpu::{is_mpu, read_mpu, write_mpu};
 use stablesurf::pipeline::{Mode, PipelineConfig};
@@ -25,29 +26,6 @@ fn mesh(model: &MpuModel, depth: u32) -> TriangleMesh {
         ..PipelineConfig::for_mode(Mode::Detail).polygonize
     };
     polygonize(model, &model.region, &params).unwrap().mesh
-}
-
-/// The mean of `distance` over the area of `mesh`: each triangle's three edge midpoints (a
-/// rule exact for quadratics), weighted by its area.
-fn area_mean(mesh: &TriangleMesh, distance: &dyn Fn([f64; 3]) -> f64) -> f64 {
-    let (mut weighted, mut area) = (0.0, 0.0);
-    for t in &mesh.triangles {
-        let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-        let (u, v) = (
-            [0, 1, 2].map(|k| b[k] - a[k]),
-            [0, 1, 2].map(|k| c[k] - a[k]),
-        );
-        let cross = [
-            u[1] * v[2] - u[2] * v[1],
-            u[2] * v[0] - u[0] * v[2],
-            u[0] * v[1] - u[1] * v[0],
-        ];
-        let w = 0.5 * cross.iter().map(|x| x * x).sum::<f64>().sqrt();
-        let mid = |p: [f64; 3], q: [f64; 3]| [0, 1, 2].map(|k| 0.5 * (p[k] + q[k]));
-        weighted += w * (distance(mid(a, b)) + distance(mid(b, c)) + distance(mid(c, a))) / 3.0;
-        area += w;
-    }
-    weighted / area
 }
 
 fn torus_distance(p: [f64; 3]) -> f64 {
