@@ -127,9 +127,10 @@ pub fn set_detail(config: &mut PipelineConfig, opts: &DetailOpts) {
 /// Meshing parameters for a model of `mode`: the mode's defaults
 /// ([`PipelineConfig::for_mode`]) with `--depth` (within range::DEPTH) and `--fit-chords` or
 /// `--no-fit-chords` when given. A global model's mesh vertices are projected onto the zero
-/// set, so a finer mesh only flattens the facets between them: on the ten scans of ../shared/data a global (polynomial) model meshed at depth 8 has 4×
-/// the triangles of depth 7, the same topology (watertight, components, Euler characteristic)
-/// and a mean point-to-mesh distance within 4.6e-6 of the diagonal of depth 7's (README).
+/// set, so a finer mesh only flattens the facets between them: on the ten scans of
+/// ../shared/data a global (polynomial) model meshed at depth 8 has 4× the triangles of depth
+/// 7, the same topology (watertight, components, Euler characteristic) and a mean
+/// point-to-mesh distance within 4.6e-6 of the diagonal of depth 7's (docs/defaults.md).
 pub fn polygonize_params(opts: &MeshOpts, mode: Mode) -> PolygonizeParams {
     let defaults = PipelineConfig::for_mode(mode).polygonize;
     PolygonizeParams {
