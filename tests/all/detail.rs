@@ -21,8 +21,15 @@ use stablesurf::{OrientedCloud, TriangleMesh};
 use crate::fixtures::shared;
 
 fn mesh(model: &MpuModel, depth: u32) -> TriangleMesh {
+    let defaults = PipelineConfig::for_mode(Mode::Detail).polygonize;
+    mesh_with_chords(model, depth, defaults.fit_chords)
+}
+
+/// [`mesh`] with the fitted chords on or off (off: every vertex on the zero set).
+fn mesh_with_chords(model: &MpuModel, depth: u32, fit_chords: bool) -> TriangleMesh {
     let params = PolygonizeParams {
         depth,
+        fit_chords,
         ..PipelineConfig::for_mode(Mode::Detail).polygonize
     };
     polygonize(model, &model.region, &params).unwrap().mesh
@@ -332,17 +339,7 @@ fn sphere_and_torus_have_no_offset_bias() {
             };
             let model = fit_detail(cloud, &params).unwrap();
             // The fit: the vertices of the mesh on its zero set.
-            let on_zero_set = polygonize(
-                &model,
-                &model.region,
-                &PolygonizeParams {
-                    depth: 6,
-                    fit_chords: false,
-                    ..PipelineConfig::for_mode(Mode::Detail).polygonize
-                },
-            )
-            .unwrap()
-            .mesh;
+            let on_zero_set = mesh_with_chords(&model, 6, false);
             let mean = on_zero_set
                 .positions
                 .iter()
