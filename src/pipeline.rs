@@ -373,7 +373,7 @@ const MERGE_VERSION: u32 = 1;
 const OUTLIERS_VERSION: u32 = 1;
 const NORMALS_VERSION: u32 = 7;
 const FIT_VERSION: u32 = 5;
-const POLYGONIZE_VERSION: u32 = 4;
+const POLYGONIZE_VERSION: u32 = 5;
 // The export stage's version is `export::STAGE_VERSION`, beside its params.
 
 struct Ctx<'a> {

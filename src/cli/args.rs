@@ -148,10 +148,11 @@ pub struct MeshOpts {
           help = TARGET_TRIANGLES.help("Decimate the mesh to at most N triangles by edge collapses that keep it watertight, manifold, of the same genus and free of self-intersections (after --keep and --trim; a warning says when no legal collapse gets there)"),
           allow_negative_numbers = true, value_parser = TARGET_TRIANGLES.whole::<usize>())]
     pub target_triangles: Option<usize>,
-    /// Move the vertices off the zero set by the facets' chord error, so the mesh straddles the
-    /// surface instead of lying under it where it curves: a smaller mean distance to the
-    /// surface at the same triangles, with the vertices no longer exactly on it. The default
-    /// for a detail model; a global model keeps its vertices on the polynomial's zero set.
+    /// Move the vertices off the zero set by a quarter of the facets' chord error, so the mesh
+    /// lies less under the surface where it curves: a smaller mean distance to the surface at
+    /// the same triangles, with the vertices slightly off it (within 1e-5 of the diagonal on
+    /// average on a 20,000-point sphere or torus). The default for a detail model; a global
+    /// model keeps its vertices on the polynomial's zero set.
     #[arg(long, overrides_with = "no_fit_chords")]
     pub fit_chords: bool,
     /// Keep every vertex on the model's zero set (the default for a global model).

@@ -84,11 +84,12 @@
 //!    at about twice the triangles ([`Polygonized::simplified`] is then false).
 //!
 //! 6. **Chords** (`chords`, [`PolygonizeParams::fit_chords`], `--fit-chords`): each vertex
-//!    moves along its normal by a quarter of its umbrella vector's normal part (at most 5% of
-//!    its edges' length), so the flat facets straddle the curved surface instead of lying under
-//!    it. These are the positions step 5 tests first: a vertex of a crossing triangle goes back
-//!    to its projection before its other fallbacks, so one exact test of the whole mesh covers
-//!    both steps.
+//!    moves along its normal a quarter of the way to the position where the flat facets would
+//!    straddle the curved surface in the least-squares sense instead of lying under it (at most
+//!    5% of its edges' length; the vertices stay near the zero set, the facets' mean error
+//!    falls by a quarter). These are the positions step 5 tests first: a vertex of a crossing
+//!    triangle goes back to its projection before its other fallbacks, so one exact test of
+//!    the whole mesh covers both steps.
 //!
 //! Determinism: the octree visits children in a fixed order and concatenates their results;
 //! leaves and edges are processed in fixed-size chunks collected in order; the simplification
@@ -202,9 +203,10 @@ pub struct PolygonizeParams {
     /// What is done to the marching-tetrahedra mesh before its vertices are projected.
     /// Default [`Simplification::EdgeCollapse`].
     pub simplification: Simplification,
-    /// Step 6: move the vertices off the zero set by the facets' chord error, so that the mesh
-    /// straddles the surface rather than lying under it where it curves (see `chords`;
-    /// the triangles, the topology and the absence of crossings are kept). Default `false`
+    /// Step 6: move the vertices off the zero set by a quarter of the facets' chord error, a
+    /// quarter of the way to a mesh that straddles the surface rather than lying under it where
+    /// it curves (see `chords`; the triangles, the topology and the absence of crossings are
+    /// kept). Default `false`
     /// (every vertex on the zero set); detail mode's `run` sets it (`--fit-chords`,
     /// `--no-fit-chords`).
     #[serde(default, skip_serializing_if = "is_false")]
@@ -567,7 +569,7 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
     // Step 6 first, when asked for: the vertices start off the zero set by their chord error,
     // and step 5 tests those positions.
     if chords {
-        mesh.positions = chords::chord_positions(&mesh);
+        mesh.positions = chords::chord_positions(&mesh, chords::SHARE);
     }
     // Step 5: the projection (step 4) moves vertices off their lattice edges, by up to a few
     // cells where ∇f turns, and can push a triangle through its neighbours. Every vertex of a
