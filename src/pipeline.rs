@@ -114,10 +114,11 @@ pub struct PipelineConfig {
     /// Polygonize stage parameters (see [`PipelineConfig::for_mode`]).
     pub polygonize: PolygonizeParams,
     /// Whether the meshing depth comes from the points' spacing
-    /// ([`polygonize::DataResolution`]: 6 or 7) rather than `polygonize.depth`, with the facets
-    /// fitted to the surface on dense points: on in detail
-    /// mode unless a depth is asked for (`--depth`), off in global mode, whose polynomial is
-    /// meshed at `polygonize.depth` whatever the sampling.
+    /// ([`polygonize::DataResolution`]: 6 or 7) rather than `polygonize.depth`, with the chords'
+    /// whole least-squares move ([`PolygonizeParams::chord_share`] 1) on points far denser than
+    /// that mesh ([`polygonize::DataResolution::very_dense`]): on in detail mode unless a depth
+    /// is asked for (`--depth`), off in global mode, whose polynomial is meshed at
+    /// `polygonize.depth` whatever the sampling.
     pub depth_from_data: bool,
     /// Whether detail mode's split tolerance is halved where the points are far finer than the
     /// mesh ([`polygonize::DataResolution::very_dense`]): on in detail mode unless a tolerance
@@ -1049,7 +1050,8 @@ fn detail_params(config: &PipelineConfig) -> DetailParams {
 ///   for ([`detail_params`]);
 /// - with [`PipelineConfig::depth_from_data`], the meshing depth of the input points' spacing
 ///   in the detail model's region (the points' box grown by 10% per side; its own depth when
-///   the spacing cannot be measured; [`polygonize::DataResolution`]);
+///   the spacing cannot be measured; [`polygonize::DataResolution`]), and the chords' whole
+///   move on very dense points;
 /// - with [`PipelineConfig::tolerance_from_data`], the split tolerance × [`DENSE_TOLERANCE`]
 ///   on very dense points.
 ///
@@ -1063,6 +1065,9 @@ fn resolve_for_data(config: &PipelineConfig, oriented: &Oriented) -> PipelineCon
         if let Some(data) = data {
             if config.depth_from_data {
                 resolved.polygonize.depth = data.depth();
+                if data.very_dense() {
+                    resolved.polygonize.chord_share = 1.0;
+                }
             }
             if config.tolerance_from_data && data.very_dense() {
                 let t = resolved.detail.tolerance * DENSE_TOLERANCE;
@@ -1103,6 +1108,7 @@ fn polygonize_stage(
             let figures = serde_json::json!({
                 "depth": config.polygonize.depth,
                 "fit_chords": config.polygonize.fit_chords,
+                "chord_share": config.polygonize.chord_share,
                 "vertices": out.mesh.positions.len(),
                 "triangles": out.mesh.triangles.len(),
                 "evaluations": out.evaluations,
@@ -1334,9 +1340,9 @@ mod tests {
     }
 
     /// Points 1000 to the side (log₂(1.2 · 999) ≈ 10.2 levels, 3.2 finer than depth 7) get
-    /// depth 7 and half the tolerance; 400 to the side (≈ 8.9) and 100 to the side (≈ 6.9)
-    /// depth 7 and the default tolerance; the facets are fitted in every case; a tolerance or a
-    /// depth asked for is kept.
+    /// depth 7, half the tolerance and the chords' whole move; 400 to the side (≈ 8.9) and 100
+    /// to the side (≈ 6.9) depth 7, the default tolerance and share; the facets are fitted in
+    /// every case; a tolerance or a depth asked for is kept, with the default share.
     #[test]
     fn dense_points_get_half_the_tolerance() {
         let default = PipelineConfig::for_mode(Mode::Detail);
@@ -1344,6 +1350,7 @@ mod tests {
         let dense = resolve_for_data(&default, &grid(1000));
         assert_eq!(dense.polygonize.depth, 7);
         assert!(dense.polygonize.fit_chords);
+        assert_eq!(dense.polygonize.chord_share, 1.0);
         assert_eq!(dense.detail.tolerance, tolerance * DENSE_TOLERANCE);
         assert_eq!(dense.detail.finest_tolerance, tolerance * DENSE_TOLERANCE);
         assert!(!dense.depth_from_data && !dense.tolerance_from_data);
@@ -1352,6 +1359,7 @@ mod tests {
             let resolved = resolve_for_data(&default, &grid(n));
             assert_eq!(resolved.polygonize.depth, 7);
             assert!(resolved.polygonize.fit_chords);
+            assert_eq!(resolved.polygonize.chord_share, polygonize::CHORD_SHARE);
             assert_eq!(resolved.detail, DetailParams::default());
         }
 
@@ -1362,6 +1370,7 @@ mod tests {
         let kept = resolve_for_data(&asked, &grid(1000));
         assert_eq!(kept.polygonize.depth, 8);
         assert!(kept.polygonize.fit_chords);
+        assert_eq!(kept.polygonize.chord_share, polygonize::CHORD_SHARE);
         assert_eq!(kept.detail.tolerance, tolerance);
         assert_eq!(kept.detail.max_depth, 9);
     }

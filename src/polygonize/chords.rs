@@ -3,7 +3,7 @@
 //! lying under it.
 //!
 //! Input: the mesh of step 4, its vertices projected onto the zero set, with their normals, and
-//! the share s of the least-squares move ([`SHARE`] in the stage). Output: the positions of its
+//! the share s of the least-squares move ([`super::PolygonizeParams::chord_share`]). Output: the positions of its
 //! vertices, each interior vertex moved along its normal by −(s/4)(L·n), where L is the
 //! umbrella vector (the mean of its neighbours minus the vertex), the move capped at
 //! [`MAX_MOVE`] × the vertex's mean edge length; vertices on the region's boundary stay.
@@ -15,11 +15,14 @@
 //! the umbrella vector's normal part (s = 1) makes the mean signed distance between the facets
 //! and the surface zero, the least-squares counterpart of the interpolating mesh at the same
 //! triangles. It puts the vertices outside by about as much as the interpolating facets lie
-//! inside, and a surface's vertices are what most checks measure. The stage therefore takes a
-//! quarter of that move ([`SHARE`]): the facets' mean signed error falls by a quarter, the
-//! Chamfer distance to the points keeps about 40% of the least-squares gain (bunny: −0.41%
-//! against −1.04%), and the vertices' mean offset stays within 1e-5 of the diagonal on a
-//! 20,000-point sphere and torus at the default depth (docs/defaults.md, "Fitted chords").
+//! inside, and a surface's vertices are what most checks measure. The stage's default therefore
+//! takes a quarter of that move ([`super::CHORD_SHARE`]): the facets' mean signed error falls
+//! by a quarter, the Chamfer distance to the points keeps about 40% of the least-squares gain
+//! (bunny: −0.41% against −1.04%), and the vertices' mean offset stays within 1e-5 of the
+//! diagonal on a 20,000-point sphere and torus at the default depth (docs/defaults.md, "Fitted
+//! chords"). Points far denser than the mesh sample the facets' interiors, and there detail
+//! mode's `run` takes the whole move (a 1,000,000-point torus: Chamfer 1.012× Open3D
+//! Poisson's with a quarter, 0.997× with the whole move).
 //!
 //! Guarantees: the triangles, and so the topology and winding, are unchanged. The positions are
 //! a function of the mesh alone. They are the first positions step 5 of the stage tests for
@@ -33,9 +36,6 @@ use crate::vec3::{dot, sub};
 /// The share of the umbrella vector's normal part a vertex moves by for the least-squares
 /// facets (share 1).
 const LEAST_SQUARES: f64 = 0.25;
-
-/// The share of the least-squares move the stage makes (see the module docs): a quarter.
-pub const SHARE: f64 = 0.25;
 
 /// The largest move, in mean edge lengths of the vertex (a crease or a corner, where the
 /// umbrella vector is long and the quadratic model does not hold).
@@ -93,7 +93,7 @@ pub fn chord_positions(mesh: &TriangleMesh, share: f64) -> Vec<[f64; 3]> {
 mod tests {
     use super::*;
     use crate::poly::ImplicitPolynomial;
-    use crate::polygonize::{polygonize, PolygonizeParams};
+    use crate::polygonize::{polygonize, PolygonizeParams, CHORD_SHARE};
     use crate::Aabb;
 
     fn sphere_mesh(depth: u32, fit_chords: bool) -> crate::polygonize::Polygonized {
@@ -127,8 +127,8 @@ mod tests {
 
     /// On the unit sphere the interpolating mesh lies under the surface by about h²/8; the
     /// least-squares one (share 1) straddles it: its mean signed error is at least 5× smaller.
-    /// The stage's mesh ([`SHARE`]) takes that share of the error away, to 5% of the error; its
-    /// triangles are unchanged, every vertex has moved and the mesh is embedded.
+    /// The stage's default mesh ([`CHORD_SHARE`]) takes that share of the error away, to 5% of
+    /// the error; its triangles are unchanged, every vertex has moved and the mesh is embedded.
     #[test]
     fn the_sphere_mesh_straddles_the_surface() {
         let before = sphere_mesh(5, false);
@@ -151,11 +151,40 @@ mod tests {
         assert!(e0 < -1e-4, "interpolating mesh under the sphere: {e0}");
         assert!(e1.abs() < e0.abs() / 5.0, "before {e0}, least squares {e1}");
         assert!(
-            (e - e0 * (1.0 - SHARE)).abs() <= 0.05 * e0.abs(),
-            "before {e0}, with the share {SHARE}: {e}"
+            (e - e0 * (1.0 - CHORD_SHARE)).abs() <= 0.05 * e0.abs(),
+            "before {e0}, with the share {CHORD_SHARE}: {e}"
         );
         for mesh in [&after.mesh, &least_squares] {
             assert!(!crate::mesh::intersecting_triangles(mesh).iter().any(|&f| f));
+        }
+    }
+
+    /// A share outside (0, 1] is refused with an error that names it.
+    #[test]
+    fn a_share_out_of_range_is_an_error() {
+        let sphere = ImplicitPolynomial {
+            degree: 2,
+            coefficients: vec![-1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0],
+            center: [0.0; 3],
+            scale: 1.0,
+        };
+        let region = Aabb {
+            min: [-1.5; 3],
+            max: [1.5; 3],
+        };
+        for share in [0.0, -0.5, 1.5, f64::NAN] {
+            let params = PolygonizeParams {
+                depth: 3,
+                fit_chords: true,
+                chord_share: share,
+                ..Default::default()
+            };
+            let e = polygonize(&sphere, &region, &params).unwrap_err();
+            assert!(
+                matches!(e, crate::polygonize::PolygonizeError::InvalidChordShare(_)),
+                "{share}: {e}"
+            );
+            assert!(e.to_string().contains("(0, 1]"), "{e}");
         }
     }
 

@@ -12,12 +12,13 @@
 //!   `ceil(log₂(L / s) − ¼)`, clamped to [`DATA_DEPTH_MIN`]..=[`DATA_DEPTH_MAX`]. A mesh much
 //!   finer than the spacing adds triangles the data cannot place, and costs about 4× the time
 //!   a level; one coarser blurs what the data shows.
-//! - **Tolerance**: when the points are [`VERY_DENSE_LEVELS`] levels or more finer than the
-//!   mesh (more than 8 across a cell), the fit's own error is most of what the fitted chords
-//!   ([`super::PolygonizeParams::fit_chords`]) leave, and `run` halves detail mode's split
-//!   tolerance (`pipeline::DENSE_TOLERANCE`). Not below: on the raw range views of
-//!   ../shared/data (8.4–8.6 levels) halving cost 25–30% of the CPU for 0.3–0.4% of Chamfer
-//!   distance after the chords' 1%.
+//! - **Very dense**: when the points are [`VERY_DENSE_LEVELS`] levels or more finer than the
+//!   mesh (more than 8 across a cell), they sample the facets' interiors: `run` takes the
+//!   fitted chords' whole least-squares move ([`super::PolygonizeParams::chord_share`] 1, not
+//!   the default quarter), after which the fit's own error is most of the distance to the
+//!   points, and it halves detail mode's split tolerance (`pipeline::DENSE_TOLERANCE`). Not
+//!   below: on the raw range views of ../shared/data (8.4–8.6 levels) halving cost 25–30% of
+//!   the CPU for 0.3–0.4% of Chamfer distance after the chords' 1%.
 //!
 //! Measured in detail mode on the oriented points of ../shared/data against Open3D's Poisson
 //! at depth 8 (symmetric Chamfer distance / diagonal, CPU seconds of the whole run; docs/defaults.md
@@ -83,7 +84,8 @@ impl DataResolution {
     }
 
     /// Whether the points are at least [`VERY_DENSE_LEVELS`] levels finer than the cells of
-    /// [`DataResolution::depth`]: detail mode's split tolerance is then halved.
+    /// [`DataResolution::depth`]: detail mode's split tolerance is then halved and the chords
+    /// take their whole move.
     pub fn very_dense(&self) -> bool {
         self.level >= f64::from(self.depth()) + VERY_DENSE_LEVELS
     }
