@@ -1065,7 +1065,7 @@ fn resolve_for_data(config: &PipelineConfig, oriented: &Oriented) -> PipelineCon
         if let Some(data) = data {
             if config.depth_from_data {
                 resolved.polygonize.depth = data.depth();
-                if data.very_dense() {
+                if data.very_dense() && resolved.polygonize.fit_chords {
                     resolved.polygonize.chord_share = 1.0;
                 }
             }
@@ -1108,7 +1108,7 @@ fn polygonize_stage(
             let figures = serde_json::json!({
                 "depth": config.polygonize.depth,
                 "fit_chords": config.polygonize.fit_chords,
-                "chord_share": config.polygonize.chord_share,
+                "chord_share": config.polygonize.fit_chords.then_some(config.polygonize.chord_share),
                 "vertices": out.mesh.positions.len(),
                 "triangles": out.mesh.triangles.len(),
                 "evaluations": out.evaluations,
@@ -1344,7 +1344,7 @@ mod tests {
     /// to the side (≈ 6.9) depth 7, the default tolerance and share; the facets are fitted in
     /// every case; a tolerance or a depth asked for is kept, with the default share.
     #[test]
-    fn dense_points_get_half_the_tolerance() {
+    fn dense_points_get_half_the_tolerance_and_the_whole_chord_move() {
         let default = PipelineConfig::for_mode(Mode::Detail);
         let tolerance = DetailParams::default().tolerance;
         let dense = resolve_for_data(&default, &grid(1000));
@@ -1373,5 +1373,24 @@ mod tests {
         assert_eq!(kept.polygonize.chord_share, polygonize::CHORD_SHARE);
         assert_eq!(kept.detail.tolerance, tolerance);
         assert_eq!(kept.detail.max_depth, 9);
+
+        // Each flag alone: a depth asked for keeps the default share and still halves the
+        // tolerance; a tolerance asked for keeps the data's share.
+        let mut depth_asked = default.clone();
+        depth_asked.depth_from_data = false;
+        let resolved = resolve_for_data(&depth_asked, &grid(1000));
+        assert_eq!(resolved.polygonize.chord_share, polygonize::CHORD_SHARE);
+        assert_eq!(resolved.detail.tolerance, tolerance * DENSE_TOLERANCE);
+        let mut tolerance_asked = default.clone();
+        tolerance_asked.tolerance_from_data = false;
+        let resolved = resolve_for_data(&tolerance_asked, &grid(1000));
+        assert_eq!(resolved.polygonize.chord_share, 1.0);
+        assert_eq!(resolved.detail.tolerance, tolerance);
+        // Without the chords the share is left at its default.
+        let mut no_chords = default.clone();
+        no_chords.polygonize.fit_chords = false;
+        let resolved = resolve_for_data(&no_chords, &grid(1000));
+        assert!(!resolved.polygonize.fit_chords);
+        assert_eq!(resolved.polygonize.chord_share, polygonize::CHORD_SHARE);
     }
 }

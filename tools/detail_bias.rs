@@ -4,8 +4,10 @@
 //!
 //! Usage: `cargo run --release --features tools --example detail_bias -- [--points N] [--depth D]
 //! [--epsilon E] [--kappa K] [--tolerance T] [--gradient|--three-levels] [--no-aux]
-//! [--fit-chords]` (`--gradient`: the local fits' gradient rows ∇Q = n instead of the 3L rows at
-//! ±ε, the default; `--fit-chords`: the meshing's fitted chords, as `run` does in detail mode).
+//! [--fit-chords] [--chord-share S]` (`--gradient`: the local fits' gradient rows ∇Q = n instead
+//! of the 3L rows at ±ε, the default; `--fit-chords`: the meshing's fitted chords, as `run` does
+//! in detail mode, with their default share, a quarter; `--chord-share S`: the chords with the
+//! share S in (0, 1] of their least-squares move, 1 for the whole move).
 //! Prints, per shape: cells, fit time, vertices, the mean and rms signed radial (sphere) / tube
 //! (torus) error of the mesh vertices, and the mean over the mesh's area (each triangle's three
 //! edge midpoints, weighted by its area), as fractions of the diagonal of the points' bounding
@@ -96,6 +98,7 @@ fn main() -> anyhow::Result<()> {
     let mut n = 20_000;
     let mut depth = 7;
     let mut fit_chords = false;
+    let mut chord_share = stablesurf::polygonize::CHORD_SHARE;
     while !args.is_empty() {
         let a = args.remove(0);
         match a.as_str() {
@@ -127,6 +130,10 @@ fn main() -> anyhow::Result<()> {
             "--epsilon" => params.epsilon = v.parse()?,
             "--kappa" => params.kappa = v.parse()?,
             "--tolerance" => params.tolerance = v.parse()?,
+            "--chord-share" => {
+                chord_share = v.parse()?;
+                fit_chords = true;
+            }
             _ => anyhow::bail!("unknown flag {a}"),
         }
     }
@@ -134,6 +141,7 @@ fn main() -> anyhow::Result<()> {
         depth,
         guard_levels: 0,
         fit_chords,
+        chord_share,
         ..PolygonizeParams::default()
     };
     println!(

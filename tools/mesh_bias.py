@@ -18,6 +18,7 @@ vertices and a negative one over the area where the surface curves (its flat fac
 """
 
 import argparse
+import math
 import sys
 
 import numpy as np
@@ -29,6 +30,8 @@ def parse_shape(text):
     try:
         values = [float(v) for v in values]
     except ValueError:
+        values = None
+    if values and not all(math.isfinite(v) for v in values):
         values = None
     if name == "sphere" and values and len(values) == 1 and values[0] > 0:
         (radius,) = values
@@ -77,6 +80,10 @@ def main():
         triangles = np.asarray(mesh.triangles, dtype=np.int64)
         if len(vertices) == 0 or len(triangles) == 0:
             print(f"error: {path}: no triangle mesh read (give a PLY, OBJ or STL mesh)", file=sys.stderr)
+            sys.exit(1)
+        a, b, c = (vertices[triangles[:, k]] for k in range(3))
+        if not np.linalg.norm(np.cross(b - a, c - a), axis=1).sum() > 0:
+            print(f"error: {path}: the mesh has no area (every triangle is degenerate)", file=sys.stderr)
             sys.exit(1)
         at_vertices = distance(vertices) / diagonal
         over_area = distance(area_samples(vertices, triangles, args.samples, args.seed)) / diagonal

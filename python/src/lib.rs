@@ -369,6 +369,8 @@ fn apply_param(
         "tolerance" => {
             let tolerance = number(value, key, limits::TOLERANCE)?;
             config.detail = config.detail.clone().with_tolerance(tolerance);
+            // As `--tolerance`: kept over the one the data's resolution would choose.
+            config.tolerance_from_data = false;
         }
         "normal_source" => config.normals.source = choice::<NormalSource>(value, key)?,
         "viewpoint" => {
@@ -390,7 +392,11 @@ fn apply_param(
                 .extract()
                 .map_err(|_| PyValueError::new_err("keep_outliers takes True or False"))?
         }
-        "depth" => config.polygonize.depth = number(value, key, limits::DEPTH)? as u32,
+        "depth" => {
+            config.polygonize.depth = number(value, key, limits::DEPTH)? as u32;
+            // As `--depth`: kept over the one the data's resolution would choose.
+            config.depth_from_data = false;
+        }
         "keep" => {
             let text: String = value.extract().unwrap_or_default();
             config.keep = match text.as_str() {

@@ -3,10 +3,11 @@
 //! lying under it.
 //!
 //! Input: the mesh of step 4, its vertices projected onto the zero set, with their normals, and
-//! the share s of the least-squares move ([`super::PolygonizeParams::chord_share`]). Output: the positions of its
-//! vertices, each interior vertex moved along its normal by −(s/4)(L·n), where L is the
-//! umbrella vector (the mean of its neighbours minus the vertex), the move capped at
-//! [`MAX_MOVE`] × the vertex's mean edge length; vertices on the region's boundary stay.
+//! the share s of the least-squares move ([`super::PolygonizeParams::chord_share`]). Output:
+//! the positions of its vertices, each interior vertex moved along its normal by −(s/4)(L·n),
+//! where L is the umbrella vector (the mean of its neighbours minus the vertex), the move
+//! capped at [`MAX_MOVE`] × the vertex's mean edge length; vertices on the region's boundary
+//! stay.
 //!
 //! Why: a flat triangle whose corners lie on a surface of curvature κ lies under it, by
 //! κ·h²/8 on average for an equilateral triangle of side h (the linear interpolation error of
@@ -125,12 +126,13 @@ mod tests {
         crate::measure::area_mean(mesh, |p| dot(p, p).sqrt() - 1.0)
     }
 
-    /// On the unit sphere the interpolating mesh lies under the surface by about h²/8; the
-    /// least-squares one (share 1) straddles it: its mean signed error is at least 5× smaller.
-    /// The stage's default mesh ([`CHORD_SHARE`]) takes that share of the error away, to 5% of
-    /// the error; its triangles are unchanged, every vertex has moved and the mesh is embedded.
+    /// On the unit sphere the interpolating mesh lies under the surface by about h²/8 (mean
+    /// signed error e0 over the area); the least-squares one (share 1) straddles it: its mean
+    /// signed error is at least 5× smaller. The stage's default mesh ([`CHORD_SHARE`]) has
+    /// (1 − CHORD_SHARE)·e0, to within 5% of |e0|; its triangles are unchanged, every vertex has
+    /// moved and the mesh is embedded.
     #[test]
-    fn the_sphere_mesh_straddles_the_surface() {
+    fn chords_move_the_sphere_mesh_by_their_share() {
         let before = sphere_mesh(5, false);
         let after = sphere_mesh(5, true);
         assert!(before.embedded && after.embedded);
@@ -159,7 +161,8 @@ mod tests {
         }
     }
 
-    /// A share outside (0, 1] is refused with an error that names it.
+    /// A share outside (0, 1] is refused with an error that names it; 1, the bound the dense
+    /// points take, is accepted.
     #[test]
     fn a_share_out_of_range_is_an_error() {
         let sphere = ImplicitPolynomial {
@@ -186,6 +189,17 @@ mod tests {
             );
             assert!(e.to_string().contains("(0, 1]"), "{e}");
         }
+        let whole = PolygonizeParams {
+            depth: 3,
+            fit_chords: true,
+            chord_share: 1.0,
+            ..Default::default()
+        };
+        assert!(!polygonize(&sphere, &region, &whole)
+            .unwrap()
+            .mesh
+            .triangles
+            .is_empty());
     }
 
     /// A flat mesh does not move: a 5 × 5 grid of vertices on z = 0, whose 9 interior

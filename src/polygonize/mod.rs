@@ -16,8 +16,9 @@
 //! |f|/|∇f| ≤ 10⁻⁷ × the region's diagonal unless ∇f vanishes there or step 5 had to fall back
 //! to its linear position (reported in [`Polygonized::max_projection_residual`]); the output is
 //! byte-identical for any number of threads. With [`PolygonizeParams::fit_chords`] the
-//! vertices are then moved off the zero set by the facets' chord error (step 6), keeping the
-//! triangles and the absence of crossings.
+//! vertices are then moved off the zero set by a share ([`PolygonizeParams::chord_share`],
+//! default a quarter) of the facets' chord error (step 6), keeping the triangles and the
+//! absence of crossings.
 //!
 //! # Algorithm
 //!
@@ -206,17 +207,16 @@ pub struct PolygonizeParams {
     /// What is done to the marching-tetrahedra mesh before its vertices are projected.
     /// Default [`Simplification::EdgeCollapse`].
     pub simplification: Simplification,
-    /// Step 6: move the vertices off the zero set by a quarter of the facets' chord error, a
-    /// quarter of the way to a mesh that straddles the surface rather than lying under it where
-    /// it curves (see `chords`; the triangles, the topology and the absence of crossings are
-    /// kept). Default `false`
-    /// (every vertex on the zero set); detail mode's `run` sets it (`--fit-chords`,
-    /// `--no-fit-chords`).
+    /// Step 6: move the vertices off the zero set by [`chord_share`](Self::chord_share) (default
+    /// a quarter) of the facets' chord error, towards a mesh that straddles the surface rather
+    /// than lying under it where it curves (see `chords`; the triangles, the topology and the
+    /// absence of crossings are kept). Default `false` (every vertex on the zero set); detail
+    /// mode's `run` sets it (`--fit-chords`, `--no-fit-chords`).
     #[serde(default, skip_serializing_if = "is_false")]
     pub fit_chords: bool,
-    /// With `fit_chords`, the share of the least-squares chord move step 6 makes, in (0, 1]:
-    /// 1 makes the facets' mean signed error over the area zero and puts the vertices outside
-    /// by about as much; the default, [`CHORD_SHARE`] (a quarter), keeps the vertices within
+    /// With `fit_chords`, the share of the least-squares chord move step 6 makes, in (0, 1]
+    /// (checked with or without `fit_chords`): 1 makes the facets' mean signed error over the
+    /// area zero and puts the vertices outside by about as much; the default, [`CHORD_SHARE`] (a quarter), keeps the vertices within
     /// 1e-5 of the diagonal of the surface on average at 20,000 points (see `chords`). Detail
     /// mode's `run` takes the whole move on points far denser than the mesh
     /// ([`DataResolution::very_dense`]), which sample the facets' interiors.
@@ -483,7 +483,7 @@ struct Repaired {
 /// Where step 5 has a vertex, in the order of its fallbacks (see [`place_and_repair`]).
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Fallback {
-    /// Off the zero set by its chord error (step 6).
+    /// Off the zero set by a share of its chord error (step 6).
     Chord,
     /// Projected onto the zero set (step 4).
     Projected,
@@ -595,8 +595,8 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
         normals: vertices.iter().map(|v| v.normal).collect(),
         triangles,
     };
-    // Step 6 first, when asked for: the vertices start off the zero set by their chord error,
-    // and step 5 tests those positions.
+    // Step 6 first, when asked for: the vertices start off the zero set by a share of their
+    // chord error, and step 5 tests those positions.
     if let Some(share) = chords {
         mesh.positions = chords::chord_positions(&mesh, share);
     }

@@ -89,6 +89,19 @@ def test_sphere_with_analytic_normals_lies_on_the_sphere():
     assert one.faces.tobytes() == result.faces.tobytes()
 
 
+def test_depth_given_is_kept_in_detail_mode():
+    points, normals = fibonacci_sphere(3000, 1.0)
+
+    def meshing_depth(result):
+        (stage,) = [s for s in result.report["stages"] if s["stage"] == "polygonize"]
+        return stage["figures"]["depth"]
+
+    # Detail mode takes its depth from the points' spacing (here 6) unless one is given, as
+    # `run --depth` does.
+    assert meshing_depth(stablesurf.reconstruct(points, normals)) == 6
+    assert meshing_depth(stablesurf.reconstruct(points, normals, depth=5)) == 5
+
+
 def test_global_mode_gives_the_polynomial_and_its_mesh():
     points, normals = fibonacci_sphere(3000, 1.5)
     result = stablesurf.reconstruct(points, normals, mode="global", degree=4, depth=5)
