@@ -216,10 +216,11 @@ pub struct PolygonizeParams {
     pub fit_chords: bool,
     /// With `fit_chords`, the share of the least-squares chord move step 6 makes, in (0, 1]
     /// (checked with or without `fit_chords`): 1 makes the facets' mean signed error over the
-    /// area zero and puts the vertices outside by about as much; the default, [`CHORD_SHARE`] (a quarter), keeps the vertices within
-    /// 1e-5 of the diagonal of the surface on average at 20,000 points (see `chords`). Detail
-    /// mode's `run` takes the whole move on points far denser than the mesh
-    /// ([`DataResolution::very_dense`]), which sample the facets' interiors.
+    /// area zero and puts the vertices outside by about as much; the default, [`CHORD_SHARE`]
+    /// (a quarter), keeps the vertices within 1e-5 of the diagonal of a 20,000-point sphere or
+    /// torus on average (see `chords`). Detail mode's `run` takes the whole move on points far
+    /// denser than the mesh ([`DataResolution::very_dense`]), which sample the facets'
+    /// interiors.
     #[serde(
         default = "default_chord_share",
         skip_serializing_if = "is_default_chord_share"
