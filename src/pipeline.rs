@@ -1105,14 +1105,10 @@ fn polygonize_stage(
                 normals,
                 &config.polygonize,
             )?;
-            let chord_share = config
-                .polygonize
-                .fit_chords
-                .then_some(config.polygonize.chord_share);
             let figures = serde_json::json!({
                 "depth": config.polygonize.depth,
                 "fit_chords": config.polygonize.fit_chords,
-                "chord_share": chord_share,
+                "chord_share": config.polygonize.chords(),
                 "vertices": out.mesh.positions.len(),
                 "triangles": out.mesh.triangles.len(),
                 "evaluations": out.evaluations,

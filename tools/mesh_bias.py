@@ -48,12 +48,15 @@ def parse_shape(text):
     raise ValueError(f"unknown shape {text!r}: give sphere:R or torus:R:r (R > r > 0)")
 
 
-def area_samples(vertices, triangles, n, seed):
-    """n points uniform over the area of the mesh."""
-    a, b, c = (vertices[triangles[:, k]] for k in range(3))
+def area_samples(corners, n, seed):
+    """n points uniform over the area of the triangles with `corners` (a, b, c), or None when
+    they have no area."""
+    a, b, c = corners
     area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    if not area.sum() > 0:
+        return None
     rng = np.random.default_rng(seed)
-    t = rng.choice(len(triangles), size=n, p=area / area.sum())
+    t = rng.choice(len(area), size=n, p=area / area.sum())
     r1 = np.sqrt(rng.random(n))[:, None]
     r2 = rng.random(n)[:, None]
     return (1 - r1) * a[t] + r1 * (1 - r2) * b[t] + r1 * r2 * c[t]
@@ -81,12 +84,13 @@ def main():
         if len(vertices) == 0 or len(triangles) == 0:
             print(f"error: {path}: no triangle mesh read (give a PLY, OBJ or STL mesh)", file=sys.stderr)
             sys.exit(1)
-        a, b, c = (vertices[triangles[:, k]] for k in range(3))
-        if not np.linalg.norm(np.cross(b - a, c - a), axis=1).sum() > 0:
+        corners = tuple(vertices[triangles[:, k]] for k in range(3))
+        samples = area_samples(corners, args.samples, args.seed)
+        if samples is None:
             print(f"error: {path}: the mesh has no area (every triangle is degenerate)", file=sys.stderr)
             sys.exit(1)
         at_vertices = distance(vertices) / diagonal
-        over_area = distance(area_samples(vertices, triangles, args.samples, args.seed)) / diagonal
+        over_area = distance(samples) / diagonal
         print(
             f"{path}: {len(vertices)} vertices; vertices mean {at_vertices.mean():+.2e} "
             f"rms {np.sqrt(np.mean(at_vertices**2)):.2e}; area mean {over_area.mean():+.2e}"

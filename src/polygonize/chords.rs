@@ -94,10 +94,13 @@ pub fn chord_positions(mesh: &TriangleMesh, share: f64) -> Vec<[f64; 3]> {
 mod tests {
     use super::*;
     use crate::poly::ImplicitPolynomial;
-    use crate::polygonize::{polygonize, PolygonizeParams, CHORD_SHARE};
+    use crate::polygonize::{
+        polygonize, PolygonizeError, PolygonizeParams, Polygonized, CHORD_SHARE,
+    };
     use crate::Aabb;
 
-    fn sphere_mesh(depth: u32, fit_chords: bool) -> crate::polygonize::Polygonized {
+    /// The unit sphere (a degree-2 polynomial) meshed in [−1.5, 1.5]³ with `params`.
+    fn mesh_sphere(params: &PolygonizeParams) -> Result<Polygonized, PolygonizeError> {
         let mut coefficients = vec![0.0; 10];
         coefficients[0] = -1.0;
         for l in [4, 7, 9] {
@@ -113,12 +116,16 @@ mod tests {
             min: [-1.5; 3],
             max: [1.5; 3],
         };
-        let params = PolygonizeParams {
+        polygonize(&sphere, &region, params)
+    }
+
+    fn sphere_mesh(depth: u32, fit_chords: bool) -> Polygonized {
+        mesh_sphere(&PolygonizeParams {
             depth,
             fit_chords,
             ..Default::default()
-        };
-        polygonize(&sphere, &region, &params).unwrap()
+        })
+        .unwrap()
     }
 
     /// Mean signed distance (r − 1) of the unit sphere's mesh over its area.
@@ -165,37 +172,21 @@ mod tests {
     /// points take, is accepted.
     #[test]
     fn a_share_out_of_range_is_an_error() {
-        let sphere = ImplicitPolynomial {
-            degree: 2,
-            coefficients: vec![-1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0],
-            center: [0.0; 3],
-            scale: 1.0,
-        };
-        let region = Aabb {
-            min: [-1.5; 3],
-            max: [1.5; 3],
+        let with_share = |chord_share| PolygonizeParams {
+            depth: 3,
+            fit_chords: true,
+            chord_share,
+            ..Default::default()
         };
         for share in [0.0, -0.5, 1.5, f64::NAN] {
-            let params = PolygonizeParams {
-                depth: 3,
-                fit_chords: true,
-                chord_share: share,
-                ..Default::default()
-            };
-            let e = polygonize(&sphere, &region, &params).unwrap_err();
+            let e = mesh_sphere(&with_share(share)).unwrap_err();
             assert!(
-                matches!(e, crate::polygonize::PolygonizeError::InvalidChordShare(_)),
+                matches!(e, PolygonizeError::InvalidChordShare(_)),
                 "{share}: {e}"
             );
             assert!(e.to_string().contains("(0, 1]"), "{e}");
         }
-        let whole = PolygonizeParams {
-            depth: 3,
-            fit_chords: true,
-            chord_share: 1.0,
-            ..Default::default()
-        };
-        assert!(!polygonize(&sphere, &region, &whole)
+        assert!(!mesh_sphere(&with_share(1.0))
             .unwrap()
             .mesh
             .triangles

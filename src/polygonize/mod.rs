@@ -239,6 +239,13 @@ fn is_default_chord_share(share: &f64) -> bool {
     *share == CHORD_SHARE
 }
 
+impl PolygonizeParams {
+    /// The share of the chord move step 6 makes, or `None` without `fit_chords`.
+    pub fn chords(&self) -> Option<f64> {
+        self.fit_chords.then_some(self.chord_share)
+    }
+}
+
 fn is_false(b: &bool) -> bool {
     !*b
 }
@@ -386,6 +393,7 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
         extract::triangulate(function, &grid, &tree);
     let diagonal = region.diagonal();
     let tolerance = PROJECTION_TOLERANCE * diagonal;
+    let chords = params.chords();
     let mut simplified = params.simplification == Simplification::EdgeCollapse;
     let mut done = place_and_repair(
         function,
@@ -396,7 +404,7 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
         params.simplification,
         &[],
         tolerance,
-        params.fit_chords.then_some(params.chord_share),
+        chords,
     );
     let mut spent_before = 0;
     let mut pinned_vertices = 0;
@@ -426,7 +434,7 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
             Simplification::EdgeCollapse,
             &pinned,
             tolerance,
-            params.fit_chords.then_some(params.chord_share),
+            chords,
         );
         if done.crossings_left {
             spent_before += done.vertices.iter().map(|v| v.evaluations).sum::<u64>();
@@ -441,7 +449,7 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
                 Simplification::None,
                 &[],
                 tolerance,
-                params.fit_chords.then_some(params.chord_share),
+                chords,
             );
         }
     }
