@@ -1036,11 +1036,11 @@ pub fn run(
 pub const DENSE_TOLERANCE: f64 = 0.5;
 
 /// The detail fit's params of `config`: its own, with the octree deep enough for a meshing
-/// depth asked for (`--depth D`: at least D + 1, a level finer than the mesh).
+/// depth asked for (`--depth D`: at least D, as fine as the mesh's finest cells).
 fn detail_params(config: &PipelineConfig) -> DetailParams {
     let mut params = config.detail.clone();
     if !config.depth_from_data {
-        params.max_depth = params.max_depth.max(config.polygonize.depth + 1);
+        params.max_depth = params.max_depth.max(config.polygonize.depth);
     }
     params
 }
@@ -1312,7 +1312,7 @@ mod tests {
         let default = PipelineConfig::for_mode(Mode::Detail);
         assert!(default.depth_from_data);
         assert_eq!(detail_params(&default), DetailParams::default());
-        for (depth, expected) in [(6, 8), (7, 8), (8, 9), (11, 12)] {
+        for (depth, expected) in [(6, 7), (7, 7), (8, 8), (11, 11)] {
             let mut asked = default.clone();
             asked.depth_from_data = false;
             asked.polygonize.depth = depth;
@@ -1372,7 +1372,7 @@ mod tests {
         assert!(kept.polygonize.fit_chords);
         assert_eq!(kept.polygonize.chord_share, polygonize::CHORD_SHARE);
         assert_eq!(kept.detail.tolerance, tolerance);
-        assert_eq!(kept.detail.max_depth, 9);
+        assert_eq!(kept.detail.max_depth, 8);
 
         // Each flag alone: a depth asked for keeps the default share and still halves the
         // tolerance; a tolerance asked for keeps the data's share.

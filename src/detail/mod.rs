@@ -175,15 +175,16 @@ pub struct DetailParams {
     /// Default 3.5e-4, equal to `tolerance`: one tolerance throughout (the command line's
     /// `--tolerance T` sets this to min(1e-3, T)).
     pub finest_tolerance: f64,
-    /// Deepest octree level (the root cube is level 0). Default 8: a level-8 cell is about half
-    /// a cell of the finest meshing level of `run` (7; the root cube is 1.2× the data's largest
-    /// extent), and below that the mesh cannot show what the fits add, while on a noisy or
-    /// misregistered scan the split test keeps failing at the noise until the balls run out of
-    /// points (`bun.conf`'s six merged views, at the former default 10: 593,398 cells, 587,756 of
-    /// them grown, down to level 9; at 8: 464,493 cells, CPU −33%, Chamfer distance to the
-    /// zippered bunny 3.1811e-3 → 3.1800e-3; the other inputs of `tools/bench_peers` stop at
-    /// level 8 or above and are unchanged, but for the synthetic heart, which reached level 9:
-    /// Chamfer distance 1.8739e-3 → 1.8731e-3). `run --depth D` raises it to D + 1.
+    /// Deepest octree level (the root cube is level 0). Default 7: a level-7 cell is about a
+    /// cell of the finest meshing level of `run` (7; the root cube is 1.2× the data's largest
+    /// extent, the meshing region 1.2× each extent). Finer fits add little the mesh can show,
+    /// while on a noisy or misregistered scan the split test keeps failing at the noise until
+    /// the balls run out of points: `bun.conf`'s six merged views gave 593,398 cells down to
+    /// level 9 at the former default 10, 464,493 at 8 and 140,442 at 7, for 4.25, 2.07 CPU-s at
+    /// 8 and 7 and a Chamfer distance of 6.789e-4 and 6.816e-4 of the diagonal (report.json's
+    /// `chamfer_relative`). Of the other inputs of `tools/bench_peers` only the bunny, the teapot
+    /// and the synthetic heart reached level 8; their Chamfer distances moved by −0.01%, +0.02%
+    /// and −0.01%. `run --depth D` raises it to D.
     pub max_depth: u32,
     /// How the normals enter the local fits. Default [`LocalConstraints::ThreeLevels`].
     #[serde(default)]
@@ -205,7 +206,7 @@ impl Default for DetailParams {
             degree: 2,
             tolerance: 3.5e-4,
             finest_tolerance: 3.5e-4,
-            max_depth: 8,
+            max_depth: 7,
             constraints: LocalConstraints::ThreeLevels,
             epsilon: 0.3,
             kappa: 1e-2,
