@@ -187,7 +187,7 @@ pub(crate) fn area_samples(mesh: &TriangleMesh, reach: f64) -> (Vec<[f64; 3]>, V
             continue;
         }
         let (ab, ac) = (crate::vec3::sub(b, a), crate::vec3::sub(c, a));
-        let area = 0.5 * crate::vec3::norm(crate::vec3::cross(ab, ac));
+        let area = crate::vec3::triangle_area(a, b, c);
         let longest = dist(a, b).max(dist(b, c)).max(dist(c, a));
         // A piece's centroid is within 2/3 of its longest edge of each of its points.
         let cover = 2.0 / 3.0 * longest;
@@ -309,11 +309,7 @@ pub fn area_mean(mesh: &TriangleMesh, f: impl Fn([f64; 3]) -> f64) -> f64 {
     let (mut weighted, mut area) = (0.0, 0.0);
     for t in &mesh.triangles {
         let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-        let w = 0.5
-            * crate::vec3::norm(crate::vec3::cross(
-                crate::vec3::sub(b, a),
-                crate::vec3::sub(c, a),
-            ));
+        let w = crate::vec3::triangle_area(a, b, c);
         let mid = |p: [f64; 3], q: [f64; 3]| [0, 1, 2].map(|k| 0.5 * (p[k] + q[k]));
         weighted += w * (f(mid(a, b)) + f(mid(b, c)) + f(mid(c, a))) / 3.0;
         area += w;

@@ -14,7 +14,7 @@
 //! components that no data point comes near (`--keep data`).
 
 use crate::numerics::UnionFind;
-use crate::vec3::{cross, norm, sub};
+use crate::vec3::triangle_area;
 use serde::{Deserialize, Serialize};
 
 /// A triangle mesh in input coordinates.
@@ -491,7 +491,7 @@ pub fn drop_small_nested_components(
     for t in triangles {
         let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
         let l = labels[t[0] as usize] as usize;
-        area[l] += 0.5 * norm(cross(sub(b, a), sub(c, a)));
+        area[l] += triangle_area(a, b, c);
         tris_of[l].push(t);
     }
     let largest = area.iter().copied().fold(0.0, f64::max);

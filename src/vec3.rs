@@ -33,6 +33,12 @@ pub(crate) fn norm(a: [f64; 3]) -> f64 {
     dot(a, a).sqrt()
 }
 
+/// Area of the triangle `(a, b, c)`: `|(b − a) × (c − a)| / 2`.
+#[inline]
+pub(crate) fn triangle_area(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> f64 {
+    0.5 * norm(cross(sub(b, a), sub(c, a)))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

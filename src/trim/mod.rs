@@ -54,7 +54,7 @@ use serde::{Deserialize, Serialize};
 use crate::measure::PointTree;
 use crate::mesh::{self, TriangleMesh, VertexTriangles};
 use crate::numerics::PointGrid;
-use crate::vec3::{cross, norm, sub};
+use crate::vec3::triangle_area;
 
 mod holes;
 mod regions;
@@ -259,7 +259,10 @@ pub fn trim(
     let areas: Vec<f64> = mesh
         .triangles
         .iter()
-        .map(|t| triangle_area(&mesh.positions, *t))
+        .map(|t| {
+            let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+            triangle_area(a, b, c)
+        })
         .collect();
     // Per triangle: the distance from its centroid to the nearest data point, and that point
     // (the smallest index among equally near ones).
@@ -398,11 +401,6 @@ fn validate(params: &TrimParams) -> Result<(), TrimError> {
     Ok(())
 }
 
-fn triangle_area(positions: &[[f64; 3]], t: [u32; 3]) -> f64 {
-    let [a, b, c] = t.map(|i| positions[i as usize]);
-    0.5 * norm(cross(sub(b, a), sub(c, a)))
-}
-
 /// The mesh of `triangles` over `mesh`'s vertices, unreferenced vertices left out (kept ones
 /// in their order).
 fn compact(mesh: &TriangleMesh, triangles: &[[u32; 3]]) -> TriangleMesh {
@@ -432,6 +430,7 @@ fn compact(mesh: &TriangleMesh, triangles: &[[u32; 3]]) -> TriangleMesh {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::vec3::{norm, sub};
 
     #[test]
     fn the_spacing_at_some_points_is_the_spacing_computed_at_all() {
