@@ -516,6 +516,72 @@ pub fn drop_small_nested_components(
     (keep_components(mesh, &labels, &keep), dropped)
 }
 
+/// Drops the components of `mesh` whose area is below `max_fraction` of the largest
+/// component's and whose bounding box holds fewer than `min_points` of `points`, and returns the
+/// rest with the number dropped. These are the small pieces the blend grows around a stray point
+/// or two beside the surface (too few points for a local fit to stand on); a small part the
+/// data samples keeps its points. Kept vertices and triangles stay in their order. Cost: one
+/// pass over `points` per small component, stopped at `min_points`.
+///
+/// ```
+/// use stablesurf::mesh::{drop_small_unsupported_components, TriangleMesh};
+/// // A big triangle over many points, a tiny one beside a single point.
+/// let mesh = TriangleMesh {
+///     positions: vec![[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [0.0, 10.0, 0.0],
+///                     [20.0, 0.0, 0.0], [20.1, 0.0, 0.0], [20.0, 0.1, 0.0]],
+///     normals: vec![[0.0, 0.0, 1.0]; 6],
+///     triangles: vec![[0, 1, 2], [3, 4, 5]],
+/// };
+/// let mut points: Vec<[f64; 3]> = (0..100).map(|i| [(i % 10) as f64 * 0.5, (i / 10) as f64 * 0.5, 0.0]).collect();
+/// points.push([20.05, 0.02, 0.0]);
+/// let (kept, dropped) = drop_small_unsupported_components(&mesh, &points, 0.01, 15);
+/// assert_eq!((dropped, kept.triangles.clone()), (1, vec![[0, 1, 2]]));
+/// ```
+pub fn drop_small_unsupported_components(
+    mesh: &TriangleMesh,
+    points: &[[f64; 3]],
+    max_fraction: f64,
+    min_points: usize,
+) -> (TriangleMesh, usize) {
+    let (n_components, labels) = component_labels(mesh);
+    if n_components < 2 {
+        return (mesh.clone(), 0);
+    }
+    let mut area = vec![0.0; n_components];
+    for t in valid_triangles(mesh) {
+        let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+        area[labels[t[0] as usize] as usize] += triangle_area(a, b, c);
+    }
+    let largest = area.iter().copied().fold(0.0, f64::max);
+    let mut boxes = vec![([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]); n_components];
+    for (p, &label) in mesh.positions.iter().zip(&labels) {
+        let (lo, hi) = &mut boxes[label as usize];
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let mut keep = vec![true; n_components];
+    for c in 0..n_components {
+        // A NaN area is never small.
+        if area[c] >= max_fraction * largest || area[c].is_nan() {
+            continue;
+        }
+        let (lo, hi) = boxes[c];
+        let inside = points
+            .iter()
+            .filter(|p| (0..3).all(|k| p[k] >= lo[k] && p[k] <= hi[k]))
+            .take(min_points)
+            .count();
+        keep[c] = inside >= min_points;
+    }
+    let dropped = keep.iter().filter(|&&k| !k).count();
+    if dropped == 0 {
+        return (mesh.clone(), 0);
+    }
+    (keep_components(mesh, &labels, &keep), dropped)
+}
+
 /// Whether `p` is inside the closed surface `triangles` by the parity of the crossings of a ray
 /// from `p` in a fixed direction chosen off the axes (a ray through an edge or a vertex is
 /// unlikely; such a point is then misjudged, which only keeps or drops one small bubble).

@@ -371,7 +371,7 @@ const IMPORT_VERSION: u32 = 3;
 const MERGE_VERSION: u32 = 1;
 /// The outlier filter is not cached (it is a linear pass), but its output's key chains
 /// through it when it leaves points out.
-const OUTLIERS_VERSION: u32 = 1;
+const OUTLIERS_VERSION: u32 = 2;
 const NORMALS_VERSION: u32 = 7;
 const FIT_VERSION: u32 = 5;
 const POLYGONIZE_VERSION: u32 = 5;
@@ -839,15 +839,27 @@ fn without_outliers(
     } else {
         String::new()
     };
-    ctx.warn(format!(
-        "left out {} of {} points far outside the bulk of the data{far}{faces}; pass --keep-outliers to keep them",
-        split.removed,
-        cloud.points.len(),
-    ));
+    let far_count = split.removed - split.isolated;
+    if far_count > 0 {
+        ctx.warn(format!(
+            "left out {far_count} of {} points far outside the bulk of the data{far}{faces}; pass --keep-outliers to keep them",
+            cloud.points.len(),
+        ));
+    }
+    if split.isolated > 0 {
+        ctx.warn(format!(
+            "left out {} of {} points in groups of at most {} apart from the rest (more than {} times the local spacing from any other point); pass --keep-outliers to keep them",
+            split.isolated,
+            cloud.points.len(),
+            outliers::ISOLATED_GROUP_MAX,
+            params.isolation_factor,
+        ));
+    }
     let params_bytes = cache::params_bytes(&serde_json::json!({
         "bulk_quantile": params.bulk_quantile,
         "far_factor": params.far_factor,
         "gap_factor": params.gap_factor,
+        "isolation_factor": params.isolation_factor,
     }));
     let kept = split.cloud.into_owned();
     (
@@ -1154,6 +1166,14 @@ fn export_figures(ctx: &mut Ctx<'_>, model: &Model) -> MeshFigures {
     if nested > 0 {
         ctx.warn(format!(
             "left out {nested} small closed piece(s) inside the surface (each under {}% of the largest piece's area); --keep all keeps them",
+            100.0 * export::NESTED_AREA_FRACTION
+        ));
+    }
+    let unsupported = figures["dropped_unsupported"].as_u64().unwrap_or(0);
+    if unsupported > 0 {
+        ctx.warn(format!(
+            "left out {unsupported} small piece(s) of the surface with fewer than {} data points in their box (each under {}% of the largest piece's area); --keep all keeps them",
+            export::SUPPORT_POINTS_MIN,
             100.0 * export::NESTED_AREA_FRACTION
         ));
     }

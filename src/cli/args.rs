@@ -376,10 +376,12 @@ pub struct RunArgs {
     #[allow(missing_docs)]
     pub frame: FrameOpts,
     /// Which zero-set components to keep: data (drop pieces with no data point within 2% of the
-    /// diagonal; the default in detail mode) or all (the default in global mode).
+    /// diagonal, and small pieces with fewer than 15 data points in their box; the default in
+    /// detail mode) or all (the default in global mode).
     #[arg(long, value_enum)]
     pub keep: Option<KeepArg>,
-    /// Keep points far outside the bulk of the data (left out by default, with a warning).
+    /// Keep points far outside the bulk of the data, and on a cloud without normals or faces the
+    /// small groups of points apart from the surface (left out by default, with a warning).
     #[arg(long)]
     pub keep_outliers: bool,
     /// Trim the mesh to the surface the data supports: auto (on in detail mode, off in global
@@ -496,7 +498,8 @@ pub struct FitArgs {
     /// stablesurf.mpu file.
     #[arg(long, value_enum, default_value_t = ModeArg::Global, hide_possible_values = true)]
     pub mode: ModeArg,
-    /// Keep points far outside the bulk of the data (left out by default, with a warning).
+    /// Keep points far outside the bulk of the data, and on a cloud without normals or faces the
+    /// small groups of points apart from the surface (left out by default, with a warning).
     #[arg(long)]
     pub keep_outliers: bool,
     #[command(flatten)]

@@ -38,11 +38,16 @@ use crate::trim::{self, TrimParams, TrimReport};
 /// The export stage's version. If you change any input to this stage's key (the fields of
 /// [`ExportParams`] or how they are written), or anything that changes its output for the same
 /// input and params, bump `STAGE_VERSION`.
-pub const STAGE_VERSION: u32 = 12;
+pub const STAGE_VERSION: u32 = 13;
 
 /// With [`Keep::Data`], closed pieces inside another piece and smaller than this share of the
 /// largest piece's area are left out ([`mesh::drop_small_nested_components`]).
 pub const NESTED_AREA_FRACTION: f64 = 0.01;
+
+/// With [`Keep::Data`], pieces smaller than [`NESTED_AREA_FRACTION`] of the largest piece's area
+/// whose bounding box holds fewer than this many data points are left out
+/// ([`mesh::drop_small_unsupported_components`]): fewer than a local fit of degree 2 needs.
+pub const SUPPORT_POINTS_MIN: usize = 15;
 
 /// One output file: its name relative to the output folder, and its bytes.
 pub type OutputFile = (String, Vec<u8>);
@@ -97,7 +102,9 @@ pub enum Keep {
     #[default]
     All,
     /// Only components with a data point within 2% of the data's diagonal, and no small closed
-    /// piece inside another ([`mesh::drop_small_nested_components`]; see [`NESTED_AREA_FRACTION`]).
+    /// piece inside another ([`mesh::drop_small_nested_components`]; see [`NESTED_AREA_FRACTION`]),
+    /// nor a small piece with fewer than [`SUPPORT_POINTS_MIN`] data points in its box
+    /// ([`mesh::drop_small_unsupported_components`]).
     Data,
 }
 
@@ -229,6 +236,9 @@ pub struct ExportOutput {
     pub dropped_components: usize,
     /// Small closed components left out for lying inside another ([`NESTED_AREA_FRACTION`]).
     pub dropped_nested: usize,
+    /// Small components left out for holding fewer than [`SUPPORT_POINTS_MIN`] data points in
+    /// their box.
+    pub dropped_unsupported: usize,
     /// What the trim removed and closed.
     pub trim: TrimReport,
     /// What the decimation did, when the params asked for one.
@@ -251,6 +261,7 @@ impl ExportOutput {
             "bytes": self.files.iter().map(|f| f.1.len()).sum::<usize>(),
             "dropped_components": self.dropped_components,
             "dropped_nested": self.dropped_nested,
+            "dropped_unsupported": self.dropped_unsupported,
             "trim": self.trim,
             "decimate": self.decimate,
             "mesh": self.mesh,
@@ -421,7 +432,7 @@ pub fn export_mesh(
     let data = measure::PointIndex::new(points);
     let input_mesh = mesh;
     let mut mesh = Cow::Borrowed(mesh);
-    let (mut dropped_components, mut dropped_nested) = (0, 0);
+    let (mut dropped_components, mut dropped_nested, mut dropped_unsupported) = (0, 0, 0);
     // The input vertices' distances to the data, when the component filter measured them: the
     // PLY's vertex quality reuses them if the vertices written are those same vertices.
     let mut input_distances = None;
@@ -435,6 +446,13 @@ pub fn export_mesh(
         (mesh, dropped_components) = (Cow::Owned(kept), n);
         let (kept, n) = mesh::drop_small_nested_components(&mesh, NESTED_AREA_FRACTION);
         (mesh, dropped_nested) = (Cow::Owned(kept), n);
+        let (kept, n) = mesh::drop_small_unsupported_components(
+            &mesh,
+            points,
+            NESTED_AREA_FRACTION,
+            SUPPORT_POINTS_MIN,
+        );
+        (mesh, dropped_unsupported) = (Cow::Owned(kept), n);
     }
     // The volumes measure the kept mesh before the trim: the closed zero set that f's sign
     // describes, so that the distance and the sign agree everywhere.
@@ -572,6 +590,7 @@ pub fn export_mesh(
         files,
         dropped_components,
         dropped_nested,
+        dropped_unsupported,
         trim: trim_report,
         decimate: decimate_report,
         mesh: report,

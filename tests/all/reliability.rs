@@ -490,6 +490,62 @@ fn a_run_killed_at_any_write_step_is_made_whole_by_the_next_run() {
     }
 }
 
+/// A 4000-point sphere of radius 2 given as bare points (no normals), with eight stray points
+/// 0.5 to 1.2 from it (single ones outside and inside, and a group of three): the default run
+/// leaves out the strays it finds isolated and the small pieces the others grow, and meshes the
+/// sphere alone (one closed genus-0 piece); with the strays kept (`--keep-outliers`) a second
+/// piece appears around them.
+#[test]
+fn stray_points_beside_a_bare_scan_leave_one_closed_surface() {
+    let dir = tempfile::tempdir().unwrap();
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    let mut text = String::new();
+    for i in 0..4000 {
+        let z = 1.0 - 2.0 * (i as f64 + 0.5) / 4000.0;
+        let r = (1.0 - z * z).sqrt();
+        let t = golden * i as f64;
+        text += &format!("{} {} {}\n", 2.0 * r * t.cos(), 2.0 * r * t.sin(), 2.0 * z);
+    }
+    for p in [
+        [2.5, 0.0, 0.0],
+        [0.0, -2.7, 0.0],
+        [0.0, 0.0, 3.0],
+        [1.0, 0.6, 0.2],
+        [-0.8, 0.0, -1.0],
+        [1.8, 1.8, 0.0],
+        [1.82, 1.8, 0.0],
+        [1.8, 1.82, 0.0],
+    ] {
+        text += &format!("{} {} {}\n", p[0], p[1], p[2]);
+    }
+    let input = dir.path().join("strays.xyz");
+    fs::write(&input, text).unwrap();
+    let run = |name: &str, extra: &str| {
+        let out = dir.path().join(name);
+        let line = format!("--formats ply,json --no-cache {extra}");
+        let done = run_ok(&input, &out, &flags(&line));
+        (stderr_of(&done), read_report(&out))
+    };
+    let (err, report) = run("default", "");
+    assert!(
+        err.contains("warning: left out 4 of 4008 points in groups"),
+        "{err}"
+    );
+    assert!(
+        err.contains("small piece(s) of the surface with fewer than 15 data points"),
+        "{err}"
+    );
+    assert_eq!(report["mesh"]["components"], 1, "{report}");
+    assert_eq!(report["mesh"]["watertight"], true, "{report}");
+    assert_eq!(report["mesh"]["euler_characteristic"], 2, "{report}");
+    let (err, report) = run("kept", "--keep-outliers");
+    assert!(!err.contains("points in groups"), "{err}");
+    assert!(
+        report["mesh"]["components"].as_u64().unwrap() > 1,
+        "{report}"
+    );
+}
+
 /// One point at (1e30, 1e30, 1e30) beside a 500-point sphere: the sphere is meshed as if the
 /// point were not there, and the run says it left it out.
 #[test]
