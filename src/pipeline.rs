@@ -848,7 +848,7 @@ fn without_outliers(
     }
     if split.isolated > 0 {
         ctx.warn(format!(
-            "left out {} of {} points in groups of at most {} apart from the rest (more than {} times the local spacing from any other point); pass --keep-outliers to keep them",
+            "left out {} of {} points in groups of at most {} apart from the rest (no other point within {} times the local spacing); pass --keep-outliers to keep them",
             split.isolated,
             cloud.points.len(),
             outliers::ISOLATED_GROUP_MAX,
