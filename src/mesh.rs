@@ -448,6 +448,17 @@ fn keep_components(mesh: &TriangleMesh, labels: &[u32], keep: &[bool]) -> Triang
     out
 }
 
+/// The area of each of the `n_components` components of `mesh` (`labels`, per vertex, as
+/// [`component_labels`] gives them), summed over its valid triangles in mesh order.
+fn component_areas(mesh: &TriangleMesh, labels: &[u32], n_components: usize) -> Vec<f64> {
+    let mut area = vec![0.0; n_components];
+    for t in valid_triangles(mesh) {
+        let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+        area[labels[t[0] as usize] as usize] += triangle_area(a, b, c);
+    }
+    area
+}
+
 /// Drops the closed components of `mesh` whose area is below `max_fraction` of the largest
 /// component's and that lie inside another, larger component (by the parity of a ray's
 /// crossings from one of their vertices), and returns the rest with the number dropped. These
@@ -486,13 +497,10 @@ pub fn drop_small_nested_components(
     {
         return (mesh.clone(), 0);
     }
-    let mut area = vec![0.0; n_components];
+    let area = component_areas(mesh, &labels, n_components);
     let mut tris_of: Vec<Vec<[u32; 3]>> = vec![Vec::new(); n_components];
     for t in triangles {
-        let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-        let l = labels[t[0] as usize] as usize;
-        area[l] += triangle_area(a, b, c);
-        tris_of[l].push(t);
+        tris_of[labels[t[0] as usize] as usize].push(t);
     }
     let largest = area.iter().copied().fold(0.0, f64::max);
     let mut keep = vec![true; n_components];
@@ -547,11 +555,7 @@ pub fn drop_small_unsupported_components(
     if n_components < 2 {
         return (mesh.clone(), 0);
     }
-    let mut area = vec![0.0; n_components];
-    for t in valid_triangles(mesh) {
-        let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
-        area[labels[t[0] as usize] as usize] += triangle_area(a, b, c);
-    }
+    let area = component_areas(mesh, &labels, n_components);
     let largest = area.iter().copied().fold(0.0, f64::max);
     let mut boxes = vec![([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]); n_components];
     for (p, &label) in mesh.positions.iter().zip(&labels) {
