@@ -428,40 +428,6 @@ impl<'a> MeshDistance<'a> {
         best2.sqrt()
     }
 
-    /// Distance from `p` to the triangles that touch vertex `v` or one of its neighbours (the
-    /// closest triangle of a sliver-rich mesh need not touch the closest vertex, but it is one
-    /// of these unless its edges are longer than the ring), given `fan`, the distance to the
-    /// triangles around `v` ([`Self::fan_distance`]), which are not measured again.
-    fn ring_distance(&self, p: [f64; 3], v: usize, fan: f64) -> f64 {
-        // Each triangle of the ring is reached from up to three of its vertices: measure it once
-        // (the first RING_MEMORY distinct ones are remembered, which covers any usual ring); the
-        // fan's are remembered from the start when `fan` is a distance (not a placeholder).
-        let mut seen = [u32::MAX; RING_MEMORY];
-        let mut n_seen = 0;
-        if fan.is_finite() {
-            for &ti in self.around.of(v).iter().take(RING_MEMORY) {
-                seen[n_seen] = ti;
-                n_seen += 1;
-            }
-        }
-        let mut best2 = f64::INFINITY;
-        for &ti in self.around.of(v) {
-            for w in self.mesh.triangles[ti as usize] {
-                for &tj in self.around.of(w as usize) {
-                    if seen[..n_seen].contains(&tj) {
-                        continue;
-                    }
-                    if n_seen < RING_MEMORY {
-                        seen[n_seen] = tj;
-                        n_seen += 1;
-                    }
-                    best2 = best2.min(self.triangle_distance2(p, tj));
-                }
-            }
-        }
-        fan.min(best2.sqrt())
-    }
-
     /// Squared distance from `p` to triangle `ti` (the square root of the smallest is the
     /// smallest distance, so a minimum over triangles takes one root).
     fn triangle_distance2(&self, p: [f64; 3], ti: u32) -> f64 {
@@ -512,9 +478,6 @@ pub struct GridMeshDistance<'a> {
 
 /// Steps of the walk that improves a hint of [`MeshDistance::distance_near`].
 const HINT_STEPS: usize = 16;
-
-/// Distinct triangles [`MeshDistance::ring_distance`] remembers to measure each once.
-const RING_MEMORY: usize = 64;
 
 /// Seed cells along the longest side of the mesh's bounding box.
 const SEED_CELLS: f64 = 64.0;
@@ -585,6 +548,30 @@ impl<'a> GridMeshDistance<'a> {
         }
     }
 
+    /// Distance from `p` to the triangles that touch vertex `v` or one of its neighbours (the
+    /// closest triangle of a sliver-rich mesh need not touch the closest vertex, but it is one
+    /// of these unless its edges are longer than the ring), given `fan`, the distance to the
+    /// triangles around `v` ([`MeshDistance::fan_distance`]), which are not measured again.
+    fn ring_distance(&self, p: [f64; 3], v: usize, fan: f64) -> f64 {
+        // A triangle of the ring that is not in the fan touches one to three neighbours of v:
+        // it is measured from the first of them in the neighbour list, so exactly once.
+        let (offsets, list) = &self.neighbours;
+        let ring = &list[offsets[v] as usize..offsets[v + 1] as usize];
+        let triangles = &self.mesh.mesh.triangles;
+        let mut best2 = f64::INFINITY;
+        for (i, &w) in ring.iter().enumerate() {
+            for &tj in self.mesh.around.of(w as usize) {
+                let elsewhere = triangles[tj as usize]
+                    .iter()
+                    .any(|&u| u as usize == v || (u != w && ring[..i].contains(&u)));
+                if !elsewhere {
+                    best2 = best2.min(self.mesh.triangle_distance2(p, tj));
+                }
+            }
+        }
+        fan.min(best2.sqrt())
+    }
+
     /// Side of the coarse seed grid's cells, input units.
     pub(crate) fn seed_cell(&self) -> f64 {
         self.cell
@@ -628,7 +615,7 @@ impl<'a> GridMeshDistance<'a> {
             }
         }
         let (d, v) = best;
-        (self.mesh.ring_distance(p, v, d), v)
+        (self.ring_distance(p, v, d), v)
     }
 }
 

@@ -566,6 +566,62 @@ mod tests {
     }
 
     #[test]
+    fn mesh_distance_slices_match_every_triangle() {
+        // The mesh distance against the distance to every triangle of the same mesh, at every
+        // third pixel of slices through a torus polygonized with slivers: never below it (it is
+        // the distance to some triangle), equal to it (1e-6 relative, float32) at 99.5% of the
+        // pixels, and never off by more than 2e-4 (edges are up to 0.087 long). Measuring only
+        // the fan unless its closest point lies on its rim fails this (36 of 2136 off, by up to
+        // 6.2e-4, near the tube's axis, where the facets make many local minima).
+        let poly = torus(1.0, 0.4);
+        let region = Aabb {
+            min: [-1.6, -1.6, -0.6],
+            max: [1.6, 1.6, 0.6],
+        };
+        let mesh = crate::polygonize::polygonize(
+            &poly,
+            &region,
+            &crate::polygonize::PolygonizeParams {
+                depth: 6,
+                ..Default::default()
+            },
+        )
+        .unwrap()
+        .mesh;
+        let params = SliceParams {
+            axis: Axis::Y,
+            count: 4,
+            resolution: 40,
+            method: DistanceMethod::Mesh,
+        };
+        let stack = slices_from_mesh(&poly, &mesh, &region, &params).unwrap();
+        let (mut checked, mut off, mut worst) = (0, 0, 0f64);
+        for s in &stack {
+            for pixel in (0..40 * 40).step_by(3) {
+                let p = s.pixel_center(pixel % 40, pixel / 40);
+                let truth = mesh
+                    .triangles
+                    .iter()
+                    .map(|t| {
+                        let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
+                        dist(p, crate::measure::closest_point_on_triangle(p, a, b, c))
+                    })
+                    .fold(f64::INFINITY, f64::min);
+                let got = f64::from(s.data[pixel].abs());
+                // float32 output: 1e-6 relative covers its rounding.
+                assert!(got >= truth * (1.0 - 1e-6), "{got} below {truth} at {p:?}");
+                checked += 1;
+                if got > truth * (1.0 + 1e-6) + 1e-9 {
+                    off += 1;
+                    worst = worst.max(got - truth);
+                }
+            }
+        }
+        assert!(off * 200 <= checked, "{off} of {checked} off");
+        assert!(worst < 2e-4, "worst {worst}");
+    }
+
+    #[test]
     fn taubin_is_second_order_accurate_on_sphere() {
         let s = sphere([1.0, -2.0, 0.5], 2.0, 0.8);
         for d in [-0.01, 0.001, 0.02] {
