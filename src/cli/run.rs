@@ -153,8 +153,16 @@ pub fn run_source(
         } else {
             String::new()
         };
+        let faired = if t.faired_vertices > 0 {
+            format!(
+                ", {} vertices faired over holes of the scan",
+                t.faired_vertices
+            )
+        } else {
+            String::new()
+        };
         eprintln!(
-            "stablesurf: done in {:.2}s: {} vertices, {} triangles, {} component(s), watertight {}, boundary loops {}, self-intersecting faces {}{bounded}{trimmed}, {}; outputs in {}",
+            "stablesurf: done in {:.2}s: {} vertices, {} triangles, {} component(s), watertight {}, boundary loops {}, self-intersecting faces {}{bounded}{trimmed}{faired}, {}; outputs in {}",
             report.seconds,
             report.mesh.vertices,
             report.mesh.faces,

@@ -38,7 +38,7 @@ use crate::trim::{self, TrimParams, TrimReport};
 /// The export stage's version. If you change any input to this stage's key (the fields of
 /// [`ExportParams`] or how they are written), or anything that changes its output for the same
 /// input and params, bump `STAGE_VERSION`.
-pub const STAGE_VERSION: u32 = 13;
+pub const STAGE_VERSION: u32 = 14;
 
 /// With [`Keep::Data`], closed pieces inside another piece and smaller than this share of the
 /// largest piece's area are left out ([`mesh::drop_small_nested_components`]).
@@ -461,11 +461,12 @@ pub fn export_mesh(
     // The trim: the surface the data supports (the mesh itself when all of it is).
     let trimmed = trim::trim(&kept, points, &params.trim)?;
     let trim_report = trimmed.report;
-    let mut mesh: Cow<'_, TriangleMesh> = if trim_report.removed_triangles > 0 {
-        Cow::Owned(trimmed.mesh)
-    } else {
-        Cow::Borrowed(&*kept)
-    };
+    let mut mesh: Cow<'_, TriangleMesh> =
+        if trim_report.removed_triangles > 0 || trim_report.faired_vertices > 0 {
+            Cow::Owned(trimmed.mesh)
+        } else {
+            Cow::Borrowed(&*kept)
+        };
     // The decimation, last, so that the budget counts the triangles written.
     let mut known_embedded = known_embedded;
     let decimate_report = params.decimate.map(|p| {
@@ -552,9 +553,11 @@ pub fn export_mesh(
         let image = crate::render::render(m, &render_params);
         Ok(one("preview.png", encode(&|w| png::write_rgb(&image, w))?))
     };
+    // The slices, like the volumes, measure the kept mesh before the trim (and its fairing),
+    // the closed zero set whose sides f's sign tells: where the distance is 0 the sign flips.
     let slices = || {
         rayon::join(
-            || with_slices.then(|| mesh_slices(model, m, params)),
+            || with_slices.then(|| mesh_slices(model, &kept, params)),
             volumes,
         )
     };
@@ -563,8 +566,9 @@ pub fn export_mesh(
             rayon::join(
                 || {
                     rayon::join(
-                        // The component filter and the trim only take triangles away or add
-                        // ones tested against the rest: an embedded mesh stays embedded.
+                        // The component filter and the trim only take triangles away, add
+                        // ones tested against the rest or move vertices whose triangles are
+                        // tested against the rest: an embedded mesh stays embedded.
                         || mesh::check_with(m, known_embedded),
                         || {
                             data.as_ref().map_or_else(Default::default, |index| {
