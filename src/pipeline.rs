@@ -120,9 +120,9 @@ pub struct PipelineConfig {
     /// is asked for (`--depth`), off in global mode, whose polynomial is meshed at
     /// `polygonize.depth` whatever the sampling.
     pub depth_from_data: bool,
-    /// Whether detail mode's split tolerance is halved where the points are far finer than the
-    /// mesh ([`polygonize::DataResolution::very_dense`]): on in detail mode unless a tolerance
-    /// is asked for (`--tolerance`).
+    /// Whether detail mode's split tolerance is cut ([`DENSE_TOLERANCE`]) where the points are
+    /// far finer than the mesh ([`polygonize::DataResolution::very_dense`]): on in detail mode
+    /// unless a tolerance is asked for (`--tolerance`).
     pub tolerance_from_data: bool,
     /// Which zero-set components the mesh keeps (see [`PipelineConfig::for_mode`]).
     pub keep: Keep,
@@ -1041,11 +1041,12 @@ pub fn run(
 }
 
 /// Detail mode's split tolerance on very dense points
-/// ([`polygonize::DataResolution::very_dense`]) is this share of the default: the points then
-/// pin the surface more tightly than the default asks, and after the chords the fit's error is
-/// most of the distance to them (a 1,000,000-point torus: Chamfer distance 2.522e-4 → 2.516e-4
-/// of the diagonal, 1.000× → 0.998× Open3D Poisson's at depth 8, for 12% more CPU).
-pub const DENSE_TOLERANCE: f64 = 0.5;
+/// ([`polygonize::DataResolution::very_dense`]) is this share of the default (1.755e-4 of the
+/// diagonal): the points then pin the surface more tightly than the default asks, and after
+/// the chords the fit's error is most of the distance to them. A 1,000,000-point torus:
+/// Chamfer distance 2.5224e-4 of the diagonal at 0.5 of the default 6.5e-4, 1.0001× Open3D
+/// Poisson's at depth 8 (2.5223e-4), and 2.5176e-4 at this share (0.998×).
+pub const DENSE_TOLERANCE: f64 = 0.27;
 
 /// The detail fit's params of `config`: its own, with the octree deep enough for a meshing
 /// depth asked for (`--depth D`: at least D, as fine as the mesh's finest cells).
@@ -1360,7 +1361,7 @@ mod tests {
     }
 
     /// Points 1000 to the side (log₂(1.2 · 999) ≈ 10.2 levels, 3.2 finer than depth 7) get
-    /// depth 7, half the tolerance and the chords' whole move; 400 to the side (≈ 8.9) and 100
+    /// depth 7, the dense tolerance and the chords' whole move; 400 to the side (≈ 8.9) and 100
     /// to the side (≈ 6.9) depth 7, the default tolerance and share; the facets are fitted in
     /// every case; a tolerance or a depth asked for is kept, with the default share.
     #[test]
@@ -1394,7 +1395,7 @@ mod tests {
         assert_eq!(kept.detail.tolerance, tolerance);
         assert_eq!(kept.detail.max_depth, 8);
 
-        // Each flag alone: a depth asked for keeps the default share and still halves the
+        // Each flag alone: a depth asked for keeps the default share and still cuts the
         // tolerance; a tolerance asked for keeps the data's share.
         let mut depth_asked = default.clone();
         depth_asked.depth_from_data = false;

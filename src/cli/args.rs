@@ -124,7 +124,7 @@ pub struct DetailOpts {
           allow_negative_numbers = true, value_parser = LOCAL_DEGREE.whole::<u32>())]
     pub local_degree: u32,
     /// Detail mode: split a cell while its fit is farther than this from its points (fraction
-    /// of the bounding-box diagonal). Default: the library's, halved by `run` on points much
+    /// of the bounding-box diagonal). Default: the library's, cut to 0.27× by `run` on points much
     /// finer than the mesh's cells.
     #[arg(long, value_name = "T", help = tolerance_help(),
           allow_negative_numbers = true, value_parser = TOLERANCE.real())]

@@ -517,27 +517,31 @@ mod tests {
         }
     }
 
+    /// The torus (R 1, r 0.4), a box around it and its mesh at depth 6 (edges up to a cell
+    /// diagonal, √3·0.05).
+    fn torus_mesh() -> (ImplicitPolynomial, Aabb, TriangleMesh) {
+        let poly = torus(1.0, 0.4);
+        let region = Aabb {
+            min: [-1.6, -1.6, -0.6],
+            max: [1.6, 1.6, 0.6],
+        };
+        let params = crate::polygonize::PolygonizeParams {
+            depth: 6,
+            ..Default::default()
+        };
+        let mesh = crate::polygonize::polygonize(&poly, &region, &params)
+            .unwrap()
+            .mesh;
+        (poly, region, mesh)
+    }
+
     #[test]
     fn mesh_distance_slices_match_analytic_torus() {
         // Every pixel of a slice stack through the torus (medial circle included) against the
         // analytic distance: within the mesh's chord error. Edges are at most a cell diagonal
         // e = √3·0.05 long; their sagitta on the tube of radius 0.4 is e²/(8·0.4) ≈ 2.3e-3.
         let (big, small) = (1.0, 0.4);
-        let poly = torus(big, small);
-        let region = Aabb {
-            min: [-1.6, -1.6, -0.6],
-            max: [1.6, 1.6, 0.6],
-        };
-        let mesh = crate::polygonize::polygonize(
-            &poly,
-            &region,
-            &crate::polygonize::PolygonizeParams {
-                depth: 6,
-                ..Default::default()
-            },
-        )
-        .unwrap()
-        .mesh;
+        let (poly, region, mesh) = torus_mesh();
         let params = SliceParams {
             axis: Axis::Z,
             count: 5,
@@ -573,21 +577,7 @@ mod tests {
         // pixels, and never off by more than 2e-4 (edges are up to 0.087 long). Measuring only
         // the fan unless its closest point lies on its rim fails this (36 of 2136 off, by up to
         // 6.2e-4, near the tube's axis, where the facets make many local minima).
-        let poly = torus(1.0, 0.4);
-        let region = Aabb {
-            min: [-1.6, -1.6, -0.6],
-            max: [1.6, 1.6, 0.6],
-        };
-        let mesh = crate::polygonize::polygonize(
-            &poly,
-            &region,
-            &crate::polygonize::PolygonizeParams {
-                depth: 6,
-                ..Default::default()
-            },
-        )
-        .unwrap()
-        .mesh;
+        let (poly, region, mesh) = torus_mesh();
         let params = SliceParams {
             axis: Axis::Y,
             count: 4,

@@ -16,9 +16,9 @@
 //!   mesh (more than 8 across a cell), they sample the facets' interiors: `run` takes the
 //!   fitted chords' whole least-squares move ([`super::PolygonizeParams::chord_share`] 1, not
 //!   the default quarter), after which the fit's own error is most of the distance to the
-//!   points, and it halves detail mode's split tolerance (`pipeline::DENSE_TOLERANCE`). Not
-//!   below: on the raw range views of ../shared/data (8.4–8.6 levels) halving cost 25–30% of
-//!   the CPU for 0.3–0.4% of Chamfer distance after the chords' 1% (their whole move).
+//!   points, and it cuts detail mode's split tolerance to 0.27× (`pipeline::DENSE_TOLERANCE`).
+//!   Not below: on the raw range views of ../shared/data (8.4–8.6 levels) halving cost 25–30%
+//!   of the CPU for 0.3–0.4% of Chamfer distance after the chords' 1% (their whole move).
 //!
 //! Measured in detail mode on the oriented points of ../shared/data against Open3D's Poisson
 //! at depth 8 (symmetric Chamfer distance / diagonal, CPU seconds of the whole run; docs/defaults.md

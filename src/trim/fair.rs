@@ -15,7 +15,7 @@
 //! fairs its fills with the same operator). Moves that would make triangles cross are undone,
 //! vertex by vertex, until none do.
 
-use crate::mesh::{intersecting_triangles_among, TriangleMesh, VertexTriangles};
+use crate::mesh::{intersecting_triangles_among, triangle_box, TriangleMesh, VertexTriangles};
 use crate::vec3;
 
 /// The membrane's solve stops when the residual is below this share of the right-hand side...
@@ -35,9 +35,11 @@ pub(super) fn fair(
     if !free.iter().any(|&f| f) {
         return 0;
     }
-    // Vertices on an edge that does not join exactly two triangles stay where they are.
+    // Vertices on an edge that does not join exactly two triangles stay where they are (the
+    // edges at a free vertex: every triangle on such an edge touches that vertex).
     let mut edges: Vec<(u32, u32)> = triangles
         .iter()
+        .filter(|t| t.iter().any(|&v| free[v as usize]))
         .flat_map(|t| (0..3).map(move |k| (t[k].min(t[(k + 1) % 3]), t[k].max(t[(k + 1) % 3]))))
         .collect();
     edges.sort_unstable();
@@ -142,19 +144,40 @@ pub(super) fn fair(
     for &v in &movable {
         moved[v as usize] = true;
     }
+    // Only the triangles whose boxes meet the box of the moved ones can cross them.
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for t in triangles
+        .iter()
+        .filter(|t| t.iter().any(|&v| moved[v as usize]))
+    {
+        let (l, h) = triangle_box(t, positions);
+        for a in 0..3 {
+            lo[a] = lo[a].min(l[a]);
+            hi[a] = hi[a].max(h[a]);
+        }
+    }
+    let near: Vec<[u32; 3]> = triangles
+        .iter()
+        .filter(|t| {
+            let (l, h) = triangle_box(t, positions);
+            (0..3).all(|a| l[a] <= hi[a] && h[a] >= lo[a])
+        })
+        .copied()
+        .collect();
     let mut mesh = TriangleMesh {
         positions: positions.to_vec(),
         normals: Vec::new(),
-        triangles: triangles.to_vec(),
+        triangles: near,
     };
     loop {
-        let active: Vec<bool> = triangles
+        let active: Vec<bool> = mesh
+            .triangles
             .iter()
             .map(|t| t.iter().any(|&v| moved[v as usize]))
             .collect();
         let crossing = intersecting_triangles_among(&mesh, Some(&active));
         let mut undone = false;
-        for (t, _) in triangles.iter().zip(&crossing).filter(|&(_, &c)| c) {
+        for (t, _) in mesh.triangles.iter().zip(&crossing).filter(|&(_, &c)| c) {
             for &v in t {
                 if moved[v as usize] {
                     moved[v as usize] = false;

@@ -42,13 +42,13 @@
 //! 6. *Fairing*: a vertex of a kept unsupported triangle that lies itself farther than
 //!    `support_factor` spacings from its nearest data point is free; a patch of free vertices
 //!    (joined by edges) whose deepest vertex lies farther than `fair_depth_share` of the
-//!    diagonal from the data is a hole of the scan, and its vertices move, 100 rounds, halfway
-//!    to the mean of their neighbours, the rest held fixed: the patch the blend bulged out
-//!    over the hole is drawn towards the membrane its rim spans. Moves that make triangles
-//!    cross are undone (the exact test). The model's zero set is not moved: over a faired hole
-//!    the mesh leaves it. Bunny (`bunny_zipper.ply`, its open base): 208 vertices, Chamfer
-//!    distance to the points 1.1570e-3 → 1.1420e-3 of the diagonal; teapot (the spout's and
-//!    handle's walls inside the body) 4.0803e-3 → 4.0528e-3.
+//!    diagonal from the data (and that touches a vertex that is not free) is a hole of the
+//!    scan: its vertices move to the membrane its rim spans, each at the mean of its
+//!    neighbours with the rest held fixed, so the patch the blend bulged out over the hole is
+//!    drawn flat. Moves that make triangles cross are undone (the exact test). The model's
+//!    zero set is not moved: over a faired hole the mesh leaves it. Bunny (`bunny_zipper.ply`,
+//!    its open base): 208 vertices, Chamfer distance to the points 1.1570e-3 → 1.1420e-3 of the
+//!    diagonal; teapot (the spout's and handle's walls inside the body) 4.0803e-3 → 4.0531e-3.
 //!
 //! The steps live in `spacing.rs` (1), `regions.rs` (2–4: regions by edges, fans, islands),
 //! `holes.rs` (5) and `fair.rs` (6); this module holds the params, the report and the stage
@@ -453,10 +453,10 @@ fn keep_deep_patches(triangles: &[[u32; 3]], free: &mut [bool], depth: &[f64], m
             }
         }
     }
-    for v in 0..n {
-        if free[v] {
+    for (v, f) in free.iter_mut().enumerate() {
+        if *f {
             let r = patches.find(v as u32) as usize;
-            free[v] = anchored[r] && deepest[r] > min_depth;
+            *f = anchored[r] && deepest[r] > min_depth;
         }
     }
 }
