@@ -144,16 +144,24 @@ pub(super) fn fair(
     for &v in &movable {
         moved[v as usize] = true;
     }
-    // Only the triangles whose boxes meet the box of the moved ones can cross them.
+    // Only the triangles whose boxes meet the box of the moved ones, at their new or their
+    // old positions (any mix the undoing below leaves), can cross them.
     let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
     for t in triangles
         .iter()
         .filter(|t| t.iter().any(|&v| moved[v as usize]))
     {
-        let (l, h) = triangle_box(t, positions);
-        for a in 0..3 {
-            lo[a] = lo[a].min(l[a]);
-            hi[a] = hi[a].max(h[a]);
+        for &v in t {
+            let old = match slot[v as usize] {
+                u32::MAX => positions[v as usize],
+                i => original[i as usize],
+            };
+            for p in [positions[v as usize], old] {
+                for a in 0..3 {
+                    lo[a] = lo[a].min(p[a]);
+                    hi[a] = hi[a].max(p[a]);
+                }
+            }
         }
     }
     let near: Vec<[u32; 3]> = triangles
