@@ -76,7 +76,7 @@ mod spacing;
 use fair::fair;
 use holes::fill_holes;
 use regions::{remove_extra_fans, remove_islands, unsupported_regions, Depth, EdgeMap};
-use spacing::local_spacing;
+use spacing::spacing_at;
 
 /// Version of this stage's algorithm: if you change anything that changes its output for the
 /// same input and params, bump it (the stage's params and version enter the export stage's
@@ -307,18 +307,20 @@ pub fn trim(
         .collect::<Result<_, TrimError>>()?;
     // The local spacing at those points only (a dense scan has many more points than the mesh
     // has triangles).
-    let mut wanted: Vec<u32> = nearest.iter().map(|&(_, j)| j as u32).collect();
-    wanted.sort_unstable();
-    wanted.dedup();
-    let spacing_of = local_spacing(&grid, points, params.spacing_neighbours, &wanted);
-    let spacing = |j: usize| spacing_of[wanted.binary_search(&(j as u32)).unwrap_or(0)];
+    let spacing = spacing_at(
+        &grid,
+        points,
+        params.spacing_neighbours,
+        nearest.iter().map(|&(_, j)| j),
+    );
     // In the nearest point's local spacings, when that point does not support the triangle;
     // `None` when supported.
     let unsupported: Vec<Option<Depth>> = nearest
         .iter()
-        .map(|&(d, j)| {
-            (d > params.support_factor * spacing(j)).then_some(Depth {
-                spacings: d / spacing(j),
+        .zip(&spacing)
+        .map(|(&(d, _), &s)| {
+            (d > params.support_factor * s).then_some(Depth {
+                spacings: d / s,
                 distance: d,
             })
         })
@@ -396,15 +398,16 @@ pub fn trim(
         .par_iter()
         .map(|&v| nearest_of(mesh.positions[v as usize]).map(|(d2, j)| (d2.sqrt(), j)))
         .collect::<Result<_, TrimError>>()?;
-    let mut near: Vec<u32> = vertex_nearest.iter().map(|&(_, j)| j as u32).collect();
-    near.sort_unstable();
-    near.dedup();
-    let near_spacing = local_spacing(&grid, points, params.spacing_neighbours, &near);
+    let vertex_spacing = spacing_at(
+        &grid,
+        points,
+        params.spacing_neighbours,
+        vertex_nearest.iter().map(|&(_, j)| j),
+    );
     let mut free = vec![false; n];
     let mut depth = vec![0.0; n];
-    for (&v, &(d, j)) in candidates.iter().zip(&vertex_nearest) {
-        let spacing = near_spacing[near.binary_search(&(j as u32)).unwrap_or(0)];
-        free[v as usize] = d > params.support_factor * spacing;
+    for ((&v, &(d, _)), &s) in candidates.iter().zip(&vertex_nearest).zip(&vertex_spacing) {
+        free[v as usize] = d > params.support_factor * s;
         depth[v as usize] = d;
     }
     keep_deep_patches(&kept, &mut free, &depth, params.fair_depth_share * diagonal);
@@ -543,6 +546,7 @@ fn compact(mesh: &TriangleMesh, triangles: &[[u32; 3]]) -> TriangleMesh {
 
 #[cfg(test)]
 mod tests {
+    use super::spacing::local_spacing;
     use super::*;
     use crate::vec3::{norm, sub};
 

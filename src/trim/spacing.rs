@@ -10,6 +10,22 @@ use rayon::prelude::*;
 use crate::numerics::point_grid::first_positive_distance;
 use crate::numerics::PointGrid;
 
+/// The local spacing at each of the points `at` (indices into `points`, in any order, repeats
+/// allowed), in their order: [`local_spacing`] once per distinct point.
+pub(super) fn spacing_at(
+    grid: &PointGrid,
+    points: &[[f64; 3]],
+    k: usize,
+    at: impl Iterator<Item = usize> + Clone,
+) -> Vec<f64> {
+    let mut wanted: Vec<u32> = at.clone().map(|j| j as u32).collect();
+    wanted.sort_unstable();
+    wanted.dedup();
+    let spacing = local_spacing(grid, points, k, &wanted);
+    at.map(|j| spacing[wanted.binary_search(&(j as u32)).unwrap_or(0)])
+        .collect()
+}
+
 /// The local spacing (step 1 of the module docs) at each of the points `wanted` (indices into
 /// `points`, sorted, distinct), in their order.
 pub(super) fn local_spacing(
