@@ -115,13 +115,13 @@ pub struct PipelineConfig {
     pub polygonize: PolygonizeParams,
     /// Whether the meshing depth comes from the points' spacing
     /// ([`polygonize::DataResolution`]: 6 or 7) rather than `polygonize.depth`, with the chords'
-    /// whole least-squares move ([`PolygonizeParams::chord_share`] 1) on points far denser than
-    /// that mesh ([`polygonize::DataResolution::very_dense`]): on in detail mode unless a depth
+    /// whole least-squares move ([`PolygonizeParams::chord_share`] 1) on points a level or more
+    /// finer than that mesh ([`polygonize::DataResolution::dense`]): on in detail mode unless a depth
     /// is asked for (`--depth`), off in global mode, whose polynomial is meshed at
     /// `polygonize.depth` whatever the sampling.
     pub depth_from_data: bool,
-    /// Whether detail mode's split tolerance is cut ([`DENSE_TOLERANCE`]) where the points are
-    /// far finer than the mesh ([`polygonize::DataResolution::very_dense`]): on in detail mode
+    /// Whether detail mode's split tolerance is cut ([`DENSE_TOLERANCE`]) where the points are a
+    /// level or more finer than the mesh ([`polygonize::DataResolution::dense`]): on in detail mode
     /// unless a tolerance is asked for (`--tolerance`).
     pub tolerance_from_data: bool,
     /// Which zero-set components the mesh keeps (see [`PipelineConfig::for_mode`]).
@@ -1040,8 +1040,8 @@ pub fn run(
     Ok(report)
 }
 
-/// Detail mode's split tolerance on very dense points
-/// ([`polygonize::DataResolution::very_dense`]) is this share of the default (1.755e-4 of the
+/// Detail mode's split tolerance on dense points
+/// ([`polygonize::DataResolution::dense`]) is this share of the default (1.755e-4 of the
 /// diagonal): the points then pin the surface more tightly than the default asks, and after
 /// the chords the fit's error is most of the distance to them. A 1,000,000-point torus:
 /// Chamfer distance 2.5224e-4 of the diagonal at 0.5 of the default 6.5e-4, 1.0001× Open3D
@@ -1064,9 +1064,9 @@ fn detail_params(config: &PipelineConfig) -> DetailParams {
 /// - with [`PipelineConfig::depth_from_data`], the meshing depth of the input points' spacing
 ///   in the detail model's region (the points' box grown by 10% per side; its own depth when
 ///   the spacing cannot be measured; [`polygonize::DataResolution`]), and the chords' whole
-///   move on very dense points;
+///   move on dense points;
 /// - with [`PipelineConfig::tolerance_from_data`], the split tolerance × [`DENSE_TOLERANCE`]
-///   on very dense points.
+///   on dense points.
 ///
 /// The flags are cleared: the result asks for nothing more.
 fn resolve_for_data(config: &PipelineConfig, oriented: &Oriented) -> PipelineConfig {
@@ -1078,11 +1078,11 @@ fn resolve_for_data(config: &PipelineConfig, oriented: &Oriented) -> PipelineCon
         if let Some(data) = data {
             if config.depth_from_data {
                 resolved.polygonize.depth = data.depth();
-                if data.very_dense() && resolved.polygonize.fit_chords {
+                if data.dense() && resolved.polygonize.fit_chords {
                     resolved.polygonize.chord_share = 1.0;
                 }
             }
-            if config.tolerance_from_data && data.very_dense() {
+            if config.tolerance_from_data && data.dense() {
                 let t = resolved.detail.tolerance * DENSE_TOLERANCE;
                 resolved.detail = resolved.detail.with_tolerance(t);
             }
@@ -1360,23 +1360,25 @@ mod tests {
         }
     }
 
-    /// Points 1000 to the side (log₂(1.2 · 999) ≈ 10.2 levels, 3.2 finer than depth 7) get
-    /// depth 7, the dense tolerance and the chords' whole move; 400 to the side (≈ 8.9) and 100
-    /// to the side (≈ 6.9) depth 7, the default tolerance and share; the facets are fitted in
-    /// every case; a tolerance or a depth asked for is kept, with the default share.
+    /// Points 1000 to the side (log₂(1.2 · 999) ≈ 10.2 levels, 3.2 finer than depth 7) and 400
+    /// to the side (≈ 8.9) get depth 7, the dense tolerance and the chords' whole move; 150 to
+    /// the side (≈ 7.5) and 100 (≈ 6.9) depth 7, the default tolerance and share; the facets are
+    /// fitted in every case; a tolerance or a depth asked for is kept, with the default share.
     #[test]
-    fn dense_points_get_half_the_tolerance_and_the_whole_chord_move() {
+    fn dense_points_get_the_dense_tolerance_and_the_whole_chord_move() {
         let default = PipelineConfig::for_mode(Mode::Detail);
         let tolerance = DetailParams::default().tolerance;
-        let dense = resolve_for_data(&default, &grid(1000));
-        assert_eq!(dense.polygonize.depth, 7);
-        assert!(dense.polygonize.fit_chords);
-        assert_eq!(dense.polygonize.chord_share, 1.0);
-        assert_eq!(dense.detail.tolerance, tolerance * DENSE_TOLERANCE);
-        assert_eq!(dense.detail.finest_tolerance, tolerance * DENSE_TOLERANCE);
-        assert!(!dense.depth_from_data && !dense.tolerance_from_data);
+        for n in [1000, 400] {
+            let dense = resolve_for_data(&default, &grid(n));
+            assert_eq!(dense.polygonize.depth, 7);
+            assert!(dense.polygonize.fit_chords);
+            assert_eq!(dense.polygonize.chord_share, 1.0);
+            assert_eq!(dense.detail.tolerance, tolerance * DENSE_TOLERANCE);
+            assert_eq!(dense.detail.finest_tolerance, tolerance * DENSE_TOLERANCE);
+            assert!(!dense.depth_from_data && !dense.tolerance_from_data);
+        }
 
-        for n in [400, 100] {
+        for n in [150, 100] {
             let resolved = resolve_for_data(&default, &grid(n));
             assert_eq!(resolved.polygonize.depth, 7);
             assert!(resolved.polygonize.fit_chords);

@@ -723,7 +723,7 @@ fn depth_help() -> String {
 /// The help of `--tolerance`, whose default is the library's (`DetailParams::default()`).
 fn tolerance_help() -> String {
     format!(
-        "{} [default: {}; `run`: × {} where the points are 8 or more to a side of the mesh's cells]",
+        "{} [default: {}; `run`: × {} where the points are 2 or more to a side of the mesh's cells]",
         TOLERANCE.help("Detail mode: split a cell while its fit is farther than this from its points, as a fraction of the bounding-box diagonal"),
         stablesurf::detail::DetailParams::default().tolerance,
         stablesurf::pipeline::DENSE_TOLERANCE,

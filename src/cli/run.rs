@@ -83,7 +83,7 @@ pub fn run_source(
                 match args.detail.tolerance {
                     Some(t) => t.to_string(),
                     None => format!(
-                        "{} (x {} on very dense points)",
+                        "{} (x {} on dense points)",
                         config.detail.tolerance,
                         stablesurf::pipeline::DENSE_TOLERANCE
                     ),

@@ -12,13 +12,18 @@
 //!   `ceil(log₂(L / s) − ¼)`, clamped to [`DATA_DEPTH_MIN`]..=[`DATA_DEPTH_MAX`]. A mesh much
 //!   finer than the spacing adds triangles the data cannot place, and costs about 4× the time
 //!   a level; one coarser blurs what the data shows.
-//! - **Very dense**: when the points are [`VERY_DENSE_LEVELS`] levels or more finer than the
-//!   mesh (more than 8 across a cell), they sample the facets' interiors: `run` takes the
-//!   fitted chords' whole least-squares move ([`super::PolygonizeParams::chord_share`] 1, not
-//!   the default quarter), after which the fit's own error is most of the distance to the
-//!   points, and it cuts detail mode's split tolerance to 0.27× (`pipeline::DENSE_TOLERANCE`).
-//!   Not below: on the raw range views of ../shared/data (8.4–8.6 levels) halving cost 25–30%
-//!   of the CPU for 0.3–0.4% of Chamfer distance after the chords' 1% (their whole move).
+//! - **Dense**: when the points are [`DENSE_LEVELS`] level or more finer than the mesh (more
+//!   than 2 across a cell), they sample the facets' interiors: `run` takes the fitted chords'
+//!   whole least-squares move ([`super::PolygonizeParams::chord_share`] 1, not the default
+//!   quarter), after which the fit's own error is most of the distance to the points, and it
+//!   cuts detail mode's split tolerance to 0.27× (`pipeline::DENSE_TOLERANCE`). The rule once
+//!   started 3 levels finer (10 at depth 7); from 1 level it also takes the raw range views of
+//!   ../shared/data (8.35–8.57 levels) and their merge through `bun.conf` (9.3): Chamfer
+//!   distance bun000 8.92e-4 → 8.39e-4 of the diagonal, the other views and `bun.conf` −0.8% to
+//!   −1.5%, at CPU within the runs' noise (1.1–1.5 s a view; `tools/bench_scans.py`). The
+//!   bunny's mesh vertices subdivided once (Loop, 139,122 points, 8.49 levels): 6.38e-4 →
+//!   6.15e-4 (Open3D Poisson depth 8: 6.01e-4) for 10% more CPU. The bunny itself (7.53) and
+//!   every other input of ../shared/data lie below the rule.
 //!
 //! Measured in detail mode on the oriented points of ../shared/data against Open3D's Poisson
 //! at depth 8 (symmetric Chamfer distance / diagonal, CPU seconds of the whole run; docs/defaults.md
@@ -44,9 +49,9 @@ pub const DATA_DEPTH_MAX: u32 = 7;
 /// The finest cells may be up to 2^this times the spacing (see the module docs).
 const CELL_OVER_SPACING_LOG2: f64 = 0.25;
 
-/// How many levels finer than the mesh the points must be for `run` to halve detail mode's
-/// split tolerance (see the module docs).
-pub const VERY_DENSE_LEVELS: f64 = 3.0;
+/// How many levels finer than the mesh the points must be for `run` to cut detail mode's
+/// split tolerance and take the chords' whole move (see the module docs).
+pub const DENSE_LEVELS: f64 = 1.0;
 
 /// At most this many points are measured for their nearest-neighbour distance.
 const SPACING_SAMPLES: usize = 20_000;
@@ -83,11 +88,11 @@ impl DataResolution {
             .clamp(f64::from(DATA_DEPTH_MIN), f64::from(DATA_DEPTH_MAX)) as u32
     }
 
-    /// Whether the points are at least [`VERY_DENSE_LEVELS`] levels finer than the cells of
-    /// [`DataResolution::depth`]: detail mode's split tolerance is then halved and the chords
-    /// take their whole move.
-    pub fn very_dense(&self) -> bool {
-        self.level >= f64::from(self.depth()) + VERY_DENSE_LEVELS
+    /// Whether the points are at least [`DENSE_LEVELS`] levels finer than the cells of
+    /// [`DataResolution::depth`]: detail mode's split tolerance is then cut and the chords take
+    /// their whole move.
+    pub fn dense(&self) -> bool {
+        self.level >= f64::from(self.depth()) + DENSE_LEVELS
     }
 }
 
@@ -195,18 +200,19 @@ mod tests {
     }
 
     /// The depth is the coarsest whose cells are at most 2^¼ spacings: a level of 6.3 (cells
-    /// of 2^0.3 spacings at depth 6) goes to 7, 6.2 stays at 6; the halved tolerance starts 3
-    /// levels finer than the mesh.
+    /// of 2^0.3 spacings at depth 6) goes to 7, 6.2 stays at 6; the dense rule starts 1 level
+    /// finer than the mesh.
     #[test]
     fn thresholds_of_the_rule() {
         let at = |level| DataResolution { level };
         assert_eq!(at(6.2).depth(), 6);
         assert_eq!(at(6.3).depth(), 7);
         assert_eq!(at(7.26).depth(), 7);
-        assert!(!at(9.99).very_dense());
-        assert!(at(10.0).very_dense());
-        // Only the finest depth can be very dense: below it the depth follows the level.
-        assert!(!at(8.5).very_dense());
-        assert!(!at(5.0).very_dense());
+        assert!(!at(7.99).dense());
+        assert!(at(8.0).dense());
+        assert!(at(10.0).dense());
+        // Only the finest depth can be dense: below it the depth follows the level.
+        assert!(!at(6.2).dense());
+        assert!(!at(5.0).dense());
     }
 }

@@ -126,9 +126,7 @@ pub mod shapes;
 mod simplify;
 
 pub use crate::implicit::ImplicitFunction;
-pub use depth::{
-    depth_for_data, DataResolution, DATA_DEPTH_MAX, DATA_DEPTH_MIN, VERY_DENSE_LEVELS,
-};
+pub use depth::{depth_for_data, DataResolution, DATA_DEPTH_MAX, DATA_DEPTH_MIN, DENSE_LEVELS};
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -218,8 +216,8 @@ pub struct PolygonizeParams {
     /// (checked with or without `fit_chords`): 1 makes the facets' mean signed error over the
     /// area zero and puts the vertices outside by about as much; the default, [`CHORD_SHARE`]
     /// (a quarter), keeps the vertices within 1e-5 of the diagonal of a 20,000-point sphere or
-    /// torus on average (see `chords`). Detail mode's `run` takes the whole move on points far
-    /// denser than the mesh ([`DataResolution::very_dense`]), which sample the facets'
+    /// torus on average (see `chords`). Detail mode's `run` takes the whole move on points a level
+    /// or more finer than the mesh ([`DataResolution::dense`]), which sample the facets'
     /// interiors.
     #[serde(
         default = "default_chord_share",

@@ -347,9 +347,9 @@ fn sphere_and_torus_have_no_offset_bias() {
                 .grown(0.1);
             let data = stablesurf::polygonize::DataResolution::of(&cloud.points, &region).unwrap();
             let depth = data.depth();
-            // What `run` takes: depth 7 and, the points not being very dense, the default share.
+            // What `run` takes: depth 7 and, the points not being dense, the default share.
             assert_eq!(depth, 7, "{name}: the depth of the points' spacing");
-            assert!(!data.very_dense(), "{name}: very dense");
+            assert!(!data.dense(), "{name}: dense");
             let vertex_mean = |m: &TriangleMesh| {
                 m.positions.iter().map(|&p| distance(p)).sum::<f64>()
                     / m.positions.len() as f64
