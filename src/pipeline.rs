@@ -116,13 +116,13 @@ pub struct PipelineConfig {
     /// Whether the meshing depth comes from the points' spacing
     /// ([`polygonize::DataResolution`]: 6 or 7) rather than `polygonize.depth`, with the chords'
     /// whole least-squares move ([`PolygonizeParams::chord_share`] 1) on points a level or more
-    /// finer than that mesh ([`polygonize::DataResolution::dense`]): on in detail mode unless a depth
-    /// is asked for (`--depth`), off in global mode, whose polynomial is meshed at
+    /// finer than that mesh ([`polygonize::DataResolution::dense`]): on in detail mode unless a
+    /// depth is asked for (`--depth`), off in global mode, whose polynomial is meshed at
     /// `polygonize.depth` whatever the sampling.
     pub depth_from_data: bool,
     /// Whether detail mode's split tolerance is cut ([`DENSE_TOLERANCE`]) where the points are a
-    /// level or more finer than the mesh ([`polygonize::DataResolution::dense`]): on in detail mode
-    /// unless a tolerance is asked for (`--tolerance`).
+    /// level or more finer than the mesh ([`polygonize::DataResolution::dense`]): on in detail
+    /// mode unless a tolerance is asked for (`--tolerance`).
     pub tolerance_from_data: bool,
     /// Which zero-set components the mesh keeps (see [`PipelineConfig::for_mode`]).
     pub keep: Keep,

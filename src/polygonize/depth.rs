@@ -12,8 +12,8 @@
 //!   `ceil(log₂(L / s) − ¼)`, clamped to [`DATA_DEPTH_MIN`]..=[`DATA_DEPTH_MAX`]. A mesh much
 //!   finer than the spacing adds triangles the data cannot place, and costs about 4× the time
 //!   a level; one coarser blurs what the data shows.
-//! - **Dense**: when the points are [`DENSE_LEVELS`] level or more finer than the mesh (more
-//!   than 2 across a cell), they sample the facets' interiors: `run` takes the fitted chords'
+//! - **Dense**: when the points are [`DENSE_LEVELS`] level or more finer than the mesh (2 or
+//!   more across a cell), they sample the facets' interiors: `run` takes the fitted chords'
 //!   whole least-squares move ([`super::PolygonizeParams::chord_share`] 1, not the default
 //!   quarter), after which the fit's own error is most of the distance to the points, and it
 //!   cuts detail mode's split tolerance to 0.27× (`pipeline::DENSE_TOLERANCE`). The rule once

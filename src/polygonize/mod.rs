@@ -216,8 +216,8 @@ pub struct PolygonizeParams {
     /// (checked with or without `fit_chords`): 1 makes the facets' mean signed error over the
     /// area zero and puts the vertices outside by about as much; the default, [`CHORD_SHARE`]
     /// (a quarter), keeps the vertices within 1e-5 of the diagonal of a 20,000-point sphere or
-    /// torus on average (see `chords`). Detail mode's `run` takes the whole move on points a level
-    /// or more finer than the mesh ([`DataResolution::dense`]), which sample the facets'
+    /// torus on average (see `chords`). Detail mode's `run` takes the whole move on points a
+    /// level or more finer than the mesh ([`DataResolution::dense`]), which sample the facets'
     /// interiors.
     #[serde(
         default = "default_chord_share",
