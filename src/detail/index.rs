@@ -397,9 +397,10 @@ fn child_min(min: [f64; 3], half: f64, octant: usize) -> [f64; 3] {
     })
 }
 
-/// The quadratic B-spline b(t) and its derivative.
+/// The quadratic B-spline b(t) and its derivative (the local fits' re-centring weighs the
+/// ball's points by b too).
 #[inline]
-fn bspline(t: f64) -> (f64, f64) {
+pub(super) fn bspline(t: f64) -> (f64, f64) {
     if t <= 0.5 {
         (0.75 - t * t, -2.0 * t)
     } else if t < 1.5 {

@@ -391,31 +391,49 @@ fn fit_quadric(
         }
     }
     let mut a = cholesky_solve(&mut full, &mut atb, 10)?;
+    // Mean |∇Q| over the fitted points (input units, before rescaling: ∇ₚQ = ∇_qQ̂).
+    let mut gsum = 0.0;
     {
         // Step 4's re-centring: the blend-weighted mean of Q̂/|∇Q̂| over the ball's points
-        // becomes 0.
-        let weights = recentring_weights(points, ball, blend, confidence);
-        let (mut vsum, mut wsum) = (0.0, 0.0);
-        for (&i, w) in ball.iter().zip(&weights) {
-            let (v, g) = quadric_value_gradient(&a, norm(points[i as usize]));
-            let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-12);
-            vsum += w * v / gn;
-            wsum += w / gn;
+        // becomes 0, with the weights of [`recentring_weights`] (the blend's, or none where
+        // they sum to nothing: a second pass, rare). The first pass also sums |∇Q̂| for the
+        // rescaling below: the gradient does not depend on the constant the re-centring moves.
+        let conf = |i: u32| confidence.map_or(1.0, |c| f64::from(c[i as usize]));
+        let blend_k = blend.map(|(c, r)| (c, 1.5 / r));
+        let (mut vsum, mut wsum, mut bsum) = (0.0, 0.0, 0.0);
+        for &i in ball {
+            let p = points[i as usize];
+            let (v, g) = quadric_value_gradient(&a, norm(p));
+            let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+            gsum += gn;
+            if let Some((centre, k)) = blend_k {
+                let gn = gn.max(1e-12);
+                let b = bspline_weight(k * dist(p, centre));
+                bsum += b;
+                let w = if confidence.is_some() { b * conf(i) } else { b };
+                vsum += w * v / gn;
+                wsum += w / gn;
+            }
+        }
+        if blend.is_none() || bsum <= 1e-9 {
+            (vsum, wsum) = (0.0, 0.0);
+            for &i in ball {
+                let (v, g) = quadric_value_gradient(&a, norm(points[i as usize]));
+                let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-12);
+                let w = conf(i);
+                vsum += w * v / gn;
+                wsum += w / gn;
+            }
         }
         if wsum > 0.0 && vsum.is_finite() {
             a[0] -= vsum / wsum;
         }
     }
-    // Mean |∇Q| over the fitted points (input units, before rescaling: ∇ₚQ = ∇_qQ̂), and the
-    // largest |Q|/|∇Q| over the measured ones, which the rescaling leaves unchanged.
+    // The largest |Q|/|∇Q| over the measured points, which the rescaling leaves unchanged.
     let value_gradient = |i: u32| {
         let (v, g) = quadric_value_gradient(&a, norm(points[i as usize]));
         (v, (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt())
     };
-    let mut gsum = 0.0;
-    for &i in ball {
-        gsum += value_gradient(i).1;
-    }
     let mut max_error: f64 = 0.0;
     for &i in measure {
         let (v, gn) = value_gradient(i);
@@ -510,22 +528,19 @@ fn recentring_weights(
     w
 }
 
+/// The blend's quadratic B-spline b(t) (see `index`).
+#[inline(always)]
+fn bspline_weight(t: f64) -> f64 {
+    super::index::bspline(t).0
+}
+
 /// The blend part of [`recentring_weights`].
 fn blend_weights(points: &[[f64; 3]], ball: &[u32], blend: Option<([f64; 3], f64)>) -> Vec<f64> {
     if let Some((c, r)) = blend {
         let k = 1.5 / r;
         let w: Vec<f64> = ball
             .iter()
-            .map(|&i| {
-                let t = k * dist(points[i as usize], c);
-                if t <= 0.5 {
-                    0.75 - t * t
-                } else if t < 1.5 {
-                    0.5 * (1.5 - t) * (1.5 - t)
-                } else {
-                    0.0
-                }
-            })
+            .map(|&i| bspline_weight(k * dist(points[i as usize], c)))
             .collect();
         if w.iter().sum::<f64>() > 1e-9 {
             return w;
