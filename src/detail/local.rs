@@ -265,25 +265,11 @@ pub(crate) fn fit_local(
         center: mu,
         scale: s,
     };
-    {
-        // Re-centring: the blend-weighted mean of Q/|∇Q| over the ball's points becomes 0.
-        let weights = recentring_weights(points, ball, blend, confidence);
-        let (mut vsum, mut wsum) = (0.0, 0.0);
-        for (&i, w) in ball.iter().zip(&weights) {
-            let (v, g) = poly.value_gradient(points[i as usize]);
-            let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-12);
-            vsum += w * v / gn;
-            wsum += w / gn;
-        }
-        if wsum > 0.0 && vsum.is_finite() {
-            poly.coefficients[0] -= vsum / wsum;
-        }
-    }
-    let mut gsum = 0.0;
-    for &i in ball {
-        let (_, g) = poly.value_gradient(points[i as usize]);
-        gsum += (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
-    }
+    // Re-centring, and the mean |∇Q| for the rescaling.
+    let (shift, gsum) = recentring(points, ball, blend, confidence, |i| {
+        poly.value_gradient(points[i as usize])
+    });
+    poly.coefficients[0] -= shift;
     let gmean = gsum * inv;
     if gmean > 1e-3 && gmean.is_finite() {
         for v in poly.coefficients.iter_mut() {
@@ -391,44 +377,12 @@ fn fit_quadric(
         }
     }
     let mut a = cholesky_solve(&mut full, &mut atb, 10)?;
-    // Mean |∇Q| over the fitted points (input units, before rescaling: ∇ₚQ = ∇_qQ̂).
-    let mut gsum = 0.0;
-    {
-        // Step 4's re-centring: the blend-weighted mean of Q̂/|∇Q̂| over the ball's points
-        // becomes 0, with the weights of [`recentring_weights`] (the blend's, or none where
-        // they sum to nothing: a second pass, rare). The first pass also sums |∇Q̂| for the
-        // rescaling below: the gradient does not depend on the constant the re-centring moves.
-        let conf = |i: u32| confidence.map_or(1.0, |c| f64::from(c[i as usize]));
-        let blend_k = blend.map(|(c, r)| (c, 1.5 / r));
-        let (mut vsum, mut wsum, mut bsum) = (0.0, 0.0, 0.0);
-        for &i in ball {
-            let p = points[i as usize];
-            let (v, g) = quadric_value_gradient(&a, norm(p));
-            let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
-            gsum += gn;
-            if let Some((centre, k)) = blend_k {
-                let gn = gn.max(1e-12);
-                let b = bspline_weight(k * dist(p, centre));
-                bsum += b;
-                let w = if confidence.is_some() { b * conf(i) } else { b };
-                vsum += w * v / gn;
-                wsum += w / gn;
-            }
-        }
-        if blend.is_none() || bsum <= 1e-9 {
-            (vsum, wsum) = (0.0, 0.0);
-            for &i in ball {
-                let (v, g) = quadric_value_gradient(&a, norm(points[i as usize]));
-                let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt().max(1e-12);
-                let w = conf(i);
-                vsum += w * v / gn;
-                wsum += w / gn;
-            }
-        }
-        if wsum > 0.0 && vsum.is_finite() {
-            a[0] -= vsum / wsum;
-        }
-    }
+    // Step 4's re-centring, and the mean |∇Q| over the fitted points for the rescaling (input
+    // units, before it: ∇ₚQ = ∇_qQ̂).
+    let (shift, gsum) = recentring(points, ball, blend, confidence, |i| {
+        quadric_value_gradient(&a, norm(points[i as usize]))
+    });
+    a[0] -= shift;
     // The largest |Q|/|∇Q| over the measured points, which the rescaling leaves unchanged.
     let value_gradient = |i: u32| {
         let (v, g) = quadric_value_gradient(&a, norm(points[i as usize]));
@@ -509,44 +463,56 @@ pub(crate) fn even_subsample(ball: &[u32]) -> Vec<u32> {
         .collect()
 }
 
-/// The weights of the re-centring (step 4): each point's blend weight b(1.5·|p − c|/r) for the
-/// cell's weight centre c and support radius r, or 1 for every point without a blend or when no
-/// point of the ball lies inside the support (a grown cell's far points); each times the
-/// point's confidence when the cloud has them.
-fn recentring_weights(
+/// Step 4's re-centring of a fit whose value and gradient at the ball's point `i` are
+/// `value_gradient(i)`: the constant to subtract so that the weighted mean of f/|∇f| over the
+/// ball becomes 0, and the sum of |∇f| over the ball (for the rescaling: the gradient does not
+/// depend on the constant the shift moves).
+///
+/// Each point weighs its blend weight b(1.5·|p − c|/r) for the cell's weight centre c and
+/// support radius r, times its confidence when the cloud has them. Without a blend, or when no
+/// point of the ball lies inside the support (a grown cell's far points), every blend weight is
+/// 1: a second pass, rare. The shift is 0 when the weights sum to nothing or it is not finite.
+fn recentring(
     points: &[[f64; 3]],
     ball: &[u32],
     blend: Option<([f64; 3], f64)>,
     confidence: Option<&[f32]>,
-) -> Vec<f64> {
-    let mut w = blend_weights(points, ball, blend);
-    if let Some(c) = confidence {
-        for (w, &i) in w.iter_mut().zip(ball) {
-            *w *= f64::from(c[i as usize]);
+    value_gradient: impl Fn(u32) -> (f64, [f64; 3]),
+) -> (f64, f64) {
+    let conf = |i: u32| confidence.map_or(1.0, |c| f64::from(c[i as usize]));
+    let norm = |g: [f64; 3]| (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+    let (mut vsum, mut wsum, mut bsum, mut gsum) = (0.0, 0.0, 0.0, 0.0);
+    let blend_k = blend.map(|(c, r)| (c, 1.5 / r));
+    for &i in ball {
+        let (v, g) = value_gradient(i);
+        let gn = norm(g);
+        gsum += gn;
+        if let Some((centre, k)) = blend_k {
+            let gn = gn.max(1e-12);
+            let b = super::index::bspline(k * dist(points[i as usize], centre)).0;
+            bsum += b;
+            // × 1.0 is exact: a cloud without confidences gets the blend weight's own bits.
+            let w = b * conf(i);
+            vsum += w * v / gn;
+            wsum += w / gn;
         }
     }
-    w
-}
-
-/// The blend's quadratic B-spline b(t) (see `index`).
-#[inline(always)]
-fn bspline_weight(t: f64) -> f64 {
-    super::index::bspline(t).0
-}
-
-/// The blend part of [`recentring_weights`].
-fn blend_weights(points: &[[f64; 3]], ball: &[u32], blend: Option<([f64; 3], f64)>) -> Vec<f64> {
-    if let Some((c, r)) = blend {
-        let k = 1.5 / r;
-        let w: Vec<f64> = ball
-            .iter()
-            .map(|&i| bspline_weight(k * dist(points[i as usize], c)))
-            .collect();
-        if w.iter().sum::<f64>() > 1e-9 {
-            return w;
+    if blend.is_none() || bsum <= 1e-9 {
+        (vsum, wsum) = (0.0, 0.0);
+        for &i in ball {
+            let (v, g) = value_gradient(i);
+            let gn = norm(g).max(1e-12);
+            let w = conf(i);
+            vsum += w * v / gn;
+            wsum += w / gn;
         }
     }
-    vec![1.0; ball.len()]
+    let shift = if wsum > 0.0 && vsum.is_finite() {
+        vsum / wsum
+    } else {
+        0.0
+    };
+    (shift, gsum)
 }
 
 /// The 10 monomials of degree ≤ 2 at `q` in the paper's order.
