@@ -41,14 +41,19 @@
 //!    (the exact test of [`crate::mesh`]); otherwise the loop stays open.
 //! 6. *Fairing*: a vertex of a kept unsupported triangle that lies itself farther than
 //!    `support_factor` spacings from its nearest data point is free; a patch of free vertices
-//!    (joined by edges) whose deepest vertex lies farther than `fair_depth_share` of the
-//!    diagonal from the data (and that touches a vertex that is not free) is a hole of the
-//!    scan: its vertices move to the membrane its rim spans, each at the mean of its
-//!    neighbours with the rest held fixed, so the patch the blend bulged out over the hole is
-//!    drawn flat. Moves that make triangles cross are undone (the exact test). The model's
-//!    zero set is not moved: over a faired hole the mesh leaves it. Bunny (`bunny_zipper.ply`,
-//!    its open base): 208 vertices, Chamfer distance to the points 1.1570e-3 → 1.1420e-3 of the
-//!    diagonal; teapot (the spout's and handle's walls inside the body) 4.0803e-3 → 4.0531e-3.
+//!    (joined by edges) that touches a vertex that is not free is a hole of the scan when its
+//!    deepest vertex lies farther than `fair_depth_share` of the diagonal from the data, or
+//!    farther than `fair_depth_reaches` of its nearest point's reaches (the distance from that
+//!    point to its `spacing_neighbours`-th neighbour). Its vertices move to the membrane its
+//!    rim spans, each at the mean of its neighbours with the rest held fixed, so the patch the
+//!    blend bulged out over the hole is drawn flat. Moves that make triangles cross are undone
+//!    (the exact test). The model's zero set is not moved: over a faired hole the mesh leaves
+//!    it. Bunny (`bunny_zipper.ply`, its open base): 208 vertices, Chamfer distance to the
+//!    points 1.1570e-3 → 1.1420e-3 of the diagonal; teapot (the spout's and handle's walls
+//!    inside the body) 4.0803e-3 → 4.0531e-3. The reach rule takes the holes of a dense scan
+//!    that are shallower than the share, such as the unseen wall of a step in the bunny's base
+//!    (its mesh vertices subdivided twice, 556,051 points: 3.648e-4 → 3.553e-4), while the
+//!    gaps between random samples stay (20,000 on a sphere, 10⁶ on a torus: none faired).
 //!
 //! The steps live in `spacing.rs` (1), `regions.rs` (2–4: regions by edges, fans, islands),
 //! `holes.rs` (5) and `fair.rs` (6); this module holds the params, the report and the stage
@@ -76,12 +81,12 @@ mod spacing;
 use fair::fair;
 use holes::fill_holes;
 use regions::{remove_extra_fans, remove_islands, unsupported_regions, Depth, EdgeMap};
-use spacing::spacing_at;
+use spacing::{spacing_and_reach_at, spacing_at};
 
 /// Version of this stage's algorithm: if you change anything that changes its output for the
 /// same input and params, bump it (the stage's params and version enter the export stage's
 /// cache key).
-pub const STAGE_VERSION: u32 = 3;
+pub const STAGE_VERSION: u32 = 4;
 
 /// Whether the stage trims.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -133,6 +138,17 @@ pub struct TrimParams {
     /// Default 0.015.
     #[serde(default = "default_fair_depth_share")]
     pub fair_depth_share: f64,
+    /// A patch is faired too when its deepest vertex lies farther from the data than this many
+    /// *reaches* of its nearest data point (the distance from that point to its
+    /// `spacing_neighbours`-th nearest neighbour): a hole of the scan's own scale, such as the
+    /// unseen wall of a step, which is shallower than `fair_depth_share` on a dense scan.
+    /// Infinity fairs nothing more. Default 2.
+    #[serde(default = "default_fair_depth_reaches")]
+    pub fair_depth_reaches: f64,
+}
+
+fn default_fair_depth_reaches() -> f64 {
+    TrimParams::default().fair_depth_reaches
 }
 
 fn default_fair_depth_share() -> f64 {
@@ -151,6 +167,7 @@ impl Default for TrimParams {
             fill_perimeter: 0.05,
             island_share: 0.01,
             fair_depth_share: 0.015,
+            fair_depth_reaches: 2.0,
         }
     }
 }
@@ -398,19 +415,32 @@ pub fn trim(
         .par_iter()
         .map(|&v| nearest_of(mesh.positions[v as usize]).map(|(d2, j)| (d2.sqrt(), j)))
         .collect::<Result<_, TrimError>>()?;
-    let vertex_spacing = spacing_at(
+    let vertex_spacing = spacing_and_reach_at(
         &grid,
         points,
         params.spacing_neighbours,
         vertex_nearest.iter().map(|&(_, j)| j),
     );
     let mut free = vec![false; n];
-    let mut depth = vec![0.0; n];
-    for ((&v, &(d, _)), &s) in candidates.iter().zip(&vertex_nearest).zip(&vertex_spacing) {
+    // Per vertex: its distance to the data, and that in its nearest point's reaches.
+    let mut depth = vec![(0.0, 0.0); n];
+    for ((&v, &(d, _)), &(s, reach)) in candidates.iter().zip(&vertex_nearest).zip(&vertex_spacing)
+    {
         free[v as usize] = d > params.support_factor * s;
-        depth[v as usize] = d;
+        let reaches = if reach > 0.0 {
+            d / reach
+        } else {
+            f64::INFINITY
+        };
+        depth[v as usize] = (d, reaches);
     }
-    keep_deep_patches(&kept, &mut free, &depth, params.fair_depth_share * diagonal);
+    keep_deep_patches(
+        &kept,
+        &mut free,
+        &depth,
+        params.fair_depth_share * diagonal,
+        params.fair_depth_reaches,
+    );
     let mut faired = TriangleMesh {
         positions: mesh.positions.clone(),
         normals: mesh.normals.clone(),
@@ -427,10 +457,17 @@ pub fn trim(
 }
 
 /// Clears `free` on every patch of free vertices (joined by the edges of `triangles`) whose
-/// deepest vertex lies no farther than `min_depth` from the data (`depth`, per vertex), or
-/// that no edge joins to a vertex that is not free (a closed piece all of it far from the data
-/// has no rim to span a membrane).
-fn keep_deep_patches(triangles: &[[u32; 3]], free: &mut [bool], depth: &[f64], min_depth: f64) {
+/// deepest vertex lies no farther than `min_depth` from the data and no farther than
+/// `min_reaches` of its nearest point's reaches (`depth`, per vertex: the distance and the
+/// reaches), or that no edge joins to a vertex that is not free (a closed piece all of it far
+/// from the data has no rim to span a membrane).
+fn keep_deep_patches(
+    triangles: &[[u32; 3]],
+    free: &mut [bool],
+    depth: &[(f64, f64)],
+    min_depth: f64,
+    min_reaches: f64,
+) {
     let n = free.len();
     let mut patches = UnionFind::new(n);
     for t in triangles {
@@ -441,11 +478,12 @@ fn keep_deep_patches(triangles: &[[u32; 3]], free: &mut [bool], depth: &[f64], m
             }
         }
     }
-    let mut deepest = vec![0.0f64; n];
+    let mut deep = vec![false; n];
     let mut anchored = vec![false; n];
     for v in (0..n).filter(|&v| free[v]) {
         let r = patches.find(v as u32) as usize;
-        deepest[r] = deepest[r].max(depth[v]);
+        let (d, reaches) = depth[v];
+        deep[r] |= d > min_depth || reaches > min_reaches;
     }
     for t in triangles {
         for k in 0..3 {
@@ -459,7 +497,7 @@ fn keep_deep_patches(triangles: &[[u32; 3]], free: &mut [bool], depth: &[f64], m
     for (v, f) in free.iter_mut().enumerate() {
         if *f {
             let r = patches.find(v as u32) as usize;
-            *f = anchored[r] && deepest[r] > min_depth;
+            *f = anchored[r] && deep[r];
         }
     }
 }
@@ -491,11 +529,15 @@ fn validate(params: &TrimParams) -> Result<(), TrimError> {
             )));
         }
     }
-    if params.fair_depth_share.is_nan() || params.fair_depth_share < 0.0 {
-        return Err(TrimError::BadParams(format!(
-            "fair_depth_share must be 0 or more, got {}",
-            params.fair_depth_share
-        )));
+    for (name, v) in [
+        ("fair_depth_share", params.fair_depth_share),
+        ("fair_depth_reaches", params.fair_depth_reaches),
+    ] {
+        if v.is_nan() || v < 0.0 {
+            return Err(TrimError::BadParams(format!(
+                "{name} must be 0 or more, got {v}"
+            )));
+        }
     }
     if !(params.fill_perimeter.is_finite() && params.fill_perimeter >= 0.0) {
         return Err(TrimError::BadParams(format!(
@@ -594,10 +636,13 @@ mod tests {
             .collect();
         let wanted: Vec<u32> = (0..points.len() as u32).step_by(5).collect();
         let some = local_spacing(&grid, &points, k, &wanted);
-        for (w, s) in wanted.iter().zip(&some) {
-            assert_eq!(*s, all[*w as usize], "point {w}");
+        for (&w, &(s, reach)) in wanted.iter().zip(&some) {
+            assert_eq!(s, all[w as usize], "point {w}");
+            // The reach: the distance to the k-th nearest neighbour.
+            let kth = *lists.row(w as usize).last().unwrap();
+            assert_eq!(reach, dist(w as usize, kth), "point {w}");
         }
-        assert!(some.iter().all(|&s| s > 0.0));
+        assert!(some.iter().all(|&(s, reach)| s > 0.0 && reach >= s));
     }
 
     /// A flat grid of n × n squares over [0, 1]², two triangles each, counter-clockwise from +z.
@@ -786,17 +831,50 @@ mod tests {
                 "{n:?} at {p:?}"
             );
         }
-        // Shallower than `fair_depth_share`: a gap between samples, left as it is.
-        let out = trim(
-            &mesh,
-            &points,
-            &TrimParams {
-                fair_depth_share: 0.2,
-                ..TrimParams::default()
-            },
-        )
-        .unwrap();
-        assert_eq!((out.report.faired_vertices, &out.mesh), (0, &mesh));
+        // Shallower than `fair_depth_share` (0.15 against 0.2 × 1.414) but 10.6 reaches deep
+        // (the 8th neighbour of a grid point lies √2 spacings away): a hole of the scan's own
+        // scale, faired all the same.
+        let shallow = TrimParams {
+            fair_depth_share: 0.2,
+            ..TrimParams::default()
+        };
+        let out = trim(&mesh, &points, &shallow).unwrap();
+        assert_eq!(out.report.faired_vertices, report.faired_vertices);
+        // Under both depths: left as it is.
+        for fair_depth_reaches in [11.0, f64::INFINITY] {
+            let params = TrimParams {
+                fair_depth_reaches,
+                ..shallow
+            };
+            let out = trim(&mesh, &points, &params).unwrap();
+            assert_eq!((out.report.faired_vertices, &out.mesh), (0, &mesh));
+        }
+    }
+
+    #[test]
+    fn gaps_between_random_samples_are_not_faired() {
+        // 20,000 points spread at random over the unit square and a mesh of it 0.01 fine: the
+        // gaps between the samples leave free vertices (farther than 2 local spacings from
+        // the data, whose nearest-neighbour distances scatter widely), none of them 2 reaches
+        // deep (nor 1.5% of the diagonal), so nothing is faired.
+        let mesh = grid(100);
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let points: Vec<[f64; 3]> = (0..20_000).map(|_| [next(), next(), 0.0]).collect();
+        let out = trim(&mesh, &points, &TrimParams::default()).unwrap();
+        assert!(out.report.unsupported_triangles > 0, "{:?}", out.report);
+        assert_eq!(out.report.faired_vertices, 0, "{:?}", out.report);
+        // The gaps are there: at half a reach every free patch is faired.
+        let eager = TrimParams {
+            fair_depth_reaches: 0.5,
+            ..TrimParams::default()
+        };
+        assert!(trim(&mesh, &points, &eager).unwrap().report.faired_vertices > 0);
     }
 
     #[test]

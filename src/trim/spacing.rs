@@ -9,6 +9,7 @@ use rayon::prelude::*;
 
 use crate::numerics::point_grid::first_positive_distance;
 use crate::numerics::PointGrid;
+use crate::vec3::{norm, sub};
 
 /// The local spacing at each of the points `at` (indices into `points`, in any order, repeats
 /// allowed), in their order: [`local_spacing`] once per distinct point.
@@ -18,6 +19,24 @@ pub(super) fn spacing_at(
     k: usize,
     at: impl Iterator<Item = usize> + Clone,
 ) -> Vec<f64> {
+    spacing_and_reach_at(grid, points, k, at)
+        .into_iter()
+        .map(|(s, _)| s)
+        .collect()
+}
+
+/// As [`spacing_at`], each with the point's *reach*: its distance to its k-th nearest
+/// neighbour. The reach is the steadier measure of the density on randomly placed samples,
+/// where nearest-neighbour distances scatter widely (a median of 9 of them can be a fraction
+/// of the typical one), so a depth in reaches tells a hole from a gap between samples: on
+/// points spread at random with that density, a disk as wide as 2 reaches holds no point with
+/// probability about e^(−4k).
+pub(super) fn spacing_and_reach_at(
+    grid: &PointGrid,
+    points: &[[f64; 3]],
+    k: usize,
+    at: impl Iterator<Item = usize> + Clone,
+) -> Vec<(f64, f64)> {
     let mut wanted: Vec<u32> = at.clone().map(|j| j as u32).collect();
     wanted.sort_unstable();
     wanted.dedup();
@@ -26,17 +45,17 @@ pub(super) fn spacing_at(
         .collect()
 }
 
-/// The local spacing (step 1 of the module docs) at each of the points `wanted` (indices into
-/// `points`, sorted, distinct), in their order.
+/// The local spacing (step 1 of the module docs) and the reach (see [`spacing_and_reach_at`])
+/// at each of the points `wanted` (indices into `points`, sorted, distinct), in their order.
 pub(super) fn local_spacing(
     grid: &PointGrid,
     points: &[[f64; 3]],
     k: usize,
     wanted: &[u32],
-) -> Vec<f64> {
+) -> Vec<(f64, f64)> {
     let k = k.min(points.len().saturating_sub(1));
     if k == 0 {
-        return vec![0.0; wanted.len()];
+        return vec![(0.0, 0.0); wanted.len()];
     }
     let neighbours = grid.nearest_of(points, wanted, k);
     // Each point's distance to its nearest neighbour at a positive distance (0 when all its k
@@ -75,7 +94,11 @@ pub(super) fn local_spacing(
                 .chain(neighbours.row(r).iter().map(|&j| nearest_of(j)))
                 .collect();
             values.sort_unstable_by(f64::total_cmp);
-            values[values.len() / 2]
+            let row = neighbours.row(r);
+            let reach = row
+                .last()
+                .map_or(0.0, |&j| norm(sub(points[i as usize], points[j as usize])));
+            (values[values.len() / 2], reach)
         })
         .collect()
 }
