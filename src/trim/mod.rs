@@ -831,9 +831,9 @@ mod tests {
                 "{n:?} at {p:?}"
             );
         }
-        // Shallower than `fair_depth_share` (0.15 against 0.2 × 1.414) but 10.6 reaches deep
-        // (the 8th neighbour of a grid point lies √2 spacings away): a hole of the scan's own
-        // scale, faired all the same.
+        // Shallower than `fair_depth_share` (0.158 against 0.2 × 1.414) but 7.9 reaches deep
+        // (the nearest points lie on the hole's rim, whose 8th neighbours lie 2 spacings
+        // away): a hole of the scan's own scale, faired all the same.
         let shallow = TrimParams {
             fair_depth_share: 0.2,
             ..TrimParams::default()
@@ -841,7 +841,7 @@ mod tests {
         let out = trim(&mesh, &points, &shallow).unwrap();
         assert_eq!(out.report.faired_vertices, report.faired_vertices);
         // Under both depths: left as it is.
-        for fair_depth_reaches in [11.0, f64::INFINITY] {
+        for fair_depth_reaches in [8.0, f64::INFINITY] {
             let params = TrimParams {
                 fair_depth_reaches,
                 ..shallow
