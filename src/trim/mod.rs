@@ -422,16 +422,13 @@ pub fn trim(
         vertex_nearest.iter().map(|&(_, j)| j),
     );
     let mut free = vec![false; n];
-    // Per vertex: its distance to the data, and that in its nearest point's reaches.
+    // Per vertex: its distance to the data, and that in its nearest point's reaches (0 when
+    // the point's neighbours all coincide with it: no measure, so the reach rule passes).
     let mut depth = vec![(0.0, 0.0); n];
     for ((&v, &(d, _)), &(s, reach)) in candidates.iter().zip(&vertex_nearest).zip(&vertex_spacing)
     {
         free[v as usize] = d > params.support_factor * s;
-        let reaches = if reach > 0.0 {
-            d / reach
-        } else {
-            f64::INFINITY
-        };
+        let reaches = if reach > 0.0 { d / reach } else { 0.0 };
         depth[v as usize] = (d, reaches);
     }
     keep_deep_patches(
