@@ -3,7 +3,8 @@
 //! neighbour.
 //!
 //! Input: the data points, their bucket grid and the points wanted. Output: one spacing per
-//! wanted point, in input units.
+//! wanted point, in input units, and on request its reach (the distance to its k-th nearest
+//! neighbour, step 6's measure of a hole's depth).
 
 use rayon::prelude::*;
 
@@ -28,9 +29,9 @@ pub(super) fn spacing_at(
 /// As [`spacing_at`], each with the point's *reach*: its distance to its k-th nearest
 /// neighbour. The reach is the steadier measure of the density on randomly placed samples,
 /// where nearest-neighbour distances scatter widely (a median of 9 of them can be a fraction
-/// of the typical one), so a depth in reaches tells a hole from a gap between samples: on
-/// points spread at random with that density, a disk as wide as 2 reaches holds no point with
-/// probability about e^(−4k).
+/// of the typical one), so a depth in reaches tells a hole from a gap between samples: points
+/// spread at random with that density put about 4k of them in a disk of radius 2 reaches, and
+/// none with probability about e^(−4k) (e^(−32) for k = 8).
 pub(super) fn spacing_and_reach_at(
     grid: &PointGrid,
     points: &[[f64; 3]],
