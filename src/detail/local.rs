@@ -55,6 +55,7 @@ use crate::implicit::ImplicitFunction;
 use crate::measure::dist;
 use crate::numerics::cholesky;
 use crate::poly::{n_coefficients, ImplicitPolynomial};
+use crate::vec3;
 
 /// One auxiliary off-surface point: its position (input coordinates) and target value (an
 /// estimate of its signed distance, input units).
@@ -282,7 +283,7 @@ pub(crate) fn fit_local(
     let mut max_error: f64 = 0.0;
     for &i in measure {
         let (f, g) = poly.value_gradient(points[i as usize]);
-        let gn = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+        let gn = vec3::norm(g);
         let e = if gn > 0.0 {
             f.abs() / gn
         } else {
@@ -386,7 +387,7 @@ fn fit_quadric(
     // The largest |Q|/|∇Q| over the measured points, which the rescaling leaves unchanged.
     let value_gradient = |i: u32| {
         let (v, g) = quadric_value_gradient(&a, norm(points[i as usize]));
-        (v, (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt())
+        (v, vec3::norm(g))
     };
     let mut max_error: f64 = 0.0;
     for &i in measure {
@@ -480,12 +481,11 @@ fn recentring(
     value_gradient: impl Fn(u32) -> (f64, [f64; 3]),
 ) -> (f64, f64) {
     let conf = |i: u32| confidence.map_or(1.0, |c| f64::from(c[i as usize]));
-    let norm = |g: [f64; 3]| (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
     let (mut vsum, mut wsum, mut bsum, mut gsum) = (0.0, 0.0, 0.0, 0.0);
     let blend_k = blend.map(|(c, r)| (c, 1.5 / r));
     for &i in ball {
         let (v, g) = value_gradient(i);
-        let gn = norm(g);
+        let gn = vec3::norm(g);
         gsum += gn;
         if let Some((centre, k)) = blend_k {
             let gn = gn.max(1e-12);
@@ -501,7 +501,7 @@ fn recentring(
         (vsum, wsum) = (0.0, 0.0);
         for &i in ball {
             let (v, g) = value_gradient(i);
-            let gn = norm(g).max(1e-12);
+            let gn = vec3::norm(g).max(1e-12);
             let w = conf(i);
             vsum += w * v / gn;
             wsum += w / gn;
