@@ -905,7 +905,7 @@ pub(crate) fn intersecting_triangles_among(
         t.iter()
             .all(|&i| (i as usize) < n && positions[i as usize].iter().all(|c| c.is_finite()))
     };
-    // (box, projection axis) of each non-degenerate triangle.
+    // The box of each non-degenerate triangle.
     let boxes: Vec<Option<([f64; 3], [f64; 3])>> = tris
         .par_iter()
         .map(|t| {
@@ -915,21 +915,6 @@ pub(crate) fn intersecting_triangles_among(
             Some(triangle_box(t, positions))
         })
         .collect();
-    let axes: Vec<u8> = tris
-        .par_iter()
-        .zip(&boxes)
-        .map(|(t, b)| {
-            b.and_then(|_| {
-                let p = t.map(|i| &positions[i as usize]);
-                projection_axis(p[0], p[1], p[2])
-            })
-            .map_or(u8::MAX, |a| a as u8)
-        })
-        .collect();
-    let is_active = |t: u32| {
-        axes[t as usize] != u8::MAX && active.is_none_or(|a| a.get(t as usize) == Some(&true))
-    };
-    let flags: Vec<AtomicBool> = (0..tris.len()).map(|_| AtomicBool::new(false)).collect();
     let present: Vec<&([f64; 3], [f64; 3])> = boxes.iter().flatten().collect();
     if present.len() < 2 {
         return vec![false; tris.len()];
@@ -958,6 +943,57 @@ pub(crate) fn intersecting_triangles_among(
     let dims = [0, 1, 2].map(|a| u64::from(cube(hi[a], a)) + 1);
     let key =
         |c: [u32; 3]| (u64::from(c[0]) * dims[1] + u64::from(c[1])) * dims[2] + u64::from(c[2]);
+    let cubes_of = |(l, h): &([f64; 3], [f64; 3])| {
+        let cl = [0, 1, 2].map(|a| cube(l[a], a));
+        let ch = [0, 1, 2].map(|a| cube(h[a], a));
+        (cl[0]..=ch[0]).flat_map(move |x| {
+            (cl[1]..=ch[1]).flat_map(move |y| (cl[2]..=ch[2]).map(move |z| key([x, y, z])))
+        })
+    };
+    let marked = |t: usize| active.is_none_or(|a| a.get(t) == Some(&true));
+    // With `active`, only the triangles sharing a cube with an active one can be in a tested
+    // pair (a pair is tested in a cube both boxes overlap), so the others are left out of the
+    // broad phase: a round of a repair that moved a few vertices costs about what they touch.
+    let active_cubes: Option<Vec<u64>> = active.map(|_| {
+        let mut keys: Vec<u64> = boxes
+            .iter()
+            .enumerate()
+            .filter(|&(t, _)| marked(t))
+            .filter_map(|(_, b)| b.as_ref())
+            .flat_map(cubes_of)
+            .collect();
+        keys.par_sort_unstable();
+        keys.dedup();
+        keys
+    });
+    if active_cubes.as_ref().is_some_and(Vec::is_empty) {
+        return vec![false; tris.len()];
+    }
+    let included: Vec<bool> = boxes
+        .par_iter()
+        .enumerate()
+        .map(|(t, b)| {
+            let Some(b) = b else { return false };
+            match &active_cubes {
+                None => true,
+                Some(keys) => marked(t) || cubes_of(b).any(|k| keys.binary_search(&k).is_ok()),
+            }
+        })
+        .collect();
+    // The projection axis of each included triangle (u8::MAX: collinear, or left out).
+    let axes: Vec<u8> = tris
+        .par_iter()
+        .zip(&included)
+        .map(|(t, &inc)| {
+            if !inc {
+                return u8::MAX;
+            }
+            let p = t.map(|i| &positions[i as usize]);
+            projection_axis(p[0], p[1], p[2]).map_or(u8::MAX, |a| a as u8)
+        })
+        .collect();
+    let is_active = |t: u32| axes[t as usize] != u8::MAX && marked(t as usize);
+    let flags: Vec<AtomicBool> = (0..tris.len()).map(|_| AtomicBool::new(false)).collect();
     // Each testable triangle's box and the cube of its lowest corner.
     let cells: Vec<Option<Boxed>> = boxes
         .par_iter()
