@@ -124,6 +124,11 @@ pub struct PipelineConfig {
     /// level or more finer than the mesh ([`polygonize::DataResolution::dense`]): on in detail
     /// mode unless a tolerance is asked for (`--tolerance`).
     pub tolerance_from_data: bool,
+    /// Whether the mesh's curved edges are split ([`PolygonizeParams::refine`] set to
+    /// [`polygonize::REFINE_SAGITTA`]) where the points are a level or more finer than the
+    /// mesh's depth ([`polygonize::DataResolution::finer_than`]): on in detail mode unless
+    /// `--refine` or `--no-refine` says otherwise, off in global mode.
+    pub refine_from_data: bool,
     /// Which zero-set components the mesh keeps (see [`PipelineConfig::for_mode`]).
     pub keep: Keep,
     /// Trim stage parameters (see [`PipelineConfig::for_mode`]).
@@ -183,6 +188,7 @@ impl PipelineConfig {
             polygonize: PolygonizeParams::default(),
             depth_from_data: false,
             tolerance_from_data: false,
+            refine_from_data: false,
             keep: export.keep,
             trim: export.trim,
             slices: export.slices,
@@ -205,6 +211,7 @@ impl PipelineConfig {
                 },
                 depth_from_data: true,
                 tolerance_from_data: true,
+                refine_from_data: true,
                 keep: Keep::Data,
                 trim: TrimParams::default(),
                 slices: crate::distance::SliceParams {
@@ -1072,7 +1079,7 @@ fn detail_params(config: &PipelineConfig) -> DetailParams {
 fn resolve_for_data(config: &PipelineConfig, oriented: &Oriented) -> PipelineConfig {
     let mut resolved = config.clone();
     resolved.detail = detail_params(config);
-    if config.depth_from_data || config.tolerance_from_data {
+    if config.depth_from_data || config.tolerance_from_data || config.refine_from_data {
         let data = crate::cloud::Aabb::from_points(&oriented.cloud.points)
             .and_then(|b| polygonize::DataResolution::of(oriented.input_points(), &b.grown(0.1)));
         if let Some(data) = data {
@@ -1086,10 +1093,14 @@ fn resolve_for_data(config: &PipelineConfig, oriented: &Oriented) -> PipelineCon
                 let t = resolved.detail.tolerance * DENSE_TOLERANCE;
                 resolved.detail = resolved.detail.with_tolerance(t);
             }
+            if config.refine_from_data && data.finer_than(resolved.polygonize.depth) {
+                resolved.polygonize.refine = Some(polygonize::REFINE_SAGITTA);
+            }
         }
     }
     resolved.depth_from_data = false;
     resolved.tolerance_from_data = false;
+    resolved.refine_from_data = false;
     resolved
 }
 
@@ -1127,6 +1138,8 @@ fn polygonize_stage(
                 "evaluations": out.evaluations,
                 "simplified": out.simplified,
                 "pinned_vertices": out.pinned_vertices,
+                "refine": config.polygonize.refine,
+                "refined_vertices": out.refined_vertices,
                 "embedded": out.embedded,
             });
             Ok((out.mesh, figures))
@@ -1364,6 +1377,7 @@ mod tests {
     /// to the side (≈ 8.9) get depth 7, the dense tolerance and the chords' whole move; 150 to
     /// the side (≈ 7.5) and 100 (≈ 6.9) depth 7, the default tolerance and share; the facets are
     /// fitted in every case; a tolerance or a depth asked for is kept, with the default share.
+    /// The curved edges are split where the points are a level finer than the depth meshed.
     #[test]
     fn dense_points_get_the_dense_tolerance_and_the_whole_chord_move() {
         let default = PipelineConfig::for_mode(Mode::Detail);
@@ -1376,6 +1390,8 @@ mod tests {
             assert_eq!(dense.detail.tolerance, tolerance * DENSE_TOLERANCE);
             assert_eq!(dense.detail.finest_tolerance, tolerance * DENSE_TOLERANCE);
             assert!(!dense.depth_from_data && !dense.tolerance_from_data);
+            assert_eq!(dense.polygonize.refine, Some(polygonize::REFINE_SAGITTA));
+            assert!(!dense.refine_from_data);
         }
 
         for n in [150, 100] {
@@ -1384,6 +1400,7 @@ mod tests {
             assert!(resolved.polygonize.fit_chords);
             assert_eq!(resolved.polygonize.chord_share, polygonize::CHORD_SHARE);
             assert_eq!(resolved.detail, DetailParams::default());
+            assert_eq!(resolved.polygonize.refine, None);
         }
 
         let mut asked = default.clone();
@@ -1396,6 +1413,24 @@ mod tests {
         assert_eq!(kept.polygonize.chord_share, polygonize::CHORD_SHARE);
         assert_eq!(kept.detail.tolerance, tolerance);
         assert_eq!(kept.detail.max_depth, 8);
+        // Split edges follow the depth meshed: points 10.2 levels fine are a level finer than
+        // depth 8's cells; 280 to the side (log₂(1.2 · 279) ≈ 8.4) are a level finer than depth
+        // 7's, not depth 8's.
+        assert_eq!(kept.polygonize.refine, Some(polygonize::REFINE_SAGITTA));
+        let between = grid(280);
+        assert_eq!(
+            resolve_for_data(&default, &between).polygonize.refine,
+            Some(polygonize::REFINE_SAGITTA)
+        );
+        assert_eq!(resolve_for_data(&asked, &between).polygonize.refine, None);
+        let mut refine_asked = default.clone();
+        refine_asked.refine_from_data = false;
+        assert_eq!(
+            resolve_for_data(&refine_asked, &grid(1000))
+                .polygonize
+                .refine,
+            None
+        );
 
         // Each flag alone: a depth asked for keeps the default share and still cuts the
         // tolerance; a tolerance asked for keeps the data's share.

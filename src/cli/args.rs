@@ -158,6 +158,16 @@ pub struct MeshOpts {
     /// Keep every vertex on the model's zero set (the default for a global model).
     #[arg(long, overrides_with = "fit_chords")]
     pub no_fit_chords: bool,
+    /// Split the mesh's curved edges at their midpoint on the surface: the edges whose arc
+    /// strays from the chord by more than 1% of the finest cells' side, so the facets follow the
+    /// surface where it curves, for up to 4x the triangles there. `run` in detail mode does it
+    /// by default where the points are a level or more finer than the mesh.
+    #[arg(long, overrides_with = "no_refine")]
+    pub refine: bool,
+    /// Never split the mesh's edges (the default for a global model, and for points no finer
+    /// than the mesh).
+    #[arg(long, overrides_with = "refine")]
+    pub no_refine: bool,
 }
 
 /// `--mode`: which model to fit.

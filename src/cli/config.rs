@@ -15,7 +15,7 @@ use stablesurf::fit::{self, FitMethod, KappaRule};
 use stablesurf::normals::{NormalSource, NormalsParams};
 use stablesurf::pipeline::{Keep, Mode, Model, OutputFormat, PipelineConfig};
 use stablesurf::polygonize::decimate::DecimateParams;
-use stablesurf::polygonize::PolygonizeParams;
+use stablesurf::polygonize::{PolygonizeParams, REFINE_SAGITTA};
 use stablesurf::render::View;
 use stablesurf::trim::TrimParams;
 use stablesurf::{import, Aabb, PointCloud};
@@ -140,6 +140,11 @@ pub fn polygonize_params(opts: &MeshOpts, mode: Mode) -> PolygonizeParams {
             (_, true) => false,
             _ => defaults.fit_chords,
         },
+        refine: match (opts.refine, opts.no_refine) {
+            (true, _) => Some(REFINE_SAGITTA),
+            (_, true) => None,
+            _ => defaults.refine,
+        },
         ..defaults
     }
 }
@@ -160,6 +165,7 @@ pub fn run_config(args: &RunArgs) -> Result<PipelineConfig> {
     set_detail(&mut config, &args.detail);
     config.polygonize = polygonize_params(&args.mesh, mode);
     config.depth_from_data &= args.mesh.depth.is_none();
+    config.refine_from_data &= !(args.mesh.refine || args.mesh.no_refine);
     config.decimate = decimate_params(&args.mesh);
     if let Some(keep) = args.keep {
         config.keep = keep.into();
@@ -305,5 +311,20 @@ mod tests {
         assert!(!chords(&["--mode", "global"]));
         assert!(chords(&["--mode", "global", "--fit-chords"]));
         assert!(!chords(&["--fit-chords", "--no-fit-chords"]));
+        // Split edges: on dense points by default in detail mode (refine_from_data, resolved by
+        // the pipeline), always with --refine, never with --no-refine; the last flag wins.
+        let refine = |flags: &[&str]| {
+            let config = run_config(&run_args(flags)).unwrap();
+            (config.polygonize.refine, config.refine_from_data)
+        };
+        assert_eq!(refine(&[]), (None, true));
+        assert_eq!(refine(&["--mode", "global"]), (None, false));
+        assert_eq!(refine(&["--refine"]), (Some(REFINE_SAGITTA), false));
+        assert_eq!(refine(&["--no-refine"]), (None, false));
+        assert_eq!(
+            refine(&["--no-refine", "--refine"]),
+            (Some(REFINE_SAGITTA), false)
+        );
+        assert_eq!(refine(&["--depth", "6"]), (None, true));
     }
 }

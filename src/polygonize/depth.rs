@@ -92,7 +92,14 @@ impl DataResolution {
     /// [`DataResolution::depth`]: detail mode's split tolerance is then cut and the chords take
     /// their whole move.
     pub fn dense(&self) -> bool {
-        self.level >= f64::from(self.depth()) + DENSE_LEVELS
+        self.finer_than(self.depth())
+    }
+
+    /// Whether the points are at least [`DENSE_LEVELS`] levels finer than the cells of `depth`:
+    /// detail mode's `run` then splits the mesh's curved edges
+    /// ([`super::PolygonizeParams::refine`]).
+    pub fn finer_than(&self, depth: u32) -> bool {
+        self.level >= f64::from(depth) + DENSE_LEVELS
     }
 }
 

@@ -671,7 +671,7 @@ fn oriented_edge(grid: &Grid, key: EdgeKey, [fa, fb]: [f64; 2]) -> ([f64; 3], f6
 
 /// |f|/|∇f| from f's `value` and gradient norm `g_norm` (0 on the zero set, infinite where
 /// the gradient vanishes off it).
-fn residual(value: f64, g_norm: f64) -> f64 {
+pub(super) fn residual(value: f64, g_norm: f64) -> f64 {
     if value == 0.0 {
         0.0
     } else if g_norm > 0.0 {
@@ -819,7 +819,7 @@ pub(crate) fn place_linear<F: ImplicitFunction + ?Sized>(
 
 /// Newton steps from `x` along the gradient: the vertex if |f|/|∇f| ≤ `tolerance` is reached
 /// within 8 steps of at most `max_step` each, and the evaluations spent.
-fn newton<F: ImplicitFunction + ?Sized>(
+pub(super) fn newton<F: ImplicitFunction + ?Sized>(
     function: &F,
     mut x: [f64; 3],
     max_step: f64,

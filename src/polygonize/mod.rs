@@ -122,6 +122,7 @@ mod depth;
 mod extract;
 mod grid;
 mod octree;
+mod refine;
 pub mod shapes;
 mod simplify;
 
@@ -179,6 +180,9 @@ pub enum PolygonizeError {
     /// [`PolygonizeParams::chord_share`] is not in (0, 1].
     #[error("the chord share {0} is out of range: give a share in (0, 1]")]
     InvalidChordShare(f64),
+    /// [`PolygonizeParams::refine`] is not finite and > 0.
+    #[error("the refinement's sagitta {0} is out of range: give a finite share > 0")]
+    InvalidRefine(f64),
 }
 
 /// Parameters of the polygonize stage.
@@ -224,7 +228,20 @@ pub struct PolygonizeParams {
         skip_serializing_if = "is_default_chord_share"
     )]
     pub chord_share: f64,
+    /// Step 7: split the edges whose estimated sagitta (h·|n_a − n_b|/8 for an edge of length
+    /// h between vertices of normals n_a, n_b) exceeds this share of the finest cells' side, at
+    /// their midpoint projected onto the zero set (see `refine`; the topology, the winding and
+    /// the absence of crossings are kept). `None` (the default): no split. Detail mode's `run`
+    /// sets [`REFINE_SAGITTA`] on points a level or more finer than the mesh
+    /// ([`DataResolution::dense`]), which sample the facets' interiors (`--refine`,
+    /// `--no-refine`). When given, finite and > 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refine: Option<f64>,
 }
+
+/// The sagitta, as a share of the finest cells' side, above which step 7 splits an edge when
+/// asked for (docs/defaults.md, "Refined edges").
+pub const REFINE_SAGITTA: f64 = 0.015;
 
 /// The default share of the least-squares chord move (see `chords`): a quarter.
 pub const CHORD_SHARE: f64 = 0.25;
@@ -270,6 +287,7 @@ impl Default for PolygonizeParams {
             simplification: Simplification::EdgeCollapse,
             fit_chords: false,
             chord_share: CHORD_SHARE,
+            refine: None,
         }
     }
 }
@@ -303,6 +321,9 @@ pub struct Polygonized {
     /// Largest |f|/|∇f| over the vertices, divided by the region's diagonal (0 for an empty
     /// mesh; infinite if a vertex sits where ∇f = 0 and f ≠ 0).
     pub max_projection_residual: f64,
+    /// Vertices step 7 added, splitting the curved edges ([`PolygonizeParams::refine`]); 0
+    /// without it.
+    pub refined_vertices: usize,
     /// Whether the exact test of step 5 ([`crate::mesh::intersecting_triangles`]) found no
     /// triangle crossing another in the final mesh: its last round tested every pair that could
     /// have changed, or a full test ran. `false` only when a crossing survived every fallback.
@@ -376,6 +397,11 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
     if !(params.chord_share > 0.0 && params.chord_share <= 1.0) {
         return Err(PolygonizeError::InvalidChordShare(params.chord_share));
     }
+    if let Some(share) = params.refine
+        && !(share > 0.0 && share.is_finite())
+    {
+        return Err(PolygonizeError::InvalidRefine(share));
+    }
     function.validate().map_err(PolygonizeError::InvalidModel)?;
     let coarse = if data.is_empty() {
         params.depth
@@ -392,6 +418,15 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
     let diagonal = region.diagonal();
     let tolerance = PROJECTION_TOLERANCE * diagonal;
     let chords = params.chords();
+    let longest = (0..3)
+        .map(|a| region.max[a] - region.min[a])
+        .fold(0.0, f64::max);
+    // Step 7's sagitta in input units: the share of the finest cells' side, and at least the
+    // data's own scatter about the zero set, below which a facet's sagitta does not show.
+    let refine = params.refine.map(|share| {
+        let cell = longest / f64::from(1u32 << params.depth);
+        (share * cell).max(data_scatter(function, data))
+    });
     let mut simplified = params.simplification == Simplification::EdgeCollapse;
     let mut done = place_and_repair(
         function,
@@ -403,6 +438,7 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
         &[],
         tolerance,
         chords,
+        refine,
     );
     let mut spent_before = 0;
     let mut pinned_vertices = 0;
@@ -433,6 +469,7 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
             &pinned,
             tolerance,
             chords,
+            refine,
         );
         if done.crossings_left {
             spent_before += done.vertices.iter().map(|v| v.evaluations).sum::<u64>();
@@ -448,6 +485,7 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
                 &[],
                 tolerance,
                 chords,
+                refine,
             );
         }
     }
@@ -455,6 +493,7 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
         vertices,
         mesh,
         crossings_left,
+        added,
         ..
     } = done;
     let max_residual = vertices.iter().map(|v| v.residual).fold(0.0, f64::max);
@@ -470,8 +509,35 @@ pub fn polygonize_with_data<F: ImplicitFunction + ?Sized>(
         guard_splits: tree.guard_splits,
         max_level: tree.leaves.iter().map(|c| c.level).max().unwrap_or(0),
         max_projection_residual: max_residual / diagonal,
+        refined_vertices: added,
         embedded: !crossings_left,
     })
+}
+
+/// At most this many data points measure their scatter about the zero set (step 7).
+const SCATTER_SAMPLES: usize = 4096;
+
+/// The median distance |f|/|∇f| of an even sample of the `data` points from the zero set of
+/// `function` (0 without data).
+fn data_scatter<F: ImplicitFunction + ?Sized>(function: &F, data: &[[f64; 3]]) -> f64 {
+    if data.is_empty() {
+        return 0.0;
+    }
+    let stride = data.len().div_ceil(SCATTER_SAMPLES).max(1);
+    let mut distances: Vec<f64> = data
+        .par_iter()
+        .step_by(stride)
+        .map(|&p| {
+            let (value, gradient) = function.value_gradient(p);
+            extract::residual(value, crate::vec3::norm(gradient))
+        })
+        .filter(|d| d.is_finite())
+        .collect();
+    if distances.is_empty() {
+        return 0.0;
+    }
+    let middle = distances.len() / 2;
+    *distances.select_nth_unstable_by(middle, f64::total_cmp).1
 }
 
 /// Steps 3–5 on the extracted triangles: simplification, vertex placement, and the repair of
@@ -485,6 +551,8 @@ struct Repaired {
     /// The vertices (as lattice-edge indices) of the triangles still crossing another, sorted;
     /// empty when `crossings_left` is false.
     stuck: Vec<u32>,
+    /// The vertices step 7 added (the last ones).
+    added: usize,
 }
 
 /// Where step 5 has a vertex, in the order of its fallbacks (see [`place_and_repair`]).
@@ -560,6 +628,7 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
     pinned: &[bool],
     tolerance: f64,
     chords: Option<f64>,
+    refine: Option<f64>,
 ) -> Repaired {
     // The output vertices, their triangles, and each vertex's crossed lattice edge.
     let (mut vertices, triangles, edge_of): (Vec<extract::PlacedVertex>, Vec<[u32; 3]>, Vec<u32>) =
@@ -602,6 +671,21 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
         normals: vertices.iter().map(|v| v.normal).collect(),
         triangles,
     };
+    // Step 7, when asked for: the curved edges split, their new vertices (from index `coarse`
+    // on) projected onto the zero set.
+    let coarse = vertices.len();
+    let mut parents: Vec<[u32; 2]> = Vec::new();
+    if let Some(sagitta) = refine {
+        let refined = refine::refine(function, &mesh, sagitta, tolerance);
+        mesh.positions
+            .extend(refined.vertices.iter().map(|v| v.position));
+        mesh.normals
+            .extend(refined.vertices.iter().map(|v| v.normal));
+        mesh.triangles = refined.triangles;
+        vertices.extend(refined.vertices);
+        parents = refined.parents;
+    }
+    let parents_of = |v: usize| (v >= coarse).then(|| parents[v - coarse]);
     // Step 6 first, when asked for: the vertices start off the zero set by a share of their
     // chord error, and step 5 tests those positions.
     if let Some(share) = chords {
@@ -648,6 +732,10 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
         let placed: Vec<Option<extract::PlacedVertex>> = moved
             .par_iter()
             .map(|&v| {
+                if v as usize >= coarse {
+                    // A new vertex: back to its projection, then (below) to its edge's midpoint.
+                    return None;
+                }
                 let e = edge_of[v as usize] as usize;
                 let on_edge =
                     || extract::place_on_edge(function, grid, edges[e], end_values[e], tolerance);
@@ -676,7 +764,35 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
             }
             // Back to the projection from the chord position, or to the new placement.
             mesh.positions[v] = vertices[v].position;
-            level[v] = level[v].next();
+            level[v] = match (level[v], parents_of(v)) {
+                (Fallback::Projected, Some(_)) => Fallback::Linear,
+                (l, _) => l.next(),
+            };
+        }
+        // The new vertices at their last fallback sit at the midpoint of their edge's ends,
+        // wherever those are now: the pieces of a split triangle then lie in its plane.
+        if !parents.is_empty() {
+            let mut followed = Vec::new();
+            for v in coarse..vertices.len() {
+                if level[v] != Fallback::Linear {
+                    continue;
+                }
+                let [a, b] = parents[v - coarse].map(|p| mesh.positions[p as usize]);
+                let at = refine::midpoint(a, b);
+                if at != mesh.positions[v] || vertices[v].position != at {
+                    let (value, gradient) = function.value_gradient(at);
+                    vertices[v].position = at;
+                    vertices[v].residual = extract::residual(value, crate::vec3::norm(gradient));
+                    vertices[v].evaluations += 1;
+                    mesh.positions[v] = at;
+                    followed.push(v as u32);
+                }
+            }
+            if !followed.is_empty() {
+                moved.extend(followed);
+                moved.sort_unstable();
+                moved.dedup();
+            }
         }
         changed = Some(
             mesh.triangles
@@ -693,7 +809,13 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
             .iter()
             .zip(&mesh.triangles)
             .filter(|&(&f, _)| f)
-            .flat_map(|(_, t)| t.map(|v| edge_of[v as usize]))
+            .flat_map(|(_, t)| {
+                t.iter().flat_map(|&v| match parents_of(v as usize) {
+                    Some(ends) => ends.to_vec(),
+                    None => vec![v],
+                })
+            })
+            .map(|v| edge_of[v as usize])
             .collect();
         stuck_vertices.sort_unstable();
         stuck_vertices.dedup();
@@ -703,5 +825,6 @@ fn place_and_repair<F: ImplicitFunction + ?Sized>(
         mesh,
         crossings_left: !stuck_vertices.is_empty(),
         stuck: stuck_vertices,
+        added: parents.len(),
     }
 }
