@@ -16,7 +16,9 @@
 //!   more across a cell), they sample the facets' interiors: `run` takes the fitted chords'
 //!   whole least-squares move ([`super::PolygonizeParams::chord_share`] 1, not the default
 //!   quarter), after which the fit's own error is most of the distance to the points, and it
-//!   cuts detail mode's split tolerance to 0.27× (`pipeline::DENSE_TOLERANCE`). The rule once
+//!   cuts detail mode's split tolerance to 0.27× (`pipeline::DENSE_TOLERANCE`) and splits the
+//!   mesh's curved edges ([`super::PolygonizeParams::refine`], with the depth meshed: a
+//!   `--depth` asked for is compared with the points the same way). The rule once
 //!   started 3 levels finer (10 at depth 7); from 1 level it also takes the raw range views of
 //!   ../shared/data (8.35–8.57 levels) and their merge through `bun.conf` (9.3): Chamfer
 //!   distance bun000 8.92e-4 → 8.39e-4 of the diagonal, the other views and `bun.conf` −0.8% to

@@ -312,6 +312,41 @@ mod tests {
         assert!(one.embedded);
     }
 
+    /// Data points 2% off the unit sphere raise the sagitta an edge must exceed to their
+    /// scatter (|f|/|∇f| ≈ 0.0198 there), twice the sagitta of an edge of 1.5 cells at depth 4
+    /// (0.28² / 8 ≈ 0.0099): nothing is split; on
+    /// the sphere itself (scatter 0) the share alone decides, as without data.
+    #[test]
+    fn the_data_scatter_is_the_least_sagitta_split() {
+        let params = PolygonizeParams {
+            depth: 4,
+            refine: Some(0.01),
+            ..Default::default()
+        };
+        let region = Aabb {
+            min: [-1.5; 3],
+            max: [1.5; 3],
+        };
+        let sphere = shapes::sphere(1.0);
+        let on: Vec<[f64; 3]> = (0..2000)
+            .map(|i| {
+                // A Fibonacci spiral on the sphere.
+                let z = 1.0 - (2 * i + 1) as f64 / 2000.0;
+                let r = (1.0 - z * z).sqrt();
+                let a = i as f64 * 2.399_963_229_728_653;
+                [r * a.cos(), r * a.sin(), z]
+            })
+            .collect();
+        let off: Vec<[f64; 3]> = on.iter().map(|p| p.map(|c| 1.02 * c)).collect();
+        let with = |data: &[[f64; 3]]| {
+            crate::polygonize::polygonize_with_data(&sphere, &region, data, None, &params).unwrap()
+        };
+        let without = mesh_of(&sphere, 1.5, &params).unwrap();
+        assert!(without.refined_vertices > 0);
+        assert_eq!(with(&on).refined_vertices, without.refined_vertices);
+        assert_eq!(with(&off).refined_vertices, 0);
+    }
+
     /// A share that is not finite and positive is refused with an error that names it.
     #[test]
     fn a_share_out_of_range_is_an_error() {
