@@ -221,6 +221,16 @@ mod tests {
         polygonize(shape, &region, params)
     }
 
+    /// The unit sphere meshed at depth 4 in [−1.5, 1.5]³, with step 7's share `refine`.
+    fn sphere_at_depth_4(refine: Option<f64>) -> Polygonized {
+        let params = PolygonizeParams {
+            depth: 4,
+            refine,
+            ..Default::default()
+        };
+        mesh_of(&shapes::sphere(1.0), 1.5, &params).unwrap()
+    }
+
     /// Mean |r − 1| of the unit sphere's mesh over its area (the facets' distance to it).
     fn mean_radius_error(mesh: &TriangleMesh) -> f64 {
         crate::measure::area_mean(mesh, |p| (dot(p, p).sqrt() - 1.0).abs())
@@ -233,14 +243,8 @@ mod tests {
     /// (halved edges: a quarter of the sagitta, plus the sagitta's spread).
     #[test]
     fn split_edges_follow_the_sphere() {
-        let params = |refine| PolygonizeParams {
-            depth: 4,
-            refine,
-            ..Default::default()
-        };
-        let sphere = shapes::sphere(1.0);
-        let before = mesh_of(&sphere, 1.5, &params(None)).unwrap();
-        let after = mesh_of(&sphere, 1.5, &params(Some(0.01))).unwrap();
+        let before = sphere_at_depth_4(None);
+        let after = sphere_at_depth_4(Some(0.01));
         assert_eq!(before.refined_vertices, 0);
         let old = before.mesh.positions.len();
         assert_eq!(after.mesh.positions.len(), old + after.refined_vertices);
@@ -270,21 +274,15 @@ mod tests {
     /// unrefined one, byte for byte.
     #[test]
     fn straight_enough_edges_stay() {
-        let params = |refine| PolygonizeParams {
-            depth: 4,
-            refine,
-            ..Default::default()
-        };
-        let sphere = shapes::sphere(1.0);
-        let before = mesh_of(&sphere, 1.5, &params(None)).unwrap();
-        let after = mesh_of(&sphere, 1.5, &params(Some(100.0))).unwrap();
+        let before = sphere_at_depth_4(None);
+        let after = sphere_at_depth_4(Some(100.0));
         assert_eq!(after.refined_vertices, 0);
         assert_eq!(after.mesh, before.mesh);
     }
 
     /// With the chords' whole move and a thin torus (minor radius 1.6 cells at depth 5), the
-    /// refined mesh keeps the torus's topology (χ = 0) without a crossing, and the
-    /// result is the same for one thread and two.
+    /// refined mesh keeps the torus's topology (χ = 0) without a crossing, and the result is
+    /// the same for one thread and two.
     #[test]
     fn refined_chords_keep_a_thin_torus_embedded_and_deterministic() {
         let params = PolygonizeParams {
@@ -314,8 +312,8 @@ mod tests {
 
     /// Data points 2% off the unit sphere raise the sagitta an edge must exceed to their
     /// scatter (|f|/|∇f| ≈ 0.0198 there), twice the sagitta of an edge of 1.5 cells at depth 4
-    /// (0.28² / 8 ≈ 0.0099): nothing is split; on
-    /// the sphere itself (scatter 0) the share alone decides, as without data.
+    /// (0.28² / 8 ≈ 0.0099): nothing is split; on the sphere itself (scatter 0) the share
+    /// alone decides, as without data.
     #[test]
     fn the_data_scatter_is_the_least_sagitta_split() {
         let params = PolygonizeParams {
@@ -341,7 +339,7 @@ mod tests {
         let with = |data: &[[f64; 3]]| {
             crate::polygonize::polygonize_with_data(&sphere, &region, data, None, &params).unwrap()
         };
-        let without = mesh_of(&sphere, 1.5, &params).unwrap();
+        let without = sphere_at_depth_4(Some(0.01));
         assert!(without.refined_vertices > 0);
         assert_eq!(with(&on).refined_vertices, without.refined_vertices);
         assert_eq!(with(&off).refined_vertices, 0);
