@@ -159,9 +159,10 @@ pub struct MeshOpts {
     #[arg(long, overrides_with = "fit_chords")]
     pub no_fit_chords: bool,
     /// Split the mesh's curved edges at their midpoint on the surface: the edges whose arc
-    /// strays from the chord by more than 1% of the finest cells' side, so the facets follow the
-    /// surface where it curves, for up to 4x the triangles there. `run` in detail mode does it
-    /// by default where the points are a level or more finer than the mesh.
+    /// strays from the chord by more than 1.5% of the finest cells' side and, with data points,
+    /// by more than their median distance from the model, so the facets follow the surface
+    /// where it curves, for up to 4x the triangles there. `run` in detail mode does it by
+    /// default where the points are a level or more finer than the mesh.
     #[arg(long, overrides_with = "no_refine")]
     pub refine: bool,
     /// Never split the mesh's edges (the default for a global model, and for points no finer
