@@ -629,6 +629,69 @@ fn ray_parity_inside(p: [f64; 3], triangles: &[[u32; 3]], positions: &[[f64; 3]]
     crossings % 2 == 1
 }
 
+/// The triangles on each undirected edge, in compressed rows over the sorted edges.
+pub(crate) struct EdgeMap {
+    /// For each triangle, the index of each of its three edges (edge k runs from corner k to
+    /// corner k + 1).
+    of_triangle: Vec<[u32; 3]>,
+    /// `start[e]..start[e + 1]` are edge e's triangles in `triangles`.
+    start: Vec<u32>,
+    triangles: Vec<u32>,
+}
+
+impl EdgeMap {
+    /// The edges of `tris`, numbered in the order of their (lower, higher) vertex indices.
+    pub(crate) fn new(tris: &[[u32; 3]]) -> EdgeMap {
+        use rayon::prelude::*;
+        let mut uses: Vec<(u32, u32, u32, u8)> = tris
+            .iter()
+            .enumerate()
+            .flat_map(|(ti, t)| {
+                (0..3).map(move |k| {
+                    let (a, b) = (t[k], t[(k + 1) % 3]);
+                    (a.min(b), a.max(b), ti as u32, k as u8)
+                })
+            })
+            .collect();
+        uses.par_sort_unstable();
+        let mut of_triangle = vec![[0u32; 3]; tris.len()];
+        let mut start = Vec::new();
+        let mut triangles = Vec::with_capacity(uses.len());
+        let mut e = 0u32;
+        for (i, u) in uses.iter().enumerate() {
+            if i == 0 || (uses[i - 1].0, uses[i - 1].1) != (u.0, u.1) {
+                if i > 0 {
+                    e += 1;
+                }
+                start.push(i as u32);
+            }
+            of_triangle[u.2 as usize][u.3 as usize] = e;
+            triangles.push(u.2);
+        }
+        start.push(uses.len() as u32);
+        EdgeMap {
+            of_triangle,
+            start,
+            triangles,
+        }
+    }
+
+    /// The number of edges.
+    pub(crate) fn len(&self) -> usize {
+        self.start.len() - 1
+    }
+
+    /// The indices of triangle `t`'s edges (edge k runs from corner k to corner k + 1).
+    pub(crate) fn of_triangle(&self, t: usize) -> [u32; 3] {
+        self.of_triangle[t]
+    }
+
+    /// The triangles on edge `e`, in triangle order.
+    pub(crate) fn triangles_of(&self, e: u32) -> &[u32] {
+        &self.triangles[self.start[e as usize] as usize..self.start[e as usize + 1] as usize]
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // Self-intersections.
 
@@ -1013,15 +1076,7 @@ pub(crate) fn intersecting_triangles_among(
     // (cube, triangle) for every cube a box overlaps, by cube, then by triangle.
     let mut entries: Vec<(u64, u32)> = Vec::new();
     for c in cells.iter().flatten() {
-        let cl = c.low_cube;
-        let ch = [0, 1, 2].map(|a| cube(c.hi[a], a));
-        for x in cl[0]..=ch[0] {
-            for y in cl[1]..=ch[1] {
-                for z in cl[2]..=ch[2] {
-                    entries.push((key([x, y, z]), c.tri));
-                }
-            }
-        }
+        entries.extend(cubes_of(&(c.lo, c.hi)).map(|k| (k, c.tri)));
     }
     crate::numerics::sort_pairs_by_key(&mut entries);
     // Group starts.

@@ -33,7 +33,7 @@ use rayon::prelude::*;
 
 use super::extract::{newton, PlacedVertex};
 use super::ImplicitFunction;
-use crate::mesh::TriangleMesh;
+use crate::mesh::{EdgeMap, TriangleMesh};
 use crate::vec3::{norm, sub};
 
 /// The refinement of a mesh (see the module docs).
@@ -46,17 +46,6 @@ pub(crate) struct Refined {
     pub triangles: Vec<[u32; 3]>,
 }
 
-/// The undirected edge `a`–`b` as one key.
-fn edge_key(a: u32, b: u32) -> u64 {
-    let (lo, hi) = if a < b { (a, b) } else { (b, a) };
-    (u64::from(lo) << 32) | u64::from(hi)
-}
-
-/// The edge of `key` as its two ends, lower index first.
-fn ends(key: u64) -> [u32; 2] {
-    [(key >> 32) as u32, key as u32]
-}
-
 /// Splits the edges of `mesh` (vertices on the zero set of `function`) whose sagitta estimate
 /// h·|n_a − n_b|/8 exceeds `threshold` (see the module docs); new vertices are projected to
 /// |f|/|∇f| ≤ `tolerance`.
@@ -66,40 +55,23 @@ pub(crate) fn refine<F: ImplicitFunction + ?Sized>(
     threshold: f64,
     tolerance: f64,
 ) -> Refined {
-    let mut keys: Vec<u64> = mesh
-        .triangles
-        .iter()
-        .flat_map(|t| (0..3).map(move |k| edge_key(t[k], t[(k + 1) % 3])))
+    let map = EdgeMap::new(&mesh.triangles);
+    // Each edge's ends, lower index first (from its first triangle), and whether it is on the
+    // boundary (one triangle).
+    let edges: Vec<[u32; 2]> = (0..map.len() as u32)
+        .into_par_iter()
+        .map(|e| {
+            let t = map.triangles_of(e)[0] as usize;
+            let k = (0..3).find(|&k| map.of_triangle(t)[k] == e).unwrap_or(0);
+            let (a, b) = (mesh.triangles[t][k], mesh.triangles[t][(k + 1) % 3]);
+            [a.min(b), a.max(b)]
+        })
         .collect();
-    keys.par_sort_unstable();
-    // Each edge once; an edge met once is on the boundary.
-    let mut edges: Vec<u64> = Vec::with_capacity(keys.len() / 2 + 1);
-    let mut boundary: Vec<bool> = Vec::with_capacity(keys.len() / 2 + 1);
-    for (i, &key) in keys.iter().enumerate() {
-        if i > 0 && keys[i - 1] == key {
-            if let Some(last) = boundary.last_mut() {
-                *last = false;
-            }
-        } else {
-            edges.push(key);
-            boundary.push(true);
-        }
-    }
-    drop(keys);
-    let edge_index = |a: u32, b: u32| {
-        edges
-            .binary_search(&edge_key(a, b))
-            .expect("every triangle edge is listed")
-    };
-    let triangle_edges: Vec<[usize; 3]> = mesh
-        .triangles
-        .par_iter()
-        .map(|t| [0, 1, 2].map(|k| edge_index(t[k], t[(k + 1) % 3])))
-        .collect();
+    let boundary = |e: usize| map.triangles_of(e as u32).len() == 1;
     let mut split: Vec<bool> = edges
         .par_iter()
-        .map(|&key| {
-            let [a, b] = ends(key).map(|v| v as usize);
+        .map(|ends| {
+            let [a, b] = ends.map(|v| v as usize);
             let length = norm(sub(mesh.positions[a], mesh.positions[b]));
             let turn = norm(sub(mesh.normals[a], mesh.normals[b]));
             length * turn / 8.0 > threshold
@@ -108,7 +80,8 @@ pub(crate) fn refine<F: ImplicitFunction + ?Sized>(
     // A triangle with two split edges gets its third: pieces of two and four only.
     loop {
         let mut changed = false;
-        for e in &triangle_edges {
+        for t in 0..mesh.triangles.len() {
+            let e = map.of_triangle(t).map(|e| e as usize);
             if e.iter().filter(|&&i| split[i]).count() == 2 {
                 e.iter().for_each(|&i| split[i] = true);
                 changed = true;
@@ -122,10 +95,10 @@ pub(crate) fn refine<F: ImplicitFunction + ?Sized>(
     let vertices: Vec<PlacedVertex> = chosen
         .par_iter()
         .map(|&i| {
-            let [a, b] = ends(edges[i]).map(|v| v as usize);
+            let [a, b] = edges[i].map(|v| v as usize);
             let (pa, pb) = (mesh.positions[a], mesh.positions[b]);
             let mid = midpoint(pa, pb);
-            if !boundary[i] {
+            if !boundary(i) {
                 let (vertex, spent) = newton(function, mid, 0.5 * norm(sub(pa, pb)), tolerance);
                 if let Some(vertex) = vertex {
                     return PlacedVertex {
@@ -148,9 +121,9 @@ pub(crate) fn refine<F: ImplicitFunction + ?Sized>(
         new_index[i] = first + k as u32;
     }
     let mut triangles = Vec::with_capacity(mesh.triangles.len() + 3 * chosen.len());
-    for (t, e) in mesh.triangles.iter().zip(&triangle_edges) {
+    for (i, t) in mesh.triangles.iter().enumerate() {
         // m[k] splits the edge from t[k] to t[k + 1].
-        let m = e.map(|i| new_index[i]);
+        let m = map.of_triangle(i).map(|e| new_index[e as usize]);
         match m.iter().filter(|&&v| v != u32::MAX).count() {
             0 => triangles.push(*t),
             3 => {
@@ -168,7 +141,7 @@ pub(crate) fn refine<F: ImplicitFunction + ?Sized>(
     }
     Refined {
         vertices,
-        parents: chosen.iter().map(|&i| ends(edges[i])).collect(),
+        parents: chosen.iter().map(|&i| edges[i]).collect(),
         triangles,
     }
 }

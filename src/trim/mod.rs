@@ -78,9 +78,10 @@ mod holes;
 mod regions;
 mod spacing;
 
+use crate::mesh::EdgeMap;
 use fair::fair;
 use holes::fill_holes;
-use regions::{remove_extra_fans, remove_islands, unsupported_regions, Depth, EdgeMap};
+use regions::{remove_extra_fans, remove_islands, unsupported_regions, Depth};
 use spacing::{spacing_and_reach_at, spacing_at};
 
 /// Version of this stage's algorithm: if you change anything that changes its output for the

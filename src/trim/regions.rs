@@ -5,60 +5,8 @@
 //! Input: the mesh, its edge map, the triangles' areas and the unsupported triangles' depths.
 //! Output: the removed triangles, marked in place, and the counts the report gives.
 
-use rayon::prelude::*;
-
-use crate::mesh::{TriangleMesh, VertexTriangles};
+use crate::mesh::{EdgeMap, TriangleMesh, VertexTriangles};
 use crate::numerics::UnionFind;
-
-/// The triangles on each undirected edge, in compressed rows over the sorted edges.
-pub(super) struct EdgeMap {
-    /// For each triangle, the index of each of its three edges (edge k runs from corner k to
-    /// corner k + 1).
-    of_triangle: Vec<[u32; 3]>,
-    /// `start[e]..start[e + 1]` are edge e's triangles in `triangles`.
-    start: Vec<u32>,
-    triangles: Vec<u32>,
-}
-
-impl EdgeMap {
-    pub(super) fn new(tris: &[[u32; 3]]) -> EdgeMap {
-        let mut uses: Vec<(u32, u32, u32, u8)> = tris
-            .iter()
-            .enumerate()
-            .flat_map(|(ti, t)| {
-                (0..3).map(move |k| {
-                    let (a, b) = (t[k], t[(k + 1) % 3]);
-                    (a.min(b), a.max(b), ti as u32, k as u8)
-                })
-            })
-            .collect();
-        uses.par_sort_unstable();
-        let mut of_triangle = vec![[0u32; 3]; tris.len()];
-        let mut start = Vec::new();
-        let mut triangles = Vec::with_capacity(uses.len());
-        let mut e = 0u32;
-        for (i, u) in uses.iter().enumerate() {
-            if i == 0 || (uses[i - 1].0, uses[i - 1].1) != (u.0, u.1) {
-                if i > 0 {
-                    e += 1;
-                }
-                start.push(i as u32);
-            }
-            of_triangle[u.2 as usize][u.3 as usize] = e;
-            triangles.push(u.2);
-        }
-        start.push(uses.len() as u32);
-        EdgeMap {
-            of_triangle,
-            start,
-            triangles,
-        }
-    }
-
-    fn triangles_of(&self, e: u32) -> &[u32] {
-        &self.triangles[self.start[e as usize] as usize..self.start[e as usize + 1] as usize]
-    }
-}
 
 /// How far an unsupported triangle's centroid lies from the data; for a region, the largest of
 /// each over its triangles (taken separately: one triangle may give the spacings, another the
@@ -108,7 +56,7 @@ pub(super) fn unsupported_regions(
                 depth.spacings = depth.spacings.max(d.spacings);
                 depth.distance = depth.distance.max(d.distance);
             }
-            for &e in &edges.of_triangle[t as usize] {
+            for &e in &edges.of_triangle(t as usize) {
                 let on = edges.triangles_of(e);
                 if on.len() == 1 {
                     reaches_boundary = true;
@@ -260,7 +208,7 @@ pub(super) fn remove_islands(
         stack.push(first as u32);
         while let Some(t) = stack.pop() {
             area += areas[t as usize];
-            for &e in &edges.of_triangle[t as usize] {
+            for &e in &edges.of_triangle(t as usize) {
                 for &u in edges.triangles_of(e) {
                     if !removed[u as usize] && label[u as usize] == u32::MAX {
                         label[u as usize] = id;
