@@ -250,18 +250,34 @@ const fn n_monomials(n: usize) -> usize {
 /// bounds.
 #[inline(always)]
 fn value_gradient_of(n: usize, coefficients: &[f64], q: [f64; 3]) -> (f64, [f64; 3]) {
+    // Buffers of the degree's own size: zeroing the 120 rows of degree 14 cost more than the
+    // sums of a low degree (a local cubic's evaluation spent half its time in that memset).
+    match n {
+        0..=4 => value_gradient_sized::<15>(n, coefficients, q),
+        5..=8 => value_gradient_sized::<45>(n, coefficients, q),
+        _ => value_gradient_sized::<YZ_LEN>(n, coefficients, q),
+    }
+}
+
+/// [`value_gradient_of`] with buffers of `L` ≥ (n + 1)(n + 2)/2 rows.
+#[inline(always)]
+fn value_gradient_sized<const L: usize>(
+    n: usize,
+    coefficients: &[f64],
+    q: [f64; 3],
+) -> (f64, [f64; 3]) {
     let coefficients = &coefficients[..n_monomials(n)];
     // px[e + 1] = x^e, px[0] = 0 (the x^(−1) of a derivative's zero term).
     let mut px = [0.0; STACK_DEGREE + 2];
     fill_powers(&mut px[1..=n + 1], q[0]);
     let n_yz = (n + 1) * (n + 2) / 2;
-    let mut yz = [0.0; YZ_LEN];
+    let mut yz = [0.0; L];
     fill_yz(&mut yz[..n_yz], q[1], q[2], n);
     // Per y^j z^k: [y^j z^k, ∂/∂y, ∂/∂z, 0], so that the three dot products of a block run as
     // one multiply-add on four lanes (each lane the same operations as a separate sum). The
     // derivatives are ∂(y^j z^k)/∂y = j y^(j−1) z^k and ∂/∂z = k y^j z^(k−1), from the degree
     // s − 1 row.
-    let mut terms = [[0.0; 4]; YZ_LEN];
+    let mut terms = [[0.0; 4]; L];
     let mut row = 0;
     for s in 0..=n {
         for k in 0..=s {
