@@ -215,49 +215,37 @@ pub(crate) fn fit_local(
                 }
             }
         };
-    match constraints {
-        Constraints::Gradient => {
-            // The rows' normal equations from the points' moments (see
-            // [`gradient_normal_equations`]): 84 + 30 sums a point at degree 3, 165 + 60 at
-            // degree 4, against 4 rank-one updates of a 20 × 20 or 35 × 35 matrix.
-            let mut moments = [0.0; MOMENTS_MAX];
-            let mut normal_moments = [[0.0; 20]; 3];
-            let mut mon = [0.0; MOMENTS_MAX];
-            let (all, lower) = (n_coefficients(2 * degree), n_coefficients(degree - 1));
-            for &i in ball {
-                let q = norm(points[i as usize]);
-                let nv = normals[i as usize];
-                let w = confidence.map_or(1.0, |c| f64::from(c[i as usize]));
-                let r2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
-                let mut pw = 1.0;
-                for b in beta.iter_mut().take(n + 1) {
-                    *b += pw;
-                    pw *= r2;
-                }
-                monomials(2 * n, q, &mut mon);
-                for (sum, m) in moments[..all].iter_mut().zip(&mon) {
+    // With gradient rows, the rows' normal equations come from the points' moments (see
+    // [`gradient_normal_equations`]): 84 + 30 sums a point at degree 3, 165 + 60 at degree 4,
+    // against 4 rank-one updates of a 20 × 20 or 35 × 35 matrix.
+    let mut moments = [0.0; MOMENTS_MAX];
+    let mut normal_moments = [[0.0; 20]; 3];
+    let mut all_monomials = [0.0; MOMENTS_MAX];
+    let (all, lower) = (n_coefficients(2 * degree), n_coefficients(degree - 1));
+    for &i in ball {
+        let q = norm(points[i as usize]);
+        let nv = normals[i as usize];
+        let w = confidence.map_or(1.0, |c| f64::from(c[i as usize]));
+        let r2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
+        let mut pw = 1.0;
+        for b in beta.iter_mut().take(n + 1) {
+            *b += pw;
+            pw *= r2;
+        }
+        match constraints {
+            Constraints::Gradient => {
+                monomials(2 * n, q, &mut all_monomials);
+                for (sum, m) in moments[..all].iter_mut().zip(&all_monomials) {
                     *sum += w * m;
                 }
                 for (sums, &nc) in normal_moments.iter_mut().zip(&nv) {
                     let wn = w * nc;
-                    for (sum, m) in sums[..lower].iter_mut().zip(&mon) {
+                    for (sum, m) in sums[..lower].iter_mut().zip(&all_monomials) {
                         *sum += wn * m;
                     }
                 }
             }
-            gradient_normal_equations(n, &moments, &normal_moments, &mut ata, &mut atb);
-        }
-        Constraints::ThreeLevels(epsilon) => {
-            for &i in ball {
-                let q = norm(points[i as usize]);
-                let nv = normals[i as usize];
-                let w = confidence.map_or(1.0, |c| f64::from(c[i as usize]));
-                let r2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
-                let mut pw = 1.0;
-                for b in beta.iter_mut().take(n + 1) {
-                    *b += pw;
-                    pw *= r2;
-                }
+            Constraints::ThreeLevels(epsilon) => {
                 monomials(n, q, &mut mon);
                 add_row(&mon, 0.0, w, &mut ata, &mut atb);
                 monomials(n, [0, 1, 2].map(|a| q[a] + epsilon * nv[a]), &mut mon);
@@ -266,6 +254,9 @@ pub(crate) fn fit_local(
                 add_row(&mon, -epsilon, w, &mut ata, &mut atb);
             }
         }
+    }
+    if constraints == Constraints::Gradient {
+        gradient_normal_equations(n, &moments, &normal_moments, &mut ata, &mut atb);
     }
     let aux_w = aux_weight(ball, measure);
     for &(p, t) in aux {
