@@ -354,18 +354,31 @@ const MONOMIAL_TABLE: [(u8, u8); n_monomials(STACK_DEGREE)] = {
 /// long dependent chain. Inlined with a constant `n` ([`with_constant_degree`]).
 #[inline(always)]
 fn monomial_dot(n: usize, coefficients: &[f64], q: [f64; 3]) -> f64 {
-    // Tables padded to a power of two, so that the masked indices below need no checks.
+    // A y^j z^k table of the degree's own size, as in `value_gradient_of` (zeroing 128 entries
+    // for a low degree's 15 cost as much as its sums).
+    match n {
+        0..=4 => monomial_dot_sized::<16>(n, coefficients, q),
+        5..=8 => monomial_dot_sized::<64>(n, coefficients, q),
+        _ => monomial_dot_sized::<128>(n, coefficients, q),
+    }
+}
+
+/// [`monomial_dot`] with a y^j z^k table of `L` entries, a power of two ≥ (n + 1)(n + 2)/2.
+#[inline(always)]
+fn monomial_dot_sized<const L: usize>(n: usize, coefficients: &[f64], q: [f64; 3]) -> f64 {
+    // Tables padded to a power of two, so that the masked indices below need no checks (every
+    // index is below the mask, which changes none).
     let mut px = [0.0; 16];
     fill_powers(&mut px[..=n], q[0]);
     // y^j z^k for j + k = s, at s(s+1)/2 + k: the same order as the coefficients inside every
     // degree block.
-    let mut yz = [0.0; 128];
+    let mut yz = [0.0; L];
     let n_yz = (n + 1) * (n + 2) / 2;
     fill_yz(&mut yz[..n_yz], q[1], q[2], n);
     let l = n_monomials(n);
     let (table, coefficients) = (&MONOMIAL_TABLE[..l], &coefficients[..l]);
     let term =
-        |(i, yzk): (u8, u8), a: f64| a * (px[usize::from(i) & 15] * yz[usize::from(yzk) & 127]);
+        |(i, yzk): (u8, u8), a: f64| a * (px[usize::from(i) & 15] * yz[usize::from(yzk) & (L - 1)]);
     let mut partial = [0.0; 4];
     for (index, a) in table.chunks_exact(4).zip(coefficients.chunks_exact(4)) {
         for t in 0..4 {
