@@ -637,6 +637,8 @@ pub(crate) struct EdgeMap {
     /// `start[e]..start[e + 1]` are edge e's triangles in `triangles`.
     start: Vec<u32>,
     triangles: Vec<u32>,
+    /// Each edge's ends, lower index first.
+    ends: Vec<[u32; 2]>,
 }
 
 impl EdgeMap {
@@ -657,6 +659,7 @@ impl EdgeMap {
         let mut of_triangle = vec![[0u32; 3]; tris.len()];
         let mut start = Vec::new();
         let mut triangles = Vec::with_capacity(uses.len());
+        let mut ends = Vec::new();
         let mut e = 0u32;
         for (i, u) in uses.iter().enumerate() {
             if i == 0 || (uses[i - 1].0, uses[i - 1].1) != (u.0, u.1) {
@@ -664,6 +667,7 @@ impl EdgeMap {
                     e += 1;
                 }
                 start.push(i as u32);
+                ends.push([u.0, u.1]);
             }
             of_triangle[u.2 as usize][u.3 as usize] = e;
             triangles.push(u.2);
@@ -673,6 +677,7 @@ impl EdgeMap {
             of_triangle,
             start,
             triangles,
+            ends,
         }
     }
 
@@ -684,6 +689,11 @@ impl EdgeMap {
     /// The indices of triangle `t`'s edges (edge k runs from corner k to corner k + 1).
     pub(crate) fn of_triangle(&self, t: usize) -> [u32; 3] {
         self.of_triangle[t]
+    }
+
+    /// The ends of edge `e`, lower index first.
+    pub(crate) fn ends(&self, e: u32) -> [u32; 2] {
+        self.ends[e as usize]
     }
 
     /// The triangles on edge `e`, in triangle order.

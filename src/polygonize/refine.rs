@@ -56,22 +56,12 @@ pub(crate) fn refine<F: ImplicitFunction + ?Sized>(
     tolerance: f64,
 ) -> Refined {
     let map = EdgeMap::new(&mesh.triangles);
-    // Each edge's ends, lower index first (from its first triangle), and whether it is on the
-    // boundary (one triangle).
-    let edges: Vec<[u32; 2]> = (0..map.len() as u32)
+    // An edge on the boundary has one triangle.
+    let boundary = |e: usize| map.triangles_of(e as u32).len() == 1;
+    let mut split: Vec<bool> = (0..map.len() as u32)
         .into_par_iter()
         .map(|e| {
-            let t = map.triangles_of(e)[0] as usize;
-            let k = (0..3).find(|&k| map.of_triangle(t)[k] == e).unwrap_or(0);
-            let (a, b) = (mesh.triangles[t][k], mesh.triangles[t][(k + 1) % 3]);
-            [a.min(b), a.max(b)]
-        })
-        .collect();
-    let boundary = |e: usize| map.triangles_of(e as u32).len() == 1;
-    let mut split: Vec<bool> = edges
-        .par_iter()
-        .map(|ends| {
-            let [a, b] = ends.map(|v| v as usize);
+            let [a, b] = map.ends(e).map(|v| v as usize);
             let length = norm(sub(mesh.positions[a], mesh.positions[b]));
             let turn = norm(sub(mesh.normals[a], mesh.normals[b]));
             length * turn / 8.0 > threshold
@@ -91,11 +81,11 @@ pub(crate) fn refine<F: ImplicitFunction + ?Sized>(
             break;
         }
     }
-    let chosen: Vec<usize> = (0..edges.len()).filter(|&i| split[i]).collect();
+    let chosen: Vec<usize> = (0..map.len()).filter(|&i| split[i]).collect();
     let vertices: Vec<PlacedVertex> = chosen
         .par_iter()
         .map(|&i| {
-            let [a, b] = edges[i].map(|v| v as usize);
+            let [a, b] = map.ends(i as u32).map(|v| v as usize);
             let (pa, pb) = (mesh.positions[a], mesh.positions[b]);
             let mid = midpoint(pa, pb);
             if !boundary(i) {
@@ -116,7 +106,7 @@ pub(crate) fn refine<F: ImplicitFunction + ?Sized>(
         })
         .collect();
     let first = mesh.positions.len() as u32;
-    let mut new_index = vec![u32::MAX; edges.len()];
+    let mut new_index = vec![u32::MAX; map.len()];
     for (k, &i) in chosen.iter().enumerate() {
         new_index[i] = first + k as u32;
     }
@@ -141,7 +131,7 @@ pub(crate) fn refine<F: ImplicitFunction + ?Sized>(
     }
     Refined {
         vertices,
-        parents: chosen.iter().map(|&i| edges[i]).collect(),
+        parents: chosen.iter().map(|&i| map.ends(i as u32)).collect(),
         triangles,
     }
 }
