@@ -152,6 +152,9 @@ pub const KAPPA: Range = Range::float("--kappa", 0.0, 1e3);
 pub const EPSILON: Range = Range::float("--epsilon", 1e-4, 0.5);
 /// `--local-degree`: the detail fit's local polynomials.
 pub const LOCAL_DEGREE: Range = Range::int("--local-degree", 2, 4);
+/// `--fit-stride`: detail mode fits every N-th point; past a few thousand a scan's fit keeps
+/// too few points per ball for any surface the mesh can show.
+pub const FIT_STRIDE: Range = Range::int("--fit-stride", 1, 4096);
 /// `--tolerance`: a fraction of the bounding-box diagonal; at 0.5 no cell ever splits, and the
 /// split depth is capped by the detail fit's `max_depth` however small it is.
 pub const TOLERANCE: Range = Range::float("--tolerance", 1e-6, 0.5);

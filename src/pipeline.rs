@@ -129,6 +129,10 @@ pub struct PipelineConfig {
     /// mesh's depth ([`polygonize::DataResolution::finer_than`]): on in detail mode unless
     /// `--refine` or `--no-refine` says otherwise, off in global mode.
     pub refine_from_data: bool,
+    /// Whether detail mode fits every k-th point only ([`DetailParams::stride`]) where the
+    /// points are far finer than the mesh's cells ([`polygonize::fit_stride`]): on in detail
+    /// mode unless `--fit-stride` says otherwise.
+    pub stride_from_data: bool,
     /// Which zero-set components the mesh keeps (see [`PipelineConfig::for_mode`]).
     pub keep: Keep,
     /// Trim stage parameters (see [`PipelineConfig::for_mode`]).
@@ -189,6 +193,7 @@ impl PipelineConfig {
             depth_from_data: false,
             tolerance_from_data: false,
             refine_from_data: false,
+            stride_from_data: false,
             keep: export.keep,
             trim: export.trim,
             slices: export.slices,
@@ -212,6 +217,7 @@ impl PipelineConfig {
                 depth_from_data: true,
                 tolerance_from_data: true,
                 refine_from_data: true,
+                stride_from_data: true,
                 keep: Keep::Data,
                 trim: TrimParams::default(),
                 slices: crate::distance::SliceParams {
@@ -1073,15 +1079,19 @@ fn detail_params(config: &PipelineConfig) -> DetailParams {
 ///   the spacing cannot be measured; [`polygonize::DataResolution`]), and the chords' whole
 ///   move on dense points;
 /// - with [`PipelineConfig::tolerance_from_data`], the split tolerance × [`DENSE_TOLERANCE`]
-///   on dense points.
+///   on dense points;
+/// - with [`PipelineConfig::stride_from_data`], the detail fit's stride of the points per cell
+///   at the meshing depth ([`polygonize::fit_stride`]).
 ///
 /// The flags are cleared: the result asks for nothing more.
 fn resolve_for_data(config: &PipelineConfig, oriented: &Oriented) -> PipelineConfig {
     let mut resolved = config.clone();
     resolved.detail = detail_params(config);
+    let region = crate::cloud::Aabb::from_points(&oriented.cloud.points).map(|b| b.grown(0.1));
     if config.depth_from_data || config.tolerance_from_data || config.refine_from_data {
-        let data = crate::cloud::Aabb::from_points(&oriented.cloud.points)
-            .and_then(|b| polygonize::DataResolution::of(oriented.input_points(), &b.grown(0.1)));
+        let data = region
+            .as_ref()
+            .and_then(|r| polygonize::DataResolution::of(oriented.input_points(), r));
         if let Some(data) = data {
             if config.depth_from_data {
                 resolved.polygonize.depth = data.depth();
@@ -1098,9 +1108,16 @@ fn resolve_for_data(config: &PipelineConfig, oriented: &Oriented) -> PipelineCon
             }
         }
     }
+    if config.stride_from_data
+        && let Some(region) = &region
+    {
+        resolved.detail.stride =
+            polygonize::fit_stride(&oriented.cloud.points, region, resolved.polygonize.depth);
+    }
     resolved.depth_from_data = false;
     resolved.tolerance_from_data = false;
     resolved.refine_from_data = false;
+    resolved.stride_from_data = false;
     resolved
 }
 
@@ -1450,5 +1467,30 @@ mod tests {
         let resolved = resolve_for_data(&no_chords, &grid(1000));
         assert!(!resolved.polygonize.fit_chords);
         assert_eq!(resolved.polygonize.chord_share, polygonize::CHORD_SHARE);
+    }
+
+    /// Points 1000 to the side over a region of side 1.2: cells of depth 7 (1.2 / 128) hold
+    /// about (9.37)² ≈ 88 points, fitted every ⌊88 / 6⌋ = 14th; 400 to the side (≈ 14 a cell)
+    /// every 2nd; 250 (≈ 5.4) every one. A stride asked for is kept, and the stride follows
+    /// the depth meshed (depth 8: ≈ 22 a cell, every 3rd).
+    #[test]
+    fn far_finer_points_are_fitted_at_a_stride() {
+        let default = PipelineConfig::for_mode(Mode::Detail);
+        assert!(default.stride_from_data);
+        assert!(!PipelineConfig::for_mode(Mode::Global).stride_from_data);
+        let resolved = resolve_for_data(&default, &grid(1000));
+        assert_eq!(resolved.detail.stride, 14);
+        assert!(!resolved.stride_from_data);
+        assert_eq!(resolve_for_data(&default, &grid(400)).detail.stride, 2);
+        assert_eq!(resolve_for_data(&default, &grid(250)).detail.stride, 1);
+        let mut asked = default.clone();
+        asked.stride_from_data = false;
+        asked.detail.stride = 5;
+        assert_eq!(resolve_for_data(&asked, &grid(1000)).detail.stride, 5);
+        assert_eq!(resolve_for_data(&asked, &grid(100)).detail.stride, 5);
+        let mut deeper = default.clone();
+        deeper.depth_from_data = false;
+        deeper.polygonize.depth = 8;
+        assert_eq!(resolve_for_data(&deeper, &grid(1000)).detail.stride, 3);
     }
 }

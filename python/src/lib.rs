@@ -295,6 +295,7 @@ const RECONSTRUCT_PARAMS: &[&str] = &[
     "method",
     "local_degree",
     "tolerance",
+    "fit_stride",
     "normal_source",
     "viewpoint",
     "keep_outliers",
@@ -371,6 +372,11 @@ fn apply_param(
             config.detail = config.detail.clone().with_tolerance(tolerance);
             // As `--tolerance`: kept over the one the data's resolution would choose.
             config.tolerance_from_data = false;
+        }
+        "fit_stride" => {
+            config.detail.stride = number(value, key, limits::FIT_STRIDE)? as u32;
+            // As `--fit-stride`: kept over the one the data's resolution would choose.
+            config.stride_from_data = false;
         }
         "normal_source" => config.normals.source = choice::<NormalSource>(value, key)?,
         "viewpoint" => {
@@ -511,9 +517,9 @@ impl Reconstruction {
 /// default) or "global" (one polynomial).
 /// The other keywords are the command line's options, with its defaults: `depth`, `trim`
 /// ("auto", "off" or a factor), `keep` ("data" or "all"), `degree`, `kappa` ("auto" or a
-/// number), `kappa_rule`, `epsilon`, `method`, `local_degree`, `tolerance`, `normal_source`,
-/// `viewpoint`, `keep_outliers`; `threads` limits the worker threads (the result does not
-/// depend on it).
+/// number), `kappa_rule`, `epsilon`, `method`, `local_degree`, `tolerance`, `fit_stride`,
+/// `normal_source`, `viewpoint`, `keep_outliers`; `threads` limits the worker threads (the
+/// result does not depend on it).
 ///
 /// Raises ValueError for bad arguments or input (with the library's message), TypeError for
 /// an unknown keyword.

@@ -15,9 +15,9 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 use stablesurf::fit;
 
 use super::range::{
-    number, BOUNDS_MAX_ABS, COUNT, DEGREE, DEPTH, EPSILON, KAPPA, LOCAL_DEGREE, RESOLUTION, SIZE,
-    SLICE_COUNT, SLICE_RESOLUTION, TARGET_TRIANGLES, THREADS, TOLERANCE, TRIM, VIEWPOINT,
-    VOXEL_SIZE,
+    number, BOUNDS_MAX_ABS, COUNT, DEGREE, DEPTH, EPSILON, FIT_STRIDE, KAPPA, LOCAL_DEGREE,
+    RESOLUTION, SIZE, SLICE_COUNT, SLICE_RESOLUTION, TARGET_TRIANGLES, THREADS, TOLERANCE, TRIM,
+    VIEWPOINT, VOXEL_SIZE,
 };
 
 /// stablesurf: stable algebraic surfaces from 3D scans (Sahin & Unel 2008).
@@ -129,6 +129,12 @@ pub struct DetailOpts {
     #[arg(long, value_name = "T", help = tolerance_help(),
           allow_negative_numbers = true, value_parser = TOLERANCE.real())]
     pub tolerance: Option<f64>,
+    /// Detail mode: fit every N-th point along a Z-order curve (a spatially even subset).
+    /// Default: 1; `run`: the points per occupied cell of the mesh's finest level over 6.
+    #[arg(long, value_name = "N",
+          help = FIT_STRIDE.help("Detail mode: fit every N-th point along a Z-order curve (a spatially even subset) [default: 1; `run`: the mean points per occupied cell of the mesh's finest level / 6, rounded down]"),
+          allow_negative_numbers = true, value_parser = FIT_STRIDE.whole::<u32>())]
+    pub fit_stride: Option<u32>,
 }
 
 /// Options of the polygonize stage.

@@ -109,6 +109,7 @@ pub fn fit_params(opts: &FitOpts) -> Result<fit::FitParams> {
 pub fn detail_params(opts: &DetailOpts) -> DetailParams {
     let params = DetailParams {
         degree: opts.local_degree,
+        stride: opts.fit_stride.unwrap_or(1),
         ..DetailParams::default()
     };
     match opts.tolerance {
@@ -117,11 +118,13 @@ pub fn detail_params(opts: &DetailOpts) -> DetailParams {
     }
 }
 
-/// Sets `config`'s detail fit from `opts` ([`detail_params`]); a `--tolerance` given is kept
-/// over the one the data's resolution would choose ([`PipelineConfig::tolerance_from_data`]).
+/// Sets `config`'s detail fit from `opts` ([`detail_params`]); a `--tolerance` or
+/// `--fit-stride` given is kept over the one the data's resolution would choose
+/// ([`PipelineConfig::tolerance_from_data`], [`PipelineConfig::stride_from_data`]).
 pub fn set_detail(config: &mut PipelineConfig, opts: &DetailOpts) {
     config.detail = detail_params(opts);
     config.tolerance_from_data &= opts.tolerance.is_none();
+    config.stride_from_data &= opts.fit_stride.is_none();
 }
 
 /// Meshing parameters for a model of `mode`: the mode's defaults

@@ -78,7 +78,7 @@ pub fn run_source(
                 args.fit.epsilon
             ),
             Mode::Detail => format!(
-                "local degree {}, tolerance {}",
+                "local degree {}, tolerance {}, fit stride {}",
                 args.detail.local_degree,
                 match args.detail.tolerance {
                     Some(t) => t.to_string(),
@@ -87,6 +87,10 @@ pub fn run_source(
                         config.detail.tolerance,
                         stablesurf::pipeline::DENSE_TOLERANCE
                     ),
+                },
+                match args.detail.fit_stride {
+                    Some(k) => k.to_string(),
+                    None => "from the points per mesh cell".to_string(),
                 }
             ),
         };

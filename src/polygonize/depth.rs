@@ -26,6 +26,17 @@
 //!   bunny's mesh vertices subdivided once (Loop, 139,122 points, 8.49 levels): 6.38e-4 →
 //!   6.15e-4 (Open3D Poisson depth 8: 6.01e-4) for 10% more CPU. The bunny itself (7.53) and
 //!   every other input of ../shared/data lie below the rule.
+//! - **Fit stride**: where the cells of the depth meshed hold more than [`FIT_CELL_POINTS`]
+//!   points on average (those holding any), detail mode fits every k-th point along the
+//!   Z-order curve, k = ⌊mean / 6⌋ ([`fit_stride`]): each ball of the fit costs per point (its
+//!   rows, its error measure, the scans for its neighbours), while a few points per cell pin
+//!   the surface as well. The bunny's vertices subdivided twice (556,051 points, 15.5 a cell:
+//!   every 2nd) keep their Chamfer distance (Loop 3.460e-4 → 3.454e-4, midpoint 3.643e-4 →
+//!   3.643e-4) for 1.1–1.3 CPU-s less (7.61 → 6.31 and 6.67 → 5.59, medians of 3 alternated
+//!   runs); the 1,000,000-point torus (32 a cell: every 5th) 2.5163e-4 → 2.5155e-4, 5.55 →
+//!   3.77 CPU-s. Every 3rd or 4th point of the midpoint bunny cost +0.1%. The
+//!   merged bunny views of `bun.conf` (6.6 a cell), the Loop bunny subdivided once (4.2) and
+//!   every input of ../shared/data fit every point.
 //!
 //! Measured in detail mode on the oriented points of ../shared/data against Open3D's Poisson
 //! at depth 8 (symmetric Chamfer distance / diagonal, CPU seconds of the whole run; docs/defaults.md
@@ -38,6 +49,8 @@
 //!
 //! Deterministic: the sample is every k-th point in input order and the nearest-neighbour
 //! search is exact.
+
+use rayon::prelude::*;
 
 use crate::cloud::Aabb;
 use crate::numerics::point_grid::PointGrid;
@@ -54,6 +67,13 @@ const CELL_OVER_SPACING_LOG2: f64 = 0.25;
 /// How many levels finer than the mesh the points must be for `run` to cut detail mode's
 /// split tolerance and take the chords' whole move (see the module docs).
 pub const DENSE_LEVELS: f64 = 1.0;
+
+/// Detail mode fits every k-th point of a cloud whose points average more than this many to
+/// an occupied cell of the mesh's finest level ([`fit_stride`]).
+pub const FIT_CELL_POINTS: usize = 6;
+
+/// The largest stride [`fit_stride`] picks.
+pub const FIT_STRIDE_MAX: u32 = 64;
 
 /// At most this many points are measured for their nearest-neighbour distance.
 const SPACING_SAMPLES: usize = 20_000;
@@ -128,6 +148,56 @@ impl DataResolution {
 /// ```
 pub fn depth_for_data(points: &[[f64; 3]], region: &Aabb) -> Option<u32> {
     DataResolution::of(points, region).map(|r| r.depth())
+}
+
+/// The detail fit's stride ([`crate::detail::DetailParams::stride`]) for `points` meshed at
+/// `depth` over `region`: ⌊m / [`FIT_CELL_POINTS`]⌋ within 1..=[`FIT_STRIDE_MAX`], m the mean
+/// number of points in the cells of that depth holding any (cubes of side the region's longest
+/// side / 2^depth from its minimum corner; points outside the region are not counted). A fit
+/// needs a few points per cell of the mesh, and each of its balls costs per point: on points
+/// far finer than the mesh, every k-th point along the Z-order curve pins the surface as well
+/// (see the module docs). 1 when no point lies in the region.
+///
+/// ```
+/// use stablesurf::polygonize::fit_stride;
+/// use stablesurf::Aabb;
+/// // The unit square sampled 1000 to a side, meshed at depth 7 over a box of side 1.2: cells
+/// // of 1.2 / 128 hold about 9.4² ≈ 88 points, so every 14th is fitted.
+/// let points: Vec<[f64; 3]> = (0..1_000_000)
+///     .map(|i| [(i % 1000) as f64 * 1e-3, (i / 1000) as f64 * 1e-3, 0.0])
+///     .collect();
+/// let region = Aabb { min: [-0.1, -0.1, -0.6], max: [1.1, 1.1, 0.6] };
+/// assert_eq!(fit_stride(&points, &region, 7), 14);
+/// // At depth 9 the cells hold about 2.3² ≈ 5.5 points: every point.
+/// assert_eq!(fit_stride(&points, &region, 9), 1);
+/// ```
+pub fn fit_stride(points: &[[f64; 3]], region: &Aabb, depth: u32) -> u32 {
+    let depth = depth.min(20);
+    let per_axis = (1u64 << depth) as f64;
+    let longest = (0..3)
+        .map(|a| region.max[a] - region.min[a])
+        .fold(0.0, f64::max);
+    let side = longest / per_axis;
+    if !(side > 0.0 && side.is_finite()) {
+        return 1;
+    }
+    let mut cells: Vec<u64> = points
+        .par_iter()
+        .filter_map(|p| {
+            let c = [0, 1, 2].map(|a| ((p[a] - region.min[a]) / side).floor());
+            c.iter()
+                .all(|&v| (0.0..per_axis).contains(&v))
+                .then(|| ((c[0] as u64) << (2 * depth)) | ((c[1] as u64) << depth) | c[2] as u64)
+        })
+        .collect();
+    let inside = cells.len();
+    cells.par_sort_unstable();
+    cells.dedup();
+    if cells.is_empty() {
+        return 1;
+    }
+    let stride = inside / cells.len() / FIT_CELL_POINTS;
+    stride.clamp(1, FIT_STRIDE_MAX as usize) as u32
 }
 
 /// The median distance from a point of an even sample of `points` to its nearest other point

@@ -138,7 +138,10 @@ pub mod shapes;
 mod simplify;
 
 pub use crate::implicit::ImplicitFunction;
-pub use depth::{depth_for_data, DataResolution, DATA_DEPTH_MAX, DATA_DEPTH_MIN, DENSE_LEVELS};
+pub use depth::{
+    depth_for_data, fit_stride, DataResolution, DATA_DEPTH_MAX, DATA_DEPTH_MIN, DENSE_LEVELS,
+    FIT_CELL_POINTS, FIT_STRIDE_MAX,
+};
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};

@@ -755,6 +755,16 @@ fn every_numeric_flag_is_checked_before_any_work() {
             "1e-6 to 0.5",
         ),
         (
+            &["run", scan, "-o", "o", "--fit-stride", "0"],
+            "--fit-stride",
+            "1 to 4096",
+        ),
+        (
+            &["fit", scan, "-o", "m", "--fit-stride", "5000"],
+            "--fit-stride",
+            "1 to 4096",
+        ),
+        (
             &["run", scan, "-o", "o", "--local-degree", "5"],
             "--local-degree",
             "2 to 4",
