@@ -264,13 +264,20 @@ pub(crate) fn mesh_to_points_by_area(
 /// all the points: a subsample would lie farther from the mesh.
 pub const ACCURACY_POINTS: usize = 100_000;
 
-/// At most `most` of `points`: all of them, or every k-th from the first, k = ⌈N / `most`⌉.
+/// At most `most` of `points`: all of them, or every k-th from the first ([`kth_step`]).
 pub(crate) fn every_kth(points: &[[f64; 3]], most: usize) -> Cow<'_, [[f64; 3]]> {
-    if points.len() > most {
-        let step = points.len().div_ceil(most.max(1));
-        Cow::Owned(points.iter().step_by(step).copied().collect())
+    match kth_step(points.len(), most) {
+        1 => Cow::Borrowed(points),
+        step => Cow::Owned(points.iter().step_by(step).copied().collect()),
+    }
+}
+
+/// The step k that keeps at most `most` of `n` items: 1 when n ≤ `most`, else ⌈n / `most`⌉.
+pub(crate) fn kth_step(n: usize, most: usize) -> usize {
+    if n > most {
+        n.div_ceil(most.max(1))
     } else {
-        Cow::Borrowed(points)
+        1
     }
 }
 

@@ -76,8 +76,6 @@ mod local;
 pub use chamfer::{chamfer_distance, ChamferDistance};
 pub use index::BallIndex;
 
-use std::borrow::Cow;
-
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -118,6 +116,15 @@ const PLANE_BELOW: usize = 5;
 /// genus 1, and the other meshes there are unchanged in topology and within 0.5% in Chamfer
 /// distance. At local degree 3 or 4, `N_min` (24 or 42) already covers the rule.
 const FOLD_MIN_POINTS: usize = 24;
+
+/// `values[order[0]]`, `values[order[stride]]`, `values[order[2·stride]]`, …
+fn gather<T: Copy>(values: &[T], order: &[u32], stride: usize) -> Vec<T> {
+    order
+        .iter()
+        .step_by(stride)
+        .map(|&i| values[i as usize])
+        .collect()
+}
 
 /// Whether some normal of `ball` points 90° or more away from the sum of them all (every normal
 /// does when they cancel out).
@@ -577,32 +584,20 @@ pub fn fit_detail(cloud: &OrientedCloud, params: &DetailParams) -> Result<MpuMod
     // then close together in memory, and the passes over large balls read them nearly in
     // sequence instead of at random (a scan's file order is often arbitrary).
     let order = crate::measure::spatial_order(&cloud.points);
-    let points: Vec<[f64; 3]> = order.iter().map(|&i| cloud.points[i as usize]).collect();
-    let normals: Vec<[f64; 3]> = order.iter().map(|&i| cloud.normals[i as usize]).collect();
-    let weights: Option<Vec<f32>> = cloud
-        .weights
-        .as_ref()
-        .map(|w| order.iter().map(|&i| w[i as usize]).collect());
-    drop(order);
-    // The points fitted: every stride-th of that order (all of them at stride 1).
+    // The points fitted: every stride-th of that order (all of them at stride 1), gathered
+    // straight from the input; and the sample the residual diagnostics measure, every k-th of
+    // the whole order as the export's accuracy measures (1M-point torus: this diagnostic was 8%
+    // of the run's CPU over all the points).
     let stride = params.stride as usize;
-    let thin =
-        |all: &[[f64; 3]]| -> Vec<[f64; 3]> { all.iter().step_by(stride).copied().collect() };
-    let (fit_points, fit_normals, fit_weights) = if stride > 1 {
-        (
-            Cow::Owned(thin(&points)),
-            Cow::Owned(thin(&normals)),
-            weights
-                .as_ref()
-                .map(|w| Cow::Owned(w.iter().step_by(stride).copied().collect())),
-        )
-    } else {
-        (
-            Cow::Borrowed(&points[..]),
-            Cow::Borrowed(&normals[..]),
-            weights.as_deref().map(Cow::Borrowed),
-        )
-    };
+    let fit_points = gather(&cloud.points, &order, stride);
+    let fit_normals = gather(&cloud.normals, &order, stride);
+    let fit_weights = cloud.weights.as_ref().map(|w| gather(w, &order, stride));
+    let sampled = gather(
+        &cloud.points,
+        &order,
+        crate::measure::kth_step(n, crate::measure::ACCURACY_POINTS),
+    );
+    drop(order);
     if fit_points.len() < n_min {
         return Err(DetailError::InvalidParams(format!(
             "a stride of {stride} leaves {} of the {n} points, fewer than the {n_min} a fit \
@@ -650,9 +645,6 @@ pub fn fit_detail(cloud: &OrientedCloud, params: &DetailParams) -> Result<MpuMod
         max_local_error: part.max_local_error / diagonal,
     };
     let mut model = MpuModel::new(data_box.grown(0.1), root, diagonal, part.cells, diagnostics);
-    // Over every k-th point of a large cloud, as the export's accuracy measures (1M-point
-    // torus: this diagnostic was 8% of the run's CPU over all the points).
-    let sampled = crate::measure::every_kth(&points, crate::measure::ACCURACY_POINTS);
     let (max_residual, mean_residual) = data_residuals(&model, &sampled);
     model.diagnostics.max_residual = max_residual / diagonal;
     model.diagnostics.mean_residual = mean_residual / diagonal;
