@@ -503,15 +503,23 @@ impl PointGrid {
         of: &[u32],
         k: usize,
     ) -> Vec<Option<f64>> {
-        // `Err(())`: left open by the ring search.
-        let mut out: Vec<Result<Option<f64>, ()>> = of
+        // Queried in cell order, so that consecutive queries read the same cells (the answers
+        // do not depend on the order). `Err(())`: left open by the ring search.
+        let rows = self.rows_in_cell_order(points, of);
+        let answers: Vec<Result<Option<f64>, ()>> = rows
             .par_iter()
-            .map(|&i| {
-                let (best2, zeros) = self.nearest_positive2(points[i as usize]).ok_or(())?;
+            .map(|&r| {
+                let (best2, zeros) = self
+                    .nearest_positive2(points[of[r as usize] as usize])
+                    .ok_or(())?;
                 // `zeros` counts the point itself.
                 Ok((zeros as usize <= k && best2 < f64::INFINITY).then(|| best2.sqrt()))
             })
             .collect();
+        let mut out = vec![Err(()); of.len()];
+        for (&r, answer) in rows.iter().zip(answers) {
+            out[r as usize] = answer;
+        }
         let open: Vec<usize> = (0..out.len()).filter(|&r| out[r].is_err()).collect();
         if !open.is_empty() {
             let open_of: Vec<u32> = open.iter().map(|&r| of[r]).collect();
@@ -531,6 +539,12 @@ impl PointGrid {
     /// grid was made of), as [`PointGrid::nearest`] gives them: row r holds those of `of[r]`.
     pub(crate) fn nearest_of(&self, points: &[[f64; 3]], of: &[u32], k: usize) -> Neighbours {
         // The rows queried in cell order, as in `all_nearest`.
+        let rows = self.rows_in_cell_order(points, of);
+        self.nearest_in_order(points, k, &rows, |r| of[r as usize])
+    }
+
+    /// The rows 0..`of`.len() ordered by the cell of their point `points[of[r]]` (then by row).
+    fn rows_in_cell_order(&self, points: &[[f64; 3]], of: &[u32]) -> Vec<u32> {
         let cell = |i: u32| {
             let p = points[i as usize];
             let c = [0, 1, 2].map(|a| self.cell_of(p[a], a));
@@ -540,8 +554,7 @@ impl PointGrid {
             .map(|r| (cell(of[r as usize]), r))
             .collect();
         keyed.par_sort_unstable();
-        let rows: Vec<u32> = keyed.into_iter().map(|(_, r)| r).collect();
-        self.nearest_in_order(points, k, &rows, |r| of[r as usize])
+        keyed.into_iter().map(|(_, r)| r).collect()
     }
 
     /// The `k` nearest neighbours of point `point_of(r)` in row r, for every r of `rows` (a

@@ -586,7 +586,7 @@ fn compact(mesh: &TriangleMesh, triangles: &[[u32; 3]]) -> TriangleMesh {
 
 #[cfg(test)]
 mod tests {
-    use super::spacing::local_spacing;
+    use super::spacing::{local_spacing, spacing_at};
     use super::*;
     use crate::vec3::{norm, sub};
 
@@ -641,6 +641,16 @@ mod tests {
             assert_eq!(reach, dist(w as usize, kth), "point {w}");
         }
         assert!(some.iter().all(|&(s, reach)| s > 0.0 && reach >= s));
+        // In any order, with repeats: the same spacing at each point asked for.
+        let at: Vec<usize> = (0..points.len())
+            .rev()
+            .step_by(3)
+            .chain([0, 0, 7])
+            .collect();
+        let spacing = spacing_at(&grid, &points, k, at.iter().copied());
+        for (&j, &s) in at.iter().zip(&spacing) {
+            assert_eq!(s, all[j], "point {j}");
+        }
     }
 
     /// A flat grid of n × n squares over [0, 1]², two triangles each, counter-clockwise from +z.

@@ -38,16 +38,21 @@ pub(super) fn spacing_and_reach_at(
     k: usize,
     at: impl Iterator<Item = usize> + Clone,
 ) -> Vec<(f64, f64)> {
-    let mut wanted: Vec<u32> = at.clone().map(|j| j as u32).collect();
-    wanted.sort_unstable();
-    wanted.dedup();
+    // The distinct points in their first-seen order, and each one's row in that list.
+    let mut row_of = vec![u32::MAX; points.len()];
+    let mut wanted: Vec<u32> = Vec::new();
+    for j in at.clone() {
+        if row_of[j] == u32::MAX {
+            row_of[j] = wanted.len() as u32;
+            wanted.push(j as u32);
+        }
+    }
     let spacing = local_spacing(grid, points, k, &wanted);
-    at.map(|j| spacing[wanted.binary_search(&(j as u32)).unwrap_or(0)])
-        .collect()
+    at.map(|j| spacing[row_of[j] as usize]).collect()
 }
 
 /// The local spacing (step 1 of the module docs) and the reach (see [`spacing_and_reach_at`])
-/// at each of the points `wanted` (indices into `points`, sorted, distinct), in their order.
+/// at each of the points `wanted` (indices into `points`, distinct, in any order), in their order.
 pub(super) fn local_spacing(
     grid: &PointGrid,
     points: &[[f64; 3]],
@@ -60,9 +65,10 @@ pub(super) fn local_spacing(
     }
     let neighbours = grid.nearest_of(points, wanted, k);
     // Each point's distance to its nearest neighbour at a positive distance (0 when all its k
-    // neighbours coincide with it), for the wanted points and their neighbours. A wanted
-    // point's is the first entry of its own row at a positive distance (the rows are sorted by
-    // distance, the same sums as the search's); the other points are searched for it.
+    // neighbours coincide with it), for the wanted points and their neighbours, in a table by
+    // point (NaN: not needed). A wanted point's is the first entry of its own row at a positive
+    // distance (the rows are sorted by distance, the same sums as the search's); the other
+    // points are searched for it.
     let own: Vec<f64> = wanted
         .par_iter()
         .enumerate()
@@ -70,32 +76,34 @@ pub(super) fn local_spacing(
             first_positive_distance(points, points[i as usize], neighbours.row(r)).unwrap_or(0.0)
         })
         .collect();
-    let mut others: Vec<u32> = neighbours
-        .flat()
+    let mut nearest = vec![f64::NAN; points.len()];
+    for (&i, &d) in wanted.iter().zip(&own) {
+        nearest[i as usize] = d;
+    }
+    drop(own);
+    // The neighbours not wanted, each once (marked by an infinite entry until searched).
+    let mut others: Vec<u32> = Vec::new();
+    for &j in neighbours.flat() {
+        if nearest[j as usize].is_nan() {
+            nearest[j as usize] = f64::INFINITY;
+            others.push(j);
+        }
+    }
+    for (&j, d) in others
         .iter()
-        .copied()
-        .filter(|j| wanted.binary_search(j).is_err())
-        .collect();
-    others.sort_unstable();
-    others.dedup();
-    let others_nearest: Vec<f64> = grid
-        .nearest_positive_of(points, &others, k)
-        .into_iter()
-        .map(|d| d.unwrap_or(0.0))
-        .collect();
-    let nearest_of = |j: u32| match wanted.binary_search(&j) {
-        Ok(r) => own[r],
-        Err(_) => others_nearest[others.binary_search(&j).unwrap_or(0)],
-    };
+        .zip(grid.nearest_positive_of(points, &others, k))
+    {
+        nearest[j as usize] = d.unwrap_or(0.0);
+    }
     wanted
         .par_iter()
         .enumerate()
-        .map(|(r, &i)| {
-            let mut values: Vec<f64> = std::iter::once(nearest_of(i))
-                .chain(neighbours.row(r).iter().map(|&j| nearest_of(j)))
-                .collect();
-            values.sort_unstable_by(f64::total_cmp);
+        .map_init(Vec::new, |values, (r, &i)| {
             let row = neighbours.row(r);
+            values.clear();
+            values.push(nearest[i as usize]);
+            values.extend(row.iter().map(|&j| nearest[j as usize]));
+            values.sort_unstable_by(f64::total_cmp);
             let reach = row
                 .last()
                 .map_or(0.0, |&j| norm(sub(points[i as usize], points[j as usize])));
