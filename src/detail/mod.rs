@@ -580,6 +580,16 @@ pub fn fit_detail(cloud: &OrientedCloud, params: &DetailParams) -> Result<MpuMod
         min: center.map(|c| c - 0.5 * side),
         max: center.map(|c| c + 0.5 * side),
     };
+    // Every stride-th point is fitted: at least `n_min` of them.
+    let stride = params.stride as usize;
+    let n_fit = n.div_ceil(stride);
+    if n_fit < n_min {
+        return Err(DetailError::InvalidParams(format!(
+            "a stride of {stride} leaves {n_fit} of the {n} points, fewer than the {n_min} a fit \
+             needs; choose a stride of at most {}",
+            (n - 1) / (n_min - 1)
+        )));
+    }
     // The fit reads the points in Z order (`measure::spatial_order`): the points of a ball are
     // then close together in memory, and the passes over large balls read them nearly in
     // sequence instead of at random (a scan's file order is often arbitrary).
@@ -588,7 +598,6 @@ pub fn fit_detail(cloud: &OrientedCloud, params: &DetailParams) -> Result<MpuMod
     // straight from the input; and the sample the residual diagnostics measure, every k-th of
     // the whole order as the export's accuracy measures (1M-point torus: this diagnostic was 8%
     // of the run's CPU over all the points).
-    let stride = params.stride as usize;
     let fit_points = gather(&cloud.points, &order, stride);
     let fit_normals = gather(&cloud.normals, &order, stride);
     let fit_weights = cloud.weights.as_ref().map(|w| gather(w, &order, stride));
@@ -598,14 +607,6 @@ pub fn fit_detail(cloud: &OrientedCloud, params: &DetailParams) -> Result<MpuMod
         crate::measure::kth_step(n, crate::measure::ACCURACY_POINTS),
     );
     drop(order);
-    if fit_points.len() < n_min {
-        return Err(DetailError::InvalidParams(format!(
-            "a stride of {stride} leaves {} of the {n} points, fewer than the {n_min} a fit \
-             needs; choose a stride of at most {}",
-            fit_points.len(),
-            (n - 1) / (n_min - 1)
-        )));
-    }
     let tree = PointTree::new(&fit_points).ok_or_else(|| {
         DetailError::InvalidParams(format!("cannot index {n} points (at most 2^32 − 1)"))
     })?;
