@@ -296,6 +296,29 @@ impl ScanSource {
         }
     }
 
+    /// The views of a multi-view source, poses included: a `.conf`'s scans (read from it, so
+    /// a malformed `.conf` is an error naming it), or several files with identity poses; `None`
+    /// for a single scan, the sample or a cloud in memory.
+    ///
+    /// # Errors
+    /// [`PipelineError::Read`] when the `.conf` cannot be read, [`PipelineError::Import`] when
+    /// it is malformed.
+    pub fn views(&self) -> Result<Option<Vec<import::conf::View>>, PipelineError> {
+        Ok(match self {
+            ScanSource::Sample | ScanSource::File(_) | ScanSource::Cloud(_) => None,
+            ScanSource::Conf(path) => Some(import::conf::read_conf(&read_bytes(path)?, path)?),
+            ScanSource::Files(paths) => Some(
+                paths
+                    .iter()
+                    .map(|p| import::conf::View {
+                        path: p.clone(),
+                        pose: crate::merge::Pose::IDENTITY,
+                    })
+                    .collect(),
+            ),
+        })
+    }
+
     /// The name the report and messages give the input.
     pub fn name(&self) -> String {
         match self {
@@ -545,23 +568,6 @@ fn read_bytes(path: &Path) -> Result<Vec<u8>, PipelineError> {
     })
 }
 
-/// The views of a multi-view source (`None` for a single scan), poses included.
-fn views_of(source: &ScanSource) -> Result<Option<Vec<import::conf::View>>, PipelineError> {
-    Ok(match source {
-        ScanSource::Sample | ScanSource::File(_) | ScanSource::Cloud(_) => None,
-        ScanSource::Conf(path) => Some(import::conf::read_conf(&read_bytes(path)?, path)?),
-        ScanSource::Files(paths) => Some(
-            paths
-                .iter()
-                .map(|p| import::conf::View {
-                    path: p.clone(),
-                    pose: crate::merge::Pose::IDENTITY,
-                })
-                .collect(),
-        ),
-    })
-}
-
 /// Import, outliers and normals through the cache: the fit's input. Several views (a `.conf`,
 /// or several files) are each oriented in their own frame, then merged.
 fn orient_stages(
@@ -569,7 +575,7 @@ fn orient_stages(
     source: &ScanSource,
     config: &PipelineConfig,
 ) -> Result<(Oriented, Key), PipelineError> {
-    match views_of(source)? {
+    match source.views()? {
         Some(views) => merged_views(ctx, &views, config),
         None => match source {
             ScanSource::Cloud(cloud) => oriented_cloud_in_memory(ctx, cloud, config),

@@ -449,8 +449,10 @@ impl RunArgs {
 /// `stablesurf normals`.
 #[derive(Debug, Args)]
 pub struct NormalsArgs {
-    /// Scan file.
-    pub input: PathBuf,
+    /// Scan file; or a `.conf` registration, or several scans of one object in one frame: each
+    /// view's normals are estimated in its own frame, then moved by its pose and merged.
+    #[arg(required = true)]
+    pub input: Vec<PathBuf>,
     /// Output PLY (binary, points with normals).
     #[arg(short, long, value_name = "OUT.ply")]
     pub output: PathBuf,
@@ -465,7 +467,8 @@ pub struct NormalsArgs {
 /// `stablesurf moments`.
 #[derive(Debug, Args)]
 pub struct MomentsArgs {
-    /// Chunk of the scan (any scan format; normals from the file or the normals stage).
+    /// Chunk of the scan (any scan format, or a `.conf` of several; normals from the file or the
+    /// normals stage).
     pub input: PathBuf,
     /// Output moments file.
     #[arg(short, long, value_name = "PART.moments")]
@@ -498,7 +501,7 @@ pub struct FrameArgs {
 /// `stablesurf fit`.
 #[derive(Debug, Args)]
 pub struct FitArgs {
-    /// Scan file.
+    /// Scan file, or a `.conf` registration of several scans (merged as `run` merges them).
     #[arg(required_unless_present = "from_moments")]
     pub input: Option<PathBuf>,
     /// Fit from pass-3 moments files (`stablesurf moments --frame`) instead of a scan: needs a

@@ -25,7 +25,7 @@ pub fn fit(args: FitArgs, verbosity: Verbosity) -> Result<()> {
     config::set_detail(&mut config, &args.detail);
     let mut observer = StderrObserver::new(verbosity);
     let (model, _, _) = pipeline::fit_model(
-        &ScanSource::File(input.clone()),
+        &ScanSource::from_inputs(std::slice::from_ref(&input)),
         &config,
         &Cache::disabled(),
         &mut observer,

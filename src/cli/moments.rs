@@ -53,7 +53,7 @@ pub fn moments(args: MomentsArgs, verbosity: Verbosity) -> Result<()> {
     };
     let mut observer = StderrObserver::new(verbosity);
     let cloud = pipeline::oriented_cloud(
-        &ScanSource::File(args.input.clone()),
+        &ScanSource::from_inputs(std::slice::from_ref(&args.input)),
         &config,
         &Cache::disabled(),
         &mut observer,

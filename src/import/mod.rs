@@ -84,6 +84,15 @@ pub enum ImportError {
         /// The file.
         path: String,
     },
+    /// The file is a `.conf` registration (scans and their poses), not a scan.
+    #[error(
+        "{path}: a .conf registration lists scans and their poses, not points; give it to `stablesurf \
+         run`, `fit`, `normals` or `moments`, which read its scans and merge them, or give one of its scans"
+    )]
+    Registration {
+        /// The file.
+        path: String,
+    },
     /// Neither the content nor the extension tells the format.
     #[error(
         "{path}: unknown scan format: no ply, stl, las, e57 or pcd signature and the extension \
@@ -411,8 +420,13 @@ pub fn read_scan_bytes(bytes: &[u8], path: &Path) -> Result<Scan, ImportError> {
     if bytes.is_empty() {
         return Err(ImportError::Empty { path: name });
     }
-    let detected =
-        detect_format(bytes, path).ok_or(ImportError::UnknownFormat { path: name.clone() })?;
+    let Some(detected) = detect_format(bytes, path) else {
+        return Err(if conf::is_conf(path) {
+            ImportError::Registration { path: name }
+        } else {
+            ImportError::UnknownFormat { path: name }
+        });
+    };
     read_detected(bytes, &name, detected)
 }
 

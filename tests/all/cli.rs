@@ -1407,6 +1407,106 @@ fn conf_files_and_several_scans_merge_and_bad_lines_name_the_line() {
     assert!(!dir.path().join("out3").exists());
 }
 
+#[test]
+fn normals_fit_and_moments_read_a_conf_and_other_commands_say_what_it_is() {
+    let dir = tempfile::tempdir().unwrap();
+    sphere_xyz(dir.path(), 400, "");
+    let conf = dir.path().join("views.conf");
+    // The second view is a quarter turn about z (R(q)ᵀ takes y to x) and a shift of 10 in x.
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    fs::write(
+        &conf,
+        format!("bmesh sphere.xyz 0 0 0 0 0 0 1\nbmesh sphere.xyz 10 0 0 0 0 {h} {h}\n"),
+    )
+    .unwrap();
+    let (points, crust) = (dir.path().join("n.ply"), dir.path().join("crust.ply"));
+    let out = bin()
+        .arg("normals")
+        .arg(&conf)
+        .arg("-o")
+        .arg(&points)
+        .arg("--mesh")
+        .arg(&crust)
+        .args(["--normals", "crust"])
+        .output()
+        .unwrap();
+    let err = stderr_of(&out);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("sphere.xyz: 400 oriented normals from crust"),
+        "{err}"
+    );
+    assert!(
+        err.contains("800 oriented normals in the common frame"),
+        "{err}"
+    );
+    let read =
+        |path: &Path| stablesurf::import::import_bytes(&fs::read(path).unwrap(), path).unwrap();
+    let (cloud, mesh) = (read(&points), read(&crust));
+    assert_eq!(cloud.points.len(), 800);
+    let normals = cloud.normals.as_ref().expect("normals in the PLY");
+    // The second view is the first one moved: p = (y + 10, -x, z), n = (n_y, -n_x, n_z), within
+    // the f32 rounding of the PLY (1e-5 at coordinates up to 13).
+    for i in 0..400 {
+        let (p, q) = (cloud.points[i], cloud.points[400 + i]);
+        let (n, m) = (normals[i], normals[400 + i]);
+        let moved = [p[1] + 10.0, -p[0], p[2]];
+        let turned = [n[1], -n[0], n[2]];
+        for k in 0..3 {
+            assert!(
+                (q[k] - moved[k]).abs() < 1e-5,
+                "point {i}: {q:?} vs {moved:?}"
+            );
+            assert!(
+                (m[k] - turned[k]).abs() < 1e-5,
+                "normal {i}: {m:?} vs {turned:?}"
+            );
+        }
+        // Outward on the sphere of centre (1, 2, 3) in the first view's frame.
+        let r = [p[0] - 1.0, p[1] - 2.0, p[2] - 3.0];
+        assert!(
+            r[0] * n[0] + r[1] * n[1] + r[2] * n[2] > 0.0,
+            "normal {i} inward"
+        );
+    }
+    // Each view's crust, the second's indices moved past the first's points: the same
+    // triangles twice.
+    let tris = &mesh.triangles;
+    assert!(!tris.is_empty() && tris.len() % 2 == 0);
+    let (first, second) = tris.split_at(tris.len() / 2);
+    assert!(first.iter().flatten().all(|&i| i < 400));
+    for (a, b) in first.iter().zip(second) {
+        assert_eq!(a.map(|i| i + 400), *b);
+    }
+
+    // `fit` and `moments` merge the same views.
+    let model = dir.path().join("model.json");
+    let out = bin()
+        .args(["-q", "fit"])
+        .arg(&conf)
+        .arg("-o")
+        .arg(&model)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr_of(&out));
+    assert!(model.exists());
+    let part = moments_part(&conf, &dir.path().join("p.moments"), &[]);
+    assert!(part.exists());
+
+    // A command that takes one scan names the file and says where it goes.
+    let out = bin().args(["info"]).arg(&conf).output().unwrap();
+    let err = stderr_of(&out);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("views.conf: a .conf registration lists scans"),
+        "{err}"
+    );
+    assert!(
+        err.contains("`stablesurf run`, `fit`, `normals` or `moments`"),
+        "{err}"
+    );
+}
+
 /// Runs `stablesurf moments` on `chunk` with `flags`; returns the part path.
 fn moments_part(chunk: &Path, out: &Path, flags: &[&str]) -> PathBuf {
     let output = bin()
