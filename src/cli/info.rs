@@ -1,5 +1,5 @@
-//! `stablesurf info`: what a scan, mesh or model file holds, as aligned text or one JSON object
-//! on stdout.
+//! `stablesurf info`: what a scan, mesh, model or `.conf` registration file holds, as aligned
+//! text or one JSON object on stdout.
 
 use std::io::Write;
 
@@ -26,6 +26,8 @@ pub fn info(args: InfoArgs) -> Result<()> {
         export::npy::read_info(&bytes).with_context(|| named("NumPy .npy"))?
     } else if bytes.starts_with(b"SSMOMENT") {
         moments_info(&bytes).with_context(|| named("a moments file"))?
+    } else if import::conf::is_conf(&args.file) {
+        conf_info(&bytes, &args.file)?
     } else if looks_like_json || stablesurf::model::mpu::is_mpu(&bytes) {
         match Model::from_bytes(&bytes, &args.file)? {
             Model::Detail(model) => serde_json::json!({
@@ -60,6 +62,56 @@ pub fn info(args: InfoArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// What a `.conf` registration holds: each scan's file, point count and pose, and the box of
+/// all their finite points moved into the common frame (what `run` merges).
+fn conf_info(bytes: &[u8], path: &std::path::Path) -> Result<serde_json::Value> {
+    let views = import::conf::read_conf(bytes, path)?;
+    let mut scans = Vec::with_capacity(views.len());
+    let (mut min, mut max) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    let mut total = 0;
+    for view in &views {
+        let scan_bytes = std::fs::read(&view.path).with_context(|| {
+            format!(
+                "reading {}, a scan of {}",
+                view.path.display(),
+                path.display()
+            )
+        })?;
+        let scan = import::read_scan_bytes(&scan_bytes, &view.path)?;
+        for p in &scan.cloud.points {
+            if p.iter().all(|c| c.is_finite()) {
+                let q = view.pose.apply(*p);
+                for a in 0..3 {
+                    min[a] = min[a].min(q[a]);
+                    max[a] = max[a].max(q[a]);
+                }
+            }
+        }
+        total += scan.cloud.points.len();
+        scans.push(serde_json::json!({
+            "file": view.path.display().to_string(),
+            "format": scan.format.as_str(),
+            "points": scan.cloud.points.len(),
+            "translation": view.pose.translation,
+            "rotation": view.pose.rotation,
+        }));
+    }
+    // No finite point at all: the box is NaN, printed as JSON null, as a scan's.
+    let (min, max) = if min[0] <= max[0] {
+        (min, max)
+    } else {
+        ([f64::NAN; 3], [f64::NAN; 3])
+    };
+    Ok(serde_json::json!({
+        "format": "conf",
+        "views": views.len(),
+        "points": total,
+        "bbox_min": min,
+        "bbox_max": max,
+        "scans": scans,
+    }))
 }
 
 /// Whether JSON text is a glTF asset (it has an `asset` object) rather than a model file.

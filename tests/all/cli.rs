@@ -1408,7 +1408,7 @@ fn conf_files_and_several_scans_merge_and_bad_lines_name_the_line() {
 }
 
 #[test]
-fn normals_fit_and_moments_read_a_conf_and_other_commands_say_what_it_is() {
+fn normals_fit_moments_and_info_read_a_conf_and_render_says_what_it_is() {
     let dir = tempfile::tempdir().unwrap();
     sphere_xyz(dir.path(), 400, "");
     let conf = dir.path().join("views.conf");
@@ -1493,8 +1493,38 @@ fn normals_fit_and_moments_read_a_conf_and_other_commands_say_what_it_is() {
     let part = moments_part(&conf, &dir.path().join("p.moments"), &[]);
     assert!(part.exists());
 
+    // `info` lists the views; the box is the merged one: the sphere (x 1 ± 2) and its copy
+    // moved to x = 10 + y (y 2 ± 2), within the Fibonacci lattice's reach of the poles and
+    // the equator (1e-2).
+    let out = bin().args(["info", "--json"]).arg(&conf).output().unwrap();
+    assert!(out.status.success(), "{}", stderr_of(&out));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        (v["views"].as_u64(), v["points"].as_u64()),
+        (Some(2), Some(800))
+    );
+    assert_eq!(
+        v["scans"][1]["translation"],
+        serde_json::json!([10.0, 0.0, 0.0])
+    );
+    let (lo, hi) = (
+        v["bbox_min"][0].as_f64().unwrap(),
+        v["bbox_max"][0].as_f64().unwrap(),
+    );
+    assert!(
+        (lo + 1.0).abs() < 1e-2 && (hi - 14.0).abs() < 1e-2,
+        "{lo} {hi}"
+    );
+
     // A command that takes one scan names the file and says where it goes.
-    let out = bin().args(["info"]).arg(&conf).output().unwrap();
+    let png = dir.path().join("p.png");
+    let out = bin()
+        .arg("render")
+        .arg(&conf)
+        .arg("-o")
+        .arg(&png)
+        .output()
+        .unwrap();
     let err = stderr_of(&out);
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(
@@ -1505,6 +1535,7 @@ fn normals_fit_and_moments_read_a_conf_and_other_commands_say_what_it_is() {
         err.contains("`stablesurf run`, `fit`, `normals` or `moments`"),
         "{err}"
     );
+    assert!(!png.exists());
 }
 
 /// Runs `stablesurf moments` on `chunk` with `flags`; returns the part path.
