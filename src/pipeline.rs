@@ -819,6 +819,7 @@ fn model_stages(
                     let figures = serde_json::json!({
                         "cells": d.cells,
                         "grown_cells": d.grown_cells,
+                        "cubic_cells": model.cells.iter().filter(|c| c.poly.degree == 3).count(),
                         "depth_reached": d.depth_reached,
                         "mean_residual": d.mean_residual,
                         "max_residual": d.max_residual,
@@ -1119,6 +1120,7 @@ fn resolve_for_data(config: &PipelineConfig, oriented: &Oriented) -> PipelineCon
     {
         resolved.detail.stride =
             polygonize::fit_stride(&oriented.cloud.points, region, resolved.polygonize.depth);
+        resolved.detail.refit_deepest = resolved.detail.stride > 1;
     }
     resolved.depth_from_data = false;
     resolved.tolerance_from_data = false;
@@ -1476,27 +1478,33 @@ mod tests {
     }
 
     /// Points 1000 to the side over a region of side 1.2: cells of depth 7 (1.2 / 128) hold
-    /// about (9.37)² ≈ 88 points, fitted every ⌊88 / 6⌋ = 14th; 400 to the side (≈ 14 a cell)
-    /// every 2nd; 250 (≈ 5.4) every one. A stride asked for is kept, and the stride follows
-    /// the depth meshed (depth 8: ≈ 22 a cell, every 3rd).
+    /// about (9.37)² ≈ 88 points, fitted every ⌊85 / 3⌋ = 28th (85 the integer mean) with the
+    /// deepest cells' cubic refit; 400 to the side (≈ 14 a cell) every 4th; 250 (≈ 5.4) every
+    /// one, without refits. A stride asked for is kept, without refits, and the stride follows
+    /// the depth meshed (depth 8: ≈ 22 a cell, every 7th).
     #[test]
     fn far_finer_points_are_fitted_at_a_stride() {
         let default = PipelineConfig::for_mode(Mode::Detail);
         assert!(default.stride_from_data);
         assert!(!PipelineConfig::for_mode(Mode::Global).stride_from_data);
         let resolved = resolve_for_data(&default, &grid(1000));
-        assert_eq!(resolved.detail.stride, 14);
+        assert_eq!(resolved.detail.stride, 28);
+        assert!(resolved.detail.refit_deepest);
         assert!(!resolved.stride_from_data);
-        assert_eq!(resolve_for_data(&default, &grid(400)).detail.stride, 2);
-        assert_eq!(resolve_for_data(&default, &grid(250)).detail.stride, 1);
+        assert_eq!(resolve_for_data(&default, &grid(400)).detail.stride, 4);
+        let every = resolve_for_data(&default, &grid(250));
+        assert_eq!(every.detail.stride, 1);
+        assert!(!every.detail.refit_deepest);
         let mut asked = default.clone();
         asked.stride_from_data = false;
         asked.detail.stride = 5;
-        assert_eq!(resolve_for_data(&asked, &grid(1000)).detail.stride, 5);
+        let kept = resolve_for_data(&asked, &grid(1000));
+        assert_eq!(kept.detail.stride, 5);
+        assert!(!kept.detail.refit_deepest);
         assert_eq!(resolve_for_data(&asked, &grid(100)).detail.stride, 5);
         let mut deeper = default.clone();
         deeper.depth_from_data = false;
         deeper.polygonize.depth = 8;
-        assert_eq!(resolve_for_data(&deeper, &grid(1000)).detail.stride, 3);
+        assert_eq!(resolve_for_data(&deeper, &grid(1000)).detail.stride, 7);
     }
 }

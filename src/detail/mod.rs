@@ -67,7 +67,8 @@
 //! of 17.7 s on one thread, for a Chamfer distance within 0.03% and the same topology.
 //! Points far finer than the cells need are fitted at a stride ([`DetailParams::stride`]: every
 //! k-th along the Z-order curve, which `run` picks from the points per cell of the mesh); the
-//! residual diagnostics still measure every point.
+//! residual diagnostics still measure every point. There `run` also refits the deepest cells
+//! whose quadric misses the tolerance as cubics ([`DetailParams::refit_deepest`]).
 
 mod chamfer;
 mod index;
@@ -219,6 +220,14 @@ pub struct DetailParams {
     /// ([`crate::polygonize::fit_stride`]).
     #[serde(default = "one")]
     pub stride: u32,
+    /// With `degree` 2: a cell of level `max_depth` (not grown) whose quadric misses the split
+    /// tolerance is fitted again as a cubic over the same rows, and the cubic is kept when its
+    /// largest error over the ball is smaller. Default false; `run` sets it where it picks a
+    /// stride above 1 from the data (points far finer than the mesh,
+    /// [`crate::polygonize::fit_stride`]): there the deepest cells hold relief a quadric cannot
+    /// follow, and the stride pays for the cubics.
+    #[serde(default)]
+    pub refit_deepest: bool,
 }
 
 /// 1, the default of [`DetailParams::stride`] in a serialized params record without it.
@@ -239,6 +248,7 @@ impl Default for DetailParams {
             support: 0.75,
             auxiliary: AuxiliaryPoints::CentreAndCorners,
             stride: 1,
+            refit_deepest: false,
         }
     }
 }
@@ -293,6 +303,7 @@ impl DetailParams {
             LocalConstraints::ThreeLevels => 0,
         });
         out.extend_from_slice(&self.stride.to_le_bytes());
+        out.push(u8::from(self.refit_deepest));
         out
     }
 }
@@ -922,32 +933,53 @@ fn visit(
         params.tolerance
     };
     let may_split = !grown && level < params.max_depth;
-    let Some(fit) = fit_local(
-        ctx.points,
-        ctx.normals,
-        fit_points,
-        &ball,
-        // A cell that may split needs its error only up to the tolerance; a leaf needs it all.
-        if may_split {
-            tolerance * ctx.diagonal
-        } else {
-            f64::INFINITY
-        },
-        &aux,
-        degree,
-        match params.constraints {
-            LocalConstraints::Gradient => Constraints::Gradient,
-            LocalConstraints::ThreeLevels => Constraints::ThreeLevels(params.epsilon),
-        },
-        params.kappa,
-        fit_radius,
-        Some((center, radius)),
-        ctx.weights,
-    ) else {
+    let constraints = match params.constraints {
+        LocalConstraints::Gradient => Constraints::Gradient,
+        LocalConstraints::ThreeLevels => Constraints::ThreeLevels(params.epsilon),
+    };
+    // The ball's fit at `degree`, its error measured up to `stop_above`.
+    let fit_at = |degree: u32, stop_above: f64| {
+        fit_local(
+            ctx.points,
+            ctx.normals,
+            fit_points,
+            &ball,
+            stop_above,
+            &aux,
+            degree,
+            constraints,
+            params.kappa,
+            fit_radius,
+            Some((center, radius)),
+            ctx.weights,
+        )
+    };
+    // A cell that may split needs its error only up to the tolerance; a leaf needs it all.
+    let stop_above = if may_split {
+        tolerance * ctx.diagonal
+    } else {
+        f64::INFINITY
+    };
+    let Some(fit) = fit_at(degree, stop_above) else {
         part.error = Some(DetailError::LocalFit { level, center });
         return part;
     };
     part.fitted = 1;
+    let fit = match fit {
+        // A deepest cell the quadric leaves out of tolerance: the cubic, where it does better.
+        fit if params.refit_deepest
+            && degree == 2
+            && !grown
+            && level == params.max_depth
+            && fit.max_error > tolerance * ctx.diagonal =>
+        {
+            match fit_at(3, f64::INFINITY) {
+                Some(cubic) if cubic.max_error < fit.max_error => cubic,
+                _ => fit,
+            }
+        }
+        fit => fit,
+    };
     let split = may_split && fit.max_error > tolerance * ctx.diagonal;
     if !split {
         if !grown {

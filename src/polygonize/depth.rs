@@ -34,17 +34,25 @@
 //!   bunny's mesh vertices subdivided once (Loop, 139,122 points, 8.49 levels): 6.38e-4 →
 //!   6.15e-4 (Open3D Poisson depth 8: 6.01e-4) for 10% more CPU. The bunny itself (7.53) and
 //!   every other input of ../shared/data lie below the rule.
-//! - **Fit stride**: where the cells of the depth meshed hold more than [`FIT_CELL_POINTS`]
-//!   points on average (those holding any), detail mode fits every k-th point along the
-//!   Z-order curve, k = ⌊mean / 6⌋ ([`fit_stride`]): each ball of the fit costs per point (its
+//! - **Fit stride**: where the cells of the depth meshed hold at least [`FIT_CELL_POINTS`]
+//!   (12) points on average (those holding any), detail mode fits every k-th point along the
+//!   Z-order curve, k = ⌊mean / [`FIT_STRIDE_POINTS`]⌋ ([`fit_stride`]), and refits the deepest
+//!   cells whose quadric misses the tolerance as cubics
+//!   ([`crate::detail::DetailParams::refit_deepest`]): each ball of the fit costs per point (its
 //!   rows, its error measure, the scans for its neighbours), while a few points per cell pin
-//!   the surface as well. The bunny's vertices subdivided twice (556,051 points, 15.5 a cell:
-//!   every 2nd) keep their Chamfer distance (Loop 3.460e-4 → 3.454e-4, midpoint 3.643e-4 →
-//!   3.643e-4) for 1.1–1.3 CPU-s less (7.61 → 6.31 and 6.67 → 5.59, medians of 3 alternated
-//!   runs); the 1,000,000-point torus (32 a cell: every 5th) 2.5163e-4 → 2.5155e-4, 5.55 →
-//!   3.77 CPU-s. Every 3rd or 4th point of the midpoint bunny cost +0.1%. The
-//!   merged bunny views of `bun.conf` (6.6 a cell), the Loop bunny subdivided once (4.2) and
-//!   every input of ../shared/data fit every point.
+//!   the surface as well, and the time saved pays for the cubics, which follow relief finer
+//!   than a quadric can. The bunny's vertices subdivided twice (556,051 points, 15.5 a cell:
+//!   every 5th; before, every 2nd without refits): Chamfer distance / diagonal (5 seeds)
+//!   midpoint 3.6428e-4 → 3.6199e-4 (Open3D Poisson depth 8: 3.6269e-4), Loop 3.4537e-4 →
+//!   3.4374e-4 (3.4741e-4), at the same CPU (3 alternated runs: 5.61–5.81 → 5.43–5.98 and
+//!   4.94–5.85 → 4.53–5.52 CPU-s against Poisson's 10.2–12.8); the 1,000,000-point torus (32 a
+//!   cell: every 10th, no cell refitted) 2.5155e-4 → 2.5161e-4 (Poisson 2.5217e-4), 3.10–3.44
+//!   → 2.98–3.18 CPU-s. Every 4th point of the midpoint bunny with refits gave 3.6119e-4,
+//!   every 3rd 3.6040e-4, every 2nd 3.5979e-4, for 0.3, 0.7 and 1.0 CPU-s more (single runs);
+//!   refits at every point of `bun.conf` 6.657e-4 → 6.628e-4 for 55% more CPU (its noise fails
+//!   the tolerance everywhere). The merged bunny views of `bun.conf` (6.6 a cell), the Loop
+//!   bunny subdivided once (4.2) and every input of ../shared/data fit every point, without
+//!   refits: their meshes are unchanged.
 //!
 //! Measured in detail mode on the oriented points of ../shared/data against Open3D's Poisson
 //! at depth 8 (symmetric Chamfer distance / diagonal, CPU seconds of the whole run; docs/defaults.md
@@ -76,9 +84,12 @@ const CELL_OVER_SPACING_LOG2: f64 = 0.25;
 /// split tolerance and take the chords' whole move (see the module docs).
 pub const DENSE_LEVELS: f64 = 1.0;
 
-/// Detail mode fits every k-th point of a cloud whose points average more than this many to
+/// Detail mode fits every k-th point of a cloud whose points average at least this many to
 /// an occupied cell of the mesh's finest level ([`fit_stride`]).
-pub const FIT_CELL_POINTS: usize = 6;
+pub const FIT_CELL_POINTS: usize = 12;
+
+/// ... k = ⌊mean / this⌋: about this many points of each such cell are fitted.
+pub const FIT_STRIDE_POINTS: usize = 3;
 
 /// The largest stride [`fit_stride`] picks.
 pub const FIT_STRIDE_MAX: u32 = 64;
@@ -159,23 +170,27 @@ pub fn depth_for_data(points: &[[f64; 3]], region: &Aabb) -> Option<u32> {
 }
 
 /// The detail fit's stride ([`crate::detail::DetailParams::stride`]) for `points` meshed at
-/// `depth` over `region`: ⌊m / [`FIT_CELL_POINTS`]⌋ within 1..=[`FIT_STRIDE_MAX`], m the mean
-/// number of points in the cells of that depth holding any (cubes of side the region's longest
-/// side / 2^depth from its minimum corner; points outside the region are not counted). A fit
-/// needs a few points per cell of the mesh, and each of its balls costs per point: on points
-/// far finer than the mesh, every k-th point along the Z-order curve pins the surface as well
-/// (see the module docs). 1 when no point lies in the region.
+/// `depth` over `region`: with m the mean number of points in the cells of that depth holding
+/// any (cubes of side the region's longest side / 2^depth from its minimum corner; points
+/// outside the region are not counted), 1 below [`FIT_CELL_POINTS`] and ⌊m /
+/// [`FIT_STRIDE_POINTS`]⌋ from there, at most [`FIT_STRIDE_MAX`]. A fit needs a few points per
+/// cell of the mesh, and each of its balls costs per point: on points far finer than the mesh,
+/// every k-th point along the Z-order curve pins the surface as well, and the time saved pays
+/// for cubic refits of the deepest cells ([`crate::detail::DetailParams::refit_deepest`], which
+/// `run` sets with a stride above 1; see the module docs). 1 when no point lies in the region.
 ///
 /// ```
 /// use stablesurf::polygonize::fit_stride;
 /// use stablesurf::Aabb;
-/// // The unit square sampled 1000 to a side, meshed at depth 7 over a box of side 1.2: cells
-/// // of 1.2 / 128 hold about 9.4² ≈ 88 points, so every 14th is fitted.
+/// // The unit square sampled 1000 to a side, meshed at depth 7 over a box of side 1.2: the
+/// // 108 × 108 cells of 1.2 / 128 it meets hold 85 points on average, so every 28th is fitted.
 /// let points: Vec<[f64; 3]> = (0..1_000_000)
 ///     .map(|i| [(i % 1000) as f64 * 1e-3, (i / 1000) as f64 * 1e-3, 0.0])
 ///     .collect();
 /// let region = Aabb { min: [-0.1, -0.1, -0.6], max: [1.1, 1.1, 0.6] };
-/// assert_eq!(fit_stride(&points, &region, 7), 14);
+/// assert_eq!(fit_stride(&points, &region, 7), 28);
+/// // At depth 8, 214 × 214 cells of 21 points: every 7th.
+/// assert_eq!(fit_stride(&points, &region, 8), 7);
 /// // At depth 9 the cells hold about 2.3² ≈ 5.5 points: every point.
 /// assert_eq!(fit_stride(&points, &region, 9), 1);
 /// ```
@@ -204,8 +219,11 @@ pub fn fit_stride(points: &[[f64; 3]], region: &Aabb, depth: u32) -> u32 {
     if cells.is_empty() {
         return 1;
     }
-    let stride = inside / cells.len() / FIT_CELL_POINTS;
-    stride.clamp(1, FIT_STRIDE_MAX as usize) as u32
+    let mean = inside / cells.len();
+    if mean < FIT_CELL_POINTS {
+        return 1;
+    }
+    (mean / FIT_STRIDE_POINTS).clamp(1, FIT_STRIDE_MAX as usize) as u32
 }
 
 /// The median distance from a point of an even sample of `points` to its nearest other point

@@ -140,7 +140,7 @@ mod simplify;
 pub use crate::implicit::ImplicitFunction;
 pub use depth::{
     depth_for_data, fit_stride, DataResolution, DATA_DEPTH_MAX, DATA_DEPTH_MIN, DENSE_LEVELS,
-    FIT_CELL_POINTS, FIT_STRIDE_MAX,
+    FIT_CELL_POINTS, FIT_STRIDE_MAX, FIT_STRIDE_POINTS,
 };
 
 use rayon::prelude::*;
