@@ -53,6 +53,24 @@ impl Pose {
         let q = self.isometry() * Point3::from(p);
         [q.x, q.y, q.z]
     }
+
+    /// Points moved into the common frame, the isometry built once for all of them.
+    ///
+    /// ```
+    /// use stablesurf::merge::Pose;
+    /// let pose = Pose { translation: [1.0, 2.0, 3.0], rotation: [0.0, 0.0, 0.0, 1.0] };
+    /// assert_eq!(pose.apply_all(&[[0.0; 3], [1.0, 0.0, 0.0]]), [[1.0, 2.0, 3.0], [2.0, 2.0, 3.0]]);
+    /// ```
+    pub fn apply_all(&self, points: &[[f64; 3]]) -> Vec<[f64; 3]> {
+        let iso = self.isometry();
+        points
+            .iter()
+            .map(|p| {
+                let q = iso * Point3::from(*p);
+                [q.x, q.y, q.z]
+            })
+            .collect()
+    }
 }
 
 /// The views moved into the common frame and concatenated (see the module docs).

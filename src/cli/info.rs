@@ -6,7 +6,7 @@ use std::io::Write;
 use anyhow::{Context, Result};
 use stablesurf::fit::moments::PartialMoments;
 use stablesurf::pipeline::Model;
-use stablesurf::{export, import};
+use stablesurf::{export, import, Aabb};
 
 use super::args::InfoArgs;
 
@@ -69,8 +69,7 @@ pub fn info(args: InfoArgs) -> Result<()> {
 fn conf_info(bytes: &[u8], path: &std::path::Path) -> Result<serde_json::Value> {
     let views = import::conf::read_conf(bytes, path)?;
     let mut scans = Vec::with_capacity(views.len());
-    let (mut min, mut max) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-    let mut total = 0;
+    let mut moved = Vec::new();
     for view in &views {
         let scan_bytes = std::fs::read(&view.path).with_context(|| {
             format!(
@@ -80,16 +79,7 @@ fn conf_info(bytes: &[u8], path: &std::path::Path) -> Result<serde_json::Value> 
             )
         })?;
         let scan = import::read_scan_bytes(&scan_bytes, &view.path)?;
-        for p in &scan.cloud.points {
-            if p.iter().all(|c| c.is_finite()) {
-                let q = view.pose.apply(*p);
-                for a in 0..3 {
-                    min[a] = min[a].min(q[a]);
-                    max[a] = max[a].max(q[a]);
-                }
-            }
-        }
-        total += scan.cloud.points.len();
+        moved.extend(view.pose.apply_all(&scan.cloud.points));
         scans.push(serde_json::json!({
             "file": view.path.display().to_string(),
             "format": scan.format.as_str(),
@@ -98,16 +88,16 @@ fn conf_info(bytes: &[u8], path: &std::path::Path) -> Result<serde_json::Value> 
             "rotation": view.pose.rotation,
         }));
     }
-    // No finite point at all: the box is NaN, printed as JSON null, as a scan's.
-    let (min, max) = if min[0] <= max[0] {
-        (min, max)
-    } else {
-        ([f64::NAN; 3], [f64::NAN; 3])
-    };
+    // The box of the finite points; NaN, printed as JSON null, when there is none (as a scan's).
+    let bbox = Aabb::from_points(&moved);
+    let (min, max) = (
+        bbox.map_or([f64::NAN; 3], |b| b.min),
+        bbox.map_or([f64::NAN; 3], |b| b.max),
+    );
     Ok(serde_json::json!({
         "format": "conf",
         "views": views.len(),
-        "points": total,
+        "points": moved.len(),
         "bbox_min": min,
         "bbox_max": max,
         "scans": scans,

@@ -25,16 +25,17 @@ pub fn normals(args: NormalsArgs, verbosity: Verbosity) -> Result<()> {
         Some(views) => {
             let mut oriented: Vec<(OrientedCloud, Pose)> = Vec::with_capacity(views.len());
             let mut crust = Vec::new();
+            let mut before = 0;
             for view in &views {
                 let (cloud, triangles) = one_scan(&view.path, &params, verbosity, true)?;
-                let offset = oriented.iter().map(|(c, _)| c.points.len()).sum::<usize>();
-                let offset = u32::try_from(offset).with_context(|| {
+                let offset = u32::try_from(before).with_context(|| {
                     format!(
                         "{}: the views hold more than 2^32 points together; give fewer views",
                         source.name()
                     )
                 })?;
                 crust.extend(triangles.iter().map(|t| t.map(|i| i + offset)));
+                before += cloud.points.len();
                 oriented.push((cloud, view.pose));
             }
             let refs: Vec<(&OrientedCloud, Pose)> = oriented.iter().map(|(c, p)| (c, *p)).collect();
