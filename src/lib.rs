@@ -60,7 +60,7 @@ pub use export::{export, ExportError, ExportOutput, ExportParams};
 pub use fit::{fit, FitError, FitParams};
 pub use import::{import_scan_bytes, read_scan, ImportError};
 pub use merge::{merge_views, Pose};
-pub use normals::{estimate_normals, NormalsError, NormalsParams};
+pub use normals::{estimate_noise, estimate_normals, NoiseEstimate, NormalsError, NormalsParams};
 pub use outliers::{remove_outliers, OutlierParams};
 pub use polygonize::{polygonize, PolygonizeError, PolygonizeParams};
 pub use trim::{trim, TrimError, TrimParams};

@@ -158,6 +158,9 @@ pub const FIT_STRIDE: Range = Range::int("--fit-stride", 1, 4096);
 /// `--tolerance`: a fraction of the bounding-box diagonal; at 0.5 no cell ever splits, and the
 /// split depth is capped by the detail fit's `max_depth` however small it is.
 pub const TOLERANCE: Range = Range::float("--tolerance", 1e-6, 0.5);
+/// `--smooth`: a factor on the measured noise; 0 takes the points as exact, and at 10 the
+/// local fits average a scatter ten times the data's, which flattens every feature of that size.
+pub const SMOOTH: Range = Range::float("--smooth", 0.0, 10.0);
 /// `--depth` (run, mesh, slices): octree depth near the surface; each level has about 4× the
 /// triangles of the one before, so 12 is already ~4^5 times the default 7.
 pub const DEPTH: Range = Range::int("--depth", 1, 12);

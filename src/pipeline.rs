@@ -12,7 +12,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::cache::{self, Artifact, Cache, Key, OutputFiles};
 use crate::cloud::{OrientedCloud, PointCloud};
@@ -22,12 +22,12 @@ use crate::fit::{self, FitParams};
 use crate::import;
 use crate::measure::Accuracy;
 use crate::mesh::MeshReport;
-use crate::normals::{self, NormalsParams};
+use crate::normals::{self, NoiseEstimate, NormalsParams};
 use crate::outliers::{self, OutlierParams};
 use crate::outputs::OutputSet;
 use crate::polygonize::decimate::{DecimateParams, DecimateReport};
 use crate::polygonize::{self, PolygonizeParams};
-use crate::trim::{self, TrimParams, TrimReport};
+use crate::trim::{self, TrimMode, TrimParams, TrimReport};
 
 pub use crate::export::{mesh_files, Keep, MeshFileOptions, MeshFormat, OutputFormat};
 pub use crate::model::{meshing_region, Mode, Model};
@@ -133,6 +133,12 @@ pub struct PipelineConfig {
     /// points are far finer than the mesh's cells ([`polygonize::fit_stride`]): on in detail
     /// mode unless `--fit-stride` says otherwise.
     pub stride_from_data: bool,
+    /// The factor on the measured noise ([`normals::estimate_noise`]) that detail mode's fit
+    /// averages instead of following ([`DetailParams::noise`]; `--smooth`): 1 by default, 0
+    /// fits the points as exact (interpolates them), 2 smooths at twice the measured noise.
+    /// Points that are not noisy ([`NoiseEstimate::is_noisy`]) are fitted as exact whatever
+    /// the factor ([`smoothing`]).
+    pub smooth: f64,
     /// Which zero-set components the mesh keeps (see [`PipelineConfig::for_mode`]).
     pub keep: Keep,
     /// Trim stage parameters (see [`PipelineConfig::for_mode`]).
@@ -194,6 +200,7 @@ impl PipelineConfig {
             tolerance_from_data: false,
             refine_from_data: false,
             stride_from_data: false,
+            smooth: 1.0,
             keep: export.keep,
             trim: export.trim,
             slices: export.slices,
@@ -378,6 +385,10 @@ pub struct RunReport {
     pub outputs: Vec<String>,
     /// Every warning the run printed.
     pub warnings: Vec<String>,
+    /// The measured noise of the points and the noise the fit averaged (absent when it could
+    /// not be measured: fewer than 25 points).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub noise: Option<NoiseReport>,
     /// Total wall time in seconds.
     pub seconds: f64,
 }
@@ -422,6 +433,8 @@ struct Ctx<'a> {
     stages: Vec<StageRecord>,
     /// Every warning told to the observer, for the report.
     warnings: Vec<String>,
+    /// The measured noise of the fit's input points, for the report.
+    noise: Option<NoiseReport>,
 }
 
 impl<'a> Ctx<'a> {
@@ -450,6 +463,7 @@ impl<'a> Ctx<'a> {
             observer,
             stages: Vec::new(),
             warnings: Vec::new(),
+            noise: None,
         };
         for w in warnings {
             ctx.warn(w);
@@ -748,7 +762,9 @@ fn fit_stages(
     config: &PipelineConfig,
 ) -> Result<(Oriented, Model, Key, PipelineConfig), PipelineError> {
     let (oriented, oriented_key) = orient_stages(ctx, source, config)?;
-    let resolved = resolve_for_data(config, &oriented);
+    let noise = crate::normals::estimate_noise(oriented.input_points());
+    let resolved = resolve_for_data(config, &oriented, noise.as_ref());
+    ctx.noise = noise.map(|n| NoiseReport::new(n, &oriented.cloud.points, &resolved));
     let (model, model_key) = model_stages(ctx, &oriented.cloud, oriented_key, &resolved)?;
     Ok((oriented, model, model_key, resolved))
 }
@@ -1091,10 +1107,15 @@ fn detail_params(config: &PipelineConfig) -> DetailParams {
 ///   at the meshing depth ([`polygonize::fit_stride`]).
 ///
 /// The flags are cleared: the result asks for nothing more.
-fn resolve_for_data(config: &PipelineConfig, oriented: &Oriented) -> PipelineConfig {
+fn resolve_for_data(
+    config: &PipelineConfig,
+    oriented: &Oriented,
+    noise: Option<&NoiseEstimate>,
+) -> PipelineConfig {
     let mut resolved = config.clone();
     resolved.detail = detail_params(config);
-    let region = crate::cloud::Aabb::from_points(&oriented.cloud.points).map(|b| b.grown(0.1));
+    let data_box = crate::cloud::Aabb::from_points(&oriented.cloud.points);
+    let region = data_box.map(|b| b.grown(0.1));
     if config.depth_from_data || config.tolerance_from_data || config.refine_from_data {
         let data = region
             .as_ref()
@@ -1122,11 +1143,91 @@ fn resolve_for_data(config: &PipelineConfig, oriented: &Oriented) -> PipelineCon
             polygonize::fit_stride(&oriented.cloud.points, region, resolved.polygonize.depth);
         resolved.detail.refit_deepest = resolved.detail.stride > 1;
     }
+    if let (Some(noise), Some(data_box)) = (noise, data_box)
+        && config.mode == Mode::Detail
+    {
+        resolved.detail.noise =
+            smoothing(noise, data_box.diagonal(), config.smooth, &resolved.detail);
+        if resolved.trim.mode == TrimMode::Support {
+            resolved.trim.noise = resolved.detail.noise;
+        }
+    }
     resolved.depth_from_data = false;
     resolved.tolerance_from_data = false;
     resolved.refine_from_data = false;
     resolved.stride_from_data = false;
     resolved
+}
+
+/// Noise below this share of the split tolerance is not smoothed: the largest of a few
+/// hundred Gaussian residuals is about 3–4 σ, so below a quarter of the tolerance noise alone
+/// does not fail a cell's split test, and the fit of exact data stands.
+pub const NOISE_FLOOR: f64 = 0.25;
+
+/// The detail fit's [`DetailParams::noise`] for the measured `noise` of points whose box has
+/// the diagonal `diagonal`, at the factor `smooth`: `smooth`·σ over the diagonal, or 0 where
+/// the points are not noisy ([`NoiseEstimate::is_noisy`]: what a clean scan measures is its
+/// surface's own relief) or that is below [`NOISE_FLOOR`] × the split tolerance.
+///
+/// ```
+/// use stablesurf::pipeline::smoothing;
+/// use stablesurf::{DetailParams, NoiseEstimate};
+/// let d = DetailParams::default(); // tolerance 6.5e-4
+/// let noise = NoiseEstimate { sigma: 2.5e-3, spacing: 3e-3, ..Default::default() };
+/// assert_eq!(smoothing(&noise, 1.0, 1.0, &d), 2.5e-3);
+/// assert_eq!(smoothing(&noise, 1.0, 2.0, &d), 5e-3);
+/// assert_eq!(smoothing(&noise, 1.0, 0.0, &d), 0.0); // --smooth 0: exact data
+/// let clean = NoiseEstimate { spacing: 1e-2, ..noise };
+/// assert_eq!(smoothing(&clean, 1.0, 1.0, &d), 0.0); // a quarter of the spacing
+/// ```
+pub fn smoothing(noise: &NoiseEstimate, diagonal: f64, smooth: f64, detail: &DetailParams) -> f64 {
+    let s = smooth * noise.sigma / diagonal;
+    if noise.is_noisy() && s.is_finite() && s > NOISE_FLOOR * detail.tolerance {
+        s
+    } else {
+        0.0
+    }
+}
+
+/// The noise of a run's points as the report gives it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NoiseReport {
+    /// The median estimate of the points' standard deviation across their surface, input units.
+    pub sigma: f64,
+    /// `sigma` over the diagonal of the points' bounding box.
+    pub sigma_per_diagonal: f64,
+    /// The 10% and 90% quantiles of the local estimates (cleaner and noisier regions), input
+    /// units.
+    pub sigma_low: f64,
+    /// See `sigma_low`.
+    pub sigma_high: f64,
+    /// `sigma` over the median spacing of the points.
+    pub sigma_per_spacing: f64,
+    /// The noise the detail fit averaged, over the diagonal ([`DetailParams::noise`]; 0 in
+    /// global mode, with `--smooth 0`, or where the noise is below [`NOISE_FLOOR`] × the
+    /// tolerance).
+    pub smoothed_per_diagonal: f64,
+}
+
+impl NoiseReport {
+    fn new(noise: NoiseEstimate, points: &[[f64; 3]], resolved: &PipelineConfig) -> NoiseReport {
+        let diagonal = crate::cloud::Aabb::from_points(points).map_or(0.0, |b| b.diagonal());
+        NoiseReport {
+            sigma: noise.sigma,
+            sigma_per_diagonal: if diagonal > 0.0 {
+                noise.sigma / diagonal
+            } else {
+                0.0
+            },
+            sigma_low: noise.sigma_low,
+            sigma_high: noise.sigma_high,
+            sigma_per_spacing: noise.relative_to_spacing(),
+            smoothed_per_diagonal: match resolved.mode {
+                Mode::Detail => resolved.detail.noise,
+                Mode::Global => 0.0,
+            },
+        }
+    }
 }
 
 /// The polygonize stage of `model` through the cache: its mesh and key, at the finest depth
@@ -1268,6 +1369,7 @@ fn run_report(
         units: config.units,
         outputs,
         warnings: ctx.warnings,
+        noise: ctx.noise,
         seconds: 0.0,
     }
 }
@@ -1408,7 +1510,7 @@ mod tests {
         let default = PipelineConfig::for_mode(Mode::Detail);
         let tolerance = DetailParams::default().tolerance;
         for n in [1000, 400] {
-            let dense = resolve_for_data(&default, &grid(n));
+            let dense = resolve_for_data(&default, &grid(n), None);
             assert_eq!(dense.polygonize.depth, 7);
             assert!(dense.polygonize.fit_chords);
             assert_eq!(dense.polygonize.chord_share, 1.0);
@@ -1420,7 +1522,7 @@ mod tests {
         }
 
         for n in [150, 100] {
-            let resolved = resolve_for_data(&default, &grid(n));
+            let resolved = resolve_for_data(&default, &grid(n), None);
             assert_eq!(resolved.polygonize.depth, 7);
             assert!(resolved.polygonize.fit_chords);
             assert_eq!(resolved.polygonize.chord_share, polygonize::CHORD_SHARE);
@@ -1432,7 +1534,7 @@ mod tests {
         asked.tolerance_from_data = false;
         asked.depth_from_data = false;
         asked.polygonize.depth = 8;
-        let kept = resolve_for_data(&asked, &grid(1000));
+        let kept = resolve_for_data(&asked, &grid(1000), None);
         assert_eq!(kept.polygonize.depth, 8);
         assert!(kept.polygonize.fit_chords);
         assert_eq!(kept.polygonize.chord_share, polygonize::CHORD_SHARE);
@@ -1444,14 +1546,17 @@ mod tests {
         assert_eq!(kept.polygonize.refine, Some(polygonize::REFINE_SAGITTA));
         let between = grid(280);
         assert_eq!(
-            resolve_for_data(&default, &between).polygonize.refine,
+            resolve_for_data(&default, &between, None).polygonize.refine,
             Some(polygonize::REFINE_SAGITTA)
         );
-        assert_eq!(resolve_for_data(&asked, &between).polygonize.refine, None);
+        assert_eq!(
+            resolve_for_data(&asked, &between, None).polygonize.refine,
+            None
+        );
         let mut refine_asked = default.clone();
         refine_asked.refine_from_data = false;
         assert_eq!(
-            resolve_for_data(&refine_asked, &grid(1000))
+            resolve_for_data(&refine_asked, &grid(1000), None)
                 .polygonize
                 .refine,
             None
@@ -1461,18 +1566,18 @@ mod tests {
         // tolerance; a tolerance asked for keeps the data's share.
         let mut depth_asked = default.clone();
         depth_asked.depth_from_data = false;
-        let resolved = resolve_for_data(&depth_asked, &grid(1000));
+        let resolved = resolve_for_data(&depth_asked, &grid(1000), None);
         assert_eq!(resolved.polygonize.chord_share, polygonize::CHORD_SHARE);
         assert_eq!(resolved.detail.tolerance, tolerance * DENSE_TOLERANCE);
         let mut tolerance_asked = default.clone();
         tolerance_asked.tolerance_from_data = false;
-        let resolved = resolve_for_data(&tolerance_asked, &grid(1000));
+        let resolved = resolve_for_data(&tolerance_asked, &grid(1000), None);
         assert_eq!(resolved.polygonize.chord_share, 1.0);
         assert_eq!(resolved.detail.tolerance, tolerance);
         // Without the chords the share is left at its default.
         let mut no_chords = default.clone();
         no_chords.polygonize.fit_chords = false;
-        let resolved = resolve_for_data(&no_chords, &grid(1000));
+        let resolved = resolve_for_data(&no_chords, &grid(1000), None);
         assert!(!resolved.polygonize.fit_chords);
         assert_eq!(resolved.polygonize.chord_share, polygonize::CHORD_SHARE);
     }
@@ -1487,24 +1592,30 @@ mod tests {
         let default = PipelineConfig::for_mode(Mode::Detail);
         assert!(default.stride_from_data);
         assert!(!PipelineConfig::for_mode(Mode::Global).stride_from_data);
-        let resolved = resolve_for_data(&default, &grid(1000));
+        let resolved = resolve_for_data(&default, &grid(1000), None);
         assert_eq!(resolved.detail.stride, 28);
         assert!(resolved.detail.refit_deepest);
         assert!(!resolved.stride_from_data);
-        assert_eq!(resolve_for_data(&default, &grid(400)).detail.stride, 4);
-        let every = resolve_for_data(&default, &grid(250));
+        assert_eq!(
+            resolve_for_data(&default, &grid(400), None).detail.stride,
+            4
+        );
+        let every = resolve_for_data(&default, &grid(250), None);
         assert_eq!(every.detail.stride, 1);
         assert!(!every.detail.refit_deepest);
         let mut asked = default.clone();
         asked.stride_from_data = false;
         asked.detail.stride = 5;
-        let kept = resolve_for_data(&asked, &grid(1000));
+        let kept = resolve_for_data(&asked, &grid(1000), None);
         assert_eq!(kept.detail.stride, 5);
         assert!(!kept.detail.refit_deepest);
-        assert_eq!(resolve_for_data(&asked, &grid(100)).detail.stride, 5);
+        assert_eq!(resolve_for_data(&asked, &grid(100), None).detail.stride, 5);
         let mut deeper = default.clone();
         deeper.depth_from_data = false;
         deeper.polygonize.depth = 8;
-        assert_eq!(resolve_for_data(&deeper, &grid(1000)).detail.stride, 7);
+        assert_eq!(
+            resolve_for_data(&deeper, &grid(1000), None).detail.stride,
+            7
+        );
     }
 }

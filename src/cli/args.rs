@@ -16,8 +16,8 @@ use stablesurf::fit;
 
 use super::range::{
     number, BOUNDS_MAX_ABS, COUNT, DEGREE, DEPTH, EPSILON, FIT_STRIDE, KAPPA, LOCAL_DEGREE,
-    RESOLUTION, SIZE, SLICE_COUNT, SLICE_RESOLUTION, TARGET_TRIANGLES, THREADS, TOLERANCE, TRIM,
-    VIEWPOINT, VOXEL_SIZE,
+    RESOLUTION, SIZE, SLICE_COUNT, SLICE_RESOLUTION, SMOOTH, TARGET_TRIANGLES, THREADS, TOLERANCE,
+    TRIM, VIEWPOINT, VOXEL_SIZE,
 };
 
 /// stablesurf: stable algebraic surfaces from 3D scans (Sahin & Unel 2008).
@@ -135,6 +135,12 @@ pub struct DetailOpts {
           help = FIT_STRIDE.help("Detail mode: fit every N-th point along a Z-order curve (a spatially even subset) [default: 1; `run`: the mean points per occupied cell of the mesh's finest level / 6, rounded down]"),
           allow_negative_numbers = true, value_parser = FIT_STRIDE.whole::<u32>())]
     pub fit_stride: Option<u32>,
+    /// Detail mode: average noise of this many times the measured noise instead of following
+    /// it (0: fit the points as exact).
+    #[arg(long, value_name = "S", default_value_t = 1.0,
+          help = SMOOTH.help("Detail mode: a factor on the measured noise of the points that the local fits average instead of following it (report.json's noise; 0 fits the points as exact, 2 smooths twice as much; points that scatter by less than half their spacing are fitted as exact)"),
+          allow_negative_numbers = true, value_parser = SMOOTH.real())]
+    pub smooth: f64,
 }
 
 /// Options of the polygonize stage.
@@ -1076,7 +1082,7 @@ mod tests {
     fn ranged_flags_print_and_check_the_same_constant() {
         use clap::CommandFactory;
         let cli = Cli::command();
-        let cases: [(&str, &str, Range); 15] = [
+        let cases: [(&str, &str, Range); 16] = [
             ("run", "threads", THREADS),
             ("run", "trim", TRIM),
             ("run", "degree", DEGREE),
@@ -1084,6 +1090,7 @@ mod tests {
             ("run", "epsilon", EPSILON),
             ("run", "local_degree", LOCAL_DEGREE),
             ("run", "tolerance", TOLERANCE),
+            ("run", "smooth", SMOOTH),
             ("run", "depth", DEPTH),
             ("run", "slice_count", SLICE_COUNT),
             ("run", "slice_resolution", SLICE_RESOLUTION),

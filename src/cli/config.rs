@@ -125,6 +125,7 @@ pub fn set_detail(config: &mut PipelineConfig, opts: &DetailOpts) {
     config.detail = detail_params(opts);
     config.tolerance_from_data &= opts.tolerance.is_none();
     config.stride_from_data &= opts.fit_stride.is_none();
+    config.smooth = opts.smooth;
 }
 
 /// Meshing parameters for a model of `mode`: the mode's defaults

@@ -50,7 +50,9 @@ pub fn info(args: InfoArgs) -> Result<()> {
         }
     } else {
         let scan = import::read_scan_bytes(&bytes, &args.file)?;
-        serde_json::to_value(import::scan_info(&scan))?
+        let mut value = serde_json::to_value(import::scan_info(&scan))?;
+        value["noise"] = noise_json(&scan.cloud.points);
+        value
     };
     let mut out = std::io::stdout().lock();
     if args.json {
@@ -62,6 +64,28 @@ pub fn info(args: InfoArgs) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// The measured noise of `points` ([`stablesurf::estimate_noise`]) as `run`'s report gives
+/// it: σ in input units and over the box's diagonal, the 10% and 90% quantiles of the local
+/// estimates, σ over the median spacing; null when it cannot be measured.
+fn noise_json(points: &[[f64; 3]]) -> serde_json::Value {
+    let finite: Vec<[f64; 3]> = points
+        .iter()
+        .filter(|p| p.iter().all(|c| c.is_finite()))
+        .copied()
+        .collect();
+    let diagonal = Aabb::from_points(&finite).map_or(0.0, |b| b.diagonal());
+    match stablesurf::estimate_noise(&finite) {
+        Some(n) if diagonal > 0.0 => serde_json::json!({
+            "sigma": n.sigma,
+            "sigma_per_diagonal": n.sigma / diagonal,
+            "sigma_low": n.sigma_low,
+            "sigma_high": n.sigma_high,
+            "sigma_per_spacing": n.relative_to_spacing(),
+        }),
+        _ => serde_json::Value::Null,
+    }
 }
 
 /// What a `.conf` registration holds: each scan's file, point count and pose, and the box of
@@ -98,6 +122,7 @@ fn conf_info(bytes: &[u8], path: &std::path::Path) -> Result<serde_json::Value> 
         "format": "conf",
         "views": views.len(),
         "points": moved.len(),
+        "noise": noise_json(&moved),
         "bbox_min": min,
         "bbox_max": max,
         "scans": scans,

@@ -78,8 +78,9 @@ pub fn run_source(
                 args.fit.epsilon
             ),
             Mode::Detail => format!(
-                "local degree {}, tolerance {}, fit stride {}",
+                "local degree {}, smooth {} x the measured noise, tolerance {}, fit stride {}",
                 args.detail.local_degree,
+                args.detail.smooth,
                 match args.detail.tolerance {
                     Some(t) => t.to_string(),
                     None => format!(
@@ -165,8 +166,19 @@ pub fn run_source(
         } else {
             String::new()
         };
+        let noise = match report.noise {
+            Some(n) if n.smoothed_per_diagonal > 0.0 => format!(
+                ", noise {:.2e} of the diagonal ({:.2} x the spacing), averaged at {:.2e}",
+                n.sigma_per_diagonal, n.sigma_per_spacing, n.smoothed_per_diagonal
+            ),
+            Some(n) => format!(
+                ", noise {:.2e} of the diagonal ({:.2} x the spacing)",
+                n.sigma_per_diagonal, n.sigma_per_spacing
+            ),
+            None => String::new(),
+        };
         eprintln!(
-            "stablesurf: done in {:.2}s: {} vertices, {} triangles, {} component(s), watertight {}, boundary loops {}, self-intersecting faces {}{bounded}{trimmed}{faired}, {}; outputs in {}",
+            "stablesurf: done in {:.2}s: {} vertices, {} triangles, {} component(s), watertight {}, boundary loops {}, self-intersecting faces {}{bounded}{trimmed}{faired}{noise}, {}; outputs in {}",
             report.seconds,
             report.mesh.vertices,
             report.mesh.faces,

@@ -75,12 +75,38 @@ pub(crate) enum Constraints {
     ThreeLevels(f64),
 }
 
+/// The weight of each fitted point's rows: its confidence (the cloud's, by point index) times
+/// its robust weight (by position among the fitted points), each 1 when absent.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct RowWeights<'a> {
+    /// Per point of the cloud.
+    pub confidence: Option<&'a [f32]>,
+    /// Per fitted point, in the order given.
+    pub robust: Option<&'a [f64]>,
+}
+
+impl RowWeights<'_> {
+    /// The weight of the `j`-th fitted point, point `i` of the cloud. Without robust weights
+    /// it is the confidence's own bits (1 without confidences).
+    #[inline]
+    fn of(&self, j: usize, i: u32) -> f64 {
+        let c = self.confidence.map_or(1.0, |c| f64::from(c[i as usize]));
+        match self.robust {
+            Some(r) => c * r[j],
+            None => c,
+        }
+    }
+}
+
 /// A fitted local polynomial and how well it matches its ball's data.
 pub(crate) struct LocalFit {
     /// The local function, ≈ signed distance in input units.
     pub poly: ImplicitPolynomial,
     /// Largest |Q(p)|/|∇Q(p)| over the data points the caller asked to measure, input units.
     pub max_error: f64,
+    /// Root mean square of |Q(p)|/|∇Q(p)| over the same points (over those measured before the
+    /// stop, when the measure stopped early), input units.
+    pub rms_error: f64,
 }
 
 /// The monomials of degree ≤ `n` (≤ 8: a fit's degree ≤ 4, or its moments of degree ≤ 8) at `q`
@@ -149,7 +175,7 @@ pub(crate) fn fit_local(
     kappa: f64,
     fallback_scale: f64,
     blend: Option<([f64; 3], f64)>,
-    confidence: Option<&[f32]>,
+    weights: RowWeights<'_>,
 ) -> Option<LocalFit> {
     if ball.is_empty() || degree > 4 {
         return None;
@@ -190,7 +216,7 @@ pub(crate) fn fit_local(
             kappa,
             (mu, s),
             blend,
-            confidence,
+            weights,
         );
     }
 
@@ -199,8 +225,8 @@ pub(crate) fn fit_local(
     let mut atb = [0.0; 35];
     let mut beta = [0.0; 5];
     let mut mon = [0.0; 35];
-    // Each row weighted by `w` (the point's confidence; 1 for the auxiliary rows). w·mᵢ is mᵢ
-    // exactly when w = 1, so a cloud without confidences gives the same bits as unweighted rows.
+    // Each row weighted by `w` (the point's row weight; 1 for the auxiliary rows). w·mᵢ is mᵢ
+    // exactly when w = 1, so a cloud without weights gives the same bits as unweighted rows.
     let add_row =
         |m: &[f64; 35], target: f64, w: f64, ata: &mut [f64; 35 * 35], atb: &mut [f64; 35]| {
             for i in 0..c {
@@ -222,10 +248,10 @@ pub(crate) fn fit_local(
     let mut normal_moments = [[0.0; 20]; 3];
     let mut all_monomials = [0.0; MOMENTS_MAX];
     let (all, lower) = (n_coefficients(2 * degree), n_coefficients(degree - 1));
-    for &i in ball {
+    for (j, &i) in ball.iter().enumerate() {
         let q = norm(points[i as usize]);
         let nv = normals[i as usize];
-        let w = confidence.map_or(1.0, |c| f64::from(c[i as usize]));
+        let w = weights.of(j, i);
         let r2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
         let mut pw = 1.0;
         for b in beta.iter_mut().take(n + 1) {
@@ -289,7 +315,7 @@ pub(crate) fn fit_local(
         scale: s,
     };
     // Re-centring, and the mean |∇Q| for the rescaling.
-    let (shift, gsum) = recentring(points, ball, blend, confidence, |i| {
+    let (shift, gsum) = recentring(points, ball, blend, weights, |i| {
         poly.value_gradient(points[i as usize])
     });
     poly.coefficients[0] -= shift;
@@ -302,21 +328,20 @@ pub(crate) fn fit_local(
     if poly.coefficients.iter().any(|v| !v.is_finite()) {
         return None;
     }
-    let mut max_error: f64 = 0.0;
-    for &i in measure {
+    let (max_error, rms_error) = measure_errors(measure, stop_above, |i| {
         let (f, g) = poly.value_gradient(points[i as usize]);
         let gn = vec3::norm(g);
-        let e = if gn > 0.0 {
+        if gn > 0.0 {
             f.abs() / gn
         } else {
             f64::INFINITY
-        };
-        max_error = max_error.max(e);
-        if max_error > stop_above {
-            break;
         }
-    }
-    Some(LocalFit { poly, max_error })
+    });
+    Some(LocalFit {
+        poly,
+        max_error,
+        rms_error,
+    })
 }
 
 /// The degree-2 case of [`fit_local`] after the normalization (μ, s): the same rows, ridge and
@@ -334,16 +359,16 @@ fn fit_quadric(
     kappa: f64,
     (mu, s): ([f64; 3], f64),
     blend: Option<([f64; 3], f64)>,
-    confidence: Option<&[f32]>,
+    weights: RowWeights<'_>,
 ) -> Option<LocalFit> {
     let norm = |p: [f64; 3]| [0, 1, 2].map(|a| (p[a] - mu[a]) / s);
     let mut ata = [0.0; 55];
     let mut atb = [0.0; 10];
     let mut beta = [0.0; 3];
-    for &i in ball {
+    for (j, &i) in ball.iter().enumerate() {
         let q = norm(points[i as usize]);
         let nv = normals[i as usize];
-        let w = confidence.map_or(1.0, |c| f64::from(c[i as usize]));
+        let w = weights.of(j, i);
         let r2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
         beta[0] += 1.0;
         beta[1] += r2;
@@ -402,7 +427,7 @@ fn fit_quadric(
     let mut a = cholesky_solve(&mut full, &mut atb, 10)?;
     // Step 4's re-centring, and the mean |∇Q| over the fitted points for the rescaling (input
     // units, before it: ∇ₚQ = ∇_qQ̂).
-    let (shift, gsum) = recentring(points, ball, blend, confidence, |i| {
+    let (shift, gsum) = recentring(points, ball, blend, weights, |i| {
         quadric_value_gradient(&a, norm(points[i as usize]))
     });
     a[0] -= shift;
@@ -411,19 +436,14 @@ fn fit_quadric(
         let (v, g) = quadric_value_gradient(&a, norm(points[i as usize]));
         (v, vec3::norm(g))
     };
-    let mut max_error: f64 = 0.0;
-    for &i in measure {
+    let (max_error, rms_error) = measure_errors(measure, stop_above, |i| {
         let (v, gn) = value_gradient(i);
-        let e = if gn > 0.0 {
+        if gn > 0.0 {
             s * v.abs() / gn
         } else {
             f64::INFINITY
-        };
-        max_error = max_error.max(e);
-        if max_error > stop_above {
-            break;
         }
-    }
+    });
     let gmean = gsum / ball.len() as f64;
     let rescale = if gmean > 1e-3 && gmean.is_finite() {
         s / gmean
@@ -442,7 +462,24 @@ fn fit_quadric(
             scale: s,
         },
         max_error,
+        rms_error,
     })
+}
+
+/// The largest and the root mean square of `error(i)` over `measure`, stopping after the first
+/// error above `stop_above` (the root mean square is then over the points measured so far).
+fn measure_errors(measure: &[u32], stop_above: f64, error: impl Fn(u32) -> f64) -> (f64, f64) {
+    let (mut max, mut sum2, mut count) = (0.0f64, 0.0, 0usize);
+    for &i in measure {
+        let e = error(i);
+        max = max.max(e);
+        sum2 += e * e;
+        count += 1;
+        if max > stop_above {
+            break;
+        }
+    }
+    (max, (sum2 / count.max(1) as f64).sqrt())
 }
 
 /// The weight of the auxiliary rows: the fitted points over the measured ones (1 when the
@@ -492,20 +529,19 @@ pub(crate) fn even_subsample(ball: &[u32]) -> Vec<u32> {
 /// depend on the constant the shift moves).
 ///
 /// Each point weighs its blend weight b(1.5·|p − c|/r) for the cell's weight centre c and
-/// support radius r, times its confidence when the cloud has them. Without a blend, or when no
+/// support radius r, times its row weight ([`RowWeights`]). Without a blend, or when no
 /// point of the ball lies inside the support (a grown cell's far points), every blend weight is
 /// 1: a second pass, rare. The shift is 0 when the weights sum to nothing or it is not finite.
 fn recentring(
     points: &[[f64; 3]],
     ball: &[u32],
     blend: Option<([f64; 3], f64)>,
-    confidence: Option<&[f32]>,
+    weights: RowWeights<'_>,
     value_gradient: impl Fn(u32) -> (f64, [f64; 3]),
 ) -> (f64, f64) {
-    let conf = |i: u32| confidence.map_or(1.0, |c| f64::from(c[i as usize]));
     let (mut vsum, mut wsum, mut bsum, mut gsum) = (0.0, 0.0, 0.0, 0.0);
     let blend_k = blend.map(|(c, r)| (c, 1.5 / r));
-    for &i in ball {
+    for (j, &i) in ball.iter().enumerate() {
         let (v, g) = value_gradient(i);
         let gn = vec3::norm(g);
         gsum += gn;
@@ -514,17 +550,17 @@ fn recentring(
             let b = super::index::bspline(k * dist(points[i as usize], centre)).0;
             bsum += b;
             // × 1.0 is exact: a cloud without confidences gets the blend weight's own bits.
-            let w = b * conf(i);
+            let w = b * weights.of(j, i);
             vsum += w * v / gn;
             wsum += w / gn;
         }
     }
     if blend.is_none() || bsum <= 1e-9 {
         (vsum, wsum) = (0.0, 0.0);
-        for &i in ball {
+        for (j, &i) in ball.iter().enumerate() {
             let (v, g) = value_gradient(i);
             let gn = vec3::norm(g).max(1e-12);
-            let w = conf(i);
+            let w = weights.of(j, i);
             vsum += w * v / gn;
             wsum += w / gn;
         }
@@ -672,7 +708,7 @@ mod tests {
             kappa,
             1.0,
             None,
-            None,
+            RowWeights::default(),
         )
         .unwrap()
     }

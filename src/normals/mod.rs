@@ -41,8 +41,11 @@
 pub(crate) mod crust;
 pub(crate) mod delaunay;
 pub(crate) mod faces;
+mod noise;
 pub(crate) mod orient;
 pub(crate) mod pca;
+
+pub use noise::{estimate_noise, NoiseEstimate, NOISY_SPACING};
 
 use std::borrow::Cow;
 use std::str::FromStr;
@@ -293,16 +296,32 @@ pub fn estimate_normals_owned(
     estimate(Cow::Owned(cloud), params)
 }
 
-/// The source `auto` takes for `n` points without normals or faces: the crust, or plane fits
-/// (`pca`) beyond [`AUTO_CRUST_MAX`], with the warning that says so.
-fn bare_points_source(n: usize) -> (NormalSource, Option<String>) {
+/// The source `auto` takes for `points` without normals or faces: the crust, or plane fits
+/// (`pca`) beyond [`AUTO_CRUST_MAX`] points or on noisy points ([`NoiseEstimate::is_noisy`]),
+/// with the note that says so. The crust interpolates the points, so on noisy ones its fans
+/// follow the noise (and most of them fall back to plane fits anyway). Measured on 60,000
+/// samples of the Max Planck bust with noise of 0.5% of the diagonal, the crust's normals
+/// against plane fits' (`--normals crust` and `pca`; Chamfer distance of the run's mesh to the
+/// clean mesh, over its diagonal): 1.172e-3 against 1.182e-3, in 1.25 against 0.2 s; at 1%,
+/// 2.566e-3 against 2.465e-3.
+fn bare_points_source(points: &[[f64; 3]]) -> (NormalSource, Option<String>) {
+    let n = points.len();
     if n > AUTO_CRUST_MAX {
         let note = format!(
             "{n} points without normals or faces: normals from k-nearest plane fits (pca); the crust (--normals crust) costs about a minute and 4 GB a million points, so auto uses it up to {AUTO_CRUST_MAX} points"
         );
-        (NormalSource::Pca, Some(note))
-    } else {
-        (NormalSource::Crust, None)
+        return (NormalSource::Pca, Some(note));
+    }
+    match estimate_noise(points) {
+        Some(noise) if noise.is_noisy() => {
+            let note = format!(
+                "points without normals or faces, with noise measured at {:.2} x their spacing: normals from plane fits (pca), since the crust (--normals crust) would follow the noise above {} x",
+                noise.relative_to_spacing(),
+                noise::NOISY_SPACING
+            );
+            (NormalSource::Pca, Some(note))
+        }
+        _ => (NormalSource::Crust, None),
     }
 }
 
@@ -353,7 +372,7 @@ fn estimate(
             } else if !cloud.triangles.is_empty() {
                 NormalSource::Mesh
             } else {
-                let (source, note) = bare_points_source(cloud.points.len());
+                let (source, note) = bare_points_source(&cloud.points);
                 auto_note = note;
                 source
             }
@@ -384,7 +403,7 @@ fn estimate(
                     n_faces: faces.len(),
                 });
             }
-            (source, auto_note) = bare_points_source(cloud.points.len());
+            (source, auto_note) = bare_points_source(&cloud.points);
             warnings.push(format!(
                 "all {} faces are degenerate (their corners coincide or lie on one line); normals from {} instead",
                 faces.len(),
@@ -839,12 +858,39 @@ mod tests {
     }
 
     #[test]
+    fn auto_fits_planes_to_noisy_points_and_says_why() {
+        // A sphere of 20,000 points moved along their radius by noise of σ = 0.02, about 0.8
+        // of their spacing: plane fits, with the measured noise in the note; without the
+        // noise, the crust.
+        let clean = fibonacci_sphere(20_000);
+        assert_eq!(bare_points_source(&clean), (NormalSource::Crust, None));
+        let mut rng = crate::numerics::Lcg::new(9);
+        let noisy: Vec<[f64; 3]> = clean
+            .iter()
+            .map(|p| p.map(|c| c * (1.0 + 0.02 * rng.normal())))
+            .collect();
+        let (source, note) = bare_points_source(&noisy);
+        assert_eq!(source, NormalSource::Pca);
+        assert!(note.unwrap().contains("x their spacing"));
+        let cloud = PointCloud {
+            points: noisy,
+            ..Default::default()
+        };
+        let out = estimate_normals(&cloud, &NormalsParams::default()).unwrap();
+        assert_eq!(out.source_used, NormalSource::Pca);
+        let outward = (out.cloud.points.iter().zip(&out.cloud.normals))
+            .filter(|(p, n)| vec3::dot(p, n) > 0.0)
+            .count();
+        assert_eq!(outward, out.cloud.points.len());
+    }
+
+    #[test]
     fn auto_takes_the_crust_up_to_its_limit_and_plane_fits_beyond() {
         assert_eq!(
-            bare_points_source(AUTO_CRUST_MAX),
+            bare_points_source(&fibonacci_sphere(AUTO_CRUST_MAX)),
             (NormalSource::Crust, None)
         );
-        let (source, note) = bare_points_source(AUTO_CRUST_MAX + 1);
+        let (source, note) = bare_points_source(&fibonacci_sphere(AUTO_CRUST_MAX + 1));
         assert_eq!(source, NormalSource::Pca);
         assert!(note.unwrap().contains("200001 points"));
         // End to end on a bare cloud just past the limit: plane fits, said in a warning, and

@@ -146,6 +146,22 @@ pub struct TrimParams {
     /// Infinity fairs nothing more. Default 2.
     #[serde(default = "default_fair_depth_reaches")]
     pub fair_depth_reaches: f64,
+    /// The noise the model averaged, as a share of the data's diagonal (the detail fit's
+    /// [`crate::detail::DetailParams::noise`]): a noisy scan's points scatter by σ on both
+    /// sides of the smooth surface fitted through them, further than their spacing where σ is
+    /// large, so a triangle (or vertex) within [`NOISE_SUPPORT`]·σ of a data point is supported
+    /// whatever the spacing says. Default 0 (exact data; left out of the cache key then).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub noise: f64,
+}
+
+/// A triangle within this many σ of the noise ([`TrimParams::noise`]) of a data point is
+/// supported: the share of a Gaussian scatter's points farther than 3σ from its surface is
+/// 0.3%, so a surface that 3σ does not reach is not where the points are.
+pub const NOISE_SUPPORT: f64 = 3.0;
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 fn default_fair_depth_reaches() -> f64 {
@@ -169,6 +185,7 @@ impl Default for TrimParams {
             island_share: 0.01,
             fair_depth_share: 0.015,
             fair_depth_reaches: 2.0,
+            noise: 0.0,
         }
     }
 }
@@ -303,6 +320,7 @@ pub fn trim(
             .ok_or(TrimError::NoData)
     };
     let diagonal = crate::cloud::Aabb::from_points(points).map_or(0.0, |b| b.diagonal());
+    let noise_reach = NOISE_SUPPORT * params.noise * diagonal;
     let areas: Vec<f64> = mesh
         .triangles
         .iter()
@@ -337,7 +355,7 @@ pub fn trim(
         .iter()
         .zip(&spacing)
         .map(|(&(d, _), &s)| {
-            (d > params.support_factor * s).then_some(Depth {
+            (d > params.support_factor * s && d > noise_reach).then_some(Depth {
                 spacings: d / s,
                 distance: d,
             })
@@ -428,7 +446,7 @@ pub fn trim(
     let mut depth = vec![(0.0, 0.0); n];
     for ((&v, &(d, _)), &(s, reach)) in candidates.iter().zip(&vertex_nearest).zip(&vertex_spacing)
     {
-        free[v as usize] = d > params.support_factor * s;
+        free[v as usize] = d > params.support_factor * s && d > noise_reach;
         let reaches = if reach > 0.0 { d / reach } else { 0.0 };
         depth[v as usize] = (d, reaches);
     }
