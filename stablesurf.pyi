@@ -88,6 +88,7 @@ def reconstruct(
     method: Literal["3lrr", "3l", "ls"] = ...,
     local_degree: int = ...,
     tolerance: float = ...,
+    smooth: float = ...,
     fit_stride: int = ...,
     normal_source: Literal["auto", "crust", "pca", "mesh", "input"] = ...,
     viewpoint: Sequence[float] = ...,

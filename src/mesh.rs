@@ -62,6 +62,10 @@ pub struct MeshReport {
     pub degenerate_faces: usize,
     /// V − E + F (2 per sphere-like closed component, 2 − 2g for genus g).
     pub euler_characteristic: i64,
+    /// The total genus (handles) of a watertight mesh's components: components − χ/2; absent
+    /// for an open or non-manifold mesh.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub genus: Option<i64>,
     /// Every edge shared by two triangles is traversed in opposite directions by them.
     pub orientation_consistent: bool,
     /// The mesh has triangles, no boundary edge, no non-manifold edge or vertex and no
@@ -180,6 +184,10 @@ pub fn component_labels(mesh: &TriangleMesh) -> (usize, Vec<u32>) {
 /// let r = check(&mesh);
 /// assert!(r.watertight && r.orientation_consistent);
 /// assert_eq!((r.euler_characteristic, r.components, r.boundary_edges), (2, 1, 0));
+/// assert_eq!(r.genus, Some(0));
+/// // One face less: open, and no genus.
+/// let open = TriangleMesh { triangles: mesh.triangles[..3].to_vec(), ..mesh };
+/// assert_eq!(check(&open).genus, None);
 /// ```
 pub fn check(mesh: &TriangleMesh) -> MeshReport {
     check_with(mesh, false)
@@ -279,6 +287,14 @@ pub fn check_with(mesh: &TriangleMesh, known_embedded: bool) -> MeshReport {
     } else {
         boundary_pieces(n, &triangles)
     };
+    let euler_characteristic = n as i64 - n_edges as i64 + triangles.len() as i64;
+    let watertight = !triangles.is_empty()
+        && boundary_edges == 0
+        && non_manifold_edges == 0
+        && non_manifold_vertices == 0
+        && degenerate_faces == 0;
+    // Each closed component of genus g adds 2 − 2g to the characteristic.
+    let handles = 2 * components as i64 - euler_characteristic;
     MeshReport {
         vertices: n,
         faces: mesh.triangles.len(),
@@ -289,13 +305,10 @@ pub fn check_with(mesh: &TriangleMesh, known_embedded: bool) -> MeshReport {
         non_manifold_edges,
         non_manifold_vertices,
         degenerate_faces,
-        euler_characteristic: n as i64 - n_edges as i64 + triangles.len() as i64,
+        euler_characteristic,
+        genus: (watertight && handles >= 0 && handles % 2 == 0).then_some(handles / 2),
         orientation_consistent,
-        watertight: !triangles.is_empty()
-            && boundary_edges == 0
-            && non_manifold_edges == 0
-            && non_manifold_vertices == 0
-            && degenerate_faces == 0,
+        watertight,
         self_intersecting_faces: if known_embedded {
             0
         } else {

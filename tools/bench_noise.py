@@ -442,6 +442,8 @@ def crit_genus(within):
 
 def crit_one(watertight):
     def f(row):
+        if watertight and not row["truth"]["watertight"]:
+            return None, "source not watertight"
         r = row["results"][OURS]
         holds = r.get("components") == 1 and (r["watertight"] or not watertight)
         return holds, f"{r.get('components')} components, {'watertight' if r['watertight'] else 'not watertight'}"
@@ -449,6 +451,8 @@ def crit_one(watertight):
 
 
 def crit_watertight(row):
+    if not row["truth"]["watertight"]:
+        return None, "source not watertight"
     r = row["results"][OURS]
     return r["watertight"], f"{r['boundary_edges']} boundary edges"
 
@@ -481,7 +485,7 @@ CRITERIA = [
         ("Chamfer ≤ 0.9× Open3D pipeline", crit_ratio("chamfer_rel", 0.9, "Chamfer")),
         ("normal consistency ≥ Open3D pipeline", crit_nc),
         ("genus of the source (watertight sources)", crit_genus(0)),
-        ("one watertight component", crit_one(True)),
+        ("one watertight component (watertight sources)", crit_one(True)),
         ("0 self-intersecting faces", crit_selfint),
         ("CPU ≤ 0.5× Open3D pipeline", crit_ratio("cpu", 0.5, "CPU")),
     ]),
@@ -491,7 +495,7 @@ CRITERIA = [
         ("normal consistency ≥ Open3D pipeline", crit_nc),
     ]),
     ("σ 0", lambda row: is_level(row["sigma"], 0.0), [
-        ("watertight", crit_watertight),
+        ("watertight (watertight sources)", crit_watertight),
         ("genus of the source (watertight sources)", crit_genus(0)),
     ]),
     ("scans", lambda row: row["set"] == "scans", [
@@ -644,6 +648,14 @@ def section(a, rows, sources, baseline, total):
     d.extend(summary(rows) or ["No input ran."])
     d.append("")
     return "\n".join(d)
+
+
+def existing_section(path):
+    """The section of PATH between the markers, with them, or "" (for tools/bench_peers)."""
+    text = Path(path).read_text() if Path(path).exists() else ""
+    i = text.find(BEGIN)
+    j = text.find(END, i) if i >= 0 else -1
+    return text[i:j + len(END)] + "\n" if j >= 0 else ""
 
 
 def write_section(path, text):

@@ -441,15 +441,18 @@ def main():
     total = time.perf_counter() - start
     sys.path.insert(0, str(HERE))
     import bench_scale
+    import bench_noise
 
-    scale = bench_scale.existing_section(a.out)  # tools/bench_scale.py's section, kept as it is
+    # The sections of tools/bench_scale.py and tools/bench_noise, kept as they are.
+    kept = [bench_scale.existing_section(a.out), bench_noise.existing_section(a.out)]
     write_doc(a, rows, baseline, total)
     if scan_lines:
         with open(a.out, "a") as f:
             f.write("\n".join(scan_lines) + "\n")
-    if scale:
-        with open(a.out, "a") as f:
-            f.write("\n" + scale)
+    for section in kept:
+        if section:
+            with open(a.out, "a") as f:
+                f.write("\n" + section)
     (Path(a.out).with_suffix(".json")).write_text(json.dumps({"rows": rows, "scans": scan_rows, "baseline": baseline, "total_wall_s": total}, indent=1, default=str))
     print(a.out)
 

@@ -295,6 +295,7 @@ const RECONSTRUCT_PARAMS: &[&str] = &[
     "method",
     "local_degree",
     "tolerance",
+    "smooth",
     "fit_stride",
     "normal_source",
     "viewpoint",
@@ -373,6 +374,7 @@ fn apply_param(
             // As `--tolerance`: kept over the one the data's resolution would choose.
             config.tolerance_from_data = false;
         }
+        "smooth" => config.smooth = number(value, key, limits::SMOOTH)?,
         "fit_stride" => {
             config.detail.stride = number(value, key, limits::FIT_STRIDE)? as u32;
             // As `--fit-stride`: kept over the one the data's resolution would choose.
@@ -517,7 +519,7 @@ impl Reconstruction {
 /// default) or "global" (one polynomial).
 /// The other keywords are the command line's options, with its defaults: `depth`, `trim`
 /// ("auto", "off" or a factor), `keep` ("data" or "all"), `degree`, `kappa` ("auto" or a
-/// number), `kappa_rule`, `epsilon`, `method`, `local_degree`, `tolerance`, `fit_stride`,
+/// number), `kappa_rule`, `epsilon`, `method`, `local_degree`, `tolerance`, `smooth`, `fit_stride`,
 /// `normal_source`, `viewpoint`, `keep_outliers`; `threads` limits the worker threads (the
 /// result does not depend on it).
 ///

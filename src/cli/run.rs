@@ -178,12 +178,16 @@ pub fn run_source(
             None => String::new(),
         };
         eprintln!(
-            "stablesurf: done in {:.2}s: {} vertices, {} triangles, {} component(s), watertight {}, boundary loops {}, self-intersecting faces {}{bounded}{trimmed}{faired}{noise}, {}; outputs in {}",
+            "stablesurf: done in {:.2}s: {} vertices, {} triangles, {} component(s), watertight {}{}, boundary loops {}, self-intersecting faces {}{bounded}{trimmed}{faired}{noise}, {}; outputs in {}",
             report.seconds,
             report.mesh.vertices,
             report.mesh.faces,
             report.mesh.components,
             report.mesh.watertight,
+            report
+                .mesh
+                .genus
+                .map_or(String::new(), |g| format!(" (genus {g})")),
             report.mesh.boundary_loops,
             report.mesh.self_intersecting_faces,
             report.accuracy.describe(),

@@ -23,7 +23,7 @@
 use rayon::prelude::*;
 
 use crate::normals::vec3::{dot, norm, scale, sub};
-use crate::numerics::{Neighbours, PointGrid, UnionFind};
+use crate::numerics::{Neighbours, PointGrid};
 
 /// Points per block of graph rows.
 const BLOCK: usize = 4096;
@@ -454,73 +454,6 @@ pub fn orient_outward_pieces(
                 normals[i as usize] = scale(&normals[i as usize], -1.0);
             }
             flipped += 1;
-        }
-    }
-    flipped
-}
-
-/// Neighbours whose normals agree to within this cosine (about 45°) belong to one patch in
-/// [`flip_disagreeing_patches`].
-const PATCH_AGREEMENT: f64 = 0.7;
-
-/// Flips, on noisy points, the patches whose normals point against the normals around them.
-///
-/// On noisy points the propagation of [`orient_consistently`] can cross a sharp, thin feature
-/// (a nose, a finger) at its tip, where the plane fits are poor, and come back down its other
-/// side with the wrong sign: a patch of a few dozen points whose normals are nearly opposite
-/// to their neighbours' all along its rim (60,000 samples of the Max Planck bust with noise of
-/// 0.5% of the diagonal: 76 points under the nose, which the fit then bulged 2.5% of the
-/// diagonal out of the face). Patches are the pieces of the k-nearest graph `knn` joined
-/// where neighbours' normals agree to within [`PATCH_AGREEMENT`]; visited from the smallest
-/// (ties by their first point), a patch is flipped when the normals across its rim disagree
-/// with its own more than they agree (Σ nᵢ·nⱼ over its rim edges < 0). The largest patch is never
-/// flipped. Not for clean scans of thin parts, whose two sides face each other across k-nearest
-/// edges: there those edges' disagreement is right. Returns the number of normals flipped.
-pub fn flip_disagreeing_patches(normals: &mut [[f64; 3]], knn: &Neighbours) -> usize {
-    let n = normals.len();
-    let mut sets = UnionFind::new(n);
-    for i in 0..n {
-        for &j in knn.row(i) {
-            if dot(&normals[i], &normals[j as usize]) > PATCH_AGREEMENT {
-                sets.union(i as u32, j);
-            }
-        }
-    }
-    // The members of each patch, patches by (size, first point).
-    let roots: Vec<u32> = (0..n as u32).map(|i| sets.find(i)).collect();
-    let mut members: Vec<Vec<u32>> = Vec::new();
-    let mut slot = vec![u32::MAX; n];
-    for (i, &r) in roots.iter().enumerate() {
-        if slot[r as usize] == u32::MAX {
-            slot[r as usize] = members.len() as u32;
-            members.push(Vec::new());
-        }
-        members[slot[r as usize] as usize].push(i as u32);
-    }
-    let largest = (0..members.len()).max_by_key(|&p| (members[p].len(), std::cmp::Reverse(p)));
-    let mut order: Vec<usize> = (0..members.len()).collect();
-    order.sort_by_key(|&p| members[p].len());
-    let mut flipped = 0;
-    for p in order {
-        if Some(p) == largest {
-            continue;
-        }
-        let root = roots[members[p][0] as usize];
-        // The rim: the edges from the patch's points to points of other patches, in the
-        // patch's own k-nearest rows.
-        let mut sum = 0.0;
-        for &i in &members[p] {
-            for &j in knn.row(i as usize) {
-                if roots[j as usize] != root {
-                    sum += dot(&normals[i as usize], &normals[j as usize]);
-                }
-            }
-        }
-        if sum < 0.0 {
-            for &i in &members[p] {
-                normals[i as usize] = scale(&normals[i as usize], -1.0);
-            }
-            flipped += members[p].len();
         }
     }
     flipped

@@ -315,23 +315,13 @@ fn null_vector(a: [[f64; 3]; 3], lambda: f64) -> [f64; 3] {
     normalized(&e).unwrap_or([0.0, 0.0, 1.0])
 }
 
-/// The `pca` source: adaptive plane fits, oriented consistently and outward; on noisy points
-/// ([`crate::normals::NoiseEstimate::is_noisy`]) the patches that the orientation turned
-/// against their surroundings are flipped back first
-/// ([`crate::normals::orient::flip_disagreeing_patches`]).
+/// The `pca` source: adaptive plane fits, oriented consistently and outward.
 pub fn pca_normals(points: &[[f64; 3]], params: &NormalsParams) -> Vec<[f64; 3]> {
-    use crate::normals::orient;
     let (index, neighbours) = knn_with_index(points, params.k_neighbours);
     let (mut normals, _) =
         adaptive_normals(points, index.as_ref(), &neighbours, params.max_k_neighbours);
     drop(index);
-    let noisy = crate::normals::estimate_noise(points).is_some_and(|n| n.is_noisy());
-    let kept = noisy.then(|| neighbours.clone());
-    let label = orient::orient_consistently(points, &mut normals, &[], neighbours);
-    if let Some(knn) = kept {
-        orient::flip_disagreeing_patches(&mut normals, &knn);
-    }
-    orient::orient_outward_pieces(points, &mut normals, &label);
+    crate::normals::orient::orient_outward(points, &mut normals, &[], neighbours);
     normals
 }
 

@@ -102,6 +102,27 @@ def test_depth_given_is_kept_in_detail_mode():
     assert meshing_depth(stablesurf.reconstruct(points, normals, depth=5)) == 5
 
 
+def test_noisy_points_are_measured_and_smoothed_unless_smooth_is_zero():
+    # 12,000 points of the unit sphere without normals, moved by Gaussian noise of 0.02 per
+    # coordinate (about 0.6 of their spacing).
+    points, _ = fibonacci_sphere(12000, 1.0)
+    noisy = points + np.random.default_rng(5).normal(0.0, 0.02, points.shape)
+    smoothed = stablesurf.reconstruct(noisy)
+    exact = stablesurf.reconstruct(noisy, smooth=0)
+    noise = smoothed.report["noise"]
+    # The figure within 20% of the noise added, and averaged by default only.
+    assert 0.8 < noise["sigma"] / 0.02 < 1.2
+    assert noise["smoothed_per_diagonal"] > 0 and exact.report["noise"]["smoothed_per_diagonal"] == 0
+
+    def mean_error(result):
+        return np.mean(np.abs(np.linalg.norm(result.vertices, axis=1) - 1.0))
+
+    assert mean_error(smoothed) < 0.5 * mean_error(exact)
+    assert smoothed.watertight and smoothed.self_intersections == 0
+    with pytest.raises(ValueError, match="smooth"):
+        stablesurf.reconstruct(noisy, smooth=11)
+
+
 def test_global_mode_gives_the_polynomial_and_its_mesh():
     points, normals = fibonacci_sphere(3000, 1.5)
     result = stablesurf.reconstruct(points, normals, mode="global", degree=4, depth=5)
