@@ -92,7 +92,7 @@ impl NoiseEstimate {
 }
 
 /// Measures the noise of `points` (distinct or not; coincident points are measured as one
-/// sample each). `None` when there are fewer than [`FIRST_NEIGHBOURS`] + 1 points or a
+/// sample each). `None` when there are fewer than 25 points or a
 /// coordinate is not finite.
 ///
 /// ```
