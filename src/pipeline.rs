@@ -1104,7 +1104,9 @@ fn detail_params(config: &PipelineConfig) -> DetailParams {
 /// - with [`PipelineConfig::tolerance_from_data`], the split tolerance × [`DENSE_TOLERANCE`]
 ///   on dense points;
 /// - with [`PipelineConfig::stride_from_data`], the detail fit's stride of the points per cell
-///   at the meshing depth ([`polygonize::fit_stride`]).
+///   at the meshing depth ([`polygonize::fit_stride`]);
+/// - in detail mode, the noise the fit averages ([`DetailParams::noise`], [`smoothing`] of the
+///   measured `noise` at [`PipelineConfig::smooth`]), which the trim's support takes too.
 ///
 /// The flags are cleared: the result asks for nothing more.
 fn resolve_for_data(

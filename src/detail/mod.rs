@@ -233,7 +233,7 @@ pub struct DetailParams {
     /// The standard deviation of the points across their surface that the fit averages
     /// instead of following, as a fraction of the diagonal (`run` sets it to the measured
     /// noise × `--smooth`, [`crate::normals::estimate_noise`]). Default 0: the data is taken
-    /// as exact. Above 0, three things change:
+    /// as exact. Above 0, four things change:
     /// - a cell is split while the root mean square of |Q|/|∇Q| over its ball's points exceeds
     ///   √(([`NOISE_MARGIN`]·σ)² + tolerance²), the scatter that noise σ and a shape error at the
     ///   tolerance give together, instead of while the largest exceeds the tolerance (the
@@ -243,8 +243,12 @@ pub struct DetailParams {
     ///   most [`NOISE_POINTS_PER_COEFFICIENT`]·c): the least-squares fit of c unknowns to n
     ///   points scatters by about σ·√(c/n), so these average the noise down to the tolerance;
     ///   a cell with fewer is grown to them;
-    /// - the value rows of each fit are reweighted once by Tukey's biweight of their residual
-    ///   ([`ROBUST_CUTOFF`]·σ), so that outliers left in the scan do not pull the surface.
+    /// - each fit is repeated once with its points' rows weighed by Tukey's biweight of their
+    ///   residual ([`ROBUST_CUTOFF`]·σ), and without the points whose normal opposes the first
+    ///   fit's gradient, so that outliers and patches of flipped normals do not pull the
+    ///   surface;
+    /// - the whole octree is fitted a second time with the first blend's unit gradients as the
+    ///   normals ([`DetailDiagnostics::reoriented_normals`] counts the ones that flipped).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub noise: f64,
 }
@@ -263,7 +267,10 @@ fn is_zero(v: &f64) -> bool {
 pub const NOISE_MARGIN: f64 = 1.1;
 
 /// The most points per coefficient a noisy fit asks for (see [`DetailParams::noise`]), so
-/// that a ball stays local under strong noise.
+/// that a ball stays local under strong noise. At a margin of 1.0 (60,000 samples of the Max
+/// Planck bust with noise of 0.25% of the diagonal, Chamfer distance to the clean mesh): 8
+/// points a coefficient 5.07e-4, 24 5.35e-4, 64 9.38e-4 (the balls then reach across the
+/// face's features); at 0.5%, 12 left it open (42 boundary edges) where 24 kept it closed.
 pub const NOISE_POINTS_PER_COEFFICIENT: f64 = 24.0;
 
 /// Tukey's biweight cut-off of a noisy fit's robust reweighting, in σ.
@@ -834,7 +841,6 @@ fn gradient_normals(
 
 /// Largest and mean |f|/|∇f| of the blend over `points` (fixed chunks, ordered reduction).
 fn data_residuals(model: &MpuModel, points: &[[f64; 3]]) -> (f64, f64) {
-    use crate::implicit::ImplicitFunction;
     let per_chunk: Vec<(f64, f64)> = points
         .par_chunks(4096)
         .map(|chunk| {
