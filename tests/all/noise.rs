@@ -7,9 +7,13 @@
 //! characteristic. The same points with `--smooth 0` (the data taken as exact) are the
 //! reference the smoothing must beat.
 
+use std::fmt::Write as _;
+
 use stablesurf::fit::study::{sample, Lcg, Shape, Variant};
 use stablesurf::pipeline::{reconstruct, Mode, PipelineConfig, Reconstruction, ScanSource, Silent};
 use stablesurf::{Aabb, PointCloud};
+
+use crate::fixtures::{bin, read_report, run_ok, stderr_of};
 
 /// `n` points of `shape` without normals, moved by Gaussian noise of `share` of their box's
 /// diagonal in each coordinate; also returns that σ.
@@ -112,4 +116,51 @@ fn clean_points_are_not_smoothed() {
     let exact = run(&clean, 0.0);
     assert_eq!(auto.mesh.positions, exact.mesh.positions);
     assert_eq!(auto.mesh.triangles, exact.mesh.triangles);
+}
+
+#[test]
+fn the_command_line_reports_the_noise_and_checks_smooth() {
+    // 5,000 points of the unit sphere without normals, moved along their radius by noise of
+    // 0.03 (about 0.6 of their spacing), as an XYZ file.
+    let dir = tempfile::tempdir().unwrap();
+    let mut rng = Lcg::new(4);
+    let mut text = String::new();
+    for p in sample(Shape::Sphere, Variant::Clean, 5_000, 4).points {
+        let s = 1.0 + 0.03 * rng.normal();
+        writeln!(text, "{} {} {}", p[0] * s, p[1] * s, p[2] * s).unwrap();
+    }
+    let input = dir.path().join("noisy.xyz");
+    std::fs::write(&input, text).unwrap();
+    // `info`: the same estimate as a run's report, within 15% of the noise added.
+    let out = bin().args(["info", "--json"]).arg(&input).output().unwrap();
+    assert!(out.status.success(), "{}", stderr_of(&out));
+    let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let sigma = info["noise"]["sigma"].as_f64().unwrap();
+    assert!((sigma / 0.03 - 1.0).abs() < 0.15, "{info}");
+    assert!(
+        info["noise"]["sigma_per_spacing"].as_f64().unwrap() > 0.5,
+        "{info}"
+    );
+    // `run`: the summary line gives the noise and what was averaged, report.json the same σ.
+    let run = run_ok(&input, &dir.path().join("out"), &["--formats", "ply,json"]);
+    let summary = stderr_of(&run);
+    assert!(
+        summary.contains("averaged at") && summary.contains("(genus 0)"),
+        "{summary}"
+    );
+    let report = read_report(&dir.path().join("out"));
+    assert_eq!(report["noise"]["sigma"].as_f64().unwrap(), sigma);
+    assert_eq!(report["mesh"]["genus"], 0);
+    // A factor out of range is a usage error, before any work and without output.
+    let bad = bin()
+        .arg("run")
+        .arg(&input)
+        .arg("-o")
+        .arg(dir.path().join("bad"))
+        .args(["--smooth", "11"])
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(stderr_of(&bad).contains("--smooth"), "{}", stderr_of(&bad));
+    assert!(!dir.path().join("bad").exists());
 }
