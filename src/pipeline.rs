@@ -1079,9 +1079,8 @@ pub fn run(
 /// Detail mode's split tolerance on dense points
 /// ([`polygonize::DataResolution::dense`]) is this share of the default (1.755e-4 of the
 /// diagonal): the points then pin the surface more tightly than the default asks, and after
-/// the chords the fit's error is most of the distance to them. A 1,000,000-point torus:
-/// Chamfer distance 2.5224e-4 of the diagonal at 0.5 of the default 6.5e-4, 1.0001× Open3D
-/// Poisson's at depth 8 (2.5223e-4), and 2.5176e-4 at this share (0.998×).
+/// the chords the fit's error is most of the distance to them (docs/defaults.md, "Detail
+/// mode's split tolerance").
 pub const DENSE_TOLERANCE: f64 = 0.27;
 
 /// The detail fit's params of `config`: its own, with the octree deep enough for a meshing

@@ -49,10 +49,7 @@
 //! covers the root cube and keeps its sign away from the data, but there the parent's local
 //! function (fitted to the data in the parent's ball, which holds the child's) is as good a
 //! far-field estimate as a plane fitted to the child's 15 nearest points, and costs no search
-//! and no fit. Measured against that plane (detail mode, `--formats ply,json`): bunny CPU
-//! median 3.04 → 2.74 s, Chamfer distance 1.1704e-3 → 1.1693e-3 of the diagonal; the other
-//! inputs of ../shared/data and the synthetic shapes within ±0.05% in Chamfer distance
-//! (teapot −0.2%), with the same topology and no self-intersection.
+//! and no fit (its measurement against that plane is in CHANGELOG.md).
 //!
 //! Blend weights: wᵢ(p) = b(3|p − cᵢ|/(2Rᵢ)), b the quadratic B-spline (see `index`).
 //!
@@ -63,8 +60,7 @@
 //! subsample above caps the rows of a fit; and the nearest points of a grown cell and of an
 //! auxiliary point come from a scan of the cell's, its parent's or its grandparent's ball when
 //! that ball provably holds them (triangle inequality), from the k-d tree otherwise (the same
-//! points up to the order of exactly equal distances). On a 1M-point torus the stage took 1.9 s instead
-//! of 17.7 s on one thread, for a Chamfer distance within 0.03% and the same topology.
+//! points up to the order of exactly equal distances).
 //! Points far finer than the cells need are fitted at a stride ([`DetailParams::stride`]: every
 //! k-th along the Z-order curve, which `run` picks from the points per cell of the mesh); the
 //! residual diagnostics still measure every point. There `run` also refits the deepest cells
@@ -182,10 +178,8 @@ pub struct DetailParams {
     /// Degree of the local polynomials: 2, 3 or 4 (grown cells use 2 at most). Default 2.
     pub degree: u32,
     /// A cell is split while the largest |Q|/|∇Q| over its ball's points exceeds this fraction
-    /// of the data diagonal. Default 6.5e-4 (bunny, Chamfer distance / diagonal and CPU of
-    /// the default run: 1.1420e-3 and 1.16 s at 3.5e-4, 1.1468e-3 and 1.03 s at 5e-4,
-    /// 1.1525e-3 and 0.93 s here, 1.1585e-3 and 0.89 s at 8e-4; Open3D Poisson depth 8:
-    /// 1.1620e-3).
+    /// of the data diagonal. Default 6.5e-4: a looser tolerance costs accuracy, a tighter
+    /// one CPU for little accuracy (docs/defaults.md, "Detail mode's split tolerance").
     pub tolerance: f64,
     /// The tolerance used instead of `tolerance` for the cells of levels ≥ `max_depth − 2`
     /// (the deepest three), where few points remain per cell and a tighter fit is cheap.
@@ -196,12 +190,8 @@ pub struct DetailParams {
     /// cell of the finest meshing level of `run` (7; the root cube is 1.2× the data's largest
     /// extent, the meshing region 1.2× each extent). Finer fits add little the mesh can show,
     /// while on a noisy or misregistered scan the split test keeps failing at the noise until
-    /// the balls run out of points: `bun.conf`'s six merged views gave 593,398 cells down to
-    /// level 9 at the former default 10, 464,493 at 8 and 140,442 at 7, for 4.25, 2.07 CPU-s at
-    /// 8 and 7 and a Chamfer distance of 6.789e-4 and 6.816e-4 of the diagonal (report.json's
-    /// `chamfer_relative`). Of the other inputs of `tools/bench_peers` only the bunny, the teapot
-    /// and the synthetic heart reached level 8; their Chamfer distances moved by −0.01%, +0.02%
-    /// and −0.01%. `run --depth D` raises it to D.
+    /// the balls run out of points (the merged views of `bun.conf` grew four times the cells at
+    /// level 8 for no gain; CHANGELOG.md). `run --depth D` raises it to D.
     pub max_depth: u32,
     /// How the normals enter the local fits. Default [`LocalConstraints::ThreeLevels`].
     #[serde(default)]
@@ -259,18 +249,14 @@ fn is_zero(v: &f64) -> bool {
 
 /// A noisy cell's residuals may scatter by this many σ before it is split (see
 /// [`DetailParams::noise`]): the root mean square of n residuals of noise σ varies by about
-/// σ/√(2n) between balls, and the measured σ is a median over the scan. Measured on 60,000
-/// noisy samples of the Max Planck bust and of Fertility (Chamfer distance of the default
-/// run's mesh to the clean mesh, over its diagonal): at 1.2, σ = 0.25% of the diagonal gave
-/// 6.54e-4 on the bust against 5.60e-4 at 1.1, and 0.5% gave 1.196e-3 against 8.81e-4; at
-/// 1.0, σ = 1% opened Fertility to genus 8 (of 4) where 1.1 kept the bust at genus 0.
+/// σ/√(2n) between balls, and the measured σ is a median over the scan. A larger margin
+/// rounds the shape away, a smaller one opens handles through thin parts under strong noise
+/// (docs/defaults.md, "Noise").
 pub const NOISE_MARGIN: f64 = 1.1;
 
 /// The most points per coefficient a noisy fit asks for (see [`DetailParams::noise`]), so
-/// that a ball stays local under strong noise. At a margin of 1.0 (60,000 samples of the Max
-/// Planck bust with noise of 0.25% of the diagonal, Chamfer distance to the clean mesh): 8
-/// points a coefficient 5.07e-4, 24 5.35e-4, 64 9.38e-4 (the balls then reach across the
-/// face's features); at 0.5%, 12 left it open (42 boundary edges) where 24 kept it closed.
+/// that a ball stays local under strong noise: more reach across a face's features, fewer
+/// left strong noise unaveraged enough to open the surface (docs/defaults.md, "Noise").
 pub const NOISE_POINTS_PER_COEFFICIENT: f64 = 24.0;
 
 /// Tukey's biweight cut-off of a noisy fit's robust reweighting, in σ.

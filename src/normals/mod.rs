@@ -55,13 +55,9 @@ use rayon::prelude::*;
 use crate::cloud::{OrientedCloud, PointCloud};
 
 /// Most points `auto` gives crust normals when the cloud has neither normals nor faces; a larger
-/// cloud gets plane fits (`pca`). The crust's two tetrahedralizations grow to about 4 GB and
-/// 53 s of wall time a million points (1M-point torus), plane fits take 0.4 GB and 1.7 s, and on
-/// dense data the two give the same surface: a 300k-point torus, Chamfer distance to the data
-/// 4.7197e-4 against 4.7192e-4 of the diagonal (crust 17 s and 1.3 GB, pca 1.1 s and 0.14 GB);
-/// the six bunny range scans merged as bare points (216k), 2.078e-3 against 2.073e-3 from the
-/// zippered bunny's surface to the mesh, where the crust had fallen back to plane fits at 183k
-/// of the points for noise.
+/// cloud gets plane fits (`pca`). The crust's two tetrahedralizations grow to gigabytes and
+/// about a minute a million points, plane fits to a tenth of that memory and seconds, and on
+/// dense data the two give the same surface (figures in CHANGELOG.md and docs/ARCHITECTURE.md).
 pub const AUTO_CRUST_MAX: usize = 200_000;
 
 /// Errors of the normals stage.
@@ -300,11 +296,8 @@ pub fn estimate_normals_owned(
 /// The source `auto` takes for `points` without normals or faces: the crust, or plane fits
 /// (`pca`) beyond [`AUTO_CRUST_MAX`] points or on noisy points ([`NoiseEstimate::is_noisy`]),
 /// with the note that says so. The crust interpolates the points, so on noisy ones its fans
-/// follow the noise (and most of them fall back to plane fits anyway). Measured on 60,000
-/// samples of the Max Planck bust with noise of 0.5% of the diagonal, the crust's normals
-/// against plane fits' (`--normals crust` and `pca`; Chamfer distance of the run's mesh to the
-/// clean mesh, over its diagonal): 1.172e-3 against 1.182e-3, in 1.25 against 0.2 s; at 1%,
-/// 2.566e-3 against 2.465e-3.
+/// follow the noise (and most of them fall back to plane fits anyway): plane fits give as good
+/// a surface in a sixth of the time (docs/defaults.md, "Noise").
 fn bare_points_source(points: &[[f64; 3]]) -> (NormalSource, Option<String>) {
     let n = points.len();
     if n > AUTO_CRUST_MAX {

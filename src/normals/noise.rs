@@ -66,10 +66,8 @@ pub struct NoiseEstimate {
 
 /// Noise above this share of the points' spacing is noise to average rather than shape to
 /// follow ([`NoiseEstimate::is_noisy`]). Below it the figure is mostly the surface's own relief
-/// at the scale of a few spacings, which a quadric over 24 points does not take out: clean
-/// samples measure 0.05 (60,000 points of the Max Planck bust) to 0.38 (the 1,440 vertices of
-/// a knotted tube), the raw Stanford bunny scans 0.08–0.09; 60,000 points of the bust with
-/// Gaussian noise of 0.25% of the diagonal measure 0.83, at 0.5% 1.34.
+/// at the scale of a few spacings, which a quadric over 24 points does not take out; the
+/// clean and noisy samples this threshold separates are in docs/defaults.md, "Noise".
 pub const NOISY_SPACING: f64 = 0.5;
 
 impl NoiseEstimate {

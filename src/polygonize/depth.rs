@@ -26,14 +26,10 @@
 //!   quarter), after which the fit's own error is most of the distance to the points, and it
 //!   cuts detail mode's split tolerance to 0.27× (`pipeline::DENSE_TOLERANCE`) and splits the
 //!   mesh's curved edges ([`super::PolygonizeParams::refine`], with the depth meshed: a
-//!   `--depth` asked for is compared with the points the same way). The rule once
-//!   started 3 levels finer (10 at depth 7); from 1 level it also takes the raw range views of
-//!   ../shared/data (8.35–8.57 levels) and their merge through `bun.conf` (9.3): Chamfer
-//!   distance bun000 8.92e-4 → 8.39e-4 of the diagonal, the other views and `bun.conf` −0.8% to
-//!   −1.5%, at CPU within the runs' noise (1.1–1.5 s a view; `tools/bench_scans.py`). The
-//!   bunny's mesh vertices subdivided once (Loop, 139,122 points, 8.49 levels): 6.38e-4 →
-//!   6.15e-4 (Open3D Poisson depth 8: 6.01e-4) for 10% more CPU. The bunny itself (7.53) and
-//!   every other input of ../shared/data lie below the rule.
+//!   `--depth` asked for is compared with the points the same way). From 1 level the rule
+//!   takes the raw range views of ../shared/data and their merge through `bun.conf`; the bunny
+//!   itself and every other input of ../shared/data lie below it (the figures behind the level
+//!   are in docs/defaults.md, "Detail mode's depth").
 //! - **Fit stride**: where the cells of the depth meshed hold at least [`FIT_CELL_POINTS`]
 //!   (12) points on average (those holding any), detail mode fits every k-th point along the
 //!   Z-order curve, k = ⌊mean / [`FIT_STRIDE_POINTS`]⌋ ([`fit_stride`]), and refits the deepest
@@ -41,18 +37,10 @@
 //!   ([`crate::detail::DetailParams::refit_deepest`]): each ball of the fit costs per point (its
 //!   rows, its error measure, the scans for its neighbours), while a few points per cell pin
 //!   the surface as well, and the time saved pays for the cubics, which follow relief finer
-//!   than a quadric can. The bunny's vertices subdivided twice (556,051 points, 15.5 a cell:
-//!   every 5th; before, every 2nd without refits): Chamfer distance / diagonal (5 seeds)
-//!   midpoint 3.6428e-4 → 3.6199e-4 (Open3D Poisson depth 8: 3.6269e-4), Loop 3.4537e-4 →
-//!   3.4374e-4 (3.4741e-4), at the same CPU (3 alternated runs: 5.61–5.81 → 5.43–5.98 and
-//!   4.94–5.85 → 4.53–5.52 CPU-s against Poisson's 10.2–12.8); the 1,000,000-point torus (32 a
-//!   cell: every 10th, no cell refitted) 2.5155e-4 → 2.5161e-4 (Poisson 2.5217e-4), 3.10–3.44
-//!   → 2.98–3.18 CPU-s. Every 4th point of the midpoint bunny with refits gave 3.6119e-4,
-//!   every 3rd 3.6040e-4, every 2nd 3.5979e-4, for 0.3, 0.7 and 1.0 CPU-s more (single runs);
-//!   refits at every point of `bun.conf` 6.657e-4 → 6.628e-4 for 55% more CPU (its noise fails
-//!   the tolerance everywhere). The merged bunny views of `bun.conf` (6.6 a cell), the Loop
-//!   bunny subdivided once (4.2) and every input of ../shared/data fit every point, without
-//!   refits: their meshes are unchanged.
+//!   than a quadric can (docs/defaults.md, "The deepest cells as cubics"). Refits at every
+//!   point of a noisy merge such as `bun.conf` cost much CPU for little, since its noise fails
+//!   the tolerance everywhere. The merged bunny views of `bun.conf`, the Loop bunny subdivided
+//!   once and every input of ../shared/data fit every point, without refits.
 //!
 //! Measured in detail mode on the oriented points of ../shared/data against Open3D's Poisson
 //! at depth 8 (symmetric Chamfer distance / diagonal, CPU seconds of the whole run; docs/defaults.md

@@ -35,14 +35,11 @@
 //!    ([`polygonize_with_data`], [`PolygonizeParams::data_levels`] > 0), only the cells that
 //!    hold a data point are split down to `depth`; the others stay leaves up to `data_levels`
 //!    levels above it, so the mesh is as fine as before where the data is and coarser between
-//!    far-apart points (detail mode on ../shared/data: quadknot 177,522 → 106,218 triangles,
-//!    duck 136,470 → 118,364, the dense bunny unchanged; Chamfer within 0.5%). With the data's
+//!    far-apart points (fewer triangles at the same Chamfer distance; CHANGELOG.md). With the data's
 //!    normals too, a cell whose data (with its neighbours' at that level) has nearly one normal
 //!    is not split either: planar parts are meshed at the coarse level, curved parts and edges
-//!    at `depth` (detail mode, 20,000 points on a cube with exact normals: 369,618 → 81,254
-//!    triangles, Chamfer +0.4%, CPU 3.2 → 1.3 s; on ../shared/data fandisk 28,824 → 25,554
-//!    triangles, Chamfer −0.5%, fertility −8% and teapot −4% triangles, Chamfer +0.1%; the
-//!    sphere and the other curved synthetic shapes unchanged).
+//!    at `depth` (a cube's triangles drop to a fifth at nearly the same Chamfer distance;
+//!    CHANGELOG.md).
 //! 2. **Extraction** (`extract`): marching tetrahedra over a tetrahedralization of the surface
 //!    leaves that conforms across levels (Kuhn tetrahedra in regular leaves, a cone from the
 //!    centre over a shared face tiling in leaves next to finer ones). It yields a watertight

@@ -48,12 +48,10 @@
 //!    rim spans, each at the mean of its neighbours with the rest held fixed, so the patch the
 //!    blend bulged out over the hole is drawn flat. Moves that make triangles cross are undone
 //!    (the exact test). The model's zero set is not moved: over a faired hole the mesh leaves
-//!    it. Bunny (`bunny_zipper.ply`, its open base): 208 vertices, Chamfer distance to the
-//!    points 1.1570e-3 → 1.1420e-3 of the diagonal; teapot (the spout's and handle's walls
-//!    inside the body) 4.0803e-3 → 4.0531e-3. The reach rule takes the holes of a dense scan
-//!    that are shallower than the share, such as the unseen wall of a step in the bunny's base
-//!    (its mesh vertices subdivided twice, 556,051 points: 3.648e-4 → 3.553e-4), while the
-//!    gaps between random samples stay (20,000 on a sphere, 10⁶ on a torus: none faired).
+//!    it (the bunny's open base and the teapot's inner walls; CHANGELOG.md has the figures).
+//!    The reach rule takes the holes of a dense scan that are shallower than the share, such
+//!    as the unseen wall of a step in the bunny's base, while the gaps between random samples
+//!    stay (20,000 on a sphere, 10⁶ on a torus: none faired).
 //!
 //! The steps live in `spacing.rs` (1), `regions.rs` (2–4: regions by edges, fans, islands),
 //! `holes.rs` (5) and `fair.rs` (6); this module holds the params, the report and the stage
