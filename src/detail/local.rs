@@ -485,8 +485,7 @@ fn measure_errors(measure: &[u32], stop_above: f64, error: impl Fn(u32) -> f64) 
 /// The weight of the auxiliary rows: the fitted points over the measured ones (1 when the
 /// ball is fitted whole). The rows of an [`even_subsample`] stand for the whole ball, so the
 /// auxiliary rows keep the share they have among all its rows; at weight 1 they outweighed a
-/// subsample of a dense ball and pulled its zero set off the data (a 20k-point sphere, one
-/// cell: mean signed radial error +3.1e-6 of the diagonal against +5.9e-9 fitted whole).
+/// subsample of a dense ball and pulled its zero set off the data (CHANGELOG.md).
 fn aux_weight(ball: &[u32], measure: &[u32]) -> f64 {
     if measure.len() > ball.len() && !ball.is_empty() {
         ball.len() as f64 / measure.len() as f64
@@ -502,10 +501,7 @@ pub(crate) const SUBSAMPLE_ABOVE: usize = 1024;
 /// The points a subsampled ball's fit uses. A local fit has at most 35 unknowns (10 for the
 /// default quadric), while a dense scan puts tens of thousands of points in the balls of the
 /// upper levels, each adding three rows: without a cap the cost of a fit grows with the points
-/// per ball for no gain in the fit. A 1M-point torus (detail stage on one thread, with the
-/// other changes of the same commit): 17.7 s → 1.9 s, Chamfer / diagonal 2.6927e-4 →
-/// 2.6934e-4, same topology; the shared meshes (bunny, duck, spot, fertility, quadknot,
-/// teapot) moved by less than 1e-5 relative in Chamfer distance, topology unchanged.
+/// per ball for no gain in the fit (its measurement on a 1M-point torus is in CHANGELOG.md).
 pub(crate) const SUBSAMPLE_POINTS: usize = 512;
 
 /// A deterministic, spatially even subsample of `ball` (indices of points in Z order, listed in

@@ -95,7 +95,7 @@ const PARALLEL_LEVELS: u32 = 3;
 
 /// Levels whose children find their own points in their parent's ball when their task starts,
 /// instead of all eight at once (see [`visit`]): at the root, each child's ball holds most of
-/// the points. 3M-point torus: peak RSS 691 → 657 MB, the same CPU time and model.
+/// the points (less peak memory, the same CPU time and model; CHANGELOG.md).
 const LAZY_BALL_LEVELS: u32 = 1;
 
 /// A grown cell whose own ball held fewer points than this lies over a hole or in empty space;
@@ -160,7 +160,7 @@ pub enum AuxiliaryPoints {
 pub enum LocalConstraints {
     /// Rows ∇Q = n at every point beside Q = 0 (Tasdizen, Tarel & Cooper 2000): met exactly by
     /// a quadric on a sphere. With estimated normals it fits the bunny's points less closely
-    /// than the 3L rows (mean distance 3.76e-4 of the diagonal against 2.80e-4).
+    /// than the 3L rows (CHANGELOG.md).
     Gradient,
     /// The paper's 3L rows Q(p ± εn) = ±ε with ε = [`DetailParams::epsilon`] (the default). On
     /// curved patches their least-squares compromise moves the zero set outward (1.6e-4 of the

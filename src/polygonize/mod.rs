@@ -97,8 +97,7 @@
 //!    triangle into two or four; step 5 tests the new vertices as the others, their last
 //!    fallback the midpoint of their edge's ends, where the split triangle's pieces lie in its
 //!    plane. Dense points (a level finer than the mesh, which sample the facets' interiors):
-//!    the bunny's vertices Loop-subdivided once, Chamfer 6.089e-4 → 6.005e-4 of the diagonal
-//!    for a quarter more CPU (docs/defaults.md, "Refined edges").
+//!    a lower Chamfer distance for a quarter more CPU (docs/defaults.md, "Refined edges").
 //!
 //! Determinism: the octree visits children in a fixed order and concatenates their results;
 //! leaves and edges are processed in fixed-size chunks collected in order; the simplification
