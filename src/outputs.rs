@@ -6,9 +6,10 @@
 //!
 //! How (`OutputSet`):
 //!
-//! 1. `OutputSet::begin`, before any work: removes the debris of runs that were killed (see
-//!    below), creates the folder if needed and a staging folder `.stablesurf-staging-<pid>-<n>`
-//!    inside it. That is the check that the folder is writable, so a bad `-o` fails at once.
+//! 1. `OutputSet::begin`, before any work: creates the folder if needed, takes its lock (see
+//!    below), removes the debris of runs that were killed, and creates a staging folder
+//!    `.stablesurf-staging-<pid>-<n>` inside it. That is the check that the folder is writable,
+//!    so a bad `-o` fails at once.
 //! 2. `OutputSet::stage` writes every file, synced, under `staging/new/`.
 //! 3. `OutputSet::commit` writes the journal `staging/COMMITTING` (the names, synced, renamed
 //!    into place), then for each file moves the file it replaces to `staging/old/` and the new
@@ -22,6 +23,12 @@
 //! new file is complete by then), without one it removes it; either way the folder then holds
 //! one whole set. It also removes the `.NAME.tmp<pid>` files of [`crate::export::write_atomic`]
 //! left by ended processes.
+//!
+//! One run at a time writes a folder: `begin` takes the folder's lock
+//! ([`crate::files::lock_folder`]) and holds it until the set is committed or dropped. A second
+//! run into a folder that a live run is writing stops at once with an error that names the
+//! folder, so no two sets mix and the last writer does not silently win. The lock dies with its
+//! process, so a killed run never blocks the next one.
 //!
 //! Files of an earlier run that the new set does not include are left alone (the tool removes
 //! nothing it did not create in this run); `report.json` lists the files of the run.
@@ -109,6 +116,9 @@ pub(crate) struct OutputSet {
     /// Set once the staging folder must not be removed (committed, or a failed roll-back left
     /// earlier files in it).
     keep_staging: bool,
+    /// The folder's lock, released after the staging folder is gone (fields drop after
+    /// [`Drop::drop`]).
+    _lock: crate::files::FolderLock,
 }
 
 impl OutputSet {
@@ -130,6 +140,14 @@ impl OutputSet {
         }
         fs::create_dir_all(dir)
             .map_err(|e| OutputError::io("create the output folder", dir, &e))?;
+        let lock = crate::files::lock_folder(dir)
+            .map_err(|e| OutputError::io("open the output folder", dir, &e))?
+            .ok_or_else(|| {
+                OutputError::other(format!(
+                    "another stablesurf run is writing the output folder {}; wait for it to end, or choose another folder with -o",
+                    dir.display()
+                ))
+            })?;
         recover(dir)?;
         let n = STAGING_COUNTER.fetch_add(1, Ordering::Relaxed);
         let staging = dir.join(format!("{STAGING_PREFIX}{}-{n}", std::process::id()));
@@ -139,6 +157,7 @@ impl OutputSet {
             created_dir,
             staged: Vec::new(),
             keep_staging: false,
+            _lock: lock,
         };
         fs::create_dir(&set.staging)
             .and_then(|()| fs::create_dir(set.staging.join("new")))
@@ -540,6 +559,26 @@ mod tests {
             return;
         }
         drop(OutputSet::begin(&out).unwrap());
+        assert_holds(&out, "c", &[]);
+    }
+
+    #[test]
+    fn a_folder_that_a_live_set_is_writing_is_refused_by_name_and_left_alone() {
+        let (_dir, out) = folder_with_set_a();
+        let mut first = OutputSet::begin(&out).unwrap();
+        first.stage(&files("b")).unwrap();
+        if cfg!(unix) {
+            let err = OutputSet::begin(&out).err().unwrap().to_string();
+            assert!(
+                err.contains(&out.display().to_string()) && err.contains("another stablesurf run"),
+                "{err}"
+            );
+        }
+        // The refused set took nothing away from the live one.
+        first.commit().unwrap();
+        assert_holds(&out, "b", &[]);
+        // Once the first set is done, the folder is free again.
+        write(&out, &files("c")).unwrap();
         assert_holds(&out, "c", &[]);
     }
 }

@@ -494,10 +494,30 @@ impl<'a> Ctx<'a> {
 
     /// Waits for the cache writes. One that failed costs only the next run's time, so it is a
     /// warning: the outputs are complete either way.
+    ///
+    /// Then the run's lookups go into the cache's counts and the least recently used entries
+    /// beyond its size limit are evicted ([`cache::lru`]); a failure there is told only when
+    /// the writes did not already say the cache is failing.
     fn finish_puts(&mut self) {
-        for e in self.puts.finish() {
+        let failed = self.puts.finish();
+        let told = !failed.is_empty();
+        for e in failed {
             self.warn(format!(
                 "{e}; this run's results are complete but were not all cached"
+            ));
+        }
+        let count = |which: &[&str]| {
+            self.stages
+                .iter()
+                .filter(|s| which.contains(&s.cache))
+                .count() as u64
+        };
+        let (hits, misses) = (count(&["hit"]), count(&["miss", "corrupt"]));
+        if let Err(e) = self.cache.after_run(hits, misses)
+            && !told
+        {
+            self.warn(format!(
+                "{e}; the cache's counts were not updated and its size limit not applied this run"
             ));
         }
     }

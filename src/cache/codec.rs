@@ -117,6 +117,31 @@ pub fn decode_entry<T: Artifact>(bytes: &[u8]) -> Option<Entry<T>> {
     })
 }
 
+/// Whether `bytes` are a whole entry of this cache format stored under the key whose hex is
+/// `key_hex` by `stage`: checksum, magic, format version, identity and lengths, whatever the
+/// artifact's type (whose payload the checksum covers).
+pub(crate) fn envelope_matches(bytes: &[u8], key_hex: &str, stage: &str) -> bool {
+    (|| {
+        let body_len = bytes.len().checked_sub(32)?;
+        let (body, digest) = bytes.split_at(body_len);
+        if blake3::hash(body).as_bytes() != digest {
+            return None;
+        }
+        let mut r = Reader { bytes: body };
+        if r.take(4)? != MAGIC || r.u32()? != CACHE_FORMAT_VERSION {
+            return None;
+        }
+        let (_kind, _version) = (r.u32()?, r.u32()?);
+        let key = Key(r.take(32)?.try_into().ok()?);
+        let _stage_version = r.u32()?;
+        let stored_stage = std::str::from_utf8(r.bytes()?).ok()?.to_string();
+        let _meta = r.bytes()?;
+        let len = usize::try_from(r.u64()?).ok()?;
+        (key.hex() == key_hex && stored_stage == stage && r.bytes.len() == len).then_some(())
+    })()
+    .is_some()
+}
+
 /// Decodes a cache entry that must have been stored as `id`; `None` otherwise.
 pub(crate) fn decode_as<T: Artifact>(bytes: &[u8], id: &EntryId) -> Option<Entry<T>> {
     decode_entry(bytes).filter(|e| &e.id == id)

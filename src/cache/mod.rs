@@ -29,10 +29,18 @@
 //! they leave empty), never follows a link, and leaves everything else where it is.
 //!
 //! A run stores its entries through `Puts`, on a background thread, while its next stages
-//! compute. A store that fails costs only the next run's time, so the pipeline reports it as a
-//! warning and the run's outputs are complete.
+//! compute. A store that fails costs only the next run's time (a full disk included), so the
+//! pipeline reports it once as a warning and the run's outputs are complete; the failed write's
+//! temporary is removed, so no partial entry is left.
+//!
+//! The cache keeps under a size limit ([`lru`]): after each run, the least recently used
+//! entries go until the rest fit (5 GB unless `--cache-max-size` or
+//! `STABLESURF_CACHE_MAX_SIZE` say otherwise), and `<root>/stats.json` counts hits, misses and
+//! evictions. A reader holds a shared lock on the entry it reads, so eviction by another
+//! process passes it by.
 
 pub mod codec;
+pub mod lru;
 
 use std::fmt;
 use std::fs;
@@ -171,6 +179,8 @@ impl Lookup {
 #[derive(Clone, Debug)]
 pub struct Cache {
     root: Option<PathBuf>,
+    /// The entries' bytes kept after a run ([`lru`]).
+    max_size: u64,
 }
 
 /// One stage's share of a cache ([`Cache::usage`]).
@@ -195,6 +205,17 @@ pub struct Cleared {
     pub debris: u64,
     /// Paths under the root that are not the cache's, left where they are.
     pub foreign: Vec<PathBuf>,
+}
+
+/// What [`Cache::verify`] found.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Verified {
+    /// Entries whose envelope verifies.
+    pub valid: u64,
+    /// Their bytes.
+    pub bytes: u64,
+    /// Entries that fail (a later lookup recomputes and rewrites them).
+    pub invalid: Vec<PathBuf>,
 }
 
 static TMP_COUNTER: AtomicU64 = AtomicU64::new(0);
@@ -341,12 +362,29 @@ impl Cache {
     pub fn at(root: impl Into<PathBuf>) -> Cache {
         Cache {
             root: Some(root.into()),
+            max_size: lru::DEFAULT_MAX_SIZE,
         }
     }
 
     /// A cache that stores nothing (`--no-cache`).
     pub fn disabled() -> Cache {
-        Cache { root: None }
+        Cache {
+            root: None,
+            max_size: lru::DEFAULT_MAX_SIZE,
+        }
+    }
+
+    /// The same cache with a size limit of `bytes` ([`lru`]).
+    pub fn with_max_size(self, bytes: u64) -> Cache {
+        Cache {
+            max_size: bytes,
+            ..self
+        }
+    }
+
+    /// The size limit, in bytes.
+    pub fn max_size(&self) -> u64 {
+        self.max_size
     }
 
     /// The root directory, if enabled.
@@ -441,14 +479,108 @@ impl Cache {
             stage: stage.to_string(),
             stage_version,
         };
-        match fs::read(&path) {
-            Ok(bytes) => match codec::decode_as::<T>(&bytes, &id) {
-                Some(entry) => (Some((entry.value, entry.meta)), Lookup::Hit),
+        match read_entry(&path) {
+            Ok((bytes, file)) => match codec::decode_as::<T>(&bytes, &id) {
+                Some(entry) => {
+                    // The hit is this entry's last use: eviction takes the oldest uses first.
+                    let _ = file.set_modified(std::time::SystemTime::now());
+                    (Some((entry.value, entry.meta)), Lookup::Hit)
+                }
                 None => (None, Lookup::Corrupt),
             },
             Err(_) if path.exists() => (None, Lookup::Corrupt),
             Err(_) => (None, Lookup::Miss),
         }
+    }
+
+    /// Adds a run's lookups to the cache's counts and evicts the least recently used entries
+    /// beyond the size limit (see [`lru`]); nothing for a disabled cache.
+    ///
+    /// # Errors
+    /// The counts file cannot be written (nothing was evicted).
+    pub(crate) fn after_run(&self, hits: u64, misses: u64) -> Result<lru::Evicted, CacheError> {
+        let Some(root) = &self.root else {
+            return Ok(lru::Evicted::default());
+        };
+        lru::record_run_and_evict(root, hits, misses, self.max_size).map_err(|source| {
+            CacheError::Io {
+                path: root.join(lru::STATS_FILE).display().to_string(),
+                source,
+            }
+        })
+    }
+
+    /// The cache's counts of hits, misses and evictions (zero for a cache that has none yet).
+    ///
+    /// # Errors
+    /// As [`Cache::usage`]: the folder is not a stablesurf cache.
+    pub fn stats(&self) -> Result<lru::Stats, CacheError> {
+        Ok(self
+            .marked_root()?
+            .map(lru::read_stats)
+            .unwrap_or_default())
+    }
+
+    /// Removes the entries last used more than `age` ago (`cache clear --older-than`); entries
+    /// another process is reading stay.
+    ///
+    /// # Errors
+    /// As [`Cache::clear`].
+    pub fn clear_older_than(&self, age: std::time::Duration) -> Result<Cleared, CacheError> {
+        let Some(root) = self.marked_root()? else {
+            return Ok(Cleared::default());
+        };
+        let debris = STAGES
+            .iter()
+            .flat_map(|stage| listing(&root.join(stage)))
+            .filter(|(name, _, meta)| meta.is_dir() && is_shard_name(name))
+            .map(|(_, shard, _)| sweep_shard(&shard))
+            .sum::<u64>()
+            + sweep_shard(root);
+        let done = lru::evict_older_than(root, age);
+        Ok(Cleared {
+            entries: done.entries,
+            bytes: done.bytes,
+            debris,
+            foreign: Vec::new(),
+        })
+    }
+
+    /// Checks every entry's envelope: its checksum, format, and the key and stage of its path
+    /// (the payload is covered by the checksum). Reads each entry under its shared lock.
+    ///
+    /// # Errors
+    /// As [`Cache::usage`]: the folder is not a stablesurf cache.
+    pub fn verify(&self) -> Result<Verified, CacheError> {
+        let mut done = Verified::default();
+        let Some(root) = self.marked_root()? else {
+            return Ok(done);
+        };
+        for entry in lru::entries(root) {
+            let name = entry.path.file_name().map(|n| n.to_string_lossy().into_owned());
+            let stage = entry
+                .path
+                .parent()
+                .and_then(Path::parent)
+                .and_then(Path::file_name)
+                .map(|n| n.to_string_lossy().into_owned());
+            let (Some(name), Some(stage)) = (name, stage) else {
+                continue;
+            };
+            if !name.ends_with(".bin") {
+                continue;
+            }
+            let good = read_entry(&entry.path).ok().is_some_and(|(bytes, _)| {
+                codec::envelope_matches(&bytes, &name[..64], &stage)
+            });
+            if good {
+                done.valid += 1;
+                done.bytes += entry.bytes;
+            } else if entry.path.exists() {
+                done.invalid.push(entry.path);
+            }
+        }
+        Ok(done)
     }
 
     /// Whether an entry for `key` is on disk (not decoded: a corrupt entry still counts). Lets a
@@ -548,6 +680,7 @@ impl Cache {
         done.debris += sweep_shard(root);
         for (name, path, meta) in listing(root) {
             let ours = name == MARKER
+                || name == lru::STATS_FILE
                 || (meta.is_dir() && STAGES.contains(&name.as_str()))
                 // A live run's temporary is its own.
                 || (meta.is_file() && tmp_pid(&name).is_some());
@@ -685,6 +818,18 @@ impl Drop for Puts {
 
 /// Writes an entry. A folder standing at the entry's path (which no run makes) is removed
 /// first when it is empty, so the entry can be stored; a non-empty one is reported.
+/// An entry's bytes, read under a shared lock of the file (so eviction by another process
+/// passes it by), and the open file.
+fn read_entry(path: &Path) -> std::io::Result<(Vec<u8>, fs::File)> {
+    use std::io::Read;
+    let mut file = fs::File::open(path)?;
+    // Without locks on this file system the read goes on: eviction never tears an open file.
+    let _ = file.lock_shared();
+    let mut bytes = Vec::new();
+    file.read_to_end(&mut bytes)?;
+    Ok((bytes, file))
+}
+
 fn write_entry(path: &Path, bytes: &[u8]) -> Result<(), CacheError> {
     if fs::symlink_metadata(path).is_ok_and(|m| m.is_dir()) {
         fs::remove_dir(path).map_err(|source| CacheError::Io {

@@ -362,6 +362,16 @@ pub struct CacheOpts {
     /// Do not read or write the cache.
     #[arg(long)]
     pub no_cache: bool,
+    /// Size limit of the cache (e.g. 5G, 500MB, 2GiB): after each run the least recently used
+    /// entries go until the rest fit [default: 5G].
+    #[arg(long, value_name = "SIZE", env = "STABLESURF_CACHE_MAX_SIZE",
+          value_parser = parse_cache_size)]
+    pub cache_max_size: Option<u64>,
+}
+
+/// Parses a `--cache-max-size`.
+fn parse_cache_size(text: &str) -> Result<u64, String> {
+    stablesurf::cache::lru::parse_size(text)
 }
 
 /// `stablesurf run`.
@@ -696,15 +706,39 @@ pub struct CacheArgs {
     /// Cache directory (default: $XDG_CACHE_HOME/stablesurf or ~/.cache/stablesurf).
     #[arg(long, value_name = "DIR", global = true)]
     pub cache_dir: Option<PathBuf>,
+    /// Size limit of the cache (e.g. 5G, 500MB, 2GiB) that `info` compares its size with
+    /// [default: 5G].
+    #[arg(long, value_name = "SIZE", env = "STABLESURF_CACHE_MAX_SIZE", global = true,
+          value_parser = parse_cache_size)]
+    pub cache_max_size: Option<u64>,
 }
 
 /// Cache actions.
 #[derive(Debug, Subcommand)]
 pub enum CacheAction {
-    /// Where the cache is and how much each stage holds.
-    Info,
-    /// Remove every entry.
-    Clear,
+    /// Where the cache is, how much each stage holds, its size limit and hit rate.
+    Info {
+        /// Print one JSON object on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Remove every entry (or only those last used before --older-than).
+    Clear {
+        /// Remove only the entries last used longer ago than this (e.g. 12h, 7d, 2w).
+        #[arg(long, value_name = "AGE", value_parser = parse_age)]
+        older_than: Option<std::time::Duration>,
+    },
+    /// Check every entry's checksum and identity; exit 1 if any fails.
+    Verify {
+        /// Print one JSON object on stdout.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+/// Parses an `--older-than`.
+fn parse_age(text: &str) -> Result<std::time::Duration, String> {
+    stablesurf::cache::lru::parse_age(text)
 }
 
 /// Parses `xmin,ymin,zmin,xmax,ymax,zmax`: six finite numbers, each min below its max.
@@ -1067,7 +1101,7 @@ mod tests {
         let CommandArgs::Cache(c) = parse(&["cache", "clear", "--cache-dir", "x"]).command else {
             panic!()
         };
-        assert!(matches!(c.action, CacheAction::Clear));
+        assert!(matches!(c.action, CacheAction::Clear { older_than: None }));
         let CommandArgs::Normals(n) =
             parse(&["normals", "a.xyz", "-o", "n.ply", "--mesh", "c.ply"]).command
         else {

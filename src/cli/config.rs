@@ -55,7 +55,7 @@ same_variants! {
     KeepArg => Keep { All, Data }
 }
 
-/// The cache `--cache-dir`/`--no-cache` ask for.
+/// The cache `--cache-dir`/`--no-cache`/`--cache-max-size` ask for.
 pub fn open_cache(opts: &CacheOpts) -> Result<Cache> {
     if opts.no_cache {
         return Ok(Cache::disabled());
@@ -65,7 +65,8 @@ pub fn open_cache(opts: &CacheOpts) -> Result<Cache> {
         .clone()
         .or_else(stablesurf::cache::default_dir)
     {
-        Some(dir) => Ok(Cache::at(dir)),
+        Some(dir) => Ok(Cache::at(dir)
+            .with_max_size(opts.cache_max_size.unwrap_or(stablesurf::cache::lru::DEFAULT_MAX_SIZE))),
         None => Err(usage(
             "no cache directory: set HOME or XDG_CACHE_HOME, pass --cache-dir, or use --no-cache",
         )),
