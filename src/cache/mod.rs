@@ -68,7 +68,7 @@ const MARKER_OWNER: &str = "# This folder is a stablesurf cache";
 #[derive(Debug, thiserror::Error)]
 pub enum CacheError {
     /// The cache directory could not be created or written.
-    #[error("cannot write the cache at {path}: {source} (pick another place with --cache-dir, or use --no-cache)")]
+    #[error("cannot write the cache at {path}: {source}; {}, pick another place with --cache-dir, lower --cache-max-size, or use --no-cache", crate::files::io_hint(.source))]
     Io {
         /// The path.
         path: String,
@@ -515,10 +515,7 @@ impl Cache {
     /// # Errors
     /// As [`Cache::usage`]: the folder is not a stablesurf cache.
     pub fn stats(&self) -> Result<lru::Stats, CacheError> {
-        Ok(self
-            .marked_root()?
-            .map(lru::read_stats)
-            .unwrap_or_default())
+        Ok(self.marked_root()?.map(lru::read_stats).unwrap_or_default())
     }
 
     /// Removes the entries last used more than `age` ago (`cache clear --older-than`); entries
@@ -557,7 +554,10 @@ impl Cache {
             return Ok(done);
         };
         for entry in lru::entries(root) {
-            let name = entry.path.file_name().map(|n| n.to_string_lossy().into_owned());
+            let name = entry
+                .path
+                .file_name()
+                .map(|n| n.to_string_lossy().into_owned());
             let stage = entry
                 .path
                 .parent()
@@ -570,9 +570,9 @@ impl Cache {
             if !name.ends_with(".bin") {
                 continue;
             }
-            let good = read_entry(&entry.path).ok().is_some_and(|(bytes, _)| {
-                codec::envelope_matches(&bytes, &name[..64], &stage)
-            });
+            let good = read_entry(&entry.path)
+                .ok()
+                .is_some_and(|(bytes, _)| codec::envelope_matches(&bytes, &name[..64], &stage));
             if good {
                 done.valid += 1;
                 done.bytes += entry.bytes;
@@ -857,7 +857,14 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CacheError> {
         // No sync before the rename: a killed run leaves either the old entry or the whole new
         // one (the rename is atomic), and an entry torn by a power loss fails its checksum
         // and is a miss, so waiting for the disk here would buy nothing.
-        fs::File::create(&tmp)?.write_all(bytes)?;
+        let mut file = fs::File::create(&tmp)?;
+        // `STABLESURF_FAULT=cache-full`, for the tests: every cache write fails half-way, as
+        // on a full disk.
+        if std::env::var("STABLESURF_FAULT").is_ok_and(|f| f == "cache-full") {
+            file.write_all(&bytes[..bytes.len() / 2])?;
+            return Err(std::io::Error::from(std::io::ErrorKind::StorageFull));
+        }
+        file.write_all(bytes)?;
         fs::rename(&tmp, path)
     })();
     if result.is_err() {

@@ -43,8 +43,7 @@ pub fn cache(args: CacheArgs) -> Result<()> {
                 let stages: serde_json::Map<String, serde_json::Value> = usage
                     .iter()
                     .map(|u| {
-                        let figures =
-                            serde_json::json!({ "entries": u.entries, "bytes": u.bytes });
+                        let figures = serde_json::json!({ "entries": u.entries, "bytes": u.bytes });
                         (u.stage.clone(), figures)
                     })
                     .collect();

@@ -65,8 +65,10 @@ pub fn open_cache(opts: &CacheOpts) -> Result<Cache> {
         .clone()
         .or_else(stablesurf::cache::default_dir)
     {
-        Some(dir) => Ok(Cache::at(dir)
-            .with_max_size(opts.cache_max_size.unwrap_or(stablesurf::cache::lru::DEFAULT_MAX_SIZE))),
+        Some(dir) => Ok(Cache::at(dir).with_max_size(
+            opts.cache_max_size
+                .unwrap_or(stablesurf::cache::lru::DEFAULT_MAX_SIZE),
+        )),
         None => Err(usage(
             "no cache directory: set HOME or XDG_CACHE_HOME, pass --cache-dir, or use --no-cache",
         )),

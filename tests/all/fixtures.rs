@@ -62,7 +62,8 @@ fn absent_shared_data_skips_but_fails_under_ci() {
 pub fn bin() -> Command {
     let mut cmd = Command::cargo_bin("stablesurf").expect("binary built");
     cmd.env_remove("XDG_CACHE_HOME")
-        .env_remove("STABLESURF_FAULT");
+        .env_remove("STABLESURF_FAULT")
+        .env_remove("STABLESURF_CACHE_MAX_SIZE");
     cmd
 }
 

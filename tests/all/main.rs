@@ -18,6 +18,7 @@ mod fit;
 mod fuzz_readers;
 mod golden;
 mod import;
+mod load;
 mod noise;
 mod normals;
 mod polygonize;
