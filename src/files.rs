@@ -241,7 +241,10 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let tmp = dir.path().join(".tmp-0-0");
         std::fs::write(&tmp, b"x").unwrap();
-        let mut child = std::process::Command::new("sleep").arg("30").spawn().unwrap();
+        let mut child = std::process::Command::new("sleep")
+            .arg("30")
+            .spawn()
+            .unwrap();
         // Written after the child started: the child may have made it.
         std::thread::sleep(Duration::from_millis(50));
         std::fs::write(&tmp, b"y").unwrap();

@@ -25,7 +25,7 @@
 //! left by ended processes.
 //!
 //! One run at a time writes a folder: `begin` takes the folder's lock
-//! ([`crate::files::lock_folder`]) and holds it until the set is committed or dropped. A second
+//! (`files::lock_folder`) and holds it until the set is committed or dropped. A second
 //! run into a folder that a live run is writing stops at once with an error that names the
 //! folder, so no two sets mix and the last writer does not silently win. The lock dies with its
 //! process, so a killed run never blocks the next one.

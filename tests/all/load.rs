@@ -83,7 +83,7 @@ fn became_zombie(pid: u32) -> bool {
     while start.elapsed() < Duration::from_secs(10) {
         let state = fs::read_to_string(&stat)
             .ok()
-            .and_then(|s| Some(s[s.rfind(')')? + 2..].chars().next()?));
+            .and_then(|s| s[s.rfind(')')? + 2..].chars().next());
         if state == Some('Z') {
             return true;
         }
