@@ -11,6 +11,7 @@ use std::path::Path;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use stablesurf::cache::Cache;
+use stablesurf::export::ExportParams;
 use stablesurf::pipeline::{self, Mode, OutputFormat, PipelineConfig, ScanSource, Silent};
 
 fn source() -> (ScanSource, &'static str) {
@@ -31,14 +32,20 @@ fn bench(c: &mut Criterion) {
         (
             "no files",
             PipelineConfig {
-                formats: vec![],
+                export: ExportParams {
+                    formats: vec![],
+                    ..global.export.clone()
+                },
                 ..global.clone()
             },
         ),
         (
             "glb+ply+json",
             PipelineConfig {
-                formats: vec![OutputFormat::Glb, OutputFormat::Ply, OutputFormat::Json],
+                export: ExportParams {
+                    formats: vec![OutputFormat::Glb, OutputFormat::Ply, OutputFormat::Json],
+                    ..global.export.clone()
+                },
                 ..global.clone()
             },
         ),

@@ -24,7 +24,9 @@ use ::stablesurf::cache::Cache;
 use ::stablesurf::fit::{FitMethod, Kappa, KappaRule};
 use ::stablesurf::limits::{self, Range};
 use ::stablesurf::normals::NormalSource;
-use ::stablesurf::pipeline::{self, Keep, Mode, Model, PipelineConfig, PipelineError, ScanSource};
+use ::stablesurf::pipeline::{
+    self, Keep, Mode, Model, PipelineConfig, PipelineError, ScanSource, Setting,
+};
 use ::stablesurf::trim::TrimParams;
 use ::stablesurf::{import, ImplicitModel, PointCloud, TriangleMesh};
 
@@ -369,16 +371,13 @@ fn apply_param(
         "method" => config.fit.method = choice::<FitMethod>(value, key)?,
         "local_degree" => config.detail.degree = number(value, key, limits::LOCAL_DEGREE)? as u32,
         "tolerance" => {
-            let tolerance = number(value, key, limits::TOLERANCE)?;
-            config.detail = config.detail.clone().with_tolerance(tolerance);
             // As `--tolerance`: kept over the one the data's resolution would choose.
-            config.tolerance_from_data = false;
+            config.tolerance = Setting::Fixed(number(value, key, limits::TOLERANCE)?);
         }
         "smooth" => config.smooth = number(value, key, limits::SMOOTH)?,
         "fit_stride" => {
-            config.detail.stride = number(value, key, limits::FIT_STRIDE)? as u32;
             // As `--fit-stride`: kept over the one the data's resolution would choose.
-            config.stride_from_data = false;
+            config.fit_stride = Setting::Fixed(number(value, key, limits::FIT_STRIDE)? as u32);
         }
         "normal_source" => config.normals.source = choice::<NormalSource>(value, key)?,
         "viewpoint" => {
@@ -401,13 +400,12 @@ fn apply_param(
                 .map_err(|_| PyValueError::new_err("keep_outliers takes True or False"))?
         }
         "depth" => {
-            config.polygonize.depth = number(value, key, limits::DEPTH)? as u32;
             // As `--depth`: kept over the one the data's resolution would choose.
-            config.depth_from_data = false;
+            config.depth = Setting::Fixed(number(value, key, limits::DEPTH)? as u32);
         }
         "keep" => {
             let text: String = value.extract().unwrap_or_default();
-            config.keep = match text.as_str() {
+            config.export.keep = match text.as_str() {
                 "data" => Keep::Data,
                 "all" => Keep::All,
                 _ => return Err(PyValueError::new_err("keep takes \"data\" or \"all\"")),
@@ -417,7 +415,7 @@ fn apply_param(
             Ok(s) => match s.to_cow()?.as_ref() {
                 // The mode's own trim.
                 "auto" => {}
-                "off" => config.trim = TrimParams::off(),
+                "off" => config.export.trim = TrimParams::off(),
                 _ => {
                     return Err(PyValueError::new_err(
                         "trim takes \"auto\", \"off\" or a support factor from 0.5 to 100",
@@ -425,7 +423,7 @@ fn apply_param(
                 }
             },
             Err(_) => {
-                config.trim = TrimParams {
+                config.export.trim = TrimParams {
                     support_factor: number(value, key, limits::TRIM)?,
                     ..TrimParams::default()
                 }

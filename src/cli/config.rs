@@ -7,13 +7,12 @@ use std::path::Path;
 
 use anyhow::{Context, Result};
 use stablesurf::cache::Cache;
-use stablesurf::detail::DetailParams;
 use stablesurf::distance::volume::VoxelSize;
 use stablesurf::distance::{Axis, DistanceMethod};
 use stablesurf::export::{self, gltf::UpAxis, units::LengthUnit};
 use stablesurf::fit::{self, FitMethod, KappaRule};
 use stablesurf::normals::{NormalSource, NormalsParams};
-use stablesurf::pipeline::{Keep, Mode, Model, OutputFormat, PipelineConfig};
+use stablesurf::pipeline::{Keep, Mode, Model, OutputFormat, PipelineConfig, Setting};
 use stablesurf::polygonize::decimate::DecimateParams;
 use stablesurf::polygonize::{PolygonizeParams, REFINE_SAGITTA};
 use stablesurf::render::View;
@@ -106,28 +105,19 @@ pub fn fit_params(opts: &FitOpts) -> Result<fit::FitParams> {
     })
 }
 
-/// Detail-fit parameters (`--local-degree` and `--tolerance` are within range::LOCAL_DEGREE and
-/// range::TOLERANCE). The finest cells split down to `--tolerance` or 1e-3, whichever is
-/// smaller; without it, the library's default tolerance.
-pub fn detail_params(opts: &DetailOpts) -> DetailParams {
-    let params = DetailParams {
-        degree: opts.local_degree,
-        stride: opts.fit_stride.unwrap_or(1),
-        ..DetailParams::default()
-    };
-    match opts.tolerance {
-        Some(t) => params.with_tolerance(t),
-        None => params,
-    }
-}
-
-/// Sets `config`'s detail fit from `opts` ([`detail_params`]); a `--tolerance` or
-/// `--fit-stride` given is kept over the one the data's resolution would choose
-/// ([`PipelineConfig::tolerance_from_data`], [`PipelineConfig::stride_from_data`]).
+/// Sets `config`'s detail fit from `opts`: `--local-degree` (within range::LOCAL_DEGREE),
+/// `--smooth`, and `--tolerance` and `--fit-stride` as fixed settings, kept over the ones the
+/// data's resolution would choose ([`PipelineConfig::tolerance`], [`PipelineConfig::fit_stride`]).
+/// A tolerance splits the finest cells down to it or 1e-3, whichever is smaller
+/// ([`DetailParams::with_tolerance`]).
 pub fn set_detail(config: &mut PipelineConfig, opts: &DetailOpts) {
-    config.detail = detail_params(opts);
-    config.tolerance_from_data &= opts.tolerance.is_none();
-    config.stride_from_data &= opts.fit_stride.is_none();
+    config.detail.degree = opts.local_degree;
+    if let Some(t) = opts.tolerance {
+        config.tolerance = Setting::Fixed(t);
+    }
+    if let Some(k) = opts.fit_stride {
+        config.fit_stride = Setting::Fixed(k);
+    }
     config.smooth = opts.smooth;
 }
 
@@ -171,34 +161,39 @@ pub fn run_config(args: &RunArgs) -> Result<PipelineConfig> {
     config.fit = fit_params(&args.fit)?;
     set_detail(&mut config, &args.detail);
     config.polygonize = polygonize_params(&args.mesh, mode);
-    config.depth_from_data &= args.mesh.depth.is_none();
-    config.refine_from_data &= !(args.mesh.refine || args.mesh.no_refine);
-    config.decimate = decimate_params(&args.mesh);
+    if let Some(depth) = args.mesh.depth {
+        config.depth = Setting::Fixed(depth);
+    }
+    if args.mesh.refine || args.mesh.no_refine {
+        config.refine = Setting::Fixed(config.polygonize.refine);
+    }
+    let export = &mut config.export;
+    export.decimate = decimate_params(&args.mesh);
     if let Some(keep) = args.keep {
-        config.keep = keep.into();
+        export.keep = keep.into();
     }
     match args.trim {
         None | Some(TrimArg::Auto) => {}
-        Some(TrimArg::Off) => config.trim = TrimParams::off(),
+        Some(TrimArg::Off) => export.trim = TrimParams::off(),
         Some(TrimArg::Factor(support_factor)) => {
-            config.trim = TrimParams {
+            export.trim = TrimParams {
                 support_factor,
                 ..TrimParams::default()
             }
         }
     }
-    config.gltf.up = args.frame.up.map_or(UpAxis::Y, Into::into);
-    config.ply_up = args.frame.up.map(Into::into);
-    config.units = args.frame.units.map(Into::into);
+    export.gltf.up = args.frame.up.map_or(UpAxis::Y, Into::into);
+    export.ply_up = args.frame.up.map(Into::into);
+    export.units = args.frame.units.map(Into::into);
     // The count and resolution are within range::SLICE_COUNT and range::SLICE_RESOLUTION.
-    config.slices.count = args.slices.slice_count;
-    config.slices.resolution = args.slices.slice_resolution;
+    export.slices.count = args.slices.slice_count;
+    export.slices.resolution = args.slices.slice_resolution;
     if let Some(distance) = args.slices.slice_distance {
-        config.slices.method = distance.into();
+        export.slices.method = distance.into();
     }
-    config.formats = args.formats.iter().map(|&f| f.into()).collect();
+    export.formats = args.formats.iter().map(|&f| f.into()).collect();
     if let Some(h) = args.voxel_size {
-        config.volume.voxel_size = VoxelSize::Size(h);
+        export.volume.voxel_size = VoxelSize::Size(h);
     }
     Ok(config)
 }
@@ -288,28 +283,27 @@ mod tests {
             "5",
         ]))
         .unwrap();
-        assert_eq!(config.trim.mode, stablesurf::trim::TrimMode::Off);
-        assert_eq!(config.keep, Keep::All);
-        assert_eq!(config.polygonize.depth, 5);
+        assert_eq!(config.export.trim.mode, stablesurf::trim::TrimMode::Off);
+        assert_eq!(config.export.keep, Keep::All);
         assert_eq!(config.polygonize.guard_levels, 0);
-        assert_eq!(config.decimate, None);
-        // A depth or a tolerance asked for is not replaced by the data's.
-        assert!(!config.depth_from_data && config.tolerance_from_data);
+        assert_eq!(config.export.decimate, None);
+        // A depth or a tolerance asked for is fixed, not the data's to choose.
+        assert_eq!(config.depth, Setting::Fixed(5));
+        assert!(config.tolerance.is_auto());
         let tolerant = run_config(&run_args(&["--tolerance", "2e-4"])).unwrap();
-        assert!(tolerant.depth_from_data && !tolerant.tolerance_from_data);
-        assert_eq!(tolerant.detail.tolerance, 2e-4);
+        assert!(tolerant.depth.is_auto());
+        assert_eq!(tolerant.tolerance, Setting::Fixed(2e-4));
+        let strided = run_config(&run_args(&["--fit-stride", "3"])).unwrap();
+        assert_eq!(strided.fit_stride, Setting::Fixed(3));
         let decimating = run_config(&run_args(&["--target-triangles", "5000"])).unwrap();
         assert_eq!(
-            decimating
-                .export_params()
-                .decimate
-                .map(|d| d.target_triangles),
+            decimating.export.decimate.map(|d| d.target_triangles),
             Some(5000)
         );
         let global = run_config(&run_args(&["--mode", "global", "--trim", "3"])).unwrap();
-        assert_eq!(global.trim.support_factor, 3.0);
-        assert_eq!(global.trim.mode, stablesurf::trim::TrimMode::Support);
-        assert_eq!(global.slices.method, DistanceMethod::Exact);
+        assert_eq!(global.export.trim.support_factor, 3.0);
+        assert_eq!(global.export.trim.mode, stablesurf::trim::TrimMode::Support);
+        assert_eq!(global.export.slices.method, DistanceMethod::Exact);
         // Fitted chords: detail mode's default, not global mode's; either flag overrides it,
         // the last one given wins.
         let chords = |flags: &[&str]| run_config(&run_args(flags)).unwrap().polygonize.fit_chords;
@@ -318,20 +312,17 @@ mod tests {
         assert!(!chords(&["--mode", "global"]));
         assert!(chords(&["--mode", "global", "--fit-chords"]));
         assert!(!chords(&["--fit-chords", "--no-fit-chords"]));
-        // Split edges: on dense points by default in detail mode (refine_from_data, resolved by
-        // the pipeline), always with --refine, never with --no-refine; the last flag wins.
-        let refine = |flags: &[&str]| {
-            let config = run_config(&run_args(flags)).unwrap();
-            (config.polygonize.refine, config.refine_from_data)
-        };
-        assert_eq!(refine(&[]), (None, true));
-        assert_eq!(refine(&["--mode", "global"]), (None, false));
-        assert_eq!(refine(&["--refine"]), (Some(REFINE_SAGITTA), false));
-        assert_eq!(refine(&["--no-refine"]), (None, false));
+        // Split edges: the data's to choose by default (on dense points in detail mode, resolved
+        // by the pipeline), always with --refine, never with --no-refine; the last flag wins.
+        let refine = |flags: &[&str]| run_config(&run_args(flags)).unwrap().refine;
+        assert_eq!(refine(&[]), Setting::Auto);
+        assert_eq!(refine(&["--mode", "global"]), Setting::Auto);
+        assert_eq!(refine(&["--refine"]), Setting::Fixed(Some(REFINE_SAGITTA)));
+        assert_eq!(refine(&["--no-refine"]), Setting::Fixed(None));
         assert_eq!(
             refine(&["--no-refine", "--refine"]),
-            (Some(REFINE_SAGITTA), false)
+            Setting::Fixed(Some(REFINE_SAGITTA))
         );
-        assert_eq!(refine(&["--depth", "6"]), (None, true));
+        assert_eq!(refine(&["--depth", "6"]), Setting::Auto);
     }
 }

@@ -105,22 +105,22 @@ pub fn run_source(
                 " by default; --mode global fits one polynomial"
             },
             spelling(&args.normals.source),
-            if config.depth_from_data {
+            if config.mode == Mode::Detail && config.depth.is_auto() {
                 "from the points' spacing".to_string()
             } else {
-                config.polygonize.depth.to_string()
+                config.depth.or_else(|| config.polygonize.depth).to_string()
             },
-            match config.keep {
+            match config.export.keep {
                 Keep::All => "all",
                 Keep::Data => "data",
             },
-            match config.trim.mode {
+            match config.export.trim.mode {
                 TrimMode::Off => "off".to_string(),
-                TrimMode::Support => format!("support factor {}", config.trim.support_factor),
+                TrimMode::Support => format!("support factor {}", config.export.trim.support_factor),
             },
-            config.slices.count,
-            config.slices.resolution,
-            config.slices.method.name(),
+            config.export.slices.count,
+            config.export.slices.resolution,
+            config.export.slices.method.name(),
             cache.root().map_or("off".to_string(), |r| r.display().to_string()),
         );
     }

@@ -8,8 +8,9 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 use stablesurf::cache::Cache;
-use stablesurf::pipeline::{self, OutputFormat, PipelineConfig, ScanSource, Silent};
-use stablesurf::{fit, normals, polygonize};
+use stablesurf::export::ExportParams;
+use stablesurf::pipeline::{self, OutputFormat, PipelineConfig, ScanSource, Setting, Silent};
+use stablesurf::{fit, normals};
 
 /// Relative tolerance for floating-point figures (they are computed deterministically; the
 /// slack absorbs last-digit differences of libm between machines).
@@ -43,11 +44,11 @@ fn summary(case: &Path) -> String {
             kappa: fit::Kappa::from_str(params["kappa"].as_str().unwrap()).unwrap(),
             ..Default::default()
         },
-        polygonize: polygonize::PolygonizeParams {
-            depth: params["depth"].as_u64().unwrap() as u32,
+        depth: Setting::Fixed(params["depth"].as_u64().unwrap() as u32),
+        export: ExportParams {
+            formats: vec![OutputFormat::Json],
             ..Default::default()
         },
-        formats: vec![OutputFormat::Json],
         ..Default::default()
     };
     let out = tempfile::tempdir().unwrap();

@@ -16,25 +16,30 @@ use serde::{Deserialize, Serialize};
 
 use crate::cache::{self, Artifact, Cache, Key, OutputFiles};
 use crate::cloud::{OrientedCloud, PointCloud};
-use crate::detail::{self, DetailParams};
+use crate::detail;
 use crate::export::{self, ExportError, ExportParams};
-use crate::fit::{self, FitParams};
+use crate::fit;
 use crate::import;
 use crate::measure::Accuracy;
 use crate::mesh::MeshReport;
-use crate::normals::{self, NoiseEstimate, NormalsParams};
+use crate::normals::{self, NoiseEstimate};
 use crate::outliers::{self, OutlierParams};
 use crate::outputs::OutputSet;
-use crate::polygonize::decimate::{DecimateParams, DecimateReport};
-use crate::polygonize::{self, PolygonizeParams};
-use crate::trim::{self, TrimMode, TrimParams, TrimReport};
+use crate::polygonize;
+use crate::polygonize::decimate::DecimateReport;
+use crate::trim::{self, TrimReport};
+
+mod config;
 
 pub use crate::export::{mesh_files, Keep, MeshFileOptions, MeshFormat, OutputFormat};
 pub use crate::model::{meshing_region, Mode, Model};
+pub use config::{
+    smoothing, PipelineConfig, ResolvedConfig, Setting, DENSE_TOLERANCE, NOISE_FLOOR,
+};
 
 /// The small real scan built into the binary: "Spot" the cow by Keenan Crane (CC0 1.0),
 /// 2,930 vertices, 5,856 triangles.
-pub const SAMPLE_SCAN: &[u8] = include_bytes!("sample/spot.obj");
+pub const SAMPLE_SCAN: &[u8] = include_bytes!("../sample/spot.obj");
 /// The name the sample scan is reported under.
 pub const SAMPLE_NAME: &str = "spot.obj (built-in sample, Keenan Crane, CC0)";
 
@@ -95,177 +100,6 @@ impl From<ExportError> for PipelineError {
             ExportError::Unsupported(message) => PipelineError::Unsupported(message),
             e => PipelineError::Export(e),
         }
-    }
-}
-
-/// Everything that decides what `run` computes and writes.
-#[derive(Clone, Debug)]
-pub struct PipelineConfig {
-    /// Global or detail model.
-    pub mode: Mode,
-    /// Which points are left out as outliers before the normals ([`outliers`]).
-    pub outliers: OutlierParams,
-    /// Normals stage parameters.
-    pub normals: NormalsParams,
-    /// Fit stage parameters (global mode).
-    pub fit: FitParams,
-    /// Detail fit parameters (detail mode).
-    pub detail: DetailParams,
-    /// Polygonize stage parameters (see [`PipelineConfig::for_mode`]).
-    pub polygonize: PolygonizeParams,
-    /// Whether the meshing depth comes from the points' spacing
-    /// ([`polygonize::DataResolution`]: 6 or 7) rather than `polygonize.depth`, with the chords'
-    /// whole least-squares move ([`PolygonizeParams::chord_share`] 1) on points a level or more
-    /// finer than that mesh ([`polygonize::DataResolution::dense`]): on in detail mode unless a
-    /// depth is asked for (`--depth`), off in global mode, whose polynomial is meshed at
-    /// `polygonize.depth` whatever the sampling.
-    pub depth_from_data: bool,
-    /// Whether detail mode's split tolerance is cut ([`DENSE_TOLERANCE`]) where the points are a
-    /// level or more finer than the mesh ([`polygonize::DataResolution::dense`]): on in detail
-    /// mode unless a tolerance is asked for (`--tolerance`).
-    pub tolerance_from_data: bool,
-    /// Whether the mesh's curved edges are split ([`PolygonizeParams::refine`] set to
-    /// [`polygonize::REFINE_SAGITTA`]) where the points are a level or more finer than the
-    /// mesh's depth ([`polygonize::DataResolution::finer_than`]): on in detail mode unless
-    /// `--refine` or `--no-refine` says otherwise, off in global mode.
-    pub refine_from_data: bool,
-    /// Whether detail mode fits every k-th point only ([`DetailParams::stride`]) where the
-    /// points are far finer than the mesh's cells ([`polygonize::fit_stride`]): on in detail
-    /// mode unless `--fit-stride` says otherwise.
-    pub stride_from_data: bool,
-    /// The factor on the measured noise ([`normals::estimate_noise`]) that detail mode's fit
-    /// averages instead of following ([`DetailParams::noise`]; `--smooth`): 1 by default, 0
-    /// fits the points as exact (interpolates them), 2 smooths at twice the measured noise.
-    /// Points that are not noisy ([`NoiseEstimate::is_noisy`]) are fitted as exact whatever
-    /// the factor ([`smoothing`]).
-    pub smooth: f64,
-    /// Which zero-set components the mesh keeps (see [`PipelineConfig::for_mode`]).
-    pub keep: Keep,
-    /// Trim stage parameters (see [`PipelineConfig::for_mode`]).
-    pub trim: TrimParams,
-    /// Distance slice parameters: 16 slices of 128² along z, by default exact distances in
-    /// global mode and the distance to the mesh in detail mode, which has only that one (see
-    /// [`PipelineConfig::for_mode`]).
-    pub slices: crate::distance::SliceParams,
-    /// glTF options.
-    pub gltf: export::gltf::GltfOptions,
-    /// The unit of the input coordinates (`--units`; see [`ExportParams::units`]).
-    pub units: Option<export::units::LengthUnit>,
-    /// The input's up axis when the PLY should stand upright in Blender (`--up`; see
-    /// [`ExportParams::ply_up`]).
-    pub ply_up: Option<export::gltf::UpAxis>,
-    /// Which files to write.
-    pub formats: Vec<OutputFormat>,
-    /// The decimation to a triangle budget (`--target-triangles`); `None` keeps every triangle.
-    pub decimate: Option<DecimateParams>,
-    /// The signed-distance volumes' voxel size (`vdb`, `npy`; see [`ExportParams::volume`]).
-    pub volume: crate::distance::volume::VolumeParams,
-}
-
-impl PipelineConfig {
-    /// The defaults of a `mode` run, the ones `stablesurf run --mode MODE` starts from: every
-    /// stage's `…Params::default()`, 16 distance slices of 128² along z, every output format,
-    /// and per mode:
-    ///
-    /// | mode   | topology guard | components kept     | trim         | slice distance |
-    /// |--------|----------------|---------------------|--------------|----------------|
-    /// | global | 3 levels       | all (the model's)   | off          | exact          |
-    /// | detail | none           | data ([`Keep::Data`]) | on (support) | mesh           |
-    ///
-    /// A polynomial's zero set is the model, so all of it is kept. A detail model's blend
-    /// extrapolates past the data (it can close a blob in empty space), so the pieces and the
-    /// parts of the surface the data does not support are left out; its loose gradient
-    /// enclosure cannot pass the topology guard's test (it would refine nearly everywhere), and
-    /// only the distance to the mesh is defined for it.
-    ///
-    /// ```
-    /// use stablesurf::distance::DistanceMethod;
-    /// use stablesurf::pipeline::{Keep, Mode, PipelineConfig};
-    /// let detail = PipelineConfig::for_mode(Mode::Detail);
-    /// assert_eq!(detail.mode, Mode::Detail);
-    /// assert_eq!(detail.keep, Keep::Data);
-    /// assert_eq!(detail.slices.method, DistanceMethod::Mesh);
-    /// assert_eq!(PipelineConfig::for_mode(Mode::Global).polygonize.guard_levels, 3);
-    /// ```
-    pub fn for_mode(mode: Mode) -> PipelineConfig {
-        let export = ExportParams::default();
-        let global = PipelineConfig {
-            mode: Mode::Global,
-            outliers: OutlierParams::default(),
-            normals: NormalsParams::default(),
-            fit: FitParams::default(),
-            detail: DetailParams::default(),
-            polygonize: PolygonizeParams::default(),
-            depth_from_data: false,
-            tolerance_from_data: false,
-            refine_from_data: false,
-            stride_from_data: false,
-            smooth: 1.0,
-            keep: export.keep,
-            trim: export.trim,
-            slices: export.slices,
-            gltf: export.gltf,
-            units: export.units,
-            ply_up: export.ply_up,
-            formats: export.formats,
-            decimate: export.decimate,
-            volume: export.volume,
-        };
-        match mode {
-            Mode::Global => global,
-            Mode::Detail => PipelineConfig {
-                mode: Mode::Detail,
-                polygonize: PolygonizeParams {
-                    guard_levels: 0,
-                    data_levels: 2,
-                    fit_chords: true,
-                    ..global.polygonize
-                },
-                depth_from_data: true,
-                tolerance_from_data: true,
-                refine_from_data: true,
-                stride_from_data: true,
-                keep: Keep::Data,
-                trim: TrimParams::default(),
-                slices: crate::distance::SliceParams {
-                    method: crate::distance::DistanceMethod::Mesh,
-                    ..global.slices
-                },
-                ..global
-            },
-        }
-    }
-}
-
-impl PipelineConfig {
-    /// The export stage's params: the formats, the components kept, the trim, the slices and
-    /// the glTF options of this config.
-    ///
-    /// ```
-    /// use stablesurf::export::ExportParams;
-    /// use stablesurf::pipeline::{Mode, PipelineConfig};
-    /// let global = PipelineConfig::for_mode(Mode::Global);
-    /// assert_eq!(global.export_params(), ExportParams::default());
-    /// ```
-    pub fn export_params(&self) -> ExportParams {
-        ExportParams {
-            formats: self.formats.clone(),
-            keep: self.keep,
-            trim: self.trim,
-            slices: self.slices,
-            gltf: self.gltf,
-            units: self.units,
-            ply_up: self.ply_up,
-            decimate: self.decimate,
-            volume: self.volume,
-        }
-    }
-}
-
-impl Default for PipelineConfig {
-    /// The defaults of the default mode ([`Mode::Global`]): `PipelineConfig::for_mode(Mode::default())`.
-    fn default() -> Self {
-        PipelineConfig::for_mode(Mode::default())
     }
 }
 
@@ -775,15 +609,19 @@ fn orient(
 
 /// Imports, estimates normals and fits: the part of the pipeline shared by `run` and `fit`.
 /// Returns the oriented cloud, the model and its key, and `config` resolved for the data
-/// ([`resolve_for_data`]: what the later stages run with).
+/// ([`PipelineConfig::resolve`]: what the later stages run with).
 fn fit_stages(
     ctx: &mut Ctx<'_>,
     source: &ScanSource,
     config: &PipelineConfig,
-) -> Result<(Oriented, Model, Key, PipelineConfig), PipelineError> {
+) -> Result<(Oriented, Model, Key, ResolvedConfig), PipelineError> {
     let (oriented, oriented_key) = orient_stages(ctx, source, config)?;
     let noise = crate::normals::estimate_noise(oriented.input_points());
-    let resolved = resolve_for_data(config, &oriented, noise.as_ref());
+    let resolved = config.resolve(
+        &oriented.cloud.points,
+        oriented.input_points(),
+        noise.as_ref(),
+    );
     ctx.noise = noise.map(|n| NoiseReport::new(n, &oriented.cloud.points, &resolved));
     let (model, model_key) = model_stages(ctx, &oriented.cloud, oriented_key, &resolved)?;
     Ok((oriented, model, model_key, resolved))
@@ -816,7 +654,7 @@ fn model_stages(
     ctx: &mut Ctx<'_>,
     oriented: &OrientedCloud,
     oriented_key: Key,
-    config: &PipelineConfig,
+    config: &ResolvedConfig,
 ) -> Result<(Model, Key), PipelineError> {
     let (model, model_key) = match config.mode {
         Mode::Global => {
@@ -991,7 +829,7 @@ pub fn run(
     let colours = oriented.colours.as_deref();
 
     let polygonize_params = cache::params_bytes(&config.polygonize);
-    let export_params = config.export_params();
+    let export_params = config.export.clone();
     let export_params_bytes = cache::params_bytes(&export_params);
     // The export stage's work splits in two (see [`export`]): the slice files of a polynomial
     // model need the model only, everything else needs the mesh. When the export stage is going
@@ -1080,7 +918,7 @@ pub fn run(
         serde_json::json!({ "files": files.0.len() }),
     );
     let mut names: Vec<String> = files.0.iter().map(|f| f.0.clone()).collect();
-    let write_report = config.formats.contains(&OutputFormat::Json);
+    let write_report = config.export.formats.contains(&OutputFormat::Json);
     if write_report {
         names.push("report.json".into());
     }
@@ -1094,120 +932,6 @@ pub fn run(
     }
     outputs.commit()?;
     Ok(report)
-}
-
-/// Detail mode's split tolerance on dense points
-/// ([`polygonize::DataResolution::dense`]) is this share of the default (1.755e-4 of the
-/// diagonal): the points then pin the surface more tightly than the default asks, and after
-/// the chords the fit's error is most of the distance to them (docs/defaults.md, "Detail
-/// mode's split tolerance").
-pub const DENSE_TOLERANCE: f64 = 0.27;
-
-/// The detail fit's params of `config`: its own, with the octree deep enough for a meshing
-/// depth asked for (`--depth D`: at least D, as fine as the mesh's finest cells).
-fn detail_params(config: &PipelineConfig) -> DetailParams {
-    let mut params = config.detail.clone();
-    if !config.depth_from_data {
-        params.max_depth = params.max_depth.max(config.polygonize.depth);
-    }
-    params
-}
-
-/// `config` as the stages after the normals run it on `oriented`'s points:
-/// - the detail fit's params: its own, with the octree deep enough for a meshing depth asked
-///   for ([`detail_params`]);
-/// - with [`PipelineConfig::depth_from_data`], the meshing depth of the input points' spacing
-///   in the detail model's region (the points' box grown by 10% per side; its own depth when
-///   the spacing cannot be measured; [`polygonize::DataResolution`]), and the chords' whole
-///   move on dense points;
-/// - with [`PipelineConfig::tolerance_from_data`], the split tolerance × [`DENSE_TOLERANCE`]
-///   on dense points;
-/// - with [`PipelineConfig::stride_from_data`], the detail fit's stride of the points per cell
-///   at the meshing depth ([`polygonize::fit_stride`]);
-/// - in detail mode, the noise the fit averages ([`DetailParams::noise`], [`smoothing`] of the
-///   measured `noise` at [`PipelineConfig::smooth`]), which the trim's support takes too.
-///
-/// The flags are cleared: the result asks for nothing more.
-fn resolve_for_data(
-    config: &PipelineConfig,
-    oriented: &Oriented,
-    noise: Option<&NoiseEstimate>,
-) -> PipelineConfig {
-    let mut resolved = config.clone();
-    resolved.detail = detail_params(config);
-    let data_box = crate::cloud::Aabb::from_points(&oriented.cloud.points);
-    let region = data_box.map(|b| b.grown(0.1));
-    if config.depth_from_data || config.tolerance_from_data || config.refine_from_data {
-        let data = region
-            .as_ref()
-            .and_then(|r| polygonize::DataResolution::of(oriented.input_points(), r));
-        if let Some(data) = data {
-            if config.depth_from_data {
-                resolved.polygonize.depth = data.depth();
-                if data.dense() && resolved.polygonize.fit_chords {
-                    resolved.polygonize.chord_share = 1.0;
-                }
-            }
-            if config.tolerance_from_data && data.dense() {
-                let t = resolved.detail.tolerance * DENSE_TOLERANCE;
-                resolved.detail = resolved.detail.with_tolerance(t);
-            }
-            if config.refine_from_data && data.finer_than(resolved.polygonize.depth) {
-                resolved.polygonize.refine = Some(polygonize::REFINE_SAGITTA);
-            }
-        }
-    }
-    if config.stride_from_data
-        && let Some(region) = &region
-    {
-        resolved.detail.stride =
-            polygonize::fit_stride(&oriented.cloud.points, region, resolved.polygonize.depth);
-        resolved.detail.refit_deepest = resolved.detail.stride > 1;
-    }
-    if let (Some(noise), Some(data_box)) = (noise, data_box)
-        && config.mode == Mode::Detail
-    {
-        resolved.detail.noise =
-            smoothing(noise, data_box.diagonal(), config.smooth, &resolved.detail);
-        if resolved.trim.mode == TrimMode::Support {
-            resolved.trim.noise = resolved.detail.noise;
-        }
-    }
-    resolved.depth_from_data = false;
-    resolved.tolerance_from_data = false;
-    resolved.refine_from_data = false;
-    resolved.stride_from_data = false;
-    resolved
-}
-
-/// Noise below this share of the split tolerance is not smoothed: the largest of a few
-/// hundred Gaussian residuals is about 3–4 σ, so below a quarter of the tolerance noise alone
-/// does not fail a cell's split test, and the fit of exact data stands.
-pub const NOISE_FLOOR: f64 = 0.25;
-
-/// The detail fit's [`DetailParams::noise`] for the measured `noise` of points whose box has
-/// the diagonal `diagonal`, at the factor `smooth`: `smooth`·σ over the diagonal, or 0 where
-/// the points are not noisy ([`NoiseEstimate::is_noisy`]: what a clean scan measures is its
-/// surface's own relief) or that is below [`NOISE_FLOOR`] × the split tolerance.
-///
-/// ```
-/// use stablesurf::pipeline::smoothing;
-/// use stablesurf::{DetailParams, NoiseEstimate};
-/// let d = DetailParams::default(); // tolerance 6.5e-4
-/// let noise = NoiseEstimate { sigma: 2.5e-3, spacing: 3e-3, ..Default::default() };
-/// assert_eq!(smoothing(&noise, 1.0, 1.0, &d), 2.5e-3);
-/// assert_eq!(smoothing(&noise, 1.0, 2.0, &d), 5e-3);
-/// assert_eq!(smoothing(&noise, 1.0, 0.0, &d), 0.0); // --smooth 0: exact data
-/// let clean = NoiseEstimate { spacing: 1e-2, ..noise };
-/// assert_eq!(smoothing(&clean, 1.0, 1.0, &d), 0.0); // a quarter of the spacing
-/// ```
-pub fn smoothing(noise: &NoiseEstimate, diagonal: f64, smooth: f64, detail: &DetailParams) -> f64 {
-    let s = smooth * noise.sigma / diagonal;
-    if noise.is_noisy() && s.is_finite() && s > NOISE_FLOOR * detail.tolerance {
-        s
-    } else {
-        0.0
-    }
 }
 
 /// The noise of a run's points as the report gives it.
@@ -1231,7 +955,7 @@ pub struct NoiseReport {
 }
 
 impl NoiseReport {
-    fn new(noise: NoiseEstimate, points: &[[f64; 3]], resolved: &PipelineConfig) -> NoiseReport {
+    fn new(noise: NoiseEstimate, points: &[[f64; 3]], resolved: &ResolvedConfig) -> NoiseReport {
         let diagonal = crate::cloud::Aabb::from_points(points).map_or(0.0, |b| b.diagonal());
         NoiseReport {
             sigma: noise.sigma,
@@ -1260,7 +984,7 @@ fn polygonize_stage(
     model_key: &Key,
     points: &[[f64; 3]],
     normals: Option<&[[f64; 3]]>,
-    config: &PipelineConfig,
+    config: &ResolvedConfig,
 ) -> Result<(crate::mesh::TriangleMesh, Key), PipelineError> {
     let region = model.region();
     ctx.stage(
@@ -1362,7 +1086,7 @@ fn run_report(
     input: String,
     ctx: Ctx<'_>,
     model: &Model,
-    config: &PipelineConfig,
+    config: &ResolvedConfig,
     figures: MeshFigures,
     outputs: Vec<String>,
 ) -> RunReport {
@@ -1387,7 +1111,7 @@ fn run_report(
         decimate: figures.decimate,
         mesh: figures.mesh,
         accuracy: figures.accuracy,
-        units: config.units,
+        units: config.export.units,
         outputs,
         warnings: ctx.warnings,
         noise: ctx.noise,
@@ -1411,11 +1135,11 @@ pub struct Reconstruction {
 /// What [`run`] computes, in memory and without the cache: the same stages with the same
 /// functions and params (import, outliers, normals, fit or detail, polygonize, and the export
 /// stage's component filter, trim, checks and accuracy), so the mesh is the one `run` writes
-/// for the same source and config. No file is encoded or written (`config.formats` is not
+/// for the same source and config. No file is encoded or written (`config.export.formats` is not
 /// used). The input of the Python package's `reconstruct`.
 ///
 /// ```
-/// use stablesurf::pipeline::{reconstruct, Mode, PipelineConfig, ScanSource, Silent};
+/// use stablesurf::pipeline::{reconstruct, Mode, PipelineConfig, ScanSource, Setting, Silent};
 /// use stablesurf::PointCloud;
 /// // 400 points on the unit sphere, with their normals.
 /// let points: Vec<[f64; 3]> = (0..400)
@@ -1428,7 +1152,7 @@ pub struct Reconstruction {
 /// let cloud = PointCloud { normals: Some(points.clone()), points, ..Default::default() };
 /// let mut config = PipelineConfig::for_mode(Mode::Global);
 /// config.fit.degree = 2;
-/// config.polygonize.depth = 4;
+/// config.depth = Setting::Fixed(4);
 /// let out = reconstruct(&ScanSource::Cloud(Box::new(cloud)), &config, &mut Silent).unwrap();
 /// assert!(out.report.mesh.watertight);
 /// assert_eq!(out.mesh.positions.len(), out.report.mesh.vertices);
@@ -1460,7 +1184,7 @@ pub fn reconstruct(
     let embedded = ctx.last_figures()["embedded"] == true;
     let export_params = ExportParams {
         formats: Vec::new(),
-        ..config.export_params()
+        ..config.export.clone()
     };
     ctx.observer.stage_started("export");
     let export_start = Instant::now();
@@ -1483,160 +1207,4 @@ pub fn reconstruct(
         model,
         report,
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn an_asked_meshing_depth_deepens_the_detail_octree_and_the_default_keeps_it() {
-        let default = PipelineConfig::for_mode(Mode::Detail);
-        assert!(default.depth_from_data);
-        assert_eq!(detail_params(&default), DetailParams::default());
-        for (depth, expected) in [(6, 7), (7, 7), (8, 8), (11, 11)] {
-            let mut asked = default.clone();
-            asked.depth_from_data = false;
-            asked.polygonize.depth = depth;
-            assert_eq!(detail_params(&asked).max_depth, expected, "--depth {depth}");
-        }
-    }
-
-    /// A square grid of n × n points spaced 1 / (n − 1) on the unit square, as an oriented
-    /// cloud's input points.
-    fn grid(n: usize) -> Oriented {
-        let step = 1.0 / (n - 1) as f64;
-        let points: Vec<[f64; 3]> = (0..n * n)
-            .map(|i| [(i % n) as f64 * step, (i / n) as f64 * step, 0.0])
-            .collect();
-        let normals = vec![[0.0, 0.0, 1.0]; points.len()];
-        Oriented {
-            cloud: OrientedCloud {
-                points,
-                normals,
-                weights: None,
-            },
-            n_input: n * n,
-            colours: None,
-        }
-    }
-
-    /// Points 1000 to the side (log₂(1.2 · 999) ≈ 10.2 levels, 3.2 finer than depth 7) and 400
-    /// to the side (≈ 8.9) get depth 7, the dense tolerance and the chords' whole move; 150 to
-    /// the side (≈ 7.5) and 100 (≈ 6.9) depth 7, the default tolerance and share; the facets are
-    /// fitted in every case; a tolerance or a depth asked for is kept, with the default share.
-    /// The curved edges are split where the points are a level finer than the depth meshed.
-    #[test]
-    fn dense_points_get_the_dense_tolerance_and_the_whole_chord_move() {
-        let default = PipelineConfig::for_mode(Mode::Detail);
-        let tolerance = DetailParams::default().tolerance;
-        for n in [1000, 400] {
-            let dense = resolve_for_data(&default, &grid(n), None);
-            assert_eq!(dense.polygonize.depth, 7);
-            assert!(dense.polygonize.fit_chords);
-            assert_eq!(dense.polygonize.chord_share, 1.0);
-            assert_eq!(dense.detail.tolerance, tolerance * DENSE_TOLERANCE);
-            assert_eq!(dense.detail.finest_tolerance, tolerance * DENSE_TOLERANCE);
-            assert!(!dense.depth_from_data && !dense.tolerance_from_data);
-            assert_eq!(dense.polygonize.refine, Some(polygonize::REFINE_SAGITTA));
-            assert!(!dense.refine_from_data);
-        }
-
-        for n in [150, 100] {
-            let resolved = resolve_for_data(&default, &grid(n), None);
-            assert_eq!(resolved.polygonize.depth, 7);
-            assert!(resolved.polygonize.fit_chords);
-            assert_eq!(resolved.polygonize.chord_share, polygonize::CHORD_SHARE);
-            assert_eq!(resolved.detail, DetailParams::default());
-            assert_eq!(resolved.polygonize.refine, None);
-        }
-
-        let mut asked = default.clone();
-        asked.tolerance_from_data = false;
-        asked.depth_from_data = false;
-        asked.polygonize.depth = 8;
-        let kept = resolve_for_data(&asked, &grid(1000), None);
-        assert_eq!(kept.polygonize.depth, 8);
-        assert!(kept.polygonize.fit_chords);
-        assert_eq!(kept.polygonize.chord_share, polygonize::CHORD_SHARE);
-        assert_eq!(kept.detail.tolerance, tolerance);
-        assert_eq!(kept.detail.max_depth, 8);
-        // Split edges follow the depth meshed: points 10.2 levels fine are a level finer than
-        // depth 8's cells; 280 to the side (log₂(1.2 · 279) ≈ 8.4) are a level finer than depth
-        // 7's, not depth 8's.
-        assert_eq!(kept.polygonize.refine, Some(polygonize::REFINE_SAGITTA));
-        let between = grid(280);
-        assert_eq!(
-            resolve_for_data(&default, &between, None).polygonize.refine,
-            Some(polygonize::REFINE_SAGITTA)
-        );
-        assert_eq!(
-            resolve_for_data(&asked, &between, None).polygonize.refine,
-            None
-        );
-        let mut refine_asked = default.clone();
-        refine_asked.refine_from_data = false;
-        assert_eq!(
-            resolve_for_data(&refine_asked, &grid(1000), None)
-                .polygonize
-                .refine,
-            None
-        );
-
-        // Each flag alone: a depth asked for keeps the default share and still cuts the
-        // tolerance; a tolerance asked for keeps the data's share.
-        let mut depth_asked = default.clone();
-        depth_asked.depth_from_data = false;
-        let resolved = resolve_for_data(&depth_asked, &grid(1000), None);
-        assert_eq!(resolved.polygonize.chord_share, polygonize::CHORD_SHARE);
-        assert_eq!(resolved.detail.tolerance, tolerance * DENSE_TOLERANCE);
-        let mut tolerance_asked = default.clone();
-        tolerance_asked.tolerance_from_data = false;
-        let resolved = resolve_for_data(&tolerance_asked, &grid(1000), None);
-        assert_eq!(resolved.polygonize.chord_share, 1.0);
-        assert_eq!(resolved.detail.tolerance, tolerance);
-        // Without the chords the share is left at its default.
-        let mut no_chords = default.clone();
-        no_chords.polygonize.fit_chords = false;
-        let resolved = resolve_for_data(&no_chords, &grid(1000), None);
-        assert!(!resolved.polygonize.fit_chords);
-        assert_eq!(resolved.polygonize.chord_share, polygonize::CHORD_SHARE);
-    }
-
-    /// Points 1000 to the side over a region of side 1.2: cells of depth 7 (1.2 / 128) hold
-    /// about (9.37)² ≈ 88 points, fitted every ⌊85 / 3⌋ = 28th (85 the integer mean) with the
-    /// deepest cells' cubic refit; 400 to the side (≈ 14 a cell) every 4th; 250 (≈ 5.4) every
-    /// one, without refits. A stride asked for is kept, without refits, and the stride follows
-    /// the depth meshed (depth 8: ≈ 22 a cell, every 7th).
-    #[test]
-    fn far_finer_points_are_fitted_at_a_stride() {
-        let default = PipelineConfig::for_mode(Mode::Detail);
-        assert!(default.stride_from_data);
-        assert!(!PipelineConfig::for_mode(Mode::Global).stride_from_data);
-        let resolved = resolve_for_data(&default, &grid(1000), None);
-        assert_eq!(resolved.detail.stride, 28);
-        assert!(resolved.detail.refit_deepest);
-        assert!(!resolved.stride_from_data);
-        assert_eq!(
-            resolve_for_data(&default, &grid(400), None).detail.stride,
-            4
-        );
-        let every = resolve_for_data(&default, &grid(250), None);
-        assert_eq!(every.detail.stride, 1);
-        assert!(!every.detail.refit_deepest);
-        let mut asked = default.clone();
-        asked.stride_from_data = false;
-        asked.detail.stride = 5;
-        let kept = resolve_for_data(&asked, &grid(1000), None);
-        assert_eq!(kept.detail.stride, 5);
-        assert!(!kept.detail.refit_deepest);
-        assert_eq!(resolve_for_data(&asked, &grid(100), None).detail.stride, 5);
-        let mut deeper = default.clone();
-        deeper.depth_from_data = false;
-        deeper.polygonize.depth = 8;
-        assert_eq!(
-            resolve_for_data(&deeper, &grid(1000), None).detail.stride,
-            7
-        );
-    }
 }
