@@ -212,7 +212,7 @@ impl Row {
                 .stages
                 .iter()
                 .filter(|s| s.stage == stage)
-                .filter_map(|s| s.figures["points"].as_u64())
+                .filter_map(|s| s.figures.points().map(|p| p as u64))
                 .collect()
         };
         let merged = figure("merge");

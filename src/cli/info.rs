@@ -131,8 +131,13 @@ fn conf_info(bytes: &[u8], path: &std::path::Path) -> Result<serde_json::Value> 
 
 /// Whether JSON text is a glTF asset (it has an `asset` object) rather than a model file.
 fn is_gltf_json(bytes: &[u8]) -> bool {
-    serde_json::from_slice::<serde_json::Value>(bytes)
-        .is_ok_and(|v| v.get("asset").is_some_and(serde_json::Value::is_object))
+    /// The one member every glTF asset has.
+    #[derive(serde::Deserialize)]
+    struct Gltf {
+        #[allow(dead_code)]
+        asset: serde_json::Map<String, serde_json::Value>,
+    }
+    serde_json::from_slice::<Gltf>(bytes).is_ok()
 }
 
 /// What a `stablesurf moments` file holds: its pass, point count and, for the moments of the

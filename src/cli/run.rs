@@ -141,8 +141,7 @@ pub fn run_source(
                 ", bounded {}",
                 report
                     .fit
-                    .get("diagnostics")
-                    .and_then(|d| d.get("bounded"))
+                    .bounded()
                     .map_or("unknown".into(), |b| b.to_string())
             ),
             Mode::Detail => String::new(),

@@ -33,8 +33,8 @@ pub mod units;
 pub mod vdb;
 
 pub use stage::{
-    export, export_mesh, model_slices, slices_from_model, ExportOutput, ExportParams, Keep,
-    OutputFile, OutputFormat, NESTED_AREA_FRACTION, STAGE_VERSION, SUPPORT_POINTS_MIN,
+    export, export_mesh, model_slices, slices_from_model, ExportOutput, ExportParams, ExportReport,
+    Keep, OutputFile, OutputFormat, NESTED_AREA_FRACTION, STAGE_VERSION, SUPPORT_POINTS_MIN,
 };
 
 use std::fs::File;

@@ -255,19 +255,42 @@ pub struct ExportOutput {
 impl ExportOutput {
     /// The stage's figures for the report and the cache entry: file count, total bytes, and the
     /// figures of the mesh.
-    pub fn figures(&self) -> serde_json::Value {
-        serde_json::json!({
-            "files": self.files.len(),
-            "bytes": self.files.iter().map(|f| f.1.len()).sum::<usize>(),
-            "dropped_components": self.dropped_components,
-            "dropped_nested": self.dropped_nested,
-            "dropped_unsupported": self.dropped_unsupported,
-            "trim": self.trim,
-            "decimate": self.decimate,
-            "mesh": self.mesh,
-            "accuracy": self.accuracy,
-        })
+    pub fn report(&self) -> ExportReport {
+        ExportReport {
+            files: self.files.len(),
+            bytes: self.files.iter().map(|f| f.1.len()).sum(),
+            dropped_components: self.dropped_components,
+            dropped_nested: self.dropped_nested,
+            dropped_unsupported: self.dropped_unsupported,
+            trim: self.trim,
+            decimate: self.decimate.clone(),
+            mesh: self.mesh.clone(),
+            accuracy: self.accuracy,
+        }
     }
+}
+
+/// The export stage's figures ([`ExportOutput::report`]), stored in its cache entry.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ExportReport {
+    /// Files made.
+    pub files: usize,
+    /// Their bytes.
+    pub bytes: usize,
+    /// As [`ExportOutput::dropped_components`].
+    pub dropped_components: usize,
+    /// As [`ExportOutput::dropped_nested`].
+    pub dropped_nested: usize,
+    /// As [`ExportOutput::dropped_unsupported`].
+    pub dropped_unsupported: usize,
+    /// What the trim removed and closed.
+    pub trim: TrimReport,
+    /// What the decimation did, when the params asked for one.
+    pub decimate: Option<DecimateReport>,
+    /// The topology checks of the mesh as written.
+    pub mesh: MeshReport,
+    /// Two-sided distances between the data points and the mesh as written.
+    pub accuracy: Accuracy,
 }
 
 /// The export stage: keeps the components `params.keep` asks for, trims the mesh to its data,

@@ -111,15 +111,17 @@ impl Model {
     }
 
     /// The model's settings and diagnostics, for `report.json`.
-    pub fn report(&self) -> serde_json::Value {
+    pub fn report(&self) -> ModelReport {
         match self {
-            Model::Global(m) => {
-                serde_json::json!({ "mode": "global", "fit": m.fit, "diagnostics": m.diagnostics })
-            }
-            Model::Detail(m) => serde_json::json!({
-                "mode": "detail",
-                "diagnostics": m.diagnostics,
-            }),
+            Model::Global(m) => ModelReport::Global {
+                fit: m.fit.clone(),
+                diagnostics: m.diagnostics.clone(),
+                clipped: false,
+            },
+            Model::Detail(m) => ModelReport::Detail {
+                diagnostics: m.diagnostics.clone(),
+                params: None,
+            },
         }
     }
 
@@ -136,6 +138,89 @@ impl Model {
             }
             Model::Detail(m) => Ok(("model.mpu", mpu::mpu_bytes(m)?)),
         }
+    }
+}
+
+/// A model's settings and diagnostics: report.json's `fit`, printed as one JSON object with
+/// sorted keys (`mode`, and per mode its record and diagnostics).
+#[derive(Clone, Debug, PartialEq)]
+pub enum ModelReport {
+    /// A polynomial.
+    Global {
+        /// How it was fitted.
+        fit: Option<crate::poly::FitRecord>,
+        /// What the fit measured (its `bounded` false when the mesh is clipped).
+        diagnostics: Option<crate::poly::FitDiagnostics>,
+        /// Whether the zero set runs out of the meshing box (printed only when it does).
+        clipped: bool,
+    },
+    /// A blend of local fits.
+    Detail {
+        /// What the detail fit did.
+        diagnostics: crate::detail::DetailDiagnostics,
+        /// The params it ran with, when a run reports them.
+        params: Option<crate::detail::DetailParams>,
+    },
+}
+
+impl ModelReport {
+    /// Whether the fit certified the zero set bounded (global models the fit checked).
+    pub fn bounded(&self) -> Option<bool> {
+        match self {
+            ModelReport::Global { diagnostics, .. } => diagnostics.as_ref().map(|d| d.bounded),
+            ModelReport::Detail { .. } => None,
+        }
+    }
+
+    /// Marks a global model's zero set as clipped by the meshing box: not bounded in its mesh.
+    pub fn clip(&mut self) {
+        if let ModelReport::Global {
+            diagnostics,
+            clipped,
+            ..
+        } = self
+        {
+            *clipped = true;
+            if let Some(d) = diagnostics {
+                d.bounded = false;
+            }
+        }
+    }
+
+    /// The report as one JSON object with sorted keys.
+    pub fn to_json(&self) -> serde_json::Value {
+        let mut value = match self {
+            ModelReport::Global {
+                fit, diagnostics, ..
+            } => serde_json::json!({ "mode": "global", "fit": fit, "diagnostics": diagnostics }),
+            ModelReport::Detail { diagnostics, .. } => {
+                serde_json::json!({ "mode": "detail", "diagnostics": diagnostics })
+            }
+        };
+        if let (
+            ModelReport::Detail {
+                params: Some(p), ..
+            },
+            Some(map),
+        ) = (self, value.as_object_mut())
+        {
+            map.insert(
+                "params".into(),
+                serde_json::to_value(p).expect("params serialize"),
+            );
+        }
+        if let (ModelReport::Global { clipped: true, .. }, Some(map)) =
+            (self, value.as_object_mut())
+        {
+            map.insert("clipped".into(), true.into());
+        }
+        value
+    }
+}
+
+impl Serialize for ModelReport {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        self.to_json().serialize(serializer)
     }
 }
 

@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 use crate::cache::{self, Artifact, Cache, Key, OutputFiles};
 use crate::cloud::{OrientedCloud, PointCloud};
 use crate::detail;
-use crate::export::{self, ExportError, ExportParams};
+use crate::export::{self, ExportError, ExportParams, ExportReport};
 use crate::fit;
 use crate::import;
 use crate::measure::Accuracy;
@@ -30,12 +30,18 @@ use crate::polygonize::decimate::DecimateReport;
 use crate::trim::{self, TrimReport};
 
 mod config;
+mod records;
 
 pub use crate::export::{mesh_files, Keep, MeshFileOptions, MeshFormat, OutputFormat};
-pub use crate::model::{meshing_region, Mode, Model};
+pub use crate::model::{meshing_region, Mode, Model, ModelReport};
 pub use config::{
     smoothing, PipelineConfig, ResolvedConfig, Setting, DENSE_TOLERANCE, NOISE_FLOOR,
 };
+pub use records::{
+    DetailReport, FitReport, ImportReport, MergeReport, NormalsReport, PolygonizeReport,
+    StageFigures, WriteReport,
+};
+use records::{EntryMeta, StageReport};
 
 /// The small real scan built into the binary: "Spot" the cow by Keenan Crane (CC0 1.0),
 /// 2,930 vertices, 5,856 triangles.
@@ -187,7 +193,7 @@ pub struct StageRecord {
     /// Cache key (hex), when cached.
     pub key: Option<String>,
     /// Key figures of the stage's output.
-    pub figures: serde_json::Value,
+    pub figures: StageFigures,
 }
 
 /// What the run produced and measured (written as `report.json`).
@@ -198,7 +204,7 @@ pub struct RunReport {
     /// One record per stage, in order.
     pub stages: Vec<StageRecord>,
     /// The fitted model's settings and diagnostics.
-    pub fit: serde_json::Value,
+    pub fit: ModelReport,
     /// What the trim stage removed and closed.
     pub trim: TrimReport,
     /// What the decimation did (`--target-triangles`): the budget, triangles before and after,
@@ -272,13 +278,6 @@ struct Ctx<'a> {
 }
 
 impl<'a> Ctx<'a> {
-    /// The figures of the stage recorded last (null when none is).
-    fn last_figures(&self) -> &serde_json::Value {
-        self.stages
-            .last()
-            .map_or(&serde_json::Value::Null, |s| &s.figures)
-    }
-
     /// Readies the cache: a folder that is not a stablesurf cache is an error; one that cannot
     /// be created or written is a warning, and the run goes on without it.
     fn new(cache: &Cache, observer: &'a mut dyn Observer) -> Result<Self, PipelineError> {
@@ -303,21 +302,6 @@ impl<'a> Ctx<'a> {
             ctx.warn(w);
         }
         Ok(ctx)
-    }
-
-    /// Tells the warnings in the last stage's figures (`"warnings"`), on a hit as on a miss.
-    fn warn_figures(&mut self) {
-        let warnings: Vec<String> = self
-            .stages
-            .last()
-            .and_then(|s| s.figures["warnings"].as_array())
-            .into_iter()
-            .flatten()
-            .filter_map(|w| w.as_str().map(str::to_string))
-            .collect();
-        for w in warnings {
-            self.warn(w);
-        }
     }
 
     /// Tells the observer a warning and keeps it for the report.
@@ -356,56 +340,70 @@ impl<'a> Ctx<'a> {
         }
     }
 
-    /// Runs one cached stage: look up, else compute and store. `figures` summarizes the output
-    /// for the report; on a hit the stored figures are reused.
-    fn stage<T: Artifact>(
+    /// Runs one cached stage: look up, else compute and store. The stage's report `R`
+    /// summarizes the output for the report; on a hit the report stored in the entry is read
+    /// back (an entry whose report does not read is recomputed, as a corrupt one).
+    fn stage<T: Artifact, R: StageReport>(
         &mut self,
         stage: &'static str,
         version: u32,
         params: &[u8],
         input_key: &Key,
-        compute: impl FnOnce() -> Result<(T, serde_json::Value), PipelineError>,
-    ) -> Result<(T, Key), PipelineError> {
+        compute: impl FnOnce() -> Result<(T, R), PipelineError>,
+    ) -> Result<(T, Key, R), PipelineError> {
         self.stage_from(None, stage, version, params, input_key, compute)
     }
 
     /// [`Self::stage`] for a stage whose work began before this call, at `announced` (its start
     /// already told to the observer): its time counts from there.
-    fn stage_from<T: Artifact>(
+    fn stage_from<T: Artifact, R: StageReport>(
         &mut self,
         announced: Option<Instant>,
         stage: &'static str,
         version: u32,
         params: &[u8],
         input_key: &Key,
-        compute: impl FnOnce() -> Result<(T, serde_json::Value), PipelineError>,
-    ) -> Result<(T, Key), PipelineError> {
+        compute: impl FnOnce() -> Result<(T, R), PipelineError>,
+    ) -> Result<(T, Key, R), PipelineError> {
         let start = announced.unwrap_or_else(|| {
             self.observer.stage_started(stage);
             Instant::now()
         });
         let key = cache::stage_key(stage, version, params, input_key);
         let (found, lookup) = self.cache.get::<T>(stage, version, &key);
-        let (value, figures, lookup) = match found {
-            // The figures are stored inside the entry, under its checksum.
-            Some((v, meta)) => (v, meta.get("figures").cloned().unwrap_or_default(), lookup),
-            None => {
-                let (v, figures) = compute()?;
-                let meta = serde_json::json!({
-                    "stage": stage,
-                    "stage_version": version,
-                    "cache_format_version": cache::CACHE_FORMAT_VERSION,
-                    "params": serde_json::from_slice::<serde_json::Value>(params).unwrap_or_default(),
-                    "input_key": input_key.hex(),
-                    "seconds": start.elapsed().as_secs_f64(),
-                    "figures": figures,
-                });
+        // The report is stored inside the entry, under its checksum.
+        let found = found.map(|(v, meta)| (v, serde_json::from_value::<EntryMeta<R>>(meta)));
+        let (value, report, lookup) = match found {
+            Some((v, Ok(meta))) => (v, meta.figures, lookup),
+            found => {
+                let lookup = if found.is_some() {
+                    cache::Lookup::Corrupt
+                } else {
+                    lookup
+                };
+                let (v, report) = compute()?;
+                let meta = EntryMeta {
+                    stage: stage.to_string(),
+                    stage_version: version,
+                    cache_format_version: cache::CACHE_FORMAT_VERSION,
+                    params: serde_json::from_slice(params).unwrap_or_default(),
+                    input_key: input_key.hex(),
+                    seconds: start.elapsed().as_secs_f64(),
+                    figures: report.clone(),
+                };
+                let meta = serde_json::to_value(&meta).expect("entry explanations serialize");
                 self.puts.put(stage, version, &key, &v, &meta);
-                (v, figures, lookup)
+                (v, report, lookup)
             }
         };
-        self.finish(stage, lookup.as_str(), start, Some(key), figures);
-        Ok((value, key))
+        self.finish(
+            stage,
+            lookup.as_str(),
+            start,
+            Some(key),
+            report.clone().into(),
+        );
+        Ok((value, key, report))
     }
 
     fn finish(
@@ -414,7 +412,7 @@ impl<'a> Ctx<'a> {
         cache: &'static str,
         start: Instant,
         key: Option<Key>,
-        figures: serde_json::Value,
+        figures: StageFigures,
     ) {
         let record = StageRecord {
             stage,
@@ -470,7 +468,7 @@ fn merged_views(
         oriented.push((view_cloud.cloud, view.pose));
     }
     let poses: Vec<crate::merge::Pose> = views.iter().map(|v| v.pose).collect();
-    let (merged, key) = ctx.stage(
+    let (merged, key, _) = ctx.stage(
         "merge",
         MERGE_VERSION,
         &cache::params_bytes(&poses),
@@ -479,12 +477,12 @@ fn merged_views(
             let refs: Vec<(&OrientedCloud, crate::merge::Pose)> =
                 oriented.iter().map(|(c, p)| (c, *p)).collect();
             let merged = crate::merge::merge_views(&refs);
-            let figures = serde_json::json!({
-                "views": views.len(),
-                "points": merged.points.len(),
-                "weighted": merged.weights.is_some(),
-            });
-            Ok((merged, figures))
+            let report = MergeReport {
+                views: views.len(),
+                points: merged.points.len(),
+                weighted: merged.weights.is_some(),
+            };
+            Ok((merged, report))
         },
     )?;
     let n_input = merged.points.len();
@@ -506,36 +504,26 @@ fn oriented_scan(
     path: &Path,
     config: &PipelineConfig,
 ) -> Result<(Oriented, Key), PipelineError> {
-    let (cloud, cloud_key) = ctx.stage(
+    let (cloud, cloud_key, report) = ctx.stage(
         "import",
         IMPORT_VERSION,
         b"",
         &Key::of_bytes(&bytes),
         || {
             let scan = import::import_scan_bytes(&bytes, path)?;
-            let figures = serde_json::json!({
-                "points": scan.cloud.points.len(),
-                "triangles": scan.cloud.triangles.len(),
-                "has_normals": scan.cloud.normals.is_some(),
-                "notices": scan.notices,
-            });
-            Ok((scan.cloud, figures))
+            let report = ImportReport {
+                points: scan.cloud.points.len(),
+                triangles: scan.cloud.triangles.len(),
+                has_normals: scan.cloud.normals.is_some(),
+                notices: Some(scan.notices),
+            };
+            Ok((scan.cloud, report))
         },
     )?;
     drop(bytes);
     // What the reader did not read (extra columns, other elements), on a hit too.
-    if let Some(notices) = ctx
-        .stages
-        .last()
-        .and_then(|s| s.figures["notices"].as_array())
-    {
-        let notices: Vec<String> = notices
-            .iter()
-            .filter_map(|n| n.as_str().map(str::to_string))
-            .collect();
-        for n in notices {
-            ctx.observer.note(&format!("{}: {n}", path.display()));
-        }
+    for n in report.notices.iter().flatten() {
+        ctx.observer.note(&format!("{}: {n}", path.display()));
     }
     orient(ctx, cloud, cloud_key, config)
 }
@@ -549,19 +537,20 @@ fn oriented_cloud_in_memory(
 ) -> Result<(Oriented, Key), PipelineError> {
     let mut canonical = b"in-memory cloud".to_vec();
     cloud.encode_payload(&mut canonical);
-    let (cloud, cloud_key) = ctx.stage(
+    let (cloud, cloud_key, _) = ctx.stage(
         "import",
         IMPORT_VERSION,
         b"",
         &Key::of_bytes(&canonical),
         || {
             import::validate_cloud(cloud, CLOUD_NAME)?;
-            let figures = serde_json::json!({
-                "points": cloud.points.len(),
-                "triangles": cloud.triangles.len(),
-                "has_normals": cloud.normals.is_some(),
-            });
-            Ok((cloud.clone(), figures))
+            let report = ImportReport {
+                points: cloud.points.len(),
+                triangles: cloud.triangles.len(),
+                has_normals: cloud.normals.is_some(),
+                notices: None,
+            };
+            Ok((cloud.clone(), report))
         },
     )?;
     drop(canonical);
@@ -580,7 +569,7 @@ fn orient(
     // The normals stage keeps the input points first and in order (duplicates too), so the
     // cloud's colours are those of the input points.
     let colours = cloud.colours.take().filter(|c| c.len() == n_input);
-    let (oriented, oriented_key) = ctx.stage(
+    let (oriented, oriented_key, report) = ctx.stage(
         "normals",
         NORMALS_VERSION,
         &cache::params_bytes(&config.normals),
@@ -588,15 +577,18 @@ fn orient(
         // The cloud is given to the stage: its arrays become the oriented cloud's.
         move || {
             let normals = normals::estimate_normals_owned(cloud, &config.normals)?;
-            let figures = serde_json::json!({
-                "source": normals.source_used.as_str(),
-                "surface_samples": normals.surface_samples,
-                "warnings": normals.warnings,
-            });
-            Ok((normals.cloud, figures))
+            let report = NormalsReport {
+                source: normals.source_used.as_str().to_string(),
+                surface_samples: normals.surface_samples,
+                warnings: normals.warnings,
+            };
+            Ok((normals.cloud, report))
         },
     )?;
-    ctx.warn_figures();
+    // The stage's warnings, on a hit as on a miss.
+    for w in report.warnings {
+        ctx.warn(w);
+    }
     Ok((
         Oriented {
             cloud: oriented,
@@ -658,19 +650,19 @@ fn model_stages(
 ) -> Result<(Model, Key), PipelineError> {
     let (model, model_key) = match config.mode {
         Mode::Global => {
-            let (model, key) = ctx.stage(
+            let (model, key, _) = ctx.stage(
                 "fit",
                 FIT_VERSION,
                 &cache::params_bytes(&config.fit),
                 &oriented_key,
                 || {
                     let model = fit::fit(oriented, &config.fit)?;
-                    let figures = serde_json::json!({
-                        "degree": model.polynomial.degree,
-                        "kappa": model.fit.as_ref().map(|f| f.kappa),
-                        "bounded": model.diagnostics.as_ref().map(|d| d.bounded),
-                    });
-                    Ok((model, figures))
+                    let report = FitReport {
+                        degree: model.polynomial.degree,
+                        kappa: model.fit.as_ref().map(|f| f.kappa),
+                        bounded: model.diagnostics.as_ref().map(|d| d.bounded),
+                    };
+                    Ok((model, report))
                 },
             )?;
             // The fit's warnings (a κ that fell back, an unbounded zero set) are the model's.
@@ -682,7 +674,7 @@ fn model_stages(
         Mode::Detail => {
             // One value for the cache key and the fit, so the key says what was fitted.
             let params = &config.detail;
-            let (model, key) = ctx.stage(
+            let (model, key, _) = ctx.stage(
                 "detail",
                 detail::STAGE_VERSION,
                 &cache::params_bytes(&params),
@@ -690,15 +682,15 @@ fn model_stages(
                 || {
                     let model = detail::fit_detail(oriented, params)?;
                     let d = &model.diagnostics;
-                    let figures = serde_json::json!({
-                        "cells": d.cells,
-                        "grown_cells": d.grown_cells,
-                        "cubic_cells": model.cells.iter().filter(|c| c.poly.degree == 3).count(),
-                        "depth_reached": d.depth_reached,
-                        "mean_residual": d.mean_residual,
-                        "max_residual": d.max_residual,
-                    });
-                    Ok((model, figures))
+                    let report = DetailReport {
+                        cells: d.cells,
+                        grown_cells: d.grown_cells,
+                        cubic_cells: model.cells.iter().filter(|c| c.poly.degree == 3).count(),
+                        depth_reached: d.depth_reached,
+                        mean_residual: d.mean_residual,
+                        max_residual: d.max_residual,
+                    };
+                    Ok((model, report))
                 },
             )?;
             (Model::Detail(model), key)
@@ -791,7 +783,6 @@ pub fn oriented_cloud(
 ) -> Result<OrientedCloud, PipelineError> {
     let mut ctx = Ctx::new(cache, observer)?;
     let (oriented, _) = orient_stages(&mut ctx, source, config)?;
-    ctx.warn_figures();
     ctx.finish_puts();
     Ok(oriented.cloud)
 }
@@ -857,9 +848,9 @@ pub fn run(
         }
         let polygonized = polygonize_stage(&mut ctx, &model, &model_key, points, normals, config);
         let export_start = Instant::now();
-        let embedded = polygonized.is_ok() && ctx.last_figures()["embedded"] == true;
+        let embedded = polygonized.as_ref().is_ok_and(|p| p.2.embedded);
         let parts = match &polygonized {
-            Ok((mesh, _)) if export_runs => {
+            Ok((mesh, ..)) if export_runs => {
                 ctx.observer.stage_started("export");
                 Some(export::export_mesh(
                     &model,
@@ -874,12 +865,12 @@ pub fn run(
         };
         (polygonized, parts, export_start, embedded)
     });
-    let (mesh, mesh_key) = polygonized?;
+    let (mesh, mesh_key, _) = polygonized?;
 
     // Everything after meshing (component filter, trim, checks, accuracy, the bytes of every
     // output file) is one more cached stage: a rerun with the same inputs only copies files out.
     let announced = early_parts.is_some().then_some(export_start);
-    let (files, _) = ctx.stage_from(
+    let (files, _, export_report) = ctx.stage_from(
         announced,
         "export",
         export::STAGE_VERSION,
@@ -898,11 +889,11 @@ pub fn run(
                 }
                 None => export::export(&model, &mesh, embedded, points, colours, &export_params)?,
             };
-            let figures = out.figures();
-            Ok((OutputFiles(out.files), figures))
+            let report = out.report();
+            Ok((OutputFiles(out.files), report))
         },
     )?;
-    let figures = export_figures(&mut ctx, &model);
+    let figures = export_figures(&mut ctx, &model, export_report);
 
     // Every file is staged, then all move into place together (see [`crate::outputs`]): the
     // folder holds either this run's complete set or what it held before.
@@ -915,7 +906,10 @@ pub fn run(
         "none",
         t,
         None,
-        serde_json::json!({ "files": files.0.len() }),
+        WriteReport {
+            files: files.0.len(),
+        }
+        .into(),
     );
     let mut names: Vec<String> = files.0.iter().map(|f| f.0.clone()).collect();
     let write_report = config.export.formats.contains(&OutputFormat::Json);
@@ -948,7 +942,7 @@ pub struct NoiseReport {
     pub sigma_high: f64,
     /// `sigma` over the median spacing of the points.
     pub sigma_per_spacing: f64,
-    /// The noise the detail fit averaged, over the diagonal ([`DetailParams::noise`]; 0 in
+    /// The noise the detail fit averaged, over the diagonal ([`crate::detail::DetailParams::noise`]; 0 in
     /// global mode, with `--smooth 0`, or where the noise is below [`NOISE_FLOOR`] × the
     /// tolerance).
     pub smoothed_per_diagonal: f64,
@@ -985,7 +979,7 @@ fn polygonize_stage(
     points: &[[f64; 3]],
     normals: Option<&[[f64; 3]]>,
     config: &ResolvedConfig,
-) -> Result<(crate::mesh::TriangleMesh, Key), PipelineError> {
+) -> Result<(crate::mesh::TriangleMesh, Key, PolygonizeReport), PipelineError> {
     let region = model.region();
     ctx.stage(
         "polygonize",
@@ -1000,20 +994,20 @@ fn polygonize_stage(
                 normals,
                 &config.polygonize,
             )?;
-            let figures = serde_json::json!({
-                "depth": config.polygonize.depth,
-                "fit_chords": config.polygonize.fit_chords,
-                "chord_share": config.polygonize.chords(),
-                "vertices": out.mesh.positions.len(),
-                "triangles": out.mesh.triangles.len(),
-                "evaluations": out.evaluations,
-                "simplified": out.simplified,
-                "pinned_vertices": out.pinned_vertices,
-                "refine": config.polygonize.refine,
-                "refined_vertices": out.refined_vertices,
-                "embedded": out.embedded,
-            });
-            Ok((out.mesh, figures))
+            let report = PolygonizeReport {
+                depth: config.polygonize.depth,
+                fit_chords: config.polygonize.fit_chords,
+                chord_share: config.polygonize.chords(),
+                vertices: out.mesh.positions.len(),
+                triangles: out.mesh.triangles.len(),
+                evaluations: out.evaluations,
+                simplified: out.simplified,
+                pinned_vertices: out.pinned_vertices,
+                refine: config.polygonize.refine,
+                refined_vertices: out.refined_vertices,
+                embedded: out.embedded,
+            };
+            Ok((out.mesh, report))
         },
     )
 }
@@ -1028,33 +1022,33 @@ struct MeshFigures {
     clipped: bool,
 }
 
-/// The figures of the export stage recorded last, with the warnings they call for: pieces of
-/// the surface left out, a polynomial's zero set clipped by the meshing box.
-fn export_figures(ctx: &mut Ctx<'_>, model: &Model) -> MeshFigures {
-    let figures = &ctx.last_figures().clone();
-    let mesh: MeshReport = serde_json::from_value(figures["mesh"].clone()).unwrap_or_default();
-    let accuracy: Accuracy =
-        serde_json::from_value(figures["accuracy"].clone()).unwrap_or_default();
-    let trim: TrimReport = serde_json::from_value(figures["trim"].clone()).unwrap_or_default();
-    let decimate: Option<DecimateReport> =
-        serde_json::from_value(figures["decimate"].clone()).unwrap_or_default();
+/// The export stage's figures, with the warnings they call for: pieces of the surface left
+/// out, a polynomial's zero set clipped by the meshing box.
+fn export_figures(ctx: &mut Ctx<'_>, model: &Model, report: ExportReport) -> MeshFigures {
+    let ExportReport {
+        mesh,
+        accuracy,
+        trim,
+        decimate,
+        dropped_components: dropped,
+        dropped_nested: nested,
+        dropped_unsupported: unsupported,
+        ..
+    } = report;
     if let Some(message) = decimate.as_ref().and_then(DecimateReport::shortfall) {
         ctx.warn(message);
     }
-    let dropped = figures["dropped_components"].as_u64().unwrap_or(0);
     if dropped > 0 {
         ctx.warn(format!(
             "left out {dropped} piece(s) of the surface with no data point within 2% of the diagonal; --keep all keeps them"
         ));
     }
-    let nested = figures["dropped_nested"].as_u64().unwrap_or(0);
     if nested > 0 {
         ctx.warn(format!(
             "left out {nested} small closed piece(s) inside the surface (each under {}% of the largest piece's area); --keep all keeps them",
             100.0 * export::NESTED_AREA_FRACTION
         ));
     }
-    let unsupported = figures["dropped_unsupported"].as_u64().unwrap_or(0);
     if unsupported > 0 {
         ctx.warn(format!(
             "left out {unsupported} small piece(s) of the surface with fewer than {} data points in their box (each under {}% of the largest piece's area); --keep all keeps them",
@@ -1091,17 +1085,11 @@ fn run_report(
     outputs: Vec<String>,
 ) -> RunReport {
     let mut fit = model.report();
-    if let (Model::Detail(_), Some(map)) = (model, fit.as_object_mut()) {
-        map.insert(
-            "params".into(),
-            serde_json::to_value(&config.detail).unwrap_or_default(),
-        );
+    if let ModelReport::Detail { params, .. } = &mut fit {
+        *params = Some(config.detail.clone());
     }
     if figures.clipped {
-        fit["clipped"] = true.into();
-        if let Some(d) = fit["diagnostics"].as_object_mut() {
-            d.insert("bounded".into(), false.into());
-        }
+        fit.clip();
     }
     RunReport {
         input,
@@ -1173,7 +1161,7 @@ pub fn reconstruct(
     let mut ctx = Ctx::new(&Cache::disabled(), observer)?;
     let (oriented, model, model_key, resolved) = fit_stages(&mut ctx, source, config)?;
     let config = &resolved;
-    let (mesh, _) = polygonize_stage(
+    let (mesh, _, polygonized) = polygonize_stage(
         &mut ctx,
         &model,
         &model_key,
@@ -1181,7 +1169,7 @@ pub fn reconstruct(
         oriented.input_normals(),
         config,
     )?;
-    let embedded = ctx.last_figures()["embedded"] == true;
+    let embedded = polygonized.embedded;
     let export_params = ExportParams {
         formats: Vec::new(),
         ..config.export.clone()
@@ -1197,8 +1185,15 @@ pub fn reconstruct(
         &export_params,
     )?;
     drop(mesh);
-    ctx.finish("export", "none", export_start, None, out.figures());
-    let figures = export_figures(&mut ctx, &model);
+    let export_report = out.report();
+    ctx.finish(
+        "export",
+        "none",
+        export_start,
+        None,
+        export_report.clone().into(),
+    );
+    let figures = export_figures(&mut ctx, &model, export_report);
     let input = source.name();
     let mut report = run_report(input, ctx, &model, config, figures, Vec::new());
     report.seconds = start.elapsed().as_secs_f64();

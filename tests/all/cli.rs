@@ -6,7 +6,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use crate::fixtures::{bin, flags, read_report, run_ok, shared, sphere_xyz, stderr_of};
-use stablesurf::pipeline::{reconstruct, Mode, PipelineConfig, ScanSource, Silent};
+use stablesurf::pipeline::{reconstruct, Mode, PipelineConfig, ScanSource, Silent, StageFigures};
 
 /// The `-v` line of a stage: "stablesurf: <stage> <hit|miss|corrupt> ...".
 fn cache_state(stderr: &str, stage: &str) -> String {
@@ -1306,9 +1306,11 @@ fn a_crossing_that_survives_the_simplified_mesh_is_remade_without_collapses_arou
         .iter()
         .find(|s| s.stage == "polygonize")
         .unwrap();
-    let figures = &polygonize.figures;
-    assert_eq!(figures["simplified"], true, "{figures:?}");
-    let pinned = figures["pinned_vertices"].as_u64().unwrap();
+    let StageFigures::Polygonize(figures) = &polygonize.figures else {
+        panic!("{:?}", polygonize.figures);
+    };
+    assert!(figures.simplified, "{figures:?}");
+    let pinned = figures.pinned_vertices;
     // A few rings around the crossing, not the whole mesh (about 65,000 vertices).
     assert!(pinned > 0 && pinned < 2_000, "{figures:?}");
     assert_eq!(out.report.mesh.self_intersecting_faces, 0);

@@ -68,13 +68,20 @@ fn summary(case: &Path) -> String {
         .iter()
         .map(|v| v.as_f64().unwrap())
         .collect();
-    let d = &report.fit["diagnostics"];
-    let f = &report.fit["fit"];
+    let fit = report.fit.to_json();
+    let d = &fit["diagnostics"];
+    let f = &fit["fit"];
     let figure = |v: &serde_json::Value| format!("{:.9e}", v.as_f64().unwrap_or(f64::NAN));
     let mut s = String::new();
     let mut line = |k: &str, v: String| s.push_str(&format!("{k} {v}\n"));
-    line("points", report.stages[0].figures["points"].to_string());
-    line("normals", report.stages[1].figures["source"].to_string());
+    line(
+        "points",
+        report.stages[0].figures.to_json()["points"].to_string(),
+    );
+    line(
+        "normals",
+        report.stages[1].figures.to_json()["source"].to_string(),
+    );
     line("degree", model["degree"].to_string());
     line("kappa", figure(&f["kappa"]));
     line("bounded", d["bounded"].to_string());
