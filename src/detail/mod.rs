@@ -67,6 +67,7 @@
 //! whose quadric misses the tolerance as cubics ([`DetailParams::refit_deepest`]).
 
 mod chamfer;
+mod exterior;
 mod index;
 mod local;
 
@@ -88,7 +89,7 @@ use local::{
 
 /// Version of this stage's algorithm; if you change any input to its cache key or anything
 /// that changes its output for the same input and params, bump it.
-pub const STAGE_VERSION: u32 = 10;
+pub const STAGE_VERSION: u32 = 11;
 
 /// Levels near the root whose children are fitted in parallel (8³ tasks at most).
 const PARALLEL_LEVELS: u32 = 3;
@@ -223,7 +224,10 @@ pub struct DetailParams {
     /// The standard deviation of the points across their surface that the fit averages
     /// instead of following, as a fraction of the diagonal (`run` sets it to the measured
     /// noise × `--smooth`, [`crate::normals::estimate_noise`]). Default 0: the data is taken
-    /// as exact. Above 0, four things change:
+    /// as exact. Above 0, five things change:
+    /// - the normals' signs are first checked against the empty space around the points: a
+    ///   normal whose line meets the space outside a closed object sooner on its inner side is
+    ///   turned ([`DetailDiagnostics::exterior_flipped`] counts them; `exterior.rs`);
     /// - a cell is split while the root mean square of |Q|/|∇Q| over its ball's points exceeds
     ///   √(([`NOISE_MARGIN`]·σ)² + tolerance²), the scatter that noise σ and a shape error at the
     ///   tolerance give together, instead of while the largest exceeds the tolerance (the
@@ -441,6 +445,10 @@ pub struct DetailDiagnostics {
     /// pointed against the first fit's gradient, which replaced every normal for the second.
     #[serde(default, skip_serializing_if = "is_zero_count")]
     pub reoriented_normals: usize,
+    /// Noisy data: the normals turned before the first fit to face the nearer empty space
+    /// around the points along their line (`exterior.rs`).
+    #[serde(default, skip_serializing_if = "is_zero_count")]
+    pub exterior_flipped: usize,
 }
 
 fn is_zero_count(v: &usize) -> bool {
@@ -660,7 +668,7 @@ pub fn fit_detail(cloud: &OrientedCloud, params: &DetailParams) -> Result<MpuMod
     // the whole order as the export's accuracy measures (1M-point torus: this diagnostic was 8%
     // of the run's CPU over all the points).
     let fit_points = gather(&cloud.points, &order, stride);
-    let fit_normals = gather(&cloud.normals, &order, stride);
+    let mut fit_normals = gather(&cloud.normals, &order, stride);
     let fit_weights = cloud.weights.as_ref().map(|w| gather(w, &order, stride));
     let sampled = gather(
         &cloud.points,
@@ -671,6 +679,15 @@ pub fn fit_detail(cloud: &OrientedCloud, params: &DetailParams) -> Result<MpuMod
     let tree = PointTree::new(&fit_points).ok_or_else(|| {
         DetailError::InvalidParams(format!("cannot index {n} points (at most 2^32 − 1)"))
     })?;
+    // Noisy data: normals whose line reaches the empty space around a closed object sooner on
+    // their inner side are turned to it (`exterior.rs`: a patch flipped by the orientation at a
+    // part a few σ thin would otherwise grow a tube of inside out to the meshing box).
+    let exterior_flipped = if params.noise > 0.0 {
+        let gap = exterior::sampling_gap(&fit_points, &tree);
+        exterior::orient_by_exterior(&fit_points, &mut fit_normals, params.noise * diagonal, gap)
+    } else {
+        0
+    };
     // Noisy data: the normals of the second fit, from the first fit's gradient.
     let refitted_normals: Vec<[f64; 3]>;
     let mut ctx = Ctx {
@@ -719,6 +736,7 @@ pub fn fit_detail(cloud: &OrientedCloud, params: &DetailParams) -> Result<MpuMod
         mean_residual: 0.0,
         max_local_error: part.max_local_error / diagonal,
         reoriented_normals: reoriented,
+        exterior_flipped,
     };
     let mut model = MpuModel::new(region, root, diagonal, part.cells, diagnostics);
     let (max_residual, mean_residual) = data_residuals(&model, &sampled);
