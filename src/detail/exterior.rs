@@ -25,10 +25,10 @@
 //! exterior. A line that reaches no exterior cell on its other side (deep in a thick part, or
 //! along a tangent) is left alone.
 //!
-//! Where the points do not enclose anything (a single view, holes wider than the barrier),
-//! the flood reaches the free cells on both sides of the points, each side of a line meets the
-//! exterior where the barrier ends, and a normal is turned only when its point lies nearer
-//! the other side of the barrier. Likewise across a part thinner than a few σ, a point the
+//! Where the points do not enclose anything (a single view, a scan with an unseen side, holes
+//! wider than the barrier), the flood reaches the free cells on both sides of the points and
+//! no normal is turned: enclosed free cells under [`ENCLOSED_SHARE`] of the barrier's say so.
+//! Across a part thinner than a few σ, a point the
 //! noise moved past the part's middle is oriented by the side it lies nearer (a share
 //! Φ(−t/2σ) of the points where the part is t thick), and a gap narrower than about twice the
 //! barrier radius (a groove, a tunnel) is closed by the barrier, so that the normals facing
@@ -53,6 +53,10 @@ pub const REACH: f64 = 8.0;
 
 /// Most lattice cells (one byte each); above, the cells are made wider than σ.
 pub const MAX_CELLS: f64 = 16_777_216.0;
+
+/// The enclosed volume, as a share of the barrier's, below which the points are taken to
+/// enclose nothing (an open scan, whose few enclosed cells are pockets in its noisy barrier).
+pub const ENCLOSED_SHARE: f64 = 0.01;
 
 const FREE: u8 = 0;
 const WALL: u8 = 1;
@@ -101,6 +105,13 @@ pub fn orient_by_exterior(
     let Some(lattice) = Lattice::new(points, sigma, barrier) else {
         return 0;
     };
+    // Points that enclose no volume (an open scan: its unseen side joins inside to outside)
+    // give no inside to tell from the outside, and a rule by the nearer side would turn the
+    // normals of the points the noise moved to the inner half of the barrier: nothing changes.
+    let (walls, enclosed) = lattice.counts();
+    if (enclosed as f64) < ENCLOSED_SHARE * walls as f64 {
+        return 0;
+    }
     let reach = barrier + REACH * sigma;
     // Half a cell per step: no cell is skipped along the line.
     let step = 0.5 * lattice.cell;
@@ -170,6 +181,13 @@ impl Lattice {
         lattice.build_barrier(points, barrier);
         lattice.flood();
         Some(lattice)
+    }
+
+    /// The barrier's cells and the free cells the flood did not reach (enclosed).
+    fn counts(&self) -> (usize, usize) {
+        let walls = self.state.iter().filter(|&&s| s == WALL).count();
+        let enclosed = self.state.iter().filter(|&&s| s == FREE).count();
+        (walls, enclosed)
     }
 
     fn index(&self, c: [usize; 3]) -> usize {
@@ -274,16 +292,16 @@ mod tests {
     use super::*;
     use crate::numerics::Lcg;
 
-    /// A closed plate a few σ thick (an ellipsoid with semi-axes 1, 1 and 0.05, sampled evenly
-    /// in its parameters and moved by Gaussian noise σ = 0.0125 along its normal: 8σ thick at
-    /// its middle, thinner towards its rim), with the true outward normals, except those of a
+    /// A closed lens thinning to a rim a few σ thick (an ellipsoid with semi-axes 1, 1 and
+    /// 0.15, sampled evenly in its parameters and moved by Gaussian noise σ = 0.0125 along its
+    /// normal: 24σ thick at its middle, where it encloses a volume), with the true outward normals, except those of a
     /// patch at its rim that point inward, as the orientation of noisy plane fits leaves them
     /// at a thin part's tip. Where the plate is t thick, the share of points the noise moves
     /// past its middle is Φ(−t/2σ), about 2.3% at t = 4σ: a rule by the nearer side cannot
     /// orient those, so the correct normals are counted where the plate is at least 4σ thick.
     #[test]
     fn a_flipped_patch_at_a_thin_rim_is_turned_out_and_the_rest_stays() {
-        let (a, c, sigma) = (1.0, 0.05, 0.0125);
+        let (a, c, sigma) = (1.0, 0.15, 0.0125);
         let mut rng = Lcg::new(11);
         let mut points = Vec::new();
         let mut normals = Vec::new();
@@ -341,6 +359,18 @@ mod tests {
         let (patch_wrong, rest_wrong) = (wrong(true), wrong(false));
         assert!(patch_wrong < 0.25, "patch {patch_wrong} flipped {flipped}");
         assert!(rest_wrong < 0.03, "rest {rest_wrong} flipped {flipped}");
+        // Half of the plate (z > 0 only, open at its rim: it encloses nothing): untouched.
+        let upper: Vec<usize> = (0..points.len()).filter(|&i| truth[i][2] > 0.3).collect();
+        let open_points: Vec<[f64; 3]> = upper.iter().map(|&i| points[i]).collect();
+        let mut open_normals: Vec<[f64; 3]> = upper.iter().map(|&i| truth[i]).collect();
+        let open_truth = open_normals.clone();
+        let open_tree = PointTree::new(&open_points).unwrap();
+        let open_gap = sampling_gap(&open_points, &open_tree);
+        assert_eq!(
+            orient_by_exterior(&open_points, &mut open_normals, sigma, open_gap),
+            0
+        );
+        assert_eq!(open_normals, open_truth);
         // Without noise, nothing to do.
         let mut same = truth.clone();
         assert_eq!(orient_by_exterior(&points, &mut same, 0.0, gap), 0);
