@@ -255,13 +255,10 @@ pub(crate) fn mesh_to_points_by_area(
 
 /// Most data points the data → mesh side of [`accuracy`] measures: a larger cloud is measured
 /// on every k-th point (k = ⌈N / this⌉, the order of the file: scan lines and grid rows stay
-/// evenly covered). A hundred thousand distances fix the mean to a few parts in a thousand
-/// (3M-point torus, global run: every 30th point against every 12th, mean −0.19%, rms −0.3%;
-/// every 12th against every 3rd, mean −0.17%, rms −0.15%); past that the exact queries only
-/// cost time (0.7 CPU-s per million points; 250,000 of them were 5% of the 3M-point global
-/// run's CPU). The maximum is the sample's: a subsample can miss the farthest point (there
-/// every 30th point's maximum is 12% below every 12th's). The mesh → data side always searches
-/// all the points: a subsample would lie farther from the mesh.
+/// evenly covered). A hundred thousand distances fix the mean to a few parts in a thousand;
+/// past that the exact queries only cost time. The maximum is the sample's: a subsample can
+/// miss the farthest point. The mesh → data side always searches all the points: a subsample
+/// would lie farther from the mesh.
 pub const ACCURACY_POINTS: usize = 100_000;
 
 /// At most `most` of `points`: all of them, or every k-th from the first ([`kth_step`]).

@@ -101,8 +101,7 @@ const LAZY_BALL_LEVELS: u32 = 1;
 
 /// A grown cell whose own ball held fewer points than this lies over a hole or in empty space;
 /// it is fitted with a plane, which closes a hole flat rather than carrying the rim's curvature
-/// across it (the bunny's two open base holes: mesh-to-data mean distance 1.9e-4 → 1.5e-4 of
-/// the diagonal, with a quadric for every grown cell against a plane for these).
+/// across it.
 const PLANE_BELOW: usize = 5;
 
 /// A ball whose normals fold (some point's normal at 90° or more from their sum: two sheets
@@ -110,11 +109,9 @@ const PLANE_BELOW: usize = 5;
 /// only when it holds at least this many points (1.2 × the 20 coefficients of a cubic); with
 /// fewer it is treated as a grown cell: fitted at degree ≤ 2 to the `N_min` points nearest its
 /// centre, and never split. A quadric fitted to the 15–23 points of a folded ball, and its
-/// children fitted the same way, could join the two sheets by a bridge that no data point sees:
-/// the quadknot of ../shared/data (1,440 points, genus one) came out as genus 6 plus two small
-/// closed pieces in the gaps where the tube passes itself; with this rule it is one piece of
-/// genus 1, and the other meshes there are unchanged in topology and within 0.5% in Chamfer
-/// distance. At local degree 3 or 4, `N_min` (24 or 42) already covers the rule.
+/// children fitted the same way, could join the two sheets by a bridge that no data point sees
+/// (where a tube passes close to itself). At local degree 3 or 4, `N_min` (24 or 42) already
+/// covers the rule.
 const FOLD_MIN_POINTS: usize = 24;
 
 /// `values[order[0]]`, `values[order[stride]]`, `values[order[2·stride]]`, …

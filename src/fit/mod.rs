@@ -767,9 +767,7 @@ fn solve_qr(
 
 /// Most data points the fit's first-order distances ([`FitDiagnostics::mean_distance`] and
 /// `max_distance`) are measured at: a larger cloud is measured on every k-th point (k = ⌈N /
-/// this⌉), as many as the run's accuracy measures ([`crate::measure::ACCURACY_POINTS`]): one
-/// evaluation of f and ∇f per point at degree 8 costs about 0.2 CPU-µs (`FIT_PHASES=1 cargo
-/// bench --bench fit`: 0.18–0.20 s for a million points on one thread).
+/// this⌉), as many as the run's accuracy measures ([`crate::measure::ACCURACY_POINTS`]).
 pub const DISTANCE_POINTS: usize = crate::measure::ACCURACY_POINTS;
 
 /// Mean and maximum of the first-order distance |f|/|∇f| at the points (input units), summed in

@@ -18,12 +18,10 @@
 //! triangles. It puts the vertices outside by about as much as the interpolating facets lie
 //! inside, and a surface's vertices are what most checks measure. The stage's default therefore
 //! takes a quarter of that move ([`super::CHORD_SHARE`]): the facets' mean signed error falls
-//! by a quarter, the Chamfer distance to the points keeps about 40% of the least-squares gain
-//! (bunny: −0.41% against −1.04%), and the vertices' mean offset stays within 1e-5 of the
-//! diagonal on a 20,000-point sphere and torus at the default depth (docs/defaults.md, "Fitted
-//! chords"). Points far denser than the mesh sample the facets' interiors, and there detail
-//! mode's `run` takes the whole move (a 1,000,000-point torus: Chamfer 1.012× Open3D
-//! Poisson's with a quarter, 0.997× with the whole move).
+//! by a quarter, the distance to the points keeps part of the least-squares gain, and the
+//! vertices stay on the surface to within a small share of the diagonal (docs/defaults.md,
+//! "Fitted chords"). Points far denser than the mesh sample the facets' interiors, and there
+//! detail mode's `run` takes the whole move.
 //!
 //! Guarantees: the triangles, and so the topology and winding, are unchanged. The positions are
 //! a function of the mesh alone. They are the first positions step 5 of the stage tests for

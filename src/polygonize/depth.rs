@@ -42,14 +42,10 @@
 //!   the tolerance everywhere. The merged bunny views of `bun.conf`, the Loop bunny subdivided
 //!   once and every input of ../shared/data fit every point, without refits.
 //!
-//! Measured in detail mode on the oriented points of ../shared/data against Open3D's Poisson
-//! at depth 8 (symmetric Chamfer distance / diagonal, CPU seconds of the whole run; docs/defaults.md
-//! has the table): depth 6 halves the CPU of the sparsest scans (quadknot, patella, fandisk,
-//! spot: log₂(L / s) of the meshing box 5.2–6.2) at a Chamfer cost of 0.1–2.8% over depth 7's,
-//! still below Poisson's; the duck (6.36) loses 1.1% and crosses Poisson's (1.006×), so the
-//! rule gives it depth 7 (0.995×). A 1,000,000-point torus (10.8) at depth 7: the halved
-//! tolerance takes its Chamfer distance from 1.000× Poisson's (with the chords) to 0.998× for
-//! 12% more CPU; depth 8 gives 1.013× (without the chords) for 1.7× the CPU.
+//! Why these levels: depth 6 halves the CPU of the sparsest scans for a small loss of accuracy,
+//! and depth 7 keeps the accuracy of scans a little denser; on far denser points a finer
+//! tolerance at depth 7 costs less than depth 8 for the same accuracy (the measurements are in
+//! docs/defaults.md, "Detail mode's depth: the points' spacing").
 //!
 //! Deterministic: the sample is every k-th point in input order and the nearest-neighbour
 //! search is exact.

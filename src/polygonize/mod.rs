@@ -38,8 +38,7 @@
 //!    far-apart points (fewer triangles at the same Chamfer distance; CHANGELOG.md). With the data's
 //!    normals too, a cell whose data (with its neighbours' at that level) has nearly one normal
 //!    is not split either: planar parts are meshed at the coarse level, curved parts and edges
-//!    at `depth` (a cube's triangles drop to a fifth at nearly the same Chamfer distance;
-//!    CHANGELOG.md).
+//!    at `depth` (far fewer triangles on flat parts at nearly the same accuracy; CHANGELOG.md).
 //! 2. **Extraction** (`extract`): marching tetrahedra over a tetrahedralization of the surface
 //!    leaves that conforms across levels (Kuhn tetrahedra in regular leaves, a cone from the
 //!    centre over a shared face tiling in leaves next to finer ones). It yields a watertight
