@@ -12,24 +12,20 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use serde::{Deserialize, Serialize};
-
 use crate::cache::{self, Artifact, Cache, Key, OutputFiles};
 use crate::cloud::{OrientedCloud, PointCloud};
 use crate::detail;
-use crate::export::{self, ExportError, ExportParams, ExportReport};
+use crate::export::{self, ExportError};
 use crate::fit;
 use crate::import;
-use crate::measure::Accuracy;
-use crate::mesh::MeshReport;
-use crate::normals::{self, NoiseEstimate};
+use crate::normals;
 use crate::outliers::{self, OutlierParams};
 use crate::outputs::OutputSet;
 use crate::polygonize;
-use crate::polygonize::decimate::DecimateReport;
-use crate::trim::{self, TrimReport};
+use crate::trim;
 
 mod config;
+mod reconstruct;
 mod records;
 
 pub use crate::export::{mesh_files, Keep, MeshFileOptions, MeshFormat, OutputFormat};
@@ -37,11 +33,12 @@ pub use crate::model::{meshing_region, Mode, Model, ModelReport};
 pub use config::{
     smoothing, PipelineConfig, ResolvedConfig, Setting, DENSE_TOLERANCE, NOISE_FLOOR,
 };
+pub use reconstruct::{reconstruct, Reconstruction};
+use records::{export_figures, run_report, EntryMeta, StageReport};
 pub use records::{
-    DetailReport, FitReport, ImportReport, MergeReport, NormalsReport, PolygonizeReport,
-    StageFigures, WriteReport,
+    DetailReport, FitReport, ImportReport, MergeReport, NoiseReport, NormalsReport,
+    PolygonizeReport, RunReport, StageFigures, StageRecord, WriteReport,
 };
-use records::{EntryMeta, StageReport};
 
 /// The small real scan built into the binary: "Spot" the cow by Keenan Crane (CC0 1.0),
 /// 2,930 vertices, 5,856 triangles.
@@ -179,58 +176,6 @@ impl ScanSource {
             ScanSource::Cloud(cloud) => format!("{CLOUD_NAME} ({} points)", cloud.points.len()),
         }
     }
-}
-
-/// One stage's line in the report.
-#[derive(Clone, Debug, Serialize)]
-pub struct StageRecord {
-    /// Stage name.
-    pub stage: &'static str,
-    /// "hit", "miss" or "corrupt" (recomputed), or "none" for uncached stages.
-    pub cache: &'static str,
-    /// Wall time in seconds.
-    pub seconds: f64,
-    /// Cache key (hex), when cached.
-    pub key: Option<String>,
-    /// Key figures of the stage's output.
-    pub figures: StageFigures,
-}
-
-/// What the run produced and measured (written as `report.json`).
-#[derive(Clone, Debug, Serialize)]
-pub struct RunReport {
-    /// The scan (file path or sample name).
-    pub input: String,
-    /// One record per stage, in order.
-    pub stages: Vec<StageRecord>,
-    /// The fitted model's settings and diagnostics.
-    pub fit: ModelReport,
-    /// What the trim stage removed and closed.
-    pub trim: TrimReport,
-    /// What the decimation did (`--target-triangles`): the budget, triangles before and after,
-    /// and whether the budget was reached.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub decimate: Option<DecimateReport>,
-    /// Mesh topology checks.
-    pub mesh: MeshReport,
-    /// Two-sided distances between the input points and the mesh, absolute and relative to the
-    /// data's diagonal: data → mesh, mesh → data by area, and the share of the mesh's area far
-    /// from every data point.
-    pub accuracy: Accuracy,
-    /// The unit of the input coordinates when `--units` named one (distances in this report
-    /// are in input units).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub units: Option<export::units::LengthUnit>,
-    /// Files written, relative to the output directory.
-    pub outputs: Vec<String>,
-    /// Every warning the run printed.
-    pub warnings: Vec<String>,
-    /// The measured noise of the points and the noise the fit averaged (absent when it could
-    /// not be measured: fewer than 25 points).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub noise: Option<NoiseReport>,
-    /// Total wall time in seconds.
-    pub seconds: f64,
 }
 
 /// Receives progress events (the CLI turns them into progress bars and `-v` lines).
@@ -928,47 +873,6 @@ pub fn run(
     Ok(report)
 }
 
-/// The noise of a run's points as the report gives it.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct NoiseReport {
-    /// The median estimate of the points' standard deviation across their surface, input units.
-    pub sigma: f64,
-    /// `sigma` over the diagonal of the points' bounding box.
-    pub sigma_per_diagonal: f64,
-    /// The 10% and 90% quantiles of the local estimates (cleaner and noisier regions), input
-    /// units.
-    pub sigma_low: f64,
-    /// See `sigma_low`.
-    pub sigma_high: f64,
-    /// `sigma` over the median spacing of the points.
-    pub sigma_per_spacing: f64,
-    /// The noise the detail fit averaged, over the diagonal ([`crate::detail::DetailParams::noise`]; 0 in
-    /// global mode, with `--smooth 0`, or where the noise is below [`NOISE_FLOOR`] × the
-    /// tolerance).
-    pub smoothed_per_diagonal: f64,
-}
-
-impl NoiseReport {
-    fn new(noise: NoiseEstimate, points: &[[f64; 3]], resolved: &ResolvedConfig) -> NoiseReport {
-        let diagonal = crate::cloud::Aabb::from_points(points).map_or(0.0, |b| b.diagonal());
-        NoiseReport {
-            sigma: noise.sigma,
-            sigma_per_diagonal: if diagonal > 0.0 {
-                noise.sigma / diagonal
-            } else {
-                0.0
-            },
-            sigma_low: noise.sigma_low,
-            sigma_high: noise.sigma_high,
-            sigma_per_spacing: noise.relative_to_spacing(),
-            smoothed_per_diagonal: match resolved.mode {
-                Mode::Detail => resolved.detail.noise,
-                Mode::Global => 0.0,
-            },
-        }
-    }
-}
-
 /// The polygonize stage of `model` through the cache: its mesh and key, at the finest depth
 /// near the input `points` where their `normals` are not flat (the model's key covers both).
 /// The stage's figures say whether the meshing proved the mesh embedded (`"embedded"`).
@@ -1010,196 +914,4 @@ fn polygonize_stage(
             Ok((out.mesh, report))
         },
     )
-}
-
-/// The figures of the mesh as written, from the export stage's record.
-struct MeshFigures {
-    mesh: MeshReport,
-    accuracy: Accuracy,
-    trim: TrimReport,
-    decimate: Option<DecimateReport>,
-    /// A polynomial's zero set runs out of the meshing box.
-    clipped: bool,
-}
-
-/// The export stage's figures, with the warnings they call for: pieces of the surface left
-/// out, a polynomial's zero set clipped by the meshing box.
-fn export_figures(ctx: &mut Ctx<'_>, model: &Model, report: ExportReport) -> MeshFigures {
-    let ExportReport {
-        mesh,
-        accuracy,
-        trim,
-        decimate,
-        dropped_components: dropped,
-        dropped_nested: nested,
-        dropped_unsupported: unsupported,
-        ..
-    } = report;
-    if let Some(message) = decimate.as_ref().and_then(DecimateReport::shortfall) {
-        ctx.warn(message);
-    }
-    if dropped > 0 {
-        ctx.warn(format!(
-            "left out {dropped} piece(s) of the surface with no data point within 2% of the diagonal; --keep all keeps them"
-        ));
-    }
-    if nested > 0 {
-        ctx.warn(format!(
-            "left out {nested} small closed piece(s) inside the surface (each under {}% of the largest piece's area); --keep all keeps them",
-            100.0 * export::NESTED_AREA_FRACTION
-        ));
-    }
-    if unsupported > 0 {
-        ctx.warn(format!(
-            "left out {unsupported} small piece(s) of the surface with fewer than {} data points in their box (each under {}% of the largest piece's area); --keep all keeps them",
-            export::SUPPORT_POINTS_MIN,
-            100.0 * export::NESTED_AREA_FRACTION
-        ));
-    }
-    // A polynomial's zero set that runs out of the meshing box is open there: not a bounded
-    // surface in this mesh, whatever the fit certified.
-    let clipped = matches!(model, Model::Global(_)) && mesh.boundary_edges > 0;
-    if clipped {
-        ctx.warn(format!(
-            "the zero set is clipped by the meshing box: the mesh is open along {} boundary edges, so it is not a bounded surface here; try another --degree or --kappa, or --mode detail",
-            mesh.boundary_edges
-        ));
-    }
-    MeshFigures {
-        mesh,
-        accuracy,
-        trim,
-        decimate,
-        clipped,
-    }
-}
-
-/// The run's report (its `seconds` still 0): the stages and warnings of `ctx`, the model's
-/// settings and diagnostics, the figures of the mesh as written, and the files.
-fn run_report(
-    input: String,
-    ctx: Ctx<'_>,
-    model: &Model,
-    config: &ResolvedConfig,
-    figures: MeshFigures,
-    outputs: Vec<String>,
-) -> RunReport {
-    let mut fit = model.report();
-    if let ModelReport::Detail { params, .. } = &mut fit {
-        *params = Some(config.detail.clone());
-    }
-    if figures.clipped {
-        fit.clip();
-    }
-    RunReport {
-        input,
-        stages: ctx.stages,
-        fit,
-        trim: figures.trim,
-        decimate: figures.decimate,
-        mesh: figures.mesh,
-        accuracy: figures.accuracy,
-        units: config.export.units,
-        outputs,
-        warnings: ctx.warnings,
-        noise: ctx.noise,
-        seconds: 0.0,
-    }
-}
-
-/// What [`reconstruct`] makes: the mesh `run` writes, the model it is meshed from, and the
-/// report `run` would write beside them.
-#[derive(Clone, Debug)]
-pub struct Reconstruction {
-    /// The mesh as `run` writes it (`mesh.ply`), after the component filter and the trim, in
-    /// input coordinates, with unit vertex normals.
-    pub mesh: crate::mesh::TriangleMesh,
-    /// The fitted model.
-    pub model: Model,
-    /// What `run` would write as `report.json` (no file is listed: none is made).
-    pub report: RunReport,
-}
-
-/// What [`run`] computes, in memory and without the cache: the same stages with the same
-/// functions and params (import, outliers, normals, fit or detail, polygonize, and the export
-/// stage's component filter, trim, checks and accuracy), so the mesh is the one `run` writes
-/// for the same source and config. No file is encoded or written (`config.export.formats` is not
-/// used). The input of the Python package's `reconstruct`.
-///
-/// ```
-/// use stablesurf::pipeline::{reconstruct, Mode, PipelineConfig, ScanSource, Setting, Silent};
-/// use stablesurf::PointCloud;
-/// // 400 points on the unit sphere, with their normals.
-/// let points: Vec<[f64; 3]> = (0..400)
-///     .map(|i| {
-///         let z = 1.0 - (2.0 * i as f64 + 1.0) / 400.0;
-///         let (r, a) = ((1.0 - z * z).sqrt(), 2.399963 * i as f64);
-///         [r * a.cos(), r * a.sin(), z]
-///     })
-///     .collect();
-/// let cloud = PointCloud { normals: Some(points.clone()), points, ..Default::default() };
-/// let mut config = PipelineConfig::for_mode(Mode::Global);
-/// config.fit.degree = 2;
-/// config.depth = Setting::Fixed(4);
-/// let out = reconstruct(&ScanSource::Cloud(Box::new(cloud)), &config, &mut Silent).unwrap();
-/// assert!(out.report.mesh.watertight);
-/// assert_eq!(out.mesh.positions.len(), out.report.mesh.vertices);
-/// for p in &out.mesh.positions {
-///     let r = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-///     assert!((r - 1.0).abs() < 1e-3, "{r}");
-/// }
-/// ```
-///
-/// # Errors
-/// Any stage's error, as [`run`]'s.
-pub fn reconstruct(
-    source: &ScanSource,
-    config: &PipelineConfig,
-    observer: &mut dyn Observer,
-) -> Result<Reconstruction, PipelineError> {
-    let start = Instant::now();
-    let mut ctx = Ctx::new(&Cache::disabled(), observer)?;
-    let (oriented, model, model_key, resolved) = fit_stages(&mut ctx, source, config)?;
-    let config = &resolved;
-    let (mesh, _, polygonized) = polygonize_stage(
-        &mut ctx,
-        &model,
-        &model_key,
-        oriented.input_points(),
-        oriented.input_normals(),
-        config,
-    )?;
-    let embedded = polygonized.embedded;
-    let export_params = ExportParams {
-        formats: Vec::new(),
-        ..config.export.clone()
-    };
-    ctx.observer.stage_started("export");
-    let export_start = Instant::now();
-    let out = export::export(
-        &model,
-        &mesh,
-        embedded,
-        oriented.input_points(),
-        oriented.colours.as_deref(),
-        &export_params,
-    )?;
-    drop(mesh);
-    let export_report = out.report();
-    ctx.finish(
-        "export",
-        "none",
-        export_start,
-        None,
-        export_report.clone().into(),
-    );
-    let figures = export_figures(&mut ctx, &model, export_report);
-    let input = source.name();
-    let mut report = run_report(input, ctx, &model, config, figures, Vec::new());
-    report.seconds = start.elapsed().as_secs_f64();
-    Ok(Reconstruction {
-        mesh: out.surface,
-        model,
-        report,
-    })
 }

@@ -1,12 +1,21 @@
-//! The stages' reports: one plain struct per stage, stored inside the stage's checksummed cache
-//! entry and read back typed, so the run's report is assembled from fields, never from keys.
+//! The stages' reports and the run's: one plain struct per stage, stored inside the stage's
+//! checksummed cache entry and read back typed, and the [`RunReport`] assembled from their
+//! fields, never from keys.
 //!
 //! Input: a stage's output. Output: its figures, as the `-v` line and report.json's `stages`
-//! print them (a JSON object, keys in sorted order).
+//! print them (a JSON object, keys in sorted order), and report.json itself.
 
 use serde::{Deserialize, Serialize};
 
-use crate::export::ExportReport;
+use crate::export::{self, ExportReport};
+use crate::measure::Accuracy;
+use crate::mesh::MeshReport;
+use crate::model::{Mode, Model, ModelReport};
+use crate::normals::NoiseEstimate;
+use crate::polygonize::decimate::DecimateReport;
+use crate::trim::TrimReport;
+
+use super::{Ctx, ResolvedConfig};
 
 /// The import stage's figures.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -213,6 +222,202 @@ into_figures!(
     ExportReport => Export,
     WriteReport => Write
 );
+
+/// One stage's line in the report.
+#[derive(Clone, Debug, Serialize)]
+pub struct StageRecord {
+    /// Stage name.
+    pub stage: &'static str,
+    /// "hit", "miss" or "corrupt" (recomputed), or "none" for uncached stages.
+    pub cache: &'static str,
+    /// Wall time in seconds.
+    pub seconds: f64,
+    /// Cache key (hex), when cached.
+    pub key: Option<String>,
+    /// Key figures of the stage's output.
+    pub figures: StageFigures,
+}
+
+/// What the run produced and measured (written as `report.json`).
+#[derive(Clone, Debug, Serialize)]
+pub struct RunReport {
+    /// The scan (file path or sample name).
+    pub input: String,
+    /// One record per stage, in order.
+    pub stages: Vec<StageRecord>,
+    /// The fitted model's settings and diagnostics.
+    pub fit: ModelReport,
+    /// What the trim stage removed and closed.
+    pub trim: TrimReport,
+    /// What the decimation did (`--target-triangles`): the budget, triangles before and after,
+    /// and whether the budget was reached.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub decimate: Option<DecimateReport>,
+    /// Mesh topology checks.
+    pub mesh: MeshReport,
+    /// Two-sided distances between the input points and the mesh, absolute and relative to the
+    /// data's diagonal: data → mesh, mesh → data by area, and the share of the mesh's area far
+    /// from every data point.
+    pub accuracy: Accuracy,
+    /// The unit of the input coordinates when `--units` named one (distances in this report
+    /// are in input units).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub units: Option<export::units::LengthUnit>,
+    /// Files written, relative to the output directory.
+    pub outputs: Vec<String>,
+    /// Every warning the run printed.
+    pub warnings: Vec<String>,
+    /// The measured noise of the points and the noise the fit averaged (absent when it could
+    /// not be measured: fewer than 25 points).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub noise: Option<NoiseReport>,
+    /// Total wall time in seconds.
+    pub seconds: f64,
+}
+
+/// The noise of a run's points as the report gives it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NoiseReport {
+    /// The median estimate of the points' standard deviation across their surface, input units.
+    pub sigma: f64,
+    /// `sigma` over the diagonal of the points' bounding box.
+    pub sigma_per_diagonal: f64,
+    /// The 10% and 90% quantiles of the local estimates (cleaner and noisier regions), input
+    /// units.
+    pub sigma_low: f64,
+    /// See `sigma_low`.
+    pub sigma_high: f64,
+    /// `sigma` over the median spacing of the points.
+    pub sigma_per_spacing: f64,
+    /// The noise the detail fit averaged, over the diagonal ([`crate::detail::DetailParams::noise`]; 0 in
+    /// global mode, with `--smooth 0`, or where the noise is below [`super::NOISE_FLOOR`] × the
+    /// tolerance).
+    pub smoothed_per_diagonal: f64,
+}
+
+impl NoiseReport {
+    pub(super) fn new(
+        noise: NoiseEstimate,
+        points: &[[f64; 3]],
+        resolved: &ResolvedConfig,
+    ) -> NoiseReport {
+        let diagonal = crate::cloud::Aabb::from_points(points).map_or(0.0, |b| b.diagonal());
+        NoiseReport {
+            sigma: noise.sigma,
+            sigma_per_diagonal: if diagonal > 0.0 {
+                noise.sigma / diagonal
+            } else {
+                0.0
+            },
+            sigma_low: noise.sigma_low,
+            sigma_high: noise.sigma_high,
+            sigma_per_spacing: noise.relative_to_spacing(),
+            smoothed_per_diagonal: match resolved.mode {
+                Mode::Detail => resolved.detail.noise,
+                Mode::Global => 0.0,
+            },
+        }
+    }
+}
+
+/// The figures of the mesh as written, from the export stage's record.
+pub(super) struct MeshFigures {
+    mesh: MeshReport,
+    accuracy: Accuracy,
+    trim: TrimReport,
+    decimate: Option<DecimateReport>,
+    /// A polynomial's zero set runs out of the meshing box.
+    clipped: bool,
+}
+
+/// The export stage's figures, with the warnings they call for: pieces of the surface left
+/// out, a polynomial's zero set clipped by the meshing box.
+pub(super) fn export_figures(
+    ctx: &mut Ctx<'_>,
+    model: &Model,
+    report: ExportReport,
+) -> MeshFigures {
+    let ExportReport {
+        mesh,
+        accuracy,
+        trim,
+        decimate,
+        dropped_components: dropped,
+        dropped_nested: nested,
+        dropped_unsupported: unsupported,
+        ..
+    } = report;
+    if let Some(message) = decimate.as_ref().and_then(DecimateReport::shortfall) {
+        ctx.warn(message);
+    }
+    if dropped > 0 {
+        ctx.warn(format!(
+            "left out {dropped} piece(s) of the surface with no data point within 2% of the diagonal; --keep all keeps them"
+        ));
+    }
+    if nested > 0 {
+        ctx.warn(format!(
+            "left out {nested} small closed piece(s) inside the surface (each under {}% of the largest piece's area); --keep all keeps them",
+            100.0 * export::NESTED_AREA_FRACTION
+        ));
+    }
+    if unsupported > 0 {
+        ctx.warn(format!(
+            "left out {unsupported} small piece(s) of the surface with fewer than {} data points in their box (each under {}% of the largest piece's area); --keep all keeps them",
+            export::SUPPORT_POINTS_MIN,
+            100.0 * export::NESTED_AREA_FRACTION
+        ));
+    }
+    // A polynomial's zero set that runs out of the meshing box is open there: not a bounded
+    // surface in this mesh, whatever the fit certified.
+    let clipped = matches!(model, Model::Global(_)) && mesh.boundary_edges > 0;
+    if clipped {
+        ctx.warn(format!(
+            "the zero set is clipped by the meshing box: the mesh is open along {} boundary edges, so it is not a bounded surface here; try another --degree or --kappa, or --mode detail",
+            mesh.boundary_edges
+        ));
+    }
+    MeshFigures {
+        mesh,
+        accuracy,
+        trim,
+        decimate,
+        clipped,
+    }
+}
+
+/// The run's report (its `seconds` still 0): the stages and warnings of `ctx`, the model's
+/// settings and diagnostics, the figures of the mesh as written, and the files.
+pub(super) fn run_report(
+    input: String,
+    ctx: Ctx<'_>,
+    model: &Model,
+    config: &ResolvedConfig,
+    figures: MeshFigures,
+    outputs: Vec<String>,
+) -> RunReport {
+    let mut fit = model.report();
+    if let ModelReport::Detail { params, .. } = &mut fit {
+        *params = Some(config.detail.clone());
+    }
+    if figures.clipped {
+        fit.clip();
+    }
+    RunReport {
+        input,
+        stages: ctx.stages,
+        fit,
+        trim: figures.trim,
+        decimate: figures.decimate,
+        mesh: figures.mesh,
+        accuracy: figures.accuracy,
+        units: config.export.units,
+        outputs,
+        warnings: ctx.warnings,
+        noise: ctx.noise,
+        seconds: 0.0,
+    }
+}
 
 #[cfg(test)]
 mod tests {
