@@ -26,6 +26,7 @@ pub mod implicit;
 pub mod import;
 pub mod limits;
 pub mod measure;
+pub use numerics::point_tree;
 pub mod merge;
 pub mod mesh;
 pub mod model;

@@ -414,7 +414,7 @@ pub fn drop_components_far_from(
     points: &[[f64; 3]],
     max_distance: f64,
 ) -> (TriangleMesh, usize) {
-    let distances = crate::measure::nearest_point_distances(&mesh.positions, points)
+    let distances = crate::numerics::point_tree::nearest_point_distances(&mesh.positions, points)
         .unwrap_or_else(|| vec![f64::INFINITY; mesh.positions.len()]);
     drop_components_by_distance(mesh, &distances, max_distance)
 }

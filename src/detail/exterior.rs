@@ -41,7 +41,7 @@ use std::collections::VecDeque;
 
 use rayon::prelude::*;
 
-use crate::measure::PointTree;
+use crate::numerics::point_tree::PointTree;
 
 /// Cells within this many σ of a data point are barrier.
 pub const BARRIER: f64 = 2.0;

@@ -57,10 +57,10 @@
 //! cannot be solved returns `None` (never a panic).
 
 use crate::implicit::ImplicitFunction;
-use crate::measure::dist;
 use crate::numerics::cholesky;
 use crate::poly::{exponents, monomial_index, n_coefficients, ImplicitPolynomial};
 use crate::vec3;
+use crate::vec3::dist;
 
 /// One auxiliary off-surface point: its position (input coordinates) and target value (an
 /// estimate of its signed distance, input units).

@@ -79,9 +79,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::cloud::{Aabb, OrientedCloud};
 use crate::implicit::ImplicitFunction;
-use crate::measure::{dist2, insert_nearest, PointTree};
+use crate::numerics::point_tree::{insert_nearest, PointTree};
 use crate::poly::{n_coefficients, ImplicitPolynomial};
 use crate::vec3;
+use crate::vec3::dist2;
 
 use local::{
     even_subsample, fit_local, AuxPoint, Constraints, LocalFit, RowWeights, SUBSAMPLE_ABOVE,
@@ -656,10 +657,10 @@ pub fn fit_detail(cloud: &OrientedCloud, params: &DetailParams) -> Result<MpuMod
     let n_min_grown = n_min_grown
         .max(noise_points(params, params.degree.min(2)))
         .min(n_fit);
-    // The fit reads the points in Z order (`measure::spatial_order`): the points of a ball are
+    // The fit reads the points in Z order (`point_tree::spatial_order`): the points of a ball are
     // then close together in memory, and the passes over large balls read them nearly in
     // sequence instead of at random (a scan's file order is often arbitrary).
-    let order = crate::measure::spatial_order(&cloud.points);
+    let order = crate::numerics::point_tree::spatial_order(&cloud.points);
     // The points fitted: every stride-th of that order (all of them at stride 1), gathered
     // straight from the input; and the sample the residual diagnostics measure, every k-th of
     // the whole order as the export's accuracy measures (1M-point torus: this diagnostic was 8%

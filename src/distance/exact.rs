@@ -8,8 +8,9 @@ use rayon::prelude::*;
 
 use super::{check_region, DistanceError, MAX_DEGREE};
 use crate::cloud::Aabb;
-use crate::measure::{dist, dist2, PointTree};
+use crate::numerics::point_tree::PointTree;
 use crate::poly::{n_coefficients, ImplicitPolynomial};
+use crate::vec3::{dist, dist2};
 
 /// Seed-grid cells along the longest side of the grown region (exact method).
 const SEED_CELLS: usize = 64;

@@ -61,9 +61,10 @@ use rayon::prelude::*;
 
 use crate::cloud::Aabb;
 use crate::implicit::ImplicitFunction;
-use crate::measure::{dist, GridMeshDistance};
+use crate::measure::GridMeshDistance;
 use crate::mesh::TriangleMesh;
 use crate::poly::ImplicitPolynomial;
+use crate::vec3::dist;
 use exact::{Evaluator, NearSeeds};
 
 /// Highest polynomial degree the distance evaluator accepts.

@@ -43,8 +43,9 @@ use rayon::prelude::*;
 use super::{check_region, DistanceError};
 use crate::cloud::Aabb;
 use crate::implicit::ImplicitFunction;
-use crate::measure::{closest_point_on_triangle, dist2, GridMeshDistance};
+use crate::measure::{closest_point_on_triangle, GridMeshDistance};
 use crate::mesh::TriangleMesh;
+use crate::vec3::dist2;
 use crate::vec3::{cross, dot, norm, sub};
 
 /// Half-width of the narrow band in voxels: voxels nearer the surface than this are active.

@@ -277,7 +277,7 @@ pub fn write(
 }
 
 /// Distance from each vertex to the nearest of `points` (input units, as `f32`): the `quality`
-/// MeshLab shows ([`crate::measure::nearest_point_distances`], a k-d tree, in parallel; the
+/// MeshLab shows ([`crate::numerics::point_tree::nearest_point_distances`], a k-d tree, in parallel; the
 /// result does not depend on the thread count). Non-finite points are ignored; a non-finite
 /// vertex gets NaN.
 ///
@@ -293,9 +293,13 @@ pub fn nearest_point_distances(
     vertices: &[[f64; 3]],
     points: &[[f64; 3]],
 ) -> Result<Vec<f32>, ExportError> {
-    let d = crate::measure::nearest_point_distances(vertices, points).ok_or_else(|| {
-        ExportError::InvalidMesh("no finite input point to measure vertex quality against".into())
-    })?;
+    let d = crate::numerics::point_tree::nearest_point_distances(vertices, points).ok_or_else(
+        || {
+            ExportError::InvalidMesh(
+                "no finite input point to measure vertex quality against".into(),
+            )
+        },
+    )?;
     Ok(d.into_iter().map(|d| d as f32).collect())
 }
 

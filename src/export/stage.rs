@@ -357,7 +357,7 @@ const COLOUR_NEIGHBOURS: usize = 4;
 /// ties between equally near points are broken by the k-d tree's fixed order.
 fn vertex_colours(
     vertices: &[[f64; 3]],
-    data: &measure::PointIndex<'_>,
+    data: &crate::numerics::point_tree::PointIndex<'_>,
     points: &[[f64; 3]],
     colours: &[[u16; 3]],
 ) -> Vec<[u8; 3]> {
@@ -452,7 +452,7 @@ pub fn export_mesh(
     }
     let data_diagonal = Aabb::from_points(points).map_or(0.0, |b| b.diagonal());
     // One index of the data points for every nearest-point query below.
-    let data = measure::PointIndex::new(points);
+    let data = crate::numerics::point_tree::PointIndex::new(points);
     let input_mesh = mesh;
     let mut mesh = Cow::Borrowed(mesh);
     let (mut dropped_components, mut dropped_nested, mut dropped_unsupported) = (0, 0, 0);

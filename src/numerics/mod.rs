@@ -11,6 +11,7 @@
 pub(crate) mod cholesky;
 mod lcg;
 pub(crate) mod point_grid;
+pub mod point_tree;
 pub(crate) mod predicates;
 mod radix;
 pub(crate) mod union_find;

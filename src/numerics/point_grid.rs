@@ -245,7 +245,7 @@ impl PointGrid {
     }
 
     /// The smallest squared distance from `q` (finite) to the points, summed as
-    /// `measure::dist2` sums it; `None` when it was not settled within [`MAX_RING`] rings of
+    /// `vec3::dist2` sums it; `None` when it was not settled within [`MAX_RING`] rings of
     /// cells around `q`'s cell.
     pub(crate) fn nearest2(&self, q: [f64; 3]) -> Option<f64> {
         self.ring_search::<PLAIN>(q).map(|found| found.d2)

@@ -65,8 +65,8 @@ use std::sync::OnceLock;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::measure::PointTree;
 use crate::mesh::{self, TriangleMesh, VertexTriangles};
+use crate::numerics::point_tree::PointTree;
 use crate::numerics::union_find::UnionFind;
 use crate::numerics::PointGrid;
 use crate::vec3::triangle_area;

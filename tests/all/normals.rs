@@ -920,7 +920,7 @@ fn range_scans_face_out_of_the_zippered_bunny() {
         .filter(|&i| dot(&reference[i], &reference[i]) > 0.0)
         .collect();
     let tree =
-        stablesurf::measure::PointTree::new(&used.iter().map(|&i| zp[i]).collect::<Vec<_>>())
+        stablesurf::point_tree::PointTree::new(&used.iter().map(|&i| zp[i]).collect::<Vec<_>>())
             .unwrap();
     let conf = std::fs::read_to_string(scan_dir.join("bun.conf")).unwrap();
     let mut scans = 0;

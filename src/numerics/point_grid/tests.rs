@@ -1,7 +1,8 @@
 //! Unit tests of `numerics::point_grid`.
 
 use super::*;
-use crate::measure::{dist2, PointTree};
+use crate::numerics::point_tree::PointTree;
+use crate::vec3::dist2;
 
 /// The k nearest by brute force: all (distance, index) keys sorted.
 fn brute(points: &[[f64; 3]], i: usize, k: usize) -> Vec<u32> {
