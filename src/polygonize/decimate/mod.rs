@@ -57,6 +57,9 @@
 //!    pass repeats, until a whole pass collapses nothing: the mesh is then as small as legal
 //!    collapses make it, and [`DecimateReport::reached`] is false.
 
+mod hash;
+
+use hash::SpatialHash;
 use std::cmp::Ordering;
 use std::collections::{BinaryHeap, HashMap};
 use std::hash::BuildHasherDefault;
@@ -333,108 +336,6 @@ struct Placement {
 /// A fixed hasher for the spatial hash (its answers are sets, so any hasher gives the same
 /// result; a fixed one keeps the run times reproducible too).
 type FixedState = BuildHasherDefault<std::collections::hash_map::DefaultHasher>;
-
-/// The triangles by the cell of their box's lowest corner, at the level whose cells are at
-/// least as large as the box (see the module docs, step 3).
-struct SpatialHash {
-    origin: [f64; 3],
-    base: f64,
-    levels: Vec<HashMap<u64, Vec<u32>, FixedState>>,
-    counts: Vec<usize>,
-    /// (level, cell) of each registered triangle; level `u8::MAX` when not registered.
-    slot: Vec<(u8, u64)>,
-}
-
-impl SpatialHash {
-    fn new(origin: [f64; 3], base: f64, n_triangles: usize) -> SpatialHash {
-        SpatialHash {
-            origin,
-            base,
-            levels: (0..HASH_LEVELS).map(|_| HashMap::default()).collect(),
-            counts: vec![0; HASH_LEVELS],
-            slot: vec![(u8::MAX, 0); n_triangles],
-        }
-    }
-
-    fn cell_size(&self, level: usize) -> f64 {
-        self.base * 2f64.powi(level as i32)
-    }
-
-    fn coordinate(&self, x: f64, axis: usize, size: f64) -> i64 {
-        (((x - self.origin[axis]) / size).floor() as i64).clamp(-(1 << 20), (1 << 20) - 1)
-    }
-
-    fn key(cell: [i64; 3]) -> u64 {
-        let part = |c: i64| ((c + (1 << 20)) as u64) & ((1 << 21) - 1);
-        (part(cell[0]) << 42) | (part(cell[1]) << 21) | part(cell[2])
-    }
-
-    fn insert(&mut self, t: u32, lo: [f64; 3], hi: [f64; 3]) {
-        let extent = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
-        let mut level = 0;
-        while level + 1 < HASH_LEVELS && self.cell_size(level) < extent {
-            level += 1;
-        }
-        let size = self.cell_size(level);
-        let cell = [0, 1, 2].map(|a| self.coordinate(lo[a], a, size));
-        let key = Self::key(cell);
-        self.levels[level].entry(key).or_default().push(t);
-        self.counts[level] += 1;
-        self.slot[t as usize] = (level as u8, key);
-    }
-
-    fn remove(&mut self, t: u32) {
-        let (level, key) = self.slot[t as usize];
-        if level == u8::MAX {
-            return;
-        }
-        let level = level as usize;
-        if let Some(list) = self.levels[level].get_mut(&key) {
-            if let Some(i) = list.iter().position(|&s| s == t) {
-                list.swap_remove(i);
-                self.counts[level] -= 1;
-            }
-            if list.is_empty() {
-                self.levels[level].remove(&key);
-            }
-        }
-        self.slot[t as usize] = (u8::MAX, 0);
-    }
-
-    /// Every registered triangle whose box may meet the box `lo..hi` (a superset), into `out`.
-    fn query(&self, lo: [f64; 3], hi: [f64; 3], out: &mut Vec<u32>) {
-        out.clear();
-        for level in 0..HASH_LEVELS {
-            if self.counts[level] == 0 {
-                continue;
-            }
-            let size = self.cell_size(level);
-            // A triangle of this level starts at most one cell below the box.
-            let from = [0, 1, 2].map(|a| self.coordinate(lo[a] - size, a, size));
-            let to = [0, 1, 2].map(|a| self.coordinate(hi[a], a, size));
-            let cells: f64 = (0..3).map(|a| (to[a] - from[a] + 1) as f64).product();
-            let map = &self.levels[level];
-            if cells > map.len() as f64 {
-                for (&key, list) in map {
-                    let c = [42, 21, 0].map(|s| ((key >> s) & ((1 << 21) - 1)) as i64 - (1 << 20));
-                    if (0..3).all(|a| from[a] <= c[a] && c[a] <= to[a]) {
-                        out.extend_from_slice(list);
-                    }
-                }
-                continue;
-            }
-            for x in from[0]..=to[0] {
-                for y in from[1]..=to[1] {
-                    for z in from[2]..=to[2] {
-                        if let Some(list) = map.get(&Self::key([x, y, z])) {
-                            out.extend_from_slice(list);
-                        }
-                    }
-                }
-            }
-        }
-    }
-}
 
 /// The mesh being decimated.
 struct State<'f, F: ImplicitFunction + ?Sized> {
@@ -1059,98 +960,4 @@ fn classify(v: u32, star: &[u32], triangles: &[[u32; 3]], positions: &[[f64; 3]]
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::mesh::check;
-
-    /// A latitude–longitude sphere of radius 1, wound outwards.
-    fn sphere_mesh(rings: u32, sectors: u32) -> TriangleMesh {
-        crate::mesh::lat_long_sphere([0.0; 3], 1.0, rings, sectors)
-    }
-
-    /// `mesh` (of the unit sphere) decimated to at most `target_triangles`.
-    fn to_budget(mesh: &TriangleMesh, target_triangles: usize) -> Decimated {
-        decimate(mesh, &unit_sphere(), &DecimateParams { target_triangles })
-    }
-
-    fn unit_sphere() -> crate::poly::ImplicitPolynomial {
-        crate::poly::ImplicitPolynomial {
-            degree: 2,
-            coefficients: vec![-1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 1.0],
-            center: [0.0; 3],
-            scale: 1.0,
-        }
-    }
-
-    #[test]
-    fn classify_tells_interior_boundary_and_frozen() {
-        let tris = [[0, 1, 2], [0, 2, 3], [0, 3, 1]];
-        let p = [[0.0; 3]; 4];
-        assert_eq!(classify(0, &[0, 1, 2], &tris, &p), Kind::Interior);
-        assert_eq!(classify(0, &[0, 1], &tris, &p), Kind::Boundary);
-        // Two fans at one vertex.
-        let bow = [[0, 1, 2], [0, 3, 4]];
-        assert_eq!(classify(0, &[0, 1], &bow, &[[0.0; 3]; 5]), Kind::Frozen);
-    }
-
-    #[test]
-    fn optimum_of_three_planes_is_their_corner() {
-        let mut q = [0.0; 10];
-        // Planes x = 1, y = 2, z = 3.
-        for (axis, d) in [(0, 1.0), (1, 2.0), (2, 3.0)] {
-            let mut u = [0.0; 3];
-            u[axis] = 1.0;
-            q = add(&q, &plane_quadric(u, -d));
-        }
-        let x = optimum(&q, [1.0, 2.0, 3.0]).unwrap();
-        for (got, want) in x.iter().zip([1.0, 2.0, 3.0]) {
-            assert!((got - want).abs() < 1e-12, "{x:?}");
-        }
-        assert!(error(&q, x) < 1e-20);
-        // Far from the corner the regularisation pulls only by λ = 1e-3 of the curvature.
-        let y = optimum(&q, [2.0, 2.0, 3.0]).unwrap();
-        assert!((y[0] - 1.0).abs() < 2e-3, "{y:?}");
-    }
-
-    #[test]
-    fn sphere_keeps_topology_and_stays_on_the_surface() {
-        let mesh = sphere_mesh(24, 48);
-        let before = check(&mesh);
-        assert!(before.watertight);
-        let out = to_budget(&mesh, 300);
-        assert!(out.report.reached, "{:?}", out.report);
-        assert!(out.mesh.triangles.len() <= 300);
-        let after = check(&out.mesh);
-        assert!(
-            after.watertight && after.orientation_consistent,
-            "{after:?}"
-        );
-        assert_eq!(after.euler_characteristic, 2);
-        assert_eq!(after.self_intersecting_faces, 0);
-        for p in &out.mesh.positions {
-            assert!((norm(*p) - 1.0).abs() < 1e-6, "{p:?}");
-        }
-    }
-
-    #[test]
-    fn within_budget_is_unchanged() {
-        let mesh = sphere_mesh(8, 16);
-        let out = to_budget(&mesh, mesh.triangles.len());
-        assert_eq!(out.mesh, mesh);
-        assert!(out.report.reached);
-        assert_eq!(out.report.collapses, 0);
-    }
-
-    #[test]
-    fn impossible_budget_stops_at_a_legal_mesh() {
-        let mesh = sphere_mesh(6, 12);
-        let out = to_budget(&mesh, 1);
-        assert!(!out.report.reached);
-        assert!(out.mesh.triangles.len() >= 4);
-        let after = check(&out.mesh);
-        assert!(after.watertight, "{after:?}");
-        assert_eq!(after.euler_characteristic, 2);
-        assert_eq!(after.self_intersecting_faces, 0);
-        assert!(out.report.shortfall().is_some());
-    }
-}
+mod tests;
