@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use crate::fixtures::{bin, read_report, sphere_xyz, stderr_of};
+use crate::fixtures::{bin, hidden_names, outputs, read_report, sphere_xyz, stderr_of};
 
 /// A small run's settings.
 const SMALL: &[&str] = &["--mode", "global", "--degree", "4", "--depth", "6"];
@@ -33,47 +33,6 @@ fn run_command(input: &Path, out: &Path, cache: &Path, extra: &[&str]) -> Comman
         .stdout(Stdio::null())
         .stderr(Stdio::piped());
     cmd
-}
-
-/// Names under `dir` (recursively) that start with a dot: temporaries, staging folders.
-fn hidden_names(dir: &Path) -> Vec<String> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in fs::read_dir(&d).into_iter().flatten().flatten() {
-            if e.file_name().to_string_lossy().starts_with('.') {
-                out.push(e.path().display().to_string());
-            }
-            if e.path().is_dir() {
-                stack.push(e.path());
-            }
-        }
-    }
-    out
-}
-
-/// Every output file under `dir` but report.json (its timings vary), with its bytes' hash.
-fn outputs(dir: &Path) -> Vec<(String, String)> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in fs::read_dir(&d).into_iter().flatten().flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                let rel = p.strip_prefix(dir).unwrap().to_string_lossy().into_owned();
-                if rel != "report.json" {
-                    out.push((
-                        rel,
-                        blake3::hash(&fs::read(&p).unwrap()).to_hex().to_string(),
-                    ));
-                }
-            }
-        }
-    }
-    out.sort();
-    out
 }
 
 /// Waits until the process `pid` is a zombie (Linux); false after 10 s.

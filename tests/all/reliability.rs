@@ -11,55 +11,9 @@ use std::path::{Path, PathBuf};
 
 use assert_cmd::Command;
 
-use crate::fixtures::{bin, flags, read_report, run_ok, sphere_xyz, stderr_of};
-
-/// Every file under `dir` as (relative path, BLAKE3 of its bytes), sorted.
-fn files_under(dir: &Path) -> Vec<(String, String)> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in fs::read_dir(&d).into_iter().flatten().flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                let rel = p.strip_prefix(dir).unwrap().to_string_lossy().into_owned();
-                out.push((
-                    rel,
-                    blake3::hash(&fs::read(&p).unwrap()).to_hex().to_string(),
-                ));
-            }
-        }
-    }
-    out.sort();
-    out
-}
-
-/// The outputs of a run, without report.json (its timings differ between runs).
-fn outputs(dir: &Path) -> Vec<(String, String)> {
-    files_under(dir)
-        .into_iter()
-        .filter(|(name, _)| name != "report.json")
-        .collect()
-}
-
-/// Names under `dir` (recursively) that are temporaries or hidden: a run must leave none.
-fn hidden_names(dir: &Path) -> Vec<String> {
-    let mut out = Vec::new();
-    let mut stack = vec![dir.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in fs::read_dir(&d).into_iter().flatten().flatten() {
-            let name = e.file_name().to_string_lossy().into_owned();
-            if name.starts_with('.') {
-                out.push(e.path().display().to_string());
-            }
-            if e.path().is_dir() {
-                stack.push(e.path());
-            }
-        }
-    }
-    out
-}
+use crate::fixtures::{
+    bin, files_under, flags, hidden_names, outputs, read_report, run_ok, sphere_xyz, stderr_of,
+};
 
 /// `run INPUT -o OUT --depth DEPTH` with small settings and the cache at `cache`.
 fn run_cmd(input: &Path, out: &Path, depth: &str, cache: &Path) -> Command {
