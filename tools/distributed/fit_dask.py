@@ -3,7 +3,7 @@
 
 Takes chunk scan files (any format `stablesurf` reads; normals from the files or the normals
 stage), gives `model.json` (and with `--mesh OUT_DIR` a mesh `OUT_DIR/mesh.ply`). It runs the
-three passes of the moments protocol (docs/ARCHITECTURE.md, "Scale") as Dask tasks, one task per
+three passes of the moments protocol (docs/stages.md, "Scale") as Dask tasks, one task per
 chunk and pass, each calling `stablesurf moments` on its chunk in a temporary folder and
 returning the part file's bytes; the driver gathers them (so no shared file system is needed for
 the parts), merges the frame with `stablesurf frame` between passes, and finally runs
