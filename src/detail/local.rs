@@ -21,8 +21,7 @@
 //!    p̂ − εn (target −ε). The 3L targets cannot be met on a curved patch (on a sphere of radius
 //!    ρ the quadric through the data with unit gradient takes ε + ε²/(2ρ) at p̂ + εn), and the
 //!    least-squares compromise moves the zero set outward (by s·(√(1 + 2ε²/3) − 1) for a whole
-//!    sphere): with the local ε = 0.3 a mean offset of 1.6e-4 of the diagonal on a sphere of
-//!    20k points before step 4 removes it. Gradient rows are met exactly by the quadric
+//!    sphere), until step 4 removes it. Gradient rows are met exactly by the quadric
 //!    (|q − c|² − ρ²)/(2ρ), so they leave no such bias. Each
 //!    auxiliary point q adds the row q̂ with target t/s, t its estimated signed distance in
 //!    input units.
@@ -38,17 +37,15 @@
 //!    positive definite): the ridge then shrinks only the shape terms and the constant stays
 //!    free to make the residuals of the value rows sum to zero. Penalizing it too pulled the
 //!    zero set inward (a whole sphere's quadric (|q|² − 1)/2 shrinks its constant more than its
-//!    x², y², z² terms, held by the gradient rows: −1.4e-3 of the diagonal at κ = 1e-2).
+//!    x², y², z² terms, held by the gradient rows).
 //! 4. Re-centred: a constant c is subtracted so that the mean of Q̂/|∇Q̂| over the ball's data
 //!    points, weighted by the cell's blend weight b(1.5·|p − c|/r), is 0. Two things shift the
 //!    zero set by a constant otherwise. The 3L compromise above, and the auxiliary rows, which
 //!    ask for signed distances at the cell's centre and corners that a low-degree polynomial
-//!    with unit gradient at the data cannot take far from it (+7.4e-5 of the diagonal on a
-//!    sphere with gradient rows); they keep their role, the sign of Q away from the data. The
+//!    with unit gradient at the data cannot take far from it; they keep their role, the sign of Q away from the data. The
 //!    blend weight matters where the local polynomial cannot follow the surface (a quadric on a
 //!    torus): its error then changes sign across the ball, and the mean that counts is the one
-//!    the blend sees, near the cell's centre (a torus of 20k points: −7.1e-5 of the diagonal
-//!    re-centred with equal weights, −5e-7 with the blend weights; `tools/detail_bias.rs`).
+//!    the blend sees, near the cell's centre (`tools/detail_bias.rs` measures the offset).
 //! 5. Carried to input units: Q(p) = s·Q̂((p − μ)/s), then divided by the mean |∇Q| over the
 //!    ball's points so that |∇Q| ≈ 1 on the data and Q is close to a signed distance there; this
 //!    rescaling does not move the zero set, it only balances the blend.

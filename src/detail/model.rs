@@ -22,10 +22,8 @@ pub enum LocalConstraints {
     /// than the 3L rows (CHANGELOG.md).
     Gradient,
     /// The paper's 3L rows Q(p ± εn) = ±ε with ε = [`DetailParams::epsilon`] (the default). On
-    /// curved patches their least-squares compromise moves the zero set outward (1.6e-4 of the
-    /// diagonal on a sphere of 20k points with exact normals); each local fit is therefore
-    /// re-centred on its data, weighted by the blend weight (`local.rs`, step 4), which leaves
-    /// +6e-9 on that sphere and −5e-7 on a torus.
+    /// curved patches their least-squares compromise moves the zero set outward; each local fit
+    /// is therefore re-centred on its data, weighted by the blend weight (`local.rs`, step 4).
     #[default]
     ThreeLevels,
 }

@@ -35,10 +35,8 @@ const NEWTON_FINAL_STEP: f64 = 1e-5;
 const NEWTON_PROJECT_STEP: f64 = 1e-3;
 /// The projection of [`NEWTON_PROJECT_STEP`] is taken only when s² < this × d (normalized
 /// units): with K up to about 100 the distance then moves by less than 1e-8 of itself, below the
-/// float32 output's step, near the surface as far from it. On the degree-8 bunny model's
-/// 16 × 128² slices the shortcut with the step bound alone moved 656 of 262,144 values, by up to
-/// 175 float32 steps among those above 1e-3 of the largest (5.1e-9 input units at most); with
-/// this bound too, one value moved, by one step (`cargo run --release --features tools --example slice_diff`).
+/// float32 output's step, near the surface as far from it (`cargo run --release --features tools
+/// --example slice_diff` compares the slices with and without the shortcut).
 const NEWTON_PROJECT_AREA: f64 = 1e-6;
 
 /// The exact distance to the zero set: samples of the zero set in a k-d tree, refined per query
