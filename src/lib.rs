@@ -5,7 +5,7 @@
 //! 3L method and Euclidean-invariant ridge regression (3LRR).
 //!
 //! ```text
-//! scan file ─import─▶ PointCloud ─normals─▶ OrientedCloud ─fit─▶ ImplicitModel ─polygonize─▶ TriangleMesh ─export─▶ files
+//! scan file ─import─▶ PointCloud ─normals─▶ OrientedCloud ─fit─▶ ImplicitModel ─polygonize─▶ TriangleMesh ─finish─▶ Finished ─export─▶ files
 //! ```
 //!
 //! Each stage is a free function from its input artifact and a `…Params` struct to its output
@@ -20,6 +20,7 @@ pub mod detail;
 pub mod distance;
 pub mod export;
 mod files;
+pub mod finish;
 pub mod fit;
 mod frame;
 pub mod implicit;
@@ -57,7 +58,8 @@ pub use poly::{ImplicitModel, ImplicitPolynomial};
 // and its error.
 pub use detail::{fit_detail, DetailError, DetailParams};
 pub use distance::{slices, DistanceError, Slice, SliceParams};
-pub use export::{export, ExportError, ExportOutput, ExportParams};
+pub use export::{export, ExportError, ExportParams};
+pub use finish::{finish, FinishError, FinishParams, Finished};
 pub use fit::{fit, FitError, FitParams};
 pub use import::{import_scan_bytes, read_scan, ImportError};
 pub use merge::{merge_views, Pose};

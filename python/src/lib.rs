@@ -405,7 +405,7 @@ fn apply_param(
         }
         "keep" => {
             let text: String = value.extract().unwrap_or_default();
-            config.export.keep = match text.as_str() {
+            config.finish.keep = match text.as_str() {
                 "data" => Keep::Data,
                 "all" => Keep::All,
                 _ => return Err(PyValueError::new_err("keep takes \"data\" or \"all\"")),
@@ -415,7 +415,7 @@ fn apply_param(
             Ok(s) => match s.to_cow()?.as_ref() {
                 // The mode's own trim.
                 "auto" => {}
-                "off" => config.export.trim = TrimParams::off(),
+                "off" => config.finish.trim = TrimParams::off(),
                 _ => {
                     return Err(PyValueError::new_err(
                         "trim takes \"auto\", \"off\" or a support factor from 0.5 to 100",
@@ -423,7 +423,7 @@ fn apply_param(
                 }
             },
             Err(_) => {
-                config.export.trim = TrimParams {
+                config.finish.trim = TrimParams {
                     support_factor: number(value, key, limits::TRIM)?,
                     ..TrimParams::default()
                 }

@@ -247,6 +247,18 @@ fn put_f32s(out: &mut Vec<u8>, v: &[f32]) {
     }
 }
 
+/// A 0 byte for `None`, else a 1 byte and `put`'s bytes: what [`Reader::optional`] reads.
+fn put_optional<T: ?Sized>(
+    out: &mut Vec<u8>,
+    value: Option<&T>,
+    put: impl FnOnce(&mut Vec<u8>, &T),
+) {
+    out.push(u8::from(value.is_some()));
+    if let Some(v) = value {
+        put(out, v);
+    }
+}
+
 fn put_vec3_u32(out: &mut Vec<u8>, v: &[[u32; 3]]) {
     out.extend_from_slice(&(v.len() as u64).to_le_bytes());
     for t in v {
@@ -455,6 +467,32 @@ impl Artifact for OutputFiles {
     }
 }
 
+/// The finished mesh: the mesh as written, the closed mesh when it differs, and the per-vertex
+/// distances and colours.
+impl Artifact for crate::finish::Finished {
+    const KIND: u32 = 7;
+    const VERSION: u32 = 1;
+
+    fn encode_payload(&self, out: &mut Vec<u8>) {
+        self.mesh.encode_payload(out);
+        put_optional(out, self.closed.as_ref(), |out, m| m.encode_payload(out));
+        put_optional(out, self.quality.as_deref(), put_f32s);
+        put_optional(out, self.colours.as_deref(), |out, c| {
+            out.extend_from_slice(&(c.len() as u64).to_le_bytes());
+            out.extend(c.iter().flatten());
+        });
+    }
+
+    fn decode_payload(r: &mut Reader<'_>) -> Option<Self> {
+        Some(crate::finish::Finished {
+            mesh: TriangleMesh::decode_payload(r)?,
+            closed: r.optional(TriangleMesh::decode_payload)?,
+            quality: r.optional(Reader::f32s)?,
+            colours: r.optional(|r| r.vec::<3, _>(|c| *c))?,
+        })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -517,7 +555,28 @@ mod tests {
             normals: vec![[0.0, 1.0, 0.0]],
             triangles: vec![[0, 0, 0]],
         };
-        assert_eq!(decode::<TriangleMesh>(&encode(&m)), Some(m));
+        assert_eq!(decode::<TriangleMesh>(&encode(&m)), Some(m.clone()));
+        let finished = crate::finish::Finished {
+            mesh: m.clone(),
+            closed: Some(TriangleMesh {
+                triangles: vec![],
+                ..m.clone()
+            }),
+            quality: Some(vec![0.5, f32::MIN_POSITIVE]),
+            colours: Some(vec![[1, 2, 3], [255, 0, 128]]),
+        };
+        assert_eq!(
+            decode::<crate::finish::Finished>(&encode(&finished)),
+            Some(finished)
+        );
+        let bare = crate::finish::Finished {
+            mesh: m,
+            ..Default::default()
+        };
+        assert_eq!(
+            decode::<crate::finish::Finished>(&encode(&bare)),
+            Some(bare)
+        );
     }
 
     #[test]

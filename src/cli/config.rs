@@ -10,10 +10,10 @@ use stablesurf::cache::Cache;
 use stablesurf::distance::volume::VoxelSize;
 use stablesurf::distance::{Axis, DistanceMethod};
 use stablesurf::export::{self, gltf::UpAxis, units::LengthUnit};
+use stablesurf::finish::decimate::DecimateParams;
 use stablesurf::fit::{self, FitMethod, KappaRule};
 use stablesurf::normals::{NormalSource, NormalsParams};
 use stablesurf::pipeline::{Keep, Mode, Model, OutputFormat, PipelineConfig, Setting};
-use stablesurf::polygonize::decimate::DecimateParams;
 use stablesurf::polygonize::{PolygonizeParams, REFINE_SAGITTA};
 use stablesurf::render::View;
 use stablesurf::trim::TrimParams;
@@ -167,21 +167,22 @@ pub fn run_config(args: &RunArgs) -> Result<PipelineConfig> {
     if args.mesh.refine || args.mesh.no_refine {
         config.refine = Setting::Fixed(config.polygonize.refine);
     }
-    let export = &mut config.export;
-    export.decimate = decimate_params(&args.mesh);
+    let finish = &mut config.finish;
+    finish.decimate = decimate_params(&args.mesh);
     if let Some(keep) = args.keep {
-        export.keep = keep.into();
+        finish.keep = keep.into();
     }
     match args.trim {
         None | Some(TrimArg::Auto) => {}
-        Some(TrimArg::Off) => export.trim = TrimParams::off(),
+        Some(TrimArg::Off) => finish.trim = TrimParams::off(),
         Some(TrimArg::Factor(support_factor)) => {
-            export.trim = TrimParams {
+            finish.trim = TrimParams {
                 support_factor,
                 ..TrimParams::default()
             }
         }
     }
+    let export = &mut config.export;
     export.gltf.up = args.frame.up.map_or(UpAxis::Y, Into::into);
     export.ply_up = args.frame.up.map(Into::into);
     export.units = args.frame.units.map(Into::into);
@@ -283,10 +284,10 @@ mod tests {
             "5",
         ]))
         .unwrap();
-        assert_eq!(config.export.trim.mode, stablesurf::trim::TrimMode::Off);
-        assert_eq!(config.export.keep, Keep::All);
+        assert_eq!(config.finish.trim.mode, stablesurf::trim::TrimMode::Off);
+        assert_eq!(config.finish.keep, Keep::All);
         assert_eq!(config.polygonize.guard_levels, 0);
-        assert_eq!(config.export.decimate, None);
+        assert_eq!(config.finish.decimate, None);
         // A depth or a tolerance asked for is fixed, not the data's to choose.
         assert_eq!(config.depth, Setting::Fixed(5));
         assert!(config.tolerance.is_auto());
@@ -297,12 +298,12 @@ mod tests {
         assert_eq!(strided.fit_stride, Setting::Fixed(3));
         let decimating = run_config(&run_args(&["--target-triangles", "5000"])).unwrap();
         assert_eq!(
-            decimating.export.decimate.map(|d| d.target_triangles),
+            decimating.finish.decimate.map(|d| d.target_triangles),
             Some(5000)
         );
         let global = run_config(&run_args(&["--mode", "global", "--trim", "3"])).unwrap();
-        assert_eq!(global.export.trim.support_factor, 3.0);
-        assert_eq!(global.export.trim.mode, stablesurf::trim::TrimMode::Support);
+        assert_eq!(global.finish.trim.support_factor, 3.0);
+        assert_eq!(global.finish.trim.mode, stablesurf::trim::TrimMode::Support);
         assert_eq!(global.export.slices.method, DistanceMethod::Exact);
         // Fitted chords: detail mode's default, not global mode's; either flag overrides it,
         // the last one given wins.

@@ -4,7 +4,7 @@
 
 use anyhow::{anyhow, Context, Result};
 use stablesurf::pipeline::{self, MeshFileOptions, MeshFormat, Model};
-use stablesurf::{export, polygonize};
+use stablesurf::{export, finish, polygonize};
 
 use super::args::MeshArgs;
 use super::config;
@@ -32,7 +32,7 @@ pub fn mesh(args: MeshArgs, verbosity: Verbosity) -> Result<()> {
         .with_context(|| format!("meshing {}", args.model.display()))?
         .mesh;
     if let Some(decimate) = config::decimate_params(&args.mesh) {
-        let out = polygonize::decimate::decimate(&mesh, model.function(), &decimate);
+        let out = finish::decimate::decimate(&mesh, model.function(), &decimate);
         if let (Some(message), false) = (out.report.shortfall(), verbosity == Verbosity::Quiet) {
             eprintln!("stablesurf: warning: {message}");
         }

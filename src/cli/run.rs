@@ -110,13 +110,13 @@ pub fn run_source(
             } else {
                 config.depth.or_else(|| config.polygonize.depth).to_string()
             },
-            match config.export.keep {
+            match config.finish.keep {
                 Keep::All => "all",
                 Keep::Data => "data",
             },
-            match config.export.trim.mode {
+            match config.finish.trim.mode {
                 TrimMode::Off => "off".to_string(),
-                TrimMode::Support => format!("support factor {}", config.export.trim.support_factor),
+                TrimMode::Support => format!("support factor {}", config.finish.trim.support_factor),
             },
             config.export.slices.count,
             config.export.slices.resolution,

@@ -33,8 +33,8 @@ pub mod units;
 pub mod vdb;
 
 pub use stage::{
-    export, export_mesh, model_slices, slices_from_model, ExportOutput, ExportParams, ExportReport,
-    Keep, OutputFile, OutputFormat, NESTED_AREA_FRACTION, STAGE_VERSION, SUPPORT_POINTS_MIN,
+    export, export_mesh, model_slices, slices_from_model, ExportParams, ExportReport, OutputFile,
+    OutputFormat, STAGE_VERSION,
 };
 
 use std::fs::File;
@@ -112,9 +112,6 @@ pub enum ExportError {
     /// A distance slice cannot be written (its data does not match its resolution).
     #[error("slice cannot be exported: {0}")]
     InvalidSlice(String),
-    /// Trimming the mesh to its data failed (see [`crate::trim::TrimError`]).
-    #[error("trimming the mesh failed")]
-    Trim(#[from] crate::trim::TrimError),
     /// Computing the distance slices failed (see [`crate::distance::DistanceError`]).
     #[error("distance slices failed")]
     Distance(#[from] crate::distance::DistanceError),

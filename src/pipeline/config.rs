@@ -16,6 +16,7 @@
 
 use crate::detail::DetailParams;
 use crate::export::ExportParams;
+use crate::finish::FinishParams;
 use crate::fit::FitParams;
 use crate::normals::{NoiseEstimate, NormalsParams};
 use crate::outliers::OutlierParams;
@@ -94,8 +95,10 @@ pub struct PipelineConfig {
     /// noise. Points that are not noisy ([`NoiseEstimate::is_noisy`]) are fitted as exact
     /// whatever the factor ([`smoothing`]).
     pub smooth: f64,
-    /// The export stage's params: formats, components kept, trim, slices, glTF options, units,
-    /// up axis, decimation and volumes (see [`PipelineConfig::for_mode`]).
+    /// The finish stage's params: components kept, trim and decimation (see
+    /// [`PipelineConfig::for_mode`]).
+    pub finish: FinishParams,
+    /// The export stage's params: formats, slices, glTF options, units, up axis and volumes.
     pub export: ExportParams,
 }
 
@@ -111,7 +114,9 @@ pub struct ResolvedConfig {
     pub detail: DetailParams,
     /// Polygonize stage parameters, final.
     pub polygonize: PolygonizeParams,
-    /// The export stage's params, final (the trim's noise included).
+    /// The finish stage's params, final (the trim's noise included).
+    pub finish: FinishParams,
+    /// The export stage's params.
     pub export: ExportParams,
 }
 
@@ -136,7 +141,7 @@ impl PipelineConfig {
     /// use stablesurf::pipeline::{Keep, Mode, PipelineConfig};
     /// let detail = PipelineConfig::for_mode(Mode::Detail);
     /// assert_eq!(detail.mode, Mode::Detail);
-    /// assert_eq!(detail.export.keep, Keep::Data);
+    /// assert_eq!(detail.finish.keep, Keep::Data);
     /// assert_eq!(detail.export.slices.method, DistanceMethod::Mesh);
     /// assert_eq!(PipelineConfig::for_mode(Mode::Global).polygonize.guard_levels, 3);
     /// ```
@@ -153,6 +158,10 @@ impl PipelineConfig {
             refine: Setting::Auto,
             fit_stride: Setting::Auto,
             smooth: 1.0,
+            finish: FinishParams {
+                trim: TrimParams::off(),
+                ..FinishParams::default()
+            },
             export: ExportParams::default(),
         };
         match mode {
@@ -165,9 +174,12 @@ impl PipelineConfig {
                     fit_chords: true,
                     ..global.polygonize
                 },
-                export: ExportParams {
+                finish: FinishParams {
                     keep: Keep::Data,
                     trim: TrimParams::default(),
+                    decimate: None,
+                },
+                export: ExportParams {
                     slices: crate::distance::SliceParams {
                         method: crate::distance::DistanceMethod::Mesh,
                         ..global.export.slices
@@ -198,7 +210,7 @@ impl PipelineConfig {
         let detail_mode = self.mode == Mode::Detail;
         let mut detail = self.detail.clone();
         let mut polygonize = self.polygonize.clone();
-        let mut export = self.export.clone();
+        let mut finish = self.finish.clone();
         if let Setting::Fixed(depth) = self.depth {
             polygonize.depth = depth;
             // The octree as fine as the mesh's finest cells.
@@ -246,8 +258,8 @@ impl PipelineConfig {
             }
             if let (Some(noise), Some(data_box)) = (noise, data_box) {
                 detail.noise = smoothing(noise, data_box.diagonal(), self.smooth, &detail);
-                if export.trim.mode == TrimMode::Support {
-                    export.trim.noise = detail.noise;
+                if finish.trim.mode == TrimMode::Support {
+                    finish.trim.noise = detail.noise;
                 }
             }
         }
@@ -256,7 +268,8 @@ impl PipelineConfig {
             fit: self.fit.clone(),
             detail,
             polygonize,
-            export,
+            finish,
+            export: self.export.clone(),
         }
     }
 }

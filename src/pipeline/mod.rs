@@ -1,4 +1,4 @@
-//! The pipeline: import → normals → fit (or detail) → polygonize → export, each stage's free
+//! The pipeline: import → normals → fit (or detail) → polygonize → finish → export, each stage's free
 //! function called through the stage cache. This is what `stablesurf run` calls.
 //!
 //! Input: a scan (file or the built-in sample), a [`PipelineConfig`] and a [`Cache`].
@@ -15,26 +15,27 @@ use std::time::Instant;
 use crate::cache::{self, Artifact, Cache, Key, OutputFiles};
 use crate::cloud::{OrientedCloud, PointCloud};
 use crate::detail;
-use crate::export::{self, ExportError};
+use crate::export::{self, ExportError, ExportReport};
+use crate::finish::{self, FinishError, FinishReport, Finished};
 use crate::fit;
 use crate::import;
 use crate::normals;
 use crate::outliers::{self, OutlierParams};
 use crate::outputs::OutputSet;
 use crate::polygonize;
-use crate::trim;
 
 mod config;
 mod reconstruct;
 mod records;
 
-pub use crate::export::{mesh_files, Keep, MeshFileOptions, MeshFormat, OutputFormat};
+pub use crate::export::{mesh_files, MeshFileOptions, MeshFormat, OutputFormat};
+pub use crate::finish::Keep;
 pub use crate::model::{meshing_region, Mode, Model, ModelReport};
 pub use config::{
     smoothing, PipelineConfig, ResolvedConfig, Setting, DENSE_TOLERANCE, NOISE_FLOOR,
 };
 pub use reconstruct::{reconstruct, Reconstruction};
-use records::{export_figures, run_report, EntryMeta, StageReport};
+use records::{mesh_figures, run_report, EntryMeta, StageReport};
 pub use records::{
     DetailReport, FitReport, ImportReport, MergeReport, NoiseReport, NormalsReport,
     PolygonizeReport, RunReport, StageFigures, StageRecord, WriteReport,
@@ -64,9 +65,9 @@ pub enum PipelineError {
     /// Meshing failed.
     #[error("meshing failed")]
     Polygonize(#[from] polygonize::PolygonizeError),
-    /// Trimming the mesh to its data failed.
-    #[error("trimming the mesh failed")]
-    Trim(#[from] trim::TrimError),
+    /// Finishing the mesh (the trim) failed.
+    #[error(transparent)]
+    Finish(#[from] FinishError),
     /// Writing an output failed.
     #[error("writing outputs failed")]
     Export(#[source] ExportError),
@@ -93,12 +94,11 @@ pub enum PipelineError {
     Cache(#[from] cache::CacheError),
 }
 
-/// The export stage's error under the stage that failed: the trim and the slices keep their own
-/// variants, every writer's error is [`PipelineError::Export`].
+/// The export stage's error under the stage that failed: the slices keep their own variant,
+/// every writer's error is [`PipelineError::Export`].
 impl From<ExportError> for PipelineError {
     fn from(e: ExportError) -> Self {
         match e {
-            ExportError::Trim(e) => PipelineError::Trim(e),
             ExportError::Distance(e) => PipelineError::Distance(e),
             ExportError::Unsupported(message) => PipelineError::Unsupported(message),
             e => PipelineError::Export(e),
@@ -765,18 +765,18 @@ pub fn run(
     let colours = oriented.colours.as_deref();
 
     let polygonize_params = cache::params_bytes(&config.polygonize);
-    let export_params = config.export.clone();
-    let export_params_bytes = cache::params_bytes(&export_params);
+    let export_params = &config.export;
+    let export_params_bytes = cache::params_bytes(export_params);
     // The export stage's work splits in two (see [`export`]): the slice files of a polynomial
-    // model need the model only, everything else needs the mesh. When the export stage is going
-    // to run, the slice files are made beside the meshing and then beside the mesh's outputs, so
-    // both cores stay busy; the export stage then assembles the parts (the same bytes as
-    // `export::export`: each part depends on the same inputs alone). Its line counts from the
-    // end of the meshing.
-    let export_key = cache::stage_key(
-        "export",
-        export::STAGE_VERSION,
-        &export_params_bytes,
+    // model need the model only, everything else needs the finished mesh. When the export stage
+    // is going to run, the slice files are made beside the meshing and the finishing and then
+    // beside the mesh's outputs, so both cores stay busy; the export stage then assembles the
+    // parts (the same bytes as `export::export`: each part depends on the same inputs alone).
+    // Its line counts from the end of the finishing.
+    let finish_key = cache::stage_key(
+        "finish",
+        finish::STAGE_VERSION,
+        &cache::params_bytes(&config.finish),
         &cache::stage_key(
             "polygonize",
             POLYGONIZE_VERSION,
@@ -784,61 +784,72 @@ pub fn run(
             &model_key,
         ),
     );
+    let export_key = cache::stage_key(
+        "export",
+        export::STAGE_VERSION,
+        &export_params_bytes,
+        &finish_key,
+    );
     let export_runs = !cache.contains("export", &export_key);
-    let early_from_model = export_runs && export::slices_from_model(&model, &export_params);
+    let early_from_model = export_runs && export::slices_from_model(&model, export_params);
     let mut early_slices = None;
-    let (polygonized, mut early_parts, export_start, embedded) = rayon::in_place_scope(|scope| {
+    let (finished, mut early_parts, export_start) = rayon::in_place_scope(|scope| {
         if early_from_model {
-            scope.spawn(|_| early_slices = export::model_slices(&model, &export_params));
+            scope.spawn(|_| early_slices = export::model_slices(&model, export_params));
         }
-        let polygonized = polygonize_stage(&mut ctx, &model, &model_key, points, normals, config);
-        let export_start = Instant::now();
-        let embedded = polygonized.as_ref().is_ok_and(|p| p.2.embedded);
-        let parts = match &polygonized {
-            Ok((mesh, ..)) if export_runs => {
-                ctx.observer.stage_started("export");
-                Some(export::export_mesh(
+        let finished = polygonize_stage(&mut ctx, &model, &model_key, points, normals, config)
+            .and_then(|(mesh, mesh_key, polygonized)| {
+                finish_stage(
+                    &mut ctx,
                     &model,
-                    mesh,
-                    embedded,
+                    &mesh,
+                    &mesh_key,
+                    polygonized.embedded,
                     points,
                     colours,
-                    &export_params,
-                ))
+                    config,
+                )
+            });
+        let export_start = Instant::now();
+        let parts = match &finished {
+            Ok((finished, ..)) if export_runs => {
+                ctx.observer.stage_started("export");
+                Some(export::export_mesh(&model, finished, export_params))
             }
             _ => None,
         };
-        (polygonized, parts, export_start, embedded)
+        (finished, parts, export_start)
     });
-    let (mesh, mesh_key, _) = polygonized?;
+    let (finished, finish_key, finish_report) = finished?;
 
-    // Everything after meshing (component filter, trim, checks, accuracy, the bytes of every
-    // output file) is one more cached stage: a rerun with the same inputs only copies files out.
+    // Encoding every output file is one more cached stage: a rerun with the same inputs only
+    // copies files out.
     let announced = early_parts.is_some().then_some(export_start);
-    let (files, _, export_report) = ctx.stage_from(
+    let (files, _, _) = ctx.stage_from(
         announced,
         "export",
         export::STAGE_VERSION,
         &export_params_bytes,
-        &mesh_key,
+        &finish_key,
         || {
             // The parts made above, or the whole stage here when they were skipped (an export
             // entry found on disk that then failed to decode).
-            let out = match early_parts.take() {
+            let files = match early_parts.take() {
                 Some(parts) => {
-                    let mut out = parts?;
+                    let mut files = parts?;
                     if let Some(slices) = early_slices.take() {
-                        out.files.extend(slices?);
+                        files.extend(slices?);
                     }
-                    out
+                    files
                 }
-                None => export::export(&model, &mesh, embedded, points, colours, &export_params)?,
+                None => export::export(&model, &finished, export_params)?,
             };
-            let report = out.report();
-            Ok((OutputFiles(out.files), report))
+            let report = ExportReport::of(&files);
+            Ok((OutputFiles(files), report))
         },
     )?;
-    let figures = export_figures(&mut ctx, &model, export_report);
+    drop(finished);
+    let figures = mesh_figures(&mut ctx, &model, finish_report);
 
     // Every file is staged, then all move into place together (see [`crate::outputs`]): the
     // folder holds either this run's complete set or what it held before.
@@ -871,6 +882,37 @@ pub fn run(
     }
     outputs.commit()?;
     Ok(report)
+}
+
+/// The finish stage of the polygonized `mesh` (whose key is `mesh_key`) through the cache:
+/// the mesh as written, its key and its figures. `embedded` is what the meshing proved.
+#[allow(clippy::too_many_arguments)]
+fn finish_stage(
+    ctx: &mut Ctx<'_>,
+    model: &Model,
+    mesh: &crate::mesh::TriangleMesh,
+    mesh_key: &Key,
+    embedded: bool,
+    points: &[[f64; 3]],
+    colours: Option<&[[u16; 3]]>,
+    config: &ResolvedConfig,
+) -> Result<(Finished, Key, FinishReport), PipelineError> {
+    ctx.stage(
+        "finish",
+        finish::STAGE_VERSION,
+        &cache::params_bytes(&config.finish),
+        mesh_key,
+        || {
+            Ok(finish::finish(
+                model,
+                mesh,
+                embedded,
+                points,
+                colours,
+                &config.finish,
+            )?)
+        },
+    )
 }
 
 /// The polygonize stage of `model` through the cache: its mesh and key, at the finest depth

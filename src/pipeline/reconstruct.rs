@@ -4,19 +4,18 @@
 use std::time::Instant;
 
 use crate::cache::Cache;
-use crate::export::{self, ExportParams};
 
 use super::{
-    export_figures, fit_stages, polygonize_stage, run_report, Ctx, Model, Observer, PipelineConfig,
-    PipelineError, RunReport, ScanSource,
+    finish_stage, fit_stages, mesh_figures, polygonize_stage, run_report, Ctx, Model, Observer,
+    PipelineConfig, PipelineError, RunReport, ScanSource,
 };
 
 /// What [`reconstruct`] makes: the mesh `run` writes, the model it is meshed from, and the
 /// report `run` would write beside them.
 #[derive(Clone, Debug)]
 pub struct Reconstruction {
-    /// The mesh as `run` writes it (`mesh.ply`), after the component filter and the trim, in
-    /// input coordinates, with unit vertex normals.
+    /// The mesh as `run` writes it (`mesh.ply`), after the component filter, the trim and the
+    /// decimation, in input coordinates, with unit vertex normals.
     pub mesh: crate::mesh::TriangleMesh,
     /// The fitted model.
     pub model: Model,
@@ -25,10 +24,9 @@ pub struct Reconstruction {
 }
 
 /// What [`super::run`] computes, in memory and without the cache: the same stages with the same
-/// functions and params (import, outliers, normals, fit or detail, polygonize, and the export
-/// stage's component filter, trim, checks and accuracy), so the mesh is the one `run` writes
-/// for the same source and config. No file is encoded or written (`config.export.formats` is not
-/// used). The input of the Python package's `reconstruct`.
+/// functions and params (import, outliers, normals, fit or detail, polygonize, finish), so the
+/// mesh is the one `run` writes for the same source and config. No file is encoded or written
+/// (`config.export` is not used). The input of the Python package's `reconstruct`.
 ///
 /// ```
 /// use stablesurf::pipeline::{reconstruct, Mode, PipelineConfig, ScanSource, Setting, Silent};
@@ -65,7 +63,7 @@ pub fn reconstruct(
     let mut ctx = Ctx::new(&Cache::disabled(), observer)?;
     let (oriented, model, model_key, resolved) = fit_stages(&mut ctx, source, config)?;
     let config = &resolved;
-    let (mesh, _, polygonized) = polygonize_stage(
+    let (mesh, mesh_key, polygonized) = polygonize_stage(
         &mut ctx,
         &model,
         &model_key,
@@ -73,36 +71,23 @@ pub fn reconstruct(
         oriented.input_normals(),
         config,
     )?;
-    let embedded = polygonized.embedded;
-    let export_params = ExportParams {
-        formats: Vec::new(),
-        ..config.export.clone()
-    };
-    ctx.observer.stage_started("export");
-    let export_start = Instant::now();
-    let out = export::export(
+    let (finished, _, finish_report) = finish_stage(
+        &mut ctx,
         &model,
         &mesh,
-        embedded,
+        &mesh_key,
+        polygonized.embedded,
         oriented.input_points(),
         oriented.colours.as_deref(),
-        &export_params,
+        config,
     )?;
     drop(mesh);
-    let export_report = out.report();
-    ctx.finish(
-        "export",
-        "none",
-        export_start,
-        None,
-        export_report.clone().into(),
-    );
-    let figures = export_figures(&mut ctx, &model, export_report);
+    let figures = mesh_figures(&mut ctx, &model, finish_report);
     let input = source.name();
     let mut report = run_report(input, ctx, &model, config, figures, Vec::new());
     report.seconds = start.elapsed().as_secs_f64();
     Ok(Reconstruction {
-        mesh: out.surface,
+        mesh: finished.mesh,
         model,
         report,
     })

@@ -7,12 +7,13 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::export::{self, ExportReport};
+use crate::export::ExportReport;
+use crate::finish::decimate::DecimateReport;
+use crate::finish::{self, FinishReport};
 use crate::measure::Accuracy;
 use crate::mesh::MeshReport;
 use crate::model::{Mode, Model, ModelReport};
 use crate::normals::NoiseEstimate;
-use crate::polygonize::decimate::DecimateReport;
 use crate::trim::TrimReport;
 
 use super::{Ctx, ResolvedConfig};
@@ -146,8 +147,10 @@ pub enum StageFigures {
     Detail(DetailReport),
     /// `polygonize`.
     Polygonize(PolygonizeReport),
+    /// `finish`.
+    Finish(Box<FinishReport>),
     /// `export`.
-    Export(Box<ExportReport>),
+    Export(ExportReport),
     /// `write`.
     Write(WriteReport),
 }
@@ -163,6 +166,7 @@ impl StageFigures {
             StageFigures::Fit(r) => serde_json::to_value(r),
             StageFigures::Detail(r) => serde_json::to_value(r),
             StageFigures::Polygonize(r) => serde_json::to_value(r),
+            StageFigures::Finish(r) => serde_json::to_value(r),
             StageFigures::Export(r) => serde_json::to_value(r),
             StageFigures::Write(r) => serde_json::to_value(r),
         };
@@ -219,6 +223,7 @@ into_figures!(
     FitReport => Fit,
     DetailReport => Detail,
     PolygonizeReport => Polygonize,
+    FinishReport => Finish,
     ExportReport => Export,
     WriteReport => Write
 );
@@ -262,7 +267,7 @@ pub struct RunReport {
     /// The unit of the input coordinates when `--units` named one (distances in this report
     /// are in input units).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub units: Option<export::units::LengthUnit>,
+    pub units: Option<crate::export::units::LengthUnit>,
     /// Files written, relative to the output directory.
     pub outputs: Vec<String>,
     /// Every warning the run printed.
@@ -320,7 +325,7 @@ impl NoiseReport {
     }
 }
 
-/// The figures of the mesh as written, from the export stage's record.
+/// The figures of the mesh as written, from the finish stage's record.
 pub(super) struct MeshFigures {
     mesh: MeshReport,
     accuracy: Accuracy,
@@ -330,14 +335,10 @@ pub(super) struct MeshFigures {
     clipped: bool,
 }
 
-/// The export stage's figures, with the warnings they call for: pieces of the surface left
+/// The finish stage's figures, with the warnings they call for: pieces of the surface left
 /// out, a polynomial's zero set clipped by the meshing box.
-pub(super) fn export_figures(
-    ctx: &mut Ctx<'_>,
-    model: &Model,
-    report: ExportReport,
-) -> MeshFigures {
-    let ExportReport {
+pub(super) fn mesh_figures(ctx: &mut Ctx<'_>, model: &Model, report: FinishReport) -> MeshFigures {
+    let FinishReport {
         mesh,
         accuracy,
         trim,
@@ -345,7 +346,6 @@ pub(super) fn export_figures(
         dropped_components: dropped,
         dropped_nested: nested,
         dropped_unsupported: unsupported,
-        ..
     } = report;
     if let Some(message) = decimate.as_ref().and_then(DecimateReport::shortfall) {
         ctx.warn(message);
@@ -358,14 +358,14 @@ pub(super) fn export_figures(
     if nested > 0 {
         ctx.warn(format!(
             "left out {nested} small closed piece(s) inside the surface (each under {}% of the largest piece's area); --keep all keeps them",
-            100.0 * export::NESTED_AREA_FRACTION
+            100.0 * finish::NESTED_AREA_FRACTION
         ));
     }
     if unsupported > 0 {
         ctx.warn(format!(
             "left out {unsupported} small piece(s) of the surface with fewer than {} data points in their box (each under {}% of the largest piece's area); --keep all keeps them",
-            export::SUPPORT_POINTS_MIN,
-            100.0 * export::NESTED_AREA_FRACTION
+            finish::SUPPORT_POINTS_MIN,
+            100.0 * finish::NESTED_AREA_FRACTION
         ));
     }
     // A polynomial's zero set that runs out of the meshing box is open there: not a bounded

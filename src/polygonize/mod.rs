@@ -123,14 +123,13 @@
 //! ```
 
 mod chords;
-pub mod decimate;
 mod depth;
 mod extract;
 mod grid;
 mod octree;
 mod refine;
 pub mod shapes;
-mod simplify;
+pub(crate) mod simplify;
 
 pub use crate::implicit::ImplicitFunction;
 pub use depth::{

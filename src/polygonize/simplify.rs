@@ -61,7 +61,7 @@ const SHORT_EDGE: f64 = 0.6;
 const GOOD_QUALITY: f64 = 0.36;
 
 /// Cosine of the largest turn of a moved triangle's normal (about 40°).
-pub(super) const MAX_NORMAL_TURN_COS: f64 = 0.75;
+pub(crate) const MAX_NORMAL_TURN_COS: f64 = 0.75;
 
 /// Vertices per chunk of the parallel pass (fixed, so the result never depends on the thread
 /// count).
@@ -125,7 +125,7 @@ fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
 
 /// The square of the triangle's mean ratio 2√3·|n| / Σ lᵢ² (1 for equilateral, 0 for
 /// degenerate; n = (b − a) × (c − a), twice the area), and n. No square root is taken.
-pub(super) fn shape(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> (f64, [f64; 3]) {
+pub(crate) fn shape(a: [f64; 3], b: [f64; 3], c: [f64; 3]) -> (f64, [f64; 3]) {
     let (ab, ac, bc) = (sub(b, a), sub(c, a), sub(c, b));
     let n = cross(ab, ac);
     let lengths = dot(ab, ab) + dot(ac, ac) + dot(bc, bc);

@@ -8,10 +8,10 @@
 use std::fs;
 use std::path::{Path, PathBuf};
 
+use stablesurf::finish::decimate::{decimate, DecimateParams, Decimated};
 use stablesurf::measure::closest_point_on_triangle;
 use stablesurf::mesh::{check, MeshReport, TriangleMesh};
 use stablesurf::model::json::write_model;
-use stablesurf::polygonize::decimate::{decimate, DecimateParams, Decimated};
 use stablesurf::polygonize::{polygonize, shapes, PolygonizeParams};
 use stablesurf::{Aabb, ImplicitModel, ImplicitPolynomial};
 

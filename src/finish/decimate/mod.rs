@@ -3,7 +3,7 @@
 //! crossings.
 //!
 //! Input: a [`TriangleMesh`] (closed or open, 2-manifold, consistently wound, no triangle
-//! crossing another; what `polygonize` and the export's trim make), the model's
+//! crossing another; what `polygonize` and the trim make), the model's
 //! [`ImplicitFunction`] it was meshed from, and [`DecimateParams`]. Output: [`Decimated`], the
 //! mesh with at most `target_triangles` triangles when some sequence of legal collapses gets
 //! there, else the smallest one the collapses reach, and a [`DecimateReport`] that says which.
@@ -67,12 +67,12 @@ use std::hash::BuildHasherDefault;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::simplify::{shape, MAX_NORMAL_TURN_COS};
 use crate::implicit::ImplicitFunction;
 use crate::mesh::{triangle_box, triangles_intersect, TriangleMesh};
+use crate::polygonize::simplify::{shape, MAX_NORMAL_TURN_COS};
 use crate::vec3::{cross, dot, norm, sub};
 
-/// Version of the decimation's algorithm: part of the export stage's key when it decimates.
+/// Version of the decimation's algorithm: part of the finish stage's key when it decimates.
 /// If you change anything that changes its output for the same input and params, bump it.
 pub const VERSION: u32 = 1;
 
@@ -153,7 +153,7 @@ impl DecimateReport {
 /// `reached` false.
 ///
 /// ```
-/// use stablesurf::polygonize::decimate::{decimate, DecimateParams};
+/// use stablesurf::finish::decimate::{decimate, DecimateParams};
 /// use stablesurf::polygonize::{polygonize, PolygonizeParams};
 /// use stablesurf::{Aabb, ImplicitPolynomial};
 /// let mut coefficients = vec![0.0; 10];

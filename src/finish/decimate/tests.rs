@@ -1,4 +1,4 @@
-//! Unit tests of `polygonize::decimate`.
+//! Unit tests of `finish::decimate`.
 
 use super::*;
 use crate::mesh::check;
