@@ -342,16 +342,12 @@ pub fn assess(poly: &ImplicitPolynomial, cloud: &OrientedCloud) -> Assessment {
     let mut near_data = false;
     if components == 1 {
         let data: Vec<[f64; 3]> = cloud.points.iter().map(|p| poly.normalize(*p)).collect();
-        if let Ok(tree) = kiddo::ImmutableKdTree::<f64, 3>::new_from_slice(&data) {
+        if let Some(tree) = crate::numerics::point_tree::PointTree::new(&data) {
             let reach = 0.2 + 0.5 * step * 3f64.sqrt();
             near_data = comp_cells[0].iter().any(|&c| {
                 let (i, j, k) = (c % nc, (c / nc) % nc, c / (nc * nc));
                 let q = [i, j, k].map(|t| -half + (t as f64 + 0.5) * step);
-                let nn = tree
-                    .query(&q)
-                    .nearest_one::<kiddo::SquaredEuclidean<f64>>()
-                    .execute();
-                nn.distance.sqrt() <= reach
+                tree.nearest(q).0.sqrt() <= reach
             });
         }
     }

@@ -22,8 +22,8 @@
 //! caller's, or the previous answer's k-th distance in the same block of nearby points), so it
 //! changes the speed, never the result.
 //!
-//! Distances are squared Euclidean summed as ((dx² + dy²) + dz²), the same operations as the
-//! `kiddo` crate's, so the order of non-tied neighbours is the one it gave.
+//! Distances are squared Euclidean summed as ((dx² + dy²) + dz²), the same operations as
+//! [`super::point_tree::PointTree`]'s, so both order non-tied neighbours alike.
 //!
 //! Method of a nearest-distance query ([`PointGrid::nearest2`]): its own cell, then rings of
 //! cells around it (Chebyshev distance 1, 2, …), each row of a ring trimmed to the cells that

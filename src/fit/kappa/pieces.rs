@@ -3,20 +3,23 @@
 //! among their 12 nearest neighbours, on a fixed-stride subset of at most 20,000 points.
 //!
 //! Input: the oriented cloud and the fit's normalization. Output: [`DataPieces`], the subset's
-//! k-d tree and a piece label per point, labels numbered in order of first appearance, which do
+//! k-d tree ([`PointTree`], the crate's one nearest-point index) and a piece label per point, labels numbered in order of first appearance, which do
 //! not depend on the thread count.
 
-use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
 
 use super::{MAX_CHECK_POINTS, NEAR_DATA};
 use crate::cloud::OrientedCloud;
 use crate::fit::system::Normalization;
+use crate::numerics::point_tree::PointTree;
 use crate::numerics::UnionFind;
+
+/// How many nearest neighbours each point is joined to (within [`NEAR_DATA`]).
+const NEIGHBOURS: usize = 12;
 
 /// The data in normalized coordinates (a fixed-stride subset), its k-d tree and its pieces.
 pub(super) struct DataPieces {
-    pub(super) tree: ImmutableKdTree<f64, 3>,
+    pub(super) tree: PointTree,
     /// Piece label per indexed point.
     pub(super) labels: Vec<u32>,
     pub(super) n_pieces: usize,
@@ -31,23 +34,19 @@ impl DataPieces {
             .step_by(stride)
             .map(|p| norm.apply(*p))
             .collect();
-        let tree = ImmutableKdTree::<f64, 3>::new_from_slice(&points).ok()?;
+        let tree = PointTree::new(&points)?;
         let mut sets = UnionFind::new(points.len());
-        let k = std::num::NonZeroUsize::new(12).unwrap_or(std::num::NonZeroUsize::MIN);
         // The 12 nearest neighbours within NEAR_DATA, searched in parallel (the radius bound
         // prunes the search); the union-find pass is sequential. The components do not depend
         // on the order of the unions.
         let near: Vec<Vec<u32>> = points
             .par_iter()
             .map(|p| {
-                tree.query(p)
-                    .nearest_n::<SquaredEuclidean<f64>>(k)
-                    .within(NEAR_DATA * NEAR_DATA)
-                    .execute()
-                    .into_iter()
-                    .filter(|nb| nb.distance <= NEAR_DATA * NEAR_DATA)
-                    .map(|nb| nb.item)
-                    .collect()
+                let mut nearest = [(0.0, 0_u32); NEIGHBOURS];
+                // Within the radius and a hair beyond, so a neighbour at exactly NEAR_DATA joins.
+                let radius2 = (NEAR_DATA * NEAR_DATA).next_up();
+                let n = tree.nearest_n_within(*p, radius2, &mut nearest);
+                nearest[..n].iter().map(|&(_, i)| i).collect()
             })
             .collect();
         for (i, neighbours) in near.iter().enumerate() {
@@ -65,13 +64,9 @@ impl DataPieces {
 
     /// Distance from `q` to the nearest data point and that point's piece.
     pub(super) fn nearest(&self, q: [f64; 3]) -> (f64, u32) {
-        let nn = self
-            .tree
-            .query(&q)
-            .nearest_one::<SquaredEuclidean<f64>>()
-            .execute();
-        let label = self.labels.get(nn.item as usize).copied().unwrap_or(0);
-        (nn.distance.sqrt(), label)
+        let (d2, i) = self.tree.nearest(q);
+        let label = self.labels.get(i).copied().unwrap_or(0);
+        (d2.sqrt(), label)
     }
 }
 
