@@ -25,6 +25,11 @@ Variants (experiments, not what `run` does):
     diagonal than 30% of the median count over the mesh's vertices are removed, repeatedly (the rim
     drawn back from where the trim's noise allowance leaves it to where the points thin out).
   - peel + fill: both, the fill of loops at least --fill-perimeter long.
+
+Then the one-view share of the default meshes of the scans and of single raw range views
+(--views): the largest share of the mesh's area whose normal n has n . v > 0 (and > 0.2) over
+4,000 directions v spread evenly on the sphere (a Fibonacci lattice). A single view sees only
+surface that faces it, so the share is near 1 there; a ring of views sees walls all around.
 """
 
 import argparse
@@ -184,6 +189,21 @@ def score(src, path, seen):
     return r
 
 
+def one_view_share(path, threshold):
+    """The largest share of the mesh's area whose normal n has n . v > threshold, over the
+    directions v of a 4,000-point Fibonacci lattice on the sphere."""
+    import numpy as np
+
+    _, v, t = bn.read_mesh(path)
+    k = np.arange(4000) + 0.5
+    polar, azimuth = np.arccos(1 - 2 * k / 4000), 2 * np.pi * k / ((1 + 5 ** 0.5) / 2)
+    dirs = np.stack([np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)], 1)
+    c = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
+    area = np.linalg.norm(c, axis=1)
+    n = c / np.maximum(area, 1e-300)[:, None]
+    return float((area[:, None] * ((n @ dirs.T) > threshold)).sum(0).max() / area.sum())
+
+
 def main():
     import numpy as np
     import open3d as o3d
@@ -195,6 +215,9 @@ def main():
     ap.add_argument("--fill-perimeter", type=float, default=2.0,
                     help="loops at least this share of the diagonal long are filled (default 2: each"
                          " scan's largest loop only, 2.8 and 3.3 of the diagonal; the next are under 1.9)")
+    ap.add_argument("--views", nargs="*", default=[str(bn.DATA / "bun000.ply"), str(bn.DATA / "bunny-scans" / "bun090.ply"),
+                                                   str(bn.DATA / "bunny-scans" / "top2.ply")],
+                    help="single raw range views whose one-view share is given too")
     a = ap.parse_args()
     work = Path(a.work)
     work.mkdir(parents=True, exist_ok=True)
@@ -243,6 +266,17 @@ def main():
         print(f"| {name} | seen share of the source's samples: {seen.mean():.3f}; of the unseen ones, facing down "
               f"(n_z < -0.9) {(nz < -0.9).mean():.2f}, on side walls (|n_z| < 0.3) {(abs(nz) < 0.3).mean():.2f}, "
               f"median height {np.median(height):.2f} of the part's | | | | | | | |")
+
+    print()
+    print("| mesh | one-view share, n . v > 0 | n . v > 0.2 |")
+    print("|---|---|---|")
+    shared = [(f"scan of {name}", work / f"{name}_trim_auto" / "mesh.ply") for name in bn.SCAN_SOURCES]
+    for view in a.views:
+        out = work / f"view_{Path(view).stem}"
+        subprocess.run([a.bin, "run", view, "-o", str(out), "--no-cache", "-q", "--formats", "ply,json"], check=True)
+        shared.append((f"single view {Path(view).name}", out / "mesh.ply"))
+    for label, mesh in shared:
+        print(f"| {label} | {one_view_share(mesh, 0.0):.3f} | {one_view_share(mesh, 0.2):.3f} |", flush=True)
 
 
 if __name__ == "__main__":
