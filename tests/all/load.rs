@@ -35,15 +35,21 @@ fn run_command(input: &Path, out: &Path, cache: &Path, extra: &[&str]) -> Comman
     cmd
 }
 
-/// Waits until the process `pid` is a zombie (Linux); false after 10 s.
+/// Waits until the process `pid` is a zombie whose threads have all exited (Linux); false
+/// after 10 s.
 fn became_zombie(pid: u32) -> bool {
     let stat = format!("/proc/{pid}/stat");
+    let tasks = format!("/proc/{pid}/task");
     let start = Instant::now();
     while start.elapsed() < Duration::from_secs(10) {
         let state = fs::read_to_string(&stat)
             .ok()
             .and_then(|s| s[s.rfind(')')? + 2..].chars().next());
-        if state == Some('Z') {
+        // The main thread turns zombie before the others have finished exiting, and they hold
+        // the open files (the output folder's lock among them) until the last one is gone: a
+        // zombie with one task left has ended whole.
+        let threads = fs::read_dir(&tasks).map_or(usize::MAX, |d| d.count());
+        if state == Some('Z') && threads == 1 {
             return true;
         }
         std::thread::sleep(Duration::from_millis(10));
