@@ -84,6 +84,20 @@ def command(binary: Path, source: Path, out: Path, cache, settings: str, limit: 
     return cmd + ["--cache-dir", str(cache), "--cache-max-size", limit]
 
 
+def ended_whole(pid: int, timeout: float = 10.0) -> None:
+    """Waits (at most TIMEOUT s) until the unreaped process PID is a zombie with no thread left."""
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        try:
+            stat = Path(f"/proc/{pid}/stat").read_text()
+            threads = len(list(Path(f"/proc/{pid}/task").iterdir()))
+        except OSError:
+            return
+        if stat[stat.rfind(")") + 2] == "Z" and threads == 1:
+            return
+        time.sleep(0.01)
+
+
 def hidden_names(folder: Path) -> list:
     return sorted(str(p) for p in folder.rglob(".*")) if folder.exists() else []
 
@@ -175,6 +189,10 @@ def main() -> int:
         t.join()
     soak_seconds = time.time() - start
 
+    # The killed runs' main threads turn zombie before their other threads have exited, and those
+    # hold the output folder's lock for a few milliseconds more: wait until each has ended whole.
+    for z in zombies:
+        ended_whole(z.pid)
     # One completing run into every folder used: it finishes or removes the killed runs' debris.
     used = sorted((work / "out").iterdir()) if (work / "out").exists() else []
     for out in used:
