@@ -44,5 +44,5 @@ done
 "$bin" cache verify --cache-dir "$cache"
 echo "rerun of the last input:"
 "$bin" -v run "${inputs[-1]}" -o "$work/out/again" --cache-dir "$cache" --cache-max-size "$limit" 2>&1 \
-    | grep -E "^stablesurf: (import|normals|fit|detail|polygonize|export) " | cut -c1-40
+    | grep -E "^stablesurf: (import|normals|fit|detail|polygonize|finish|export) " | cut -c1-40
 "$bin" cache info --cache-dir "$cache" --cache-max-size "$limit"

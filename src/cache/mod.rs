@@ -55,7 +55,15 @@ pub use codec::{Artifact, OutputFiles};
 pub const CACHE_FORMAT_VERSION: u32 = 2;
 
 /// The stage folders a cache holds; nothing else under the root is the cache's.
-pub(crate) const STAGES: &[&str] = &["import", "normals", "fit", "detail", "polygonize", "export"];
+pub(crate) const STAGES: &[&str] = &[
+    "import",
+    "normals",
+    "fit",
+    "detail",
+    "polygonize",
+    "finish",
+    "export",
+];
 
 /// The marker file of a cache root (the cache directory tag convention, which backup tools
 /// honour), and its first line.
@@ -449,6 +457,11 @@ impl Cache {
     }
 
     fn entry_path(&self, stage: &str, key: &Key) -> Option<PathBuf> {
+        // A folder not in the list would escape the size limit, `clear` and `verify`.
+        debug_assert!(
+            STAGES.contains(&stage),
+            "stage {stage} is not in cache::STAGES"
+        );
         let hex = key.hex();
         Some(
             self.root

@@ -153,11 +153,11 @@ fn rerun_hits_cache_and_depth_change_reuses_the_fit() {
         stderr_of(&o)
     };
     let first = run("5", "a");
-    for stage in ["import", "normals", "fit", "polygonize", "export"] {
+    for stage in ["import", "normals", "fit", "polygonize", "finish", "export"] {
         assert_eq!(cache_state(&first, stage), "miss", "first run, {stage}");
     }
     let second = run("5", "b");
-    for stage in ["import", "normals", "fit", "polygonize", "export"] {
+    for stage in ["import", "normals", "fit", "polygonize", "finish", "export"] {
         assert_eq!(cache_state(&second, stage), "hit", "second run, {stage}");
     }
     // Byte-identical outputs from a cold and a warm run.
@@ -478,7 +478,7 @@ fn concurrent_runs_share_a_cache_safely() {
     );
     let third = spawn("c", true).wait_with_output().unwrap();
     let err = stderr_of(&third);
-    for stage in ["import", "normals", "fit", "polygonize", "export"] {
+    for stage in ["import", "normals", "fit", "polygonize", "finish", "export"] {
         assert_eq!(cache_state(&err, stage), "hit", "{stage}");
     }
 }

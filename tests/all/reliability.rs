@@ -102,7 +102,7 @@ fn cache_clear_removes_the_entries_and_keeps_everything_else() {
         .output()
         .unwrap();
     let text = String::from_utf8_lossy(&info.stdout);
-    for stage in ["import", "normals", "fit", "polygonize", "export"] {
+    for stage in ["import", "normals", "fit", "polygonize", "finish", "export"] {
         assert!(text.contains(stage), "{text}");
     }
     let cleared = bin()
