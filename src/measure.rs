@@ -148,7 +148,7 @@ impl Accuracy {
 }
 
 /// The threshold of [`AreaDistanceSummary::far_area_share`]: 1% of the data's diagonal.
-pub const FAR_RELATIVE: f64 = 0.01;
+pub(crate) const FAR_RELATIVE: f64 = 0.01;
 
 /// How far from its nearest sample a point of the mesh may lie in [`area_samples`], relative to
 /// the data's diagonal: half of [`FAR_RELATIVE`], so a sample stands for points at most that far
@@ -250,7 +250,7 @@ pub(crate) fn mesh_to_points_by_area(
 /// past that the exact queries only cost time. The maximum is the sample's: a subsample can
 /// miss the farthest point. The mesh → data side always searches all the points: a subsample
 /// would lie farther from the mesh.
-pub const ACCURACY_POINTS: usize = 100_000;
+pub(crate) const ACCURACY_POINTS: usize = 100_000;
 
 /// At most `most` of `points`: all of them, or every k-th from the first ([`kth_step`]).
 pub(crate) fn every_kth(points: &[[f64; 3]], most: usize) -> Cow<'_, [[f64; 3]]> {
@@ -271,7 +271,7 @@ pub(crate) fn kth_step(n: usize, most: usize) -> usize {
 
 /// The two-sided [`Accuracy`] of `mesh` against the data points indexed in `data`, relative to
 /// `diagonal` (the data's bounding-box diagonal); the two directions run in parallel.
-pub fn accuracy(data: &PointIndex<'_>, mesh: &TriangleMesh, diagonal: f64) -> Accuracy {
+pub(crate) fn accuracy(data: &PointIndex<'_>, mesh: &TriangleMesh, diagonal: f64) -> Accuracy {
     let sampled = every_kth(data.points(), ACCURACY_POINTS);
     let (to_mesh, to_points) = rayon::join(
         || DistanceSummary::from_distances(&point_to_mesh_distances(&sampled, mesh), diagonal),
@@ -365,7 +365,7 @@ pub(crate) struct MeshDistance<'a> {
 impl<'a> MeshDistance<'a> {
     /// Indexes `mesh`; `None` when it has no triangles, an index out of range or a vertex that
     /// is not finite.
-    pub fn new(mesh: &'a TriangleMesh) -> Option<Self> {
+    pub(crate) fn new(mesh: &'a TriangleMesh) -> Option<Self> {
         let n = mesh.positions.len();
         if mesh.triangles.is_empty()
             || !mesh.positions.iter().flatten().all(|c| c.is_finite())
@@ -462,7 +462,7 @@ impl<'a> MeshDistance<'a> {
 /// closer (every vertex lies within a cell diagonal of a seed), so it is skipped. The result is
 /// the distance to the mesh whenever one of the walks ends at the vertex nearest the closest
 /// point, which fails only where a piece of surface smaller than a coarse cell is closest.
-pub struct GridMeshDistance<'a> {
+pub(crate) struct GridMeshDistance<'a> {
     mesh: MeshDistance<'a>,
     /// Distinct neighbours of each vertex (offsets, list), for the walks.
     neighbours: (Vec<u32>, Vec<u32>),
@@ -481,7 +481,7 @@ const N_WALKS: usize = 3;
 
 impl<'a> GridMeshDistance<'a> {
     /// Indexes `mesh`; `None` as for `MeshDistance::new`.
-    pub fn new(mesh: &'a TriangleMesh) -> Option<Self> {
+    pub(crate) fn new(mesh: &'a TriangleMesh) -> Option<Self> {
         let index = MeshDistance::new(mesh)?;
         let mut lo = [f64::INFINITY; 3];
         let mut hi = [f64::NEG_INFINITY; 3];

@@ -85,32 +85,32 @@ use crate::vec3::{norm, sub};
 
 /// Quantile of the distances to the median centre that defines the bulk radius `r`: 0.99, so up
 /// to 1% of the points may be outliers without moving `r`, and at most 1% can ever be removed.
-pub const BULK_QUANTILE: f64 = 0.99;
+pub(crate) const BULK_QUANTILE: f64 = 0.99;
 
 /// A point is far when its distance to the median centre exceeds `FAR_FACTOR · r`.
-pub const FAR_FACTOR: f64 = 3.0;
+pub(crate) const FAR_FACTOR: f64 = 3.0;
 
 /// The far points are cut only after a jump of more than `GAP_FACTOR · r` in the sorted distances
 /// (an empty shell that thick around the bulk), so a continuously sampled feature is never cut.
-pub const GAP_FACTOR: f64 = 0.5;
+pub(crate) const GAP_FACTOR: f64 = 0.5;
 
 /// Clouds with fewer points are never trimmed: too few points to tell a bulk from a stray one.
-pub const MIN_POINTS: usize = 20;
+pub(crate) const MIN_POINTS: usize = 20;
 
 /// Two neighbouring points of a bare cloud are linked when they are at most this many times
 /// either one's local spacing apart (see [Isolated points](self#isolated-points)).
-pub const ISOLATION_FACTOR: f64 = 5.0;
+pub(crate) const ISOLATION_FACTOR: f64 = 5.0;
 
 /// A point's reach, its local spacing's measure, is the distance to its `ISOLATION_RANK`-th
 /// nearest other point.
-pub const ISOLATION_RANK: usize = 3;
+pub(crate) const ISOLATION_RANK: usize = 3;
 
 /// How many nearest neighbours a point is linked to, and whose reaches give its local spacing.
-pub const ISOLATION_NEIGHBOURS: usize = 8;
+pub(crate) const ISOLATION_NEIGHBOURS: usize = 8;
 
 /// Linked groups of at most this many points are isolated: fewer than the 15 points a local
 /// fit of degree 2 needs.
-pub const ISOLATED_GROUP_MAX: usize = 14;
+pub(crate) const ISOLATED_GROUP_MAX: usize = 14;
 
 /// Parameters of [`remove_outliers`].
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -73,7 +73,7 @@ mod local;
 mod model;
 
 pub use chamfer::{chamfer_distance, ChamferDistance};
-pub use index::BallIndex;
+pub(crate) use index::BallIndex;
 
 pub use model::{
     AuxiliaryPoints, DetailDiagnostics, DetailError, DetailParams, LocalConstraints, MpuCell,
@@ -95,7 +95,7 @@ use local::{
 
 /// Version of this stage's algorithm; if you change any input to its cache key or anything
 /// that changes its output for the same input and params, bump it.
-pub const STAGE_VERSION: u32 = 11;
+pub(crate) const STAGE_VERSION: u32 = 11;
 
 /// Levels near the root whose children are fitted in parallel (8³ tasks at most).
 const PARALLEL_LEVELS: u32 = 3;

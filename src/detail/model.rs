@@ -157,51 +157,12 @@ impl DetailParams {
     /// let d = DetailParams::default();
     /// assert_eq!(d.clone().with_tolerance(d.tolerance), d);
     /// ```
-    pub fn with_tolerance(self, tolerance: f64) -> DetailParams {
+    pub(crate) fn with_tolerance(self, tolerance: f64) -> DetailParams {
         DetailParams {
             tolerance,
             finest_tolerance: tolerance.min(1e-3),
             ..self
         }
-    }
-
-    /// Canonical bytes for the cache key: every field, little-endian, in declaration order.
-    ///
-    /// ```
-    /// use stablesurf::detail::DetailParams;
-    /// let a = DetailParams::default();
-    /// let b = DetailParams { degree: 3, ..Default::default() };
-    /// assert_eq!(a.to_bytes(), DetailParams::default().to_bytes());
-    /// assert_ne!(a.to_bytes(), b.to_bytes());
-    /// ```
-    pub fn to_bytes(&self) -> Vec<u8> {
-        let mut out = b"detail-params-v2".to_vec();
-        out.extend_from_slice(&self.degree.to_le_bytes());
-        for v in [
-            self.tolerance,
-            self.finest_tolerance,
-            self.epsilon,
-            self.kappa,
-            self.support,
-        ] {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-        out.extend_from_slice(&self.max_depth.to_le_bytes());
-        out.push(match self.auxiliary {
-            AuxiliaryPoints::CentreAndCorners => 1,
-            AuxiliaryPoints::None => 0,
-        });
-        out.push(match self.constraints {
-            LocalConstraints::Gradient => 1,
-            LocalConstraints::ThreeLevels => 0,
-        });
-        out.extend_from_slice(&self.stride.to_le_bytes());
-        out.push(u8::from(self.refit_deepest));
-        // Left out at 0, so that the keys of exact data are those of the params without it.
-        if self.noise > 0.0 {
-            out.extend_from_slice(&self.noise.to_le_bytes());
-        }
-        out
     }
 }
 
@@ -327,12 +288,12 @@ pub struct MpuModel {
     pub diagnostics: DetailDiagnostics,
     /// Ball hierarchy over `cells` (derived: rebuild it with [`MpuModel::new`] after editing
     /// `cells`).
-    pub index: BallIndex,
+    pub(crate) index: BallIndex,
 }
 
 impl MpuModel {
     /// Assembles a model from its parts and builds the evaluation index.
-    pub fn new(
+    pub(crate) fn new(
         region: Aabb,
         root: Aabb,
         diagonal: f64,

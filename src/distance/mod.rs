@@ -68,7 +68,7 @@ use crate::vec3::dist;
 use exact::{Evaluator, NearSeeds};
 
 /// Highest polynomial degree the distance evaluator accepts.
-pub const MAX_DEGREE: u32 = 32;
+pub(crate) const MAX_DEGREE: u32 = 32;
 
 /// The axis slices are perpendicular to.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -84,7 +84,7 @@ pub enum Axis {
 
 impl Axis {
     /// The axis as `"x"`, `"y"` or `"z"`.
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Axis::X => "x",
             Axis::Y => "y",
@@ -201,23 +201,6 @@ pub enum DistanceError {
     /// surface, or `--distance taubin`.
     #[error("the zero set of the polynomial does not cross the slicing region (grown by 25%); use a region around the surface or the taubin distance")]
     NoSurface,
-}
-
-/// A region for a model without a box: the cube of half-side 2·scale around the normalization
-/// centre (the fitted data have mean radius 1 in normalized units).
-///
-/// ```
-/// use stablesurf::distance::default_region;
-/// use stablesurf::ImplicitPolynomial;
-/// let p = ImplicitPolynomial { degree: 0, coefficients: vec![1.0], center: [1.0, 0.0, 0.0], scale: 0.5 };
-/// assert_eq!(default_region(&p).min, [0.0, -1.0, -1.0]);
-/// ```
-pub fn default_region(poly: &ImplicitPolynomial) -> Aabb {
-    let h = 2.0 * poly.scale;
-    Aabb {
-        min: poly.center.map(|c| c - h),
-        max: poly.center.map(|c| c + h),
-    }
 }
 
 /// Computes the K slices of the signed distance of `poly` across `region`.
@@ -451,7 +434,11 @@ fn fill_grid(
 ///
 /// # Errors
 /// [`DistanceError::InvalidPolynomial`] when `poly` is malformed.
-pub fn taubin_distance(poly: &ImplicitPolynomial, p: [f64; 3]) -> Result<f64, DistanceError> {
+#[cfg(test)] // only the unit tests call it
+pub(crate) fn taubin_distance(
+    poly: &ImplicitPolynomial,
+    p: [f64; 3],
+) -> Result<f64, DistanceError> {
     Ok(Evaluator::new(poly)?.taubin(p, f64::INFINITY))
 }
 

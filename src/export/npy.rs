@@ -37,7 +37,7 @@ use crate::distance::volume::{DenseVolume, BAND_VOXELS};
 /// # Errors
 /// [`ExportError::Format`] when the values do not fill the grid; [`ExportError::Write`] when
 /// `out` fails.
-pub fn write(volume: &DenseVolume, out: &mut impl Write) -> Result<(), ExportError> {
+pub(crate) fn write(volume: &DenseVolume, out: &mut impl Write) -> Result<(), ExportError> {
     let [nx, ny, nz] = volume.grid.shape;
     if volume.values.len() != nx * ny * nz {
         return Err(ExportError::Format(format!(
@@ -64,7 +64,7 @@ pub fn write(volume: &DenseVolume, out: &mut impl Write) -> Result<(), ExportErr
 
 /// The sidecar JSON of `volume.npy` (see the module docs); `units` is the input's unit, if
 /// known.
-pub fn sidecar(volume: &DenseVolume, units: Option<LengthUnit>) -> Vec<u8> {
+pub(crate) fn sidecar(volume: &DenseVolume, units: Option<LengthUnit>) -> Vec<u8> {
     let g = &volume.grid;
     let h = g.voxel_size;
     let o = g.origin;

@@ -129,7 +129,7 @@ impl Default for ExportParams {
 
 impl ExportParams {
     /// Whether the params ask for `format`.
-    pub fn wants(&self, format: OutputFormat) -> bool {
+    pub(crate) fn wants(&self, format: OutputFormat) -> bool {
         self.formats.contains(&format)
     }
 
@@ -187,7 +187,7 @@ pub struct ExportReport {
 
 impl ExportReport {
     /// The figures of `files`.
-    pub fn of(files: &[OutputFile]) -> ExportReport {
+    pub(crate) fn of(files: &[OutputFile]) -> ExportReport {
         ExportReport {
             files: files.len(),
             bytes: files.iter().map(|f| f.1.len()).sum(),

@@ -54,20 +54,20 @@ use crate::distance::volume::{NarrowBand, BLOCK, BLOCK_VOXELS};
 /// OpenVDB's file magic number.
 const MAGIC: i64 = 0x5644_4220;
 /// The file format version written: 224 (multi-pass IO), OpenVDB's current one.
-pub const FILE_VERSION: u32 = 224;
+pub(crate) const FILE_VERSION: u32 = 224;
 /// The OpenVDB library version recorded in the header (the format's version 224 is current
 /// there).
 const LIBRARY_VERSION: [u32; 2] = [12, 0];
 /// The grid's name.
-pub const GRID_NAME: &str = "surface";
+pub(crate) const GRID_NAME: &str = "surface";
 /// The grid's tree type.
-pub const GRID_TYPE: &str = "Tree_float_5_4_3";
+pub(crate) const GRID_TYPE: &str = "Tree_float_5_4_3";
 /// Node-values record: no mask, every value follows.
 const NO_MASK_AND_ALL_VALS: u8 = 6;
 
 /// Options of [`write()`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct VdbOptions {
+pub(crate) struct VdbOptions {
     /// The unit of the input coordinates: the transform and the values are scaled to metres
     /// (as the glTF); `None` writes input units.
     pub units: Option<LengthUnit>,
@@ -227,7 +227,7 @@ fn vec3i_bytes(v: [i32; 3]) -> Vec<u8> {
 /// # Errors
 /// [`ExportError::Write`] when `out` fails; [`ExportError::Format`] for a band without active
 /// voxels or with an index outside 0 ..= 4095.
-pub fn write(
+pub(crate) fn write(
     band: &NarrowBand,
     opts: &VdbOptions,
     out: &mut impl Write,

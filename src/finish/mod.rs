@@ -38,16 +38,16 @@ use decimate::{DecimateParams, DecimateReport};
 /// The finish stage's version. If you change any input to this stage's key (the fields of
 /// [`FinishParams`] or how they are written), or anything that changes its output for the same
 /// input and params, bump `STAGE_VERSION`.
-pub const STAGE_VERSION: u32 = 1;
+pub(crate) const STAGE_VERSION: u32 = 1;
 
 /// With [`Keep::Data`], closed pieces inside another piece and smaller than this share of the
 /// largest piece's area are left out ([`mesh::drop_small_nested_components`]).
-pub const NESTED_AREA_FRACTION: f64 = 0.01;
+pub(crate) const NESTED_AREA_FRACTION: f64 = 0.01;
 
 /// With [`Keep::Data`], pieces smaller than [`NESTED_AREA_FRACTION`] of the largest piece's area
 /// whose bounding box holds fewer than this many data points are left out
 /// ([`mesh::drop_small_unsupported_components`]): fewer than a local fit of degree 2 needs.
-pub const SUPPORT_POINTS_MIN: usize = 15;
+pub(crate) const SUPPORT_POINTS_MIN: usize = 15;
 
 /// Components whose nearest data point is farther than this share of the data's diagonal are
 /// left out by [`Keep::Data`].
@@ -120,7 +120,7 @@ pub struct Finished {
 
 impl Finished {
     /// The mesh the distance outputs measure: [`Finished::closed`], else the mesh itself.
-    pub fn closed(&self) -> &TriangleMesh {
+    pub(crate) fn closed(&self) -> &TriangleMesh {
         self.closed.as_ref().unwrap_or(&self.mesh)
     }
 }

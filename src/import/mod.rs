@@ -56,7 +56,7 @@ mod las;
 mod obj;
 mod pcd;
 mod ply;
-pub mod range;
+pub(crate) mod range;
 mod stl;
 mod xyz;
 

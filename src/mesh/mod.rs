@@ -94,7 +94,7 @@ fn valid_triangles(mesh: &TriangleMesh) -> impl Iterator<Item = [u32; 3]> + '_ {
 /// The triangles around each vertex, in compressed rows: the triangles of vertex `v` are
 /// `triangles[start[v]..start[v + 1]]` (indices into the input triangle list, in its order).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub struct VertexTriangles {
+pub(crate) struct VertexTriangles {
     /// Row starts, `n_vertices + 1` entries.
     pub start: Vec<usize>,
     /// Triangle indices, row by row.
@@ -109,7 +109,7 @@ impl VertexTriangles {
     /// assert_eq!(around.of(0), &[0, 1]);
     /// assert_eq!(around.of(3), &[1]);
     /// ```
-    pub fn new(n_vertices: usize, triangles: &[[u32; 3]]) -> VertexTriangles {
+    pub(crate) fn new(n_vertices: usize, triangles: &[[u32; 3]]) -> VertexTriangles {
         let mut start = vec![0usize; n_vertices + 1];
         for t in triangles {
             for &v in t {
@@ -134,7 +134,7 @@ impl VertexTriangles {
     }
 
     /// The indices of the triangles around vertex `v`.
-    pub fn of(&self, v: usize) -> &[u32] {
+    pub(crate) fn of(&self, v: usize) -> &[u32] {
         &self.triangles[self.start[v]..self.start[v + 1]]
     }
 }
@@ -203,7 +203,7 @@ pub fn check(mesh: &TriangleMesh) -> MeshReport {
 /// a mesh it came from by removing triangles and adding ones tested against the rest (as
 /// [`crate::polygonize::Polygonized::embedded`] says of a polygonized mesh, and the component
 /// filter and the trim keep). `self_intersecting_faces` is then 0.
-pub fn check_with(mesh: &TriangleMesh, known_embedded: bool) -> MeshReport {
+pub(crate) fn check_with(mesh: &TriangleMesh, known_embedded: bool) -> MeshReport {
     let n = mesh.positions.len();
     let triangles: Vec<[u32; 3]> = valid_triangles(mesh).collect();
     let degenerate_faces = mesh.triangles.len() - triangles.len();
@@ -350,7 +350,7 @@ fn edge_key(a: u32, b: u32, n: u64) -> u64 {
 
 /// The boundary edges of `triangles` (edges used once), each as it runs in its triangle
 /// (a → b), sorted.
-pub fn boundary_edges(triangles: &[[u32; 3]]) -> Vec<[u32; 2]> {
+pub(crate) fn boundary_edges(triangles: &[[u32; 3]]) -> Vec<[u32; 2]> {
     let (uses, n) = edge_uses(triangles);
     let mut out: Vec<[u32; 2]> = uses
         .chunk_by(|x, y| x.0 == y.0)
@@ -497,7 +497,7 @@ fn component_areas(mesh: &TriangleMesh, labels: &[u32], n_components: usize) -> 
 /// let (kept, dropped) = drop_small_nested_components(&mesh, 0.01);
 /// assert_eq!((dropped, kept.triangles.len()), (1, 4));
 /// ```
-pub fn drop_small_nested_components(
+pub(crate) fn drop_small_nested_components(
     mesh: &TriangleMesh,
     max_fraction: f64,
 ) -> (TriangleMesh, usize) {
@@ -563,7 +563,7 @@ pub fn drop_small_nested_components(
 /// let (kept, dropped) = drop_small_unsupported_components(&mesh, &points, 0.01, 15);
 /// assert_eq!((dropped, kept.triangles.clone()), (1, vec![[0, 1, 2]]));
 /// ```
-pub fn drop_small_unsupported_components(
+pub(crate) fn drop_small_unsupported_components(
     mesh: &TriangleMesh,
     points: &[[f64; 3]],
     max_fraction: f64,

@@ -40,7 +40,7 @@ const POINTS_MAX: usize = 250_000;
 const FIRST_NEIGHBOURS: usize = 24;
 
 /// The largest neighbourhood tried (its estimate is kept even when its ball is still thin).
-pub const MAX_NEIGHBOURS: usize = 768;
+pub(crate) const MAX_NEIGHBOURS: usize = 768;
 
 /// The ball's radius must reach this many σ for the estimate at that scale to be kept.
 const REACH_IN_SIGMAS: f64 = 4.0;
@@ -73,7 +73,7 @@ pub const NOISY_SPACING: f64 = 0.5;
 impl NoiseEstimate {
     /// Whether σ exceeds [`NOISY_SPACING`] × the spacing: the points scatter across their
     /// surface by more than half the distance between neighbours.
-    pub fn is_noisy(&self) -> bool {
+    pub(crate) fn is_noisy(&self) -> bool {
         self.relative_to_spacing() > NOISY_SPACING
     }
 

@@ -527,7 +527,10 @@ pub(crate) fn nearest_in(tree: &PointTree, q: [f64; 3], hint: Option<[f64; 3]>) 
 /// let d = nearest_point_distances(&[[0.0, 0.0, 0.0], [3.0, 4.0, 0.0]], &[[0.0, 0.0, 1.0]]).unwrap();
 /// assert_eq!(d, vec![1.0, 26f64.sqrt()]);
 /// ```
-pub fn nearest_point_distances(queries: &[[f64; 3]], points: &[[f64; 3]]) -> Option<Vec<f64>> {
+pub(crate) fn nearest_point_distances(
+    queries: &[[f64; 3]],
+    points: &[[f64; 3]],
+) -> Option<Vec<f64>> {
     Some(PointIndex::new(points)?.distances(queries))
 }
 
@@ -540,7 +543,7 @@ pub fn nearest_point_distances(queries: &[[f64; 3]], points: &[[f64; 3]]) -> Opt
 /// when the points are too clustered for one cell size, goes to the [`PointTree`], built the
 /// first time it is needed. Both give the same distances (the minimum of the same squared
 /// distances), so which one answers changes the time, never the result.
-pub struct PointIndex<'a> {
+pub(crate) struct PointIndex<'a> {
     points: Cow<'a, [[f64; 3]]>,
     grid: Option<PointGrid>,
     tree: OnceLock<PointTree>,
@@ -549,7 +552,7 @@ pub struct PointIndex<'a> {
 impl<'a> PointIndex<'a> {
     /// Indexes the finite points of `points` (borrowed when all are finite); `None` when there
     /// is none, or more than `u32::MAX`.
-    pub fn new(points: &'a [[f64; 3]]) -> Option<PointIndex<'a>> {
+    pub(crate) fn new(points: &'a [[f64; 3]]) -> Option<PointIndex<'a>> {
         let points: Cow<[[f64; 3]]> = if points.iter().all(is_finite) {
             points.into()
         } else {
@@ -571,7 +574,7 @@ impl<'a> PointIndex<'a> {
     }
 
     /// The indexed (finite) points.
-    pub fn points(&self) -> &[[f64; 3]] {
+    pub(crate) fn points(&self) -> &[[f64; 3]] {
         &self.points
     }
 

@@ -201,7 +201,7 @@ impl PipelineConfig {
     ///
     /// The data's resolution is measured on the input points in the detail model's region
     /// (their box grown by 10% per side); the stride on every point of `cloud`.
-    pub fn resolve(
+    pub(crate) fn resolve(
         &self,
         cloud: &[[f64; 3]],
         input: &[[f64; 3]],

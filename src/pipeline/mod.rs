@@ -43,9 +43,9 @@ pub use records::{
 
 /// The small real scan built into the binary: "Spot" the cow by Keenan Crane (CC0 1.0),
 /// 2,930 vertices, 5,856 triangles.
-pub const SAMPLE_SCAN: &[u8] = include_bytes!("../sample/spot.obj");
+pub(crate) const SAMPLE_SCAN: &[u8] = include_bytes!("../sample/spot.obj");
 /// The name the sample scan is reported under.
-pub const SAMPLE_NAME: &str = "spot.obj (built-in sample, Keenan Crane, CC0)";
+pub(crate) const SAMPLE_NAME: &str = "spot.obj (built-in sample, Keenan Crane, CC0)";
 
 /// Errors of a pipeline run: a stage's error, with the stage named.
 #[derive(Debug, thiserror::Error)]

@@ -192,7 +192,8 @@ impl ImplicitPolynomial {
     /// let (_, _, h) = f.eval_hessian([0.3, 0.1, 0.2]);
     /// assert_eq!(h, [[2.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 2.0]]);
     /// ```
-    pub fn eval_hessian(&self, p: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
+    #[cfg(test)] // only the unit tests call it
+    pub(crate) fn eval_hessian(&self, p: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
         let (f, g, h) = self.eval_hessian_normalized(self.normalize(p));
         let s2 = self.scale * self.scale;
         (
@@ -342,7 +343,7 @@ impl ImplicitPolynomial {
     /// let v = f.eval_grid([0.0; 3], [1.0; 3], [2, 2, 2]);
     /// assert_eq!(v, vec![0.0, 1.0, 10.0, 11.0, 100.0, 101.0, 110.0, 111.0]);
     /// ```
-    pub fn eval_grid(&self, origin: [f64; 3], step: [f64; 3], dims: [usize; 3]) -> Vec<f64> {
+    pub(crate) fn eval_grid(&self, origin: [f64; 3], step: [f64; 3], dims: [usize; 3]) -> Vec<f64> {
         let layout = HornerLayout::new(self);
         let n = layout.degree;
         let total = dims[0] * dims[1] * dims[2];

@@ -13,7 +13,7 @@ use crate::vec3::{cross, dot};
 /// The extrema of a homogeneous form on the unit sphere (see
 /// [`ImplicitPolynomial::leading_form_extrema`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct SphereExtrema {
+pub(crate) struct SphereExtrema {
     /// Smallest value found on the unit sphere.
     pub min: f64,
     /// Where it was found (a unit vector).
@@ -115,7 +115,7 @@ impl ImplicitPolynomial {
     /// let e = f.leading_form_extrema();
     /// assert!((e.min - 1.0).abs() < 1e-12 && (e.max - 3.0).abs() < 1e-12);
     /// ```
-    pub fn leading_form_extrema(&self) -> SphereExtrema {
+    pub(crate) fn leading_form_extrema(&self) -> SphereExtrema {
         sphere_extrema(&self.leading_form())
     }
 
@@ -123,7 +123,8 @@ impl ImplicitPolynomial {
     /// f ≥ H_min·rⁿ − Σ_{k<n} ‖H_k‖·r^k (H_min from [`Self::leading_form_extrema`], ‖H_k‖ from
     /// `Self::homogeneous_bound`), so f > 0 for |p̂| > R and the zero set lies in |p̂| ≤ R.
     /// `None` when H_min ≤ 0 (or the degree is 0).
-    pub fn containment_radius(&self) -> Option<f64> {
+    #[cfg(test)] // only the unit tests call it
+    pub(crate) fn containment_radius(&self) -> Option<f64> {
         let h_min = self.leading_form_extrema().min;
         self.containment_radius_with(h_min)
     }

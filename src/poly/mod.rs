@@ -33,7 +33,6 @@ mod eval;
 mod forms;
 
 pub use basis::{exponents, monomial_index, n_coefficients};
-pub use forms::SphereExtrema;
 
 /// An implicit polynomial surface f(p) = 0 in input coordinates.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

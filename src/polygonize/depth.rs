@@ -66,17 +66,17 @@ const CELL_OVER_SPACING_LOG2: f64 = 0.25;
 
 /// How many levels finer than the mesh the points must be for `run` to cut detail mode's
 /// split tolerance and take the chords' whole move (see the module docs).
-pub const DENSE_LEVELS: f64 = 1.0;
+pub(crate) const DENSE_LEVELS: f64 = 1.0;
 
 /// Detail mode fits every k-th point of a cloud whose points average at least this many to
 /// an occupied cell of the mesh's finest level ([`fit_stride`]).
-pub const FIT_CELL_POINTS: usize = 12;
+pub(crate) const FIT_CELL_POINTS: usize = 12;
 
 /// ... k = ⌊mean / this⌋: about this many points of each such cell are fitted.
-pub const FIT_STRIDE_POINTS: usize = 3;
+pub(crate) const FIT_STRIDE_POINTS: usize = 3;
 
 /// The largest stride [`fit_stride`] picks.
-pub const FIT_STRIDE_MAX: u32 = 64;
+pub(crate) const FIT_STRIDE_MAX: u32 = 64;
 
 /// At most this many points are measured for their nearest-neighbour distance.
 const SPACING_SAMPLES: usize = 20_000;
@@ -123,7 +123,7 @@ impl DataResolution {
     /// Whether the points are at least [`DENSE_LEVELS`] levels finer than the cells of `depth`:
     /// detail mode's `run` then splits the mesh's curved edges
     /// ([`super::PolygonizeParams::refine`]).
-    pub fn finer_than(&self, depth: u32) -> bool {
+    pub(crate) fn finer_than(&self, depth: u32) -> bool {
         self.level >= f64::from(depth) + DENSE_LEVELS
     }
 }
@@ -149,7 +149,8 @@ impl DataResolution {
 ///     .collect();
 /// assert_eq!(depth_for_data(&sparse, &region), Some(6));
 /// ```
-pub fn depth_for_data(points: &[[f64; 3]], region: &Aabb) -> Option<u32> {
+#[cfg(test)] // only the unit tests call it
+pub(crate) fn depth_for_data(points: &[[f64; 3]], region: &Aabb) -> Option<u32> {
     DataResolution::of(points, region).map(|r| r.depth())
 }
 
@@ -178,7 +179,7 @@ pub fn depth_for_data(points: &[[f64; 3]], region: &Aabb) -> Option<u32> {
 /// // At depth 9 the cells hold about 2.3² ≈ 5.5 points: every point.
 /// assert_eq!(fit_stride(&points, &region, 9), 1);
 /// ```
-pub fn fit_stride(points: &[[f64; 3]], region: &Aabb, depth: u32) -> u32 {
+pub(crate) fn fit_stride(points: &[[f64; 3]], region: &Aabb, depth: u32) -> u32 {
     let depth = depth.min(20);
     let per_axis = (1u64 << depth) as f64;
     let longest = (0..3)

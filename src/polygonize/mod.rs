@@ -132,10 +132,8 @@ pub mod shapes;
 pub(crate) mod simplify;
 
 pub use crate::implicit::ImplicitFunction;
-pub use depth::{
-    depth_for_data, fit_stride, DataResolution, DATA_DEPTH_MAX, DATA_DEPTH_MIN, DENSE_LEVELS,
-    FIT_CELL_POINTS, FIT_STRIDE_MAX, FIT_STRIDE_POINTS,
-};
+pub(crate) use depth::fit_stride;
+pub use depth::{DataResolution, DATA_DEPTH_MAX, DATA_DEPTH_MIN};
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -147,12 +145,8 @@ use crate::poly::ImplicitPolynomial;
 
 use grid::Grid;
 
-/// Version of this stage's algorithm; if you change anything that changes its output for the same
-/// input and params, bump it.
-pub const STAGE_VERSION: u32 = 5;
-
 /// Largest `depth + guard_levels` supported.
-pub const MAX_LEVEL: u32 = Grid::MAX_CAP;
+pub(crate) const MAX_LEVEL: u32 = Grid::MAX_CAP;
 
 /// Projection tolerance: |f|/|∇f| at a vertex, as a fraction of the region's diagonal.
 const PROJECTION_TOLERANCE: f64 = 1e-7;
@@ -265,7 +259,7 @@ fn is_default_chord_share(share: &f64) -> bool {
 
 impl PolygonizeParams {
     /// The share of the chord move step 6 makes, or `None` without `fit_chords`.
-    pub fn chords(&self) -> Option<f64> {
+    pub(crate) fn chords(&self) -> Option<f64> {
         self.fit_chords.then_some(self.chord_share)
     }
 }

@@ -74,12 +74,12 @@ use crate::vec3::{cross, dot, norm, sub};
 
 /// Version of the decimation's algorithm: part of the finish stage's key when it decimates.
 /// If you change anything that changes its output for the same input and params, bump it.
-pub const VERSION: u32 = 1;
+pub(crate) const VERSION: u32 = 1;
 
 /// Smallest squared mean ratio (see the polygonizer's shape measure) a collapse may leave
 /// unless the triangles around the edge were already worse: mean ratio 0.2, a triangle of
 /// about 7° at its smallest corner.
-pub const MIN_QUALITY: f64 = 0.04;
+pub(crate) const MIN_QUALITY: f64 = 0.04;
 
 /// Newton steps allowed when placing a new vertex on the zero set.
 const NEWTON_STEPS: usize = 12;

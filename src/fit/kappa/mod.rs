@@ -123,7 +123,7 @@ fn traced_zero_set(poly: &ImplicitPolynomial, half: f64, name: &str) -> (CoarseZ
 /// assert_eq!(g[0], 0.0);
 /// assert!((g[1] - 1e-8).abs() < 1e-20 && (g[33] - 1.0).abs() < 1e-15);
 /// ```
-pub fn kappa_grid() -> Vec<f64> {
+pub(crate) fn kappa_grid() -> Vec<f64> {
     let mut grid = vec![0.0];
     grid.extend((0..=32).map(|i| 10f64.powf(-8.0 + i as f64 / 4.0)));
     grid
