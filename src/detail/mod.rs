@@ -77,8 +77,9 @@ pub(crate) use index::BallIndex;
 
 pub use model::{
     AuxiliaryPoints, DetailDiagnostics, DetailError, DetailParams, LocalConstraints, MpuCell,
-    MpuModel, NOISE_MARGIN, NOISE_POINTS_PER_COEFFICIENT, ROBUST_CUTOFF,
+    MpuModel,
 };
+pub(crate) use model::{NOISE_MARGIN, NOISE_POINTS_PER_COEFFICIENT, ROBUST_CUTOFF};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -243,7 +244,7 @@ impl Part {
 ///
 /// ```
 /// use stablesurf::detail::{fit_detail, DetailParams};
-/// use stablesurf::fit::study::{sample, Shape, Variant};
+/// use stablesurf::testing::study::{sample, Shape, Variant};
 /// use stablesurf::implicit::ImplicitFunction;
 /// let cloud = sample(Shape::Sphere, Variant::Clean, 500, 1);
 /// let model = fit_detail(&cloud, &DetailParams::default()).unwrap();

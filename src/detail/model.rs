@@ -112,15 +112,15 @@ fn is_zero(v: &f64) -> bool {
 /// σ/√(2n) between balls, and the measured σ is a median over the scan. A larger margin
 /// rounds the shape away, a smaller one opens handles through thin parts under strong noise
 /// (docs/defaults.md, "Noise").
-pub const NOISE_MARGIN: f64 = 1.1;
+pub(crate) const NOISE_MARGIN: f64 = 1.1;
 
 /// The most points per coefficient a noisy fit asks for (see [`DetailParams::noise`]), so
 /// that a ball stays local under strong noise: more reach across a face's features, fewer
 /// left strong noise unaveraged enough to open the surface (docs/defaults.md, "Noise").
-pub const NOISE_POINTS_PER_COEFFICIENT: f64 = 24.0;
+pub(crate) const NOISE_POINTS_PER_COEFFICIENT: f64 = 24.0;
 
 /// Tukey's biweight cut-off of a noisy fit's robust reweighting, in σ.
-pub const ROBUST_CUTOFF: f64 = 4.0;
+pub(crate) const ROBUST_CUTOFF: f64 = 4.0;
 
 /// 1, the default of [`DetailParams::stride`] in a serialized params record without it.
 fn one() -> u32 {

@@ -32,10 +32,8 @@ mod stage;
 pub mod units;
 pub mod vdb;
 
-pub use stage::{
-    export, export_mesh, model_slices, slices_from_model, ExportParams, ExportReport, OutputFile,
-    OutputFormat, STAGE_VERSION,
-};
+pub use stage::{export, ExportParams, ExportReport, OutputFile, OutputFormat};
+pub(crate) use stage::{export_mesh, model_slices, slices_from_model, STAGE_VERSION};
 
 use std::fs::File;
 use std::io::{BufWriter, Write};

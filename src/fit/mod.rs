@@ -37,7 +37,6 @@
 mod kappa;
 pub mod moments;
 mod solve;
-pub mod study;
 mod system;
 
 use std::str::FromStr;
@@ -47,7 +46,8 @@ use rayon::prelude::*;
 use crate::cloud::{Aabb, OrientedCloud};
 use crate::poly::{n_coefficients, FitDiagnostics, FitRecord, ImplicitModel, ImplicitPolynomial};
 
-use system::{Normalization, Rows, System};
+pub(crate) use system::Normalization;
+use system::{Rows, System};
 
 /// Highest supported degree (moments up to degree 2n are accumulated; beyond 20 the monomial
 /// basis is hopelessly ill-conditioned in double precision).

@@ -124,7 +124,7 @@ fn ray_in_corner(drop: usize, v: &[f64; 3], a: &[f64; 3], c: &[f64; 3], d: &[f64
 /// assert!(triangles_intersect([0, 1, 2], [3, 4, 5], &p));
 /// assert!(!triangles_intersect([0, 1, 2], [0, 4, 5], &p));
 /// ```
-pub fn triangles_intersect(s: [u32; 3], t: [u32; 3], positions: &[[f64; 3]]) -> bool {
+pub(crate) fn triangles_intersect(s: [u32; 3], t: [u32; 3], positions: &[[f64; 3]]) -> bool {
     let n = positions.len() as u32;
     if s.iter().chain(&t).any(|&i| i >= n) {
         return false;
@@ -247,7 +247,7 @@ pub fn self_intersecting_faces(mesh: &TriangleMesh) -> usize {
 
 /// One flag per triangle of `mesh`: whether it intersects another (see
 /// [`self_intersecting_faces`]).
-pub fn intersecting_triangles(mesh: &TriangleMesh) -> Vec<bool> {
+pub(crate) fn intersecting_triangles(mesh: &TriangleMesh) -> Vec<bool> {
     intersecting_triangles_among(mesh, None)
 }
 

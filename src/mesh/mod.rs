@@ -15,8 +15,10 @@
 
 mod intersect;
 
-pub use intersect::{intersecting_triangles, self_intersecting_faces, triangles_intersect};
-pub(crate) use intersect::{intersecting_triangles_among, triangle_box};
+#[cfg(test)]
+pub(crate) use intersect::intersecting_triangles;
+pub use intersect::self_intersecting_faces;
+pub(crate) use intersect::{intersecting_triangles_among, triangle_box, triangles_intersect};
 
 use crate::numerics::UnionFind;
 use crate::vec3::triangle_area;

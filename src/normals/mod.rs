@@ -45,7 +45,7 @@ mod noise;
 pub(crate) mod orient;
 pub(crate) mod pca;
 
-pub use noise::{estimate_noise, NoiseEstimate, NOISY_SPACING};
+pub use noise::{estimate_noise, NoiseEstimate};
 
 use std::borrow::Cow;
 use std::str::FromStr;

@@ -68,7 +68,7 @@ pub struct NoiseEstimate {
 /// follow ([`NoiseEstimate::is_noisy`]). Below it the figure is mostly the surface's own relief
 /// at the scale of a few spacings, which a quadric over 24 points does not take out; the
 /// clean and noisy samples this threshold separates are in docs/defaults.md, "Noise".
-pub const NOISY_SPACING: f64 = 0.5;
+pub(crate) const NOISY_SPACING: f64 = 0.5;
 
 impl NoiseEstimate {
     /// Whether σ exceeds [`NOISY_SPACING`] × the spacing: the points scatter across their
@@ -95,7 +95,7 @@ impl NoiseEstimate {
 ///
 /// ```
 /// use stablesurf::normals::estimate_noise;
-/// use stablesurf::fit::study::Lcg;
+/// use stablesurf::testing::study::Lcg;
 /// // A unit sphere of 20,000 points, moved along their radius by Gaussian noise of σ = 0.01.
 /// let mut rng = Lcg::new(3);
 /// let points: Vec<[f64; 3]> = (0..20_000)

@@ -644,7 +644,7 @@ mod tests {
     #[test]
     fn the_parallel_tree_build_lays_out_the_serial_tree() {
         // 300,000 scattered points: four levels of parallel splits above the serial subtrees.
-        let mut rng = crate::fit::study::Lcg::new(12345);
+        let mut rng = crate::testing::study::Lcg::new(12345);
         let mut next = || rng.uniform();
         let entries: Vec<([f64; 3], u32)> = (0..300_000u32)
             .map(|i| ([next(), next() * 2.0, next() * 0.5], i))

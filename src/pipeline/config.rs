@@ -105,7 +105,7 @@ pub struct PipelineConfig {
 /// The config a run's stages after the normals take: every data-driven setting resolved
 /// ([`PipelineConfig::resolve`]).
 #[derive(Clone, Debug, PartialEq)]
-pub struct ResolvedConfig {
+pub(crate) struct ResolvedConfig {
     /// Global or detail model.
     pub mode: Mode,
     /// Fit stage parameters (global mode).
@@ -290,7 +290,7 @@ pub const DENSE_TOLERANCE: f64 = 0.27;
 /// Noise below this share of the split tolerance is not smoothed: the largest of a few
 /// hundred Gaussian residuals is about 3–4 σ, so below a quarter of the tolerance noise alone
 /// does not fail a cell's split test, and the fit of exact data stands.
-pub const NOISE_FLOOR: f64 = 0.25;
+pub(crate) const NOISE_FLOOR: f64 = 0.25;
 
 /// The detail fit's [`DetailParams::noise`] for the measured `noise` of points whose box has
 /// the diagonal `diagonal`, at the factor `smooth`: `smooth`·σ over the diagonal, or 0 where

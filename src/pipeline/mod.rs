@@ -31,9 +31,8 @@ mod records;
 pub use crate::export::{mesh_files, MeshFileOptions, MeshFormat, OutputFormat};
 pub use crate::finish::Keep;
 pub use crate::model::{meshing_region, Mode, Model, ModelReport};
-pub use config::{
-    smoothing, PipelineConfig, ResolvedConfig, Setting, DENSE_TOLERANCE, NOISE_FLOOR,
-};
+pub(crate) use config::ResolvedConfig;
+pub use config::{smoothing, PipelineConfig, Setting, DENSE_TOLERANCE};
 pub use reconstruct::{reconstruct, Reconstruction};
 use records::{mesh_figures, run_report, EntryMeta, StageReport};
 pub use records::{

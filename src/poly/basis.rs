@@ -23,7 +23,7 @@ pub fn n_coefficients(degree: u32) -> usize {
 /// assert_eq!(e[4], [2, 0, 0]); // x²
 /// assert_eq!(e[8], [0, 1, 1]); // yz
 /// ```
-pub fn exponents(degree: u32) -> Vec<[u32; 3]> {
+pub(crate) fn exponents(degree: u32) -> Vec<[u32; 3]> {
     let mut out = Vec::with_capacity(n_coefficients(degree));
     for r in 0..=degree {
         for s in 0..=r {

@@ -32,7 +32,8 @@ mod basis;
 mod eval;
 mod forms;
 
-pub use basis::{exponents, monomial_index, n_coefficients};
+pub(crate) use basis::exponents;
+pub use basis::{monomial_index, n_coefficients};
 
 /// An implicit polynomial surface f(p) = 0 in input coordinates.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

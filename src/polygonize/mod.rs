@@ -128,7 +128,6 @@ mod extract;
 mod grid;
 mod octree;
 mod refine;
-pub mod shapes;
 pub(crate) mod simplify;
 
 pub use crate::implicit::ImplicitFunction;

@@ -563,9 +563,9 @@ mod tests {
         // the check fails before any mesh (no mesher reported). The data, the unit sphere,
         // is one piece.
         let radius = poly.containment_radius().unwrap_or(f64::INFINITY);
-        let cloud = crate::fit::study::sample(
-            crate::fit::study::Shape::Sphere,
-            crate::fit::study::Variant::Clean,
+        let cloud = crate::testing::study::sample(
+            crate::testing::study::Shape::Sphere,
+            crate::testing::study::Variant::Clean,
             3000,
             1,
         );
@@ -622,9 +622,9 @@ mod tests {
         assert_eq!(culled, plain);
         // A degree-8 fit of the heart (automatic κ, normalized coordinates), meshed in
         // [−R, R]³ as rule (d) does, with f > 0 certified from box norm 4 to R.
-        let cloud = crate::fit::study::sample(
-            crate::fit::study::Shape::Heart,
-            crate::fit::study::Variant::Clean,
+        let cloud = crate::testing::study::sample(
+            crate::testing::study::Shape::Heart,
+            crate::testing::study::Variant::Clean,
             1500,
             1,
         );
