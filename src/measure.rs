@@ -8,8 +8,8 @@
 //! it shares a vertex with the nearest vertex — true for the well-shaped meshes polygonize makes,
 //! and an upper bound on the distance otherwise.
 //!
-//! The other direction, mesh → points ([`nearest_point_distances`]), is the distance from each
-//! mesh vertex to the nearest data point ([`PointIndex`]: a grid of the points, a k-d tree
+//! The other direction, mesh → points (`nearest_point_distances`), is the distance from each
+//! mesh vertex to the nearest data point (`PointIndex`: a grid of the points, a k-d tree
 //! where the grid is slow; [`crate::point_tree`]). The PLY writer stores it as MeshLab's vertex quality and
 //! [`chamfer_distance`] averages it; both use this one function.
 //!
@@ -19,16 +19,16 @@
 //! distance to the nearest data point, unweighted by area. The symmetric figure is the mean of
 //! the two (divide by the data diagonal for the relative figure).
 //!
-//! The run's report uses [`accuracy`]: data → mesh as above (over every k-th point of a cloud
-//! of more than [`ACCURACY_POINTS`]), and mesh → data by *area*
+//! The run's report uses `accuracy`: data → mesh as above (over every k-th point of a cloud
+//! of more than `ACCURACY_POINTS`), and mesh → data by *area*
 //! (`mesh_to_points_by_area`): every triangle cut into congruent pieces small enough that each
 //! point of the mesh lies within 0.5% of the diagonal of a piece's centroid (`area_samples`),
 //! each centroid weighted by its piece's area, its distance to the
-//! nearest data point from the [`PointIndex`] below. Its far share (the area farther than 1% of
+//! nearest data point from the `PointIndex` below. Its far share (the area farther than 1% of
 //! the diagonal from every data point) shows surface the data does not support, which the data →
 //! mesh figure cannot see.
 //!
-//! The nearest-point queries are [`crate::point_tree`]'s: one [`PointIndex`] of the data answers
+//! The nearest-point queries are [`crate::point_tree`]'s: one `PointIndex` of the data answers
 //! all of an export's.
 
 use crate::numerics::point_tree::{
@@ -107,7 +107,7 @@ pub struct AreaDistanceSummary {
     /// Share of the mesh's area (0 to 1) farther than `far_relative` × diagonal from every data
     /// point.
     pub far_area_share: f64,
-    /// The threshold of `far_area_share`, relative to the diagonal ([`FAR_RELATIVE`]).
+    /// The threshold of `far_area_share`, relative to the diagonal (`FAR_RELATIVE`).
     pub far_relative: f64,
     /// The mesh's area, input units squared.
     pub area: f64,
@@ -119,7 +119,7 @@ pub struct AreaDistanceSummary {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Accuracy {
     /// Data → mesh: distance from every data point to the mesh, or from every k-th point when
-    /// there are more than [`ACCURACY_POINTS`] (the fields `mean`, `rms`, `max`,
+    /// there are more than `ACCURACY_POINTS` (the fields `mean`, `rms`, `max`,
     /// `mean_relative`, `max_relative`, `samples` at the top level of the JSON object).
     #[serde(flatten)]
     pub data_to_mesh: DistanceSummary,

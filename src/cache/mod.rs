@@ -115,14 +115,6 @@ impl fmt::Display for Key {
 }
 
 /// Computes a stage's key. `params` are the canonical bytes of the stage's params.
-///
-/// ```
-/// use stablesurf::cache::{stage_key, Key};
-/// let input = Key::of_bytes(b"scan");
-/// let a = stage_key("fit", 1, br#"{"degree":6}"#, &input);
-/// assert_eq!(a, stage_key("fit", 1, br#"{"degree":6}"#, &input));
-/// assert_ne!(a, stage_key("fit", 1, br#"{"degree":8}"#, &input));
-/// ```
 pub(crate) fn stage_key(stage: &str, stage_version: u32, params: &[u8], input: &Key) -> Key {
     let mut h = blake3::Hasher::new();
     let mut field = |bytes: &[u8]| {
@@ -870,3 +862,18 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CacheError> {
 
 #[cfg(test)]
 mod tests;
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn stage_key() {
+        use crate::cache::{stage_key, Key};
+        let input = Key::of_bytes(b"scan");
+        let a = stage_key("fit", 1, br#"{"degree":6}"#, &input);
+        assert_eq!(a, stage_key("fit", 1, br#"{"degree":6}"#, &input));
+        assert_ne!(a, stage_key("fit", 1, br#"{"degree":8}"#, &input));
+    }
+}

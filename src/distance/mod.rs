@@ -111,7 +111,7 @@ pub enum DistanceMethod {
     #[default]
     Exact,
     /// Distance to the polygonized zero set (the output mesh), signed by f: within the mesh's
-    /// chord error of the exact distance (see [`crate::measure::GridMeshDistance`] for when the
+    /// chord error of the exact distance (see `crate::measure::GridMeshDistance` for when the
     /// search can miss); works for any model, not only a polynomial. Needs the mesh
     /// ([`slices_from_mesh`]).
     Mesh,
@@ -284,7 +284,7 @@ pub fn slices(
 
 /// Computes the K slices of the signed distance to `mesh` across `region`
 /// ([`DistanceMethod::Mesh`]): the unsigned distance to the triangles around the nearest mesh
-/// vertex ([`crate::measure::GridMeshDistance`]), signed by `f` (negative where f < 0). `mesh` is
+/// vertex (`crate::measure::GridMeshDistance`), signed by `f` (negative where f < 0). `mesh` is
 /// the polygonized zero set of `f`; any [`ImplicitFunction`] works, so this also serves models
 /// that are not one polynomial. `params.method` is ignored (the slices record `Mesh`).
 ///

@@ -1,5 +1,5 @@
 //! Signed-distance volumes (the `vdb` and `npy` outputs): a model, its mesh and a region → a
-//! narrow-band level set ([`NarrowBand`]) and a dense grid ([`DenseVolume`]) of signed
+//! narrow-band level set (`NarrowBand`) and a dense grid (`DenseVolume`) of signed
 //! Euclidean distances in input units, negative inside. No IO: the writers are
 //! `export::vdb` and `export::npy`.
 //!
@@ -13,8 +13,8 @@
 //!
 //! # Values
 //!
-//! - **Narrow band** ([`narrow_band`]): the exact Euclidean distance to the mesh for every voxel
-//!   within [`BAND_VOXELS`] voxels of it. Each triangle is binned into the 8³-voxel blocks
+//! - **Narrow band** (`narrow_band`): the exact Euclidean distance to the mesh for every voxel
+//!   within `BAND_VOXELS` voxels of it. Each triangle is binned into the 8³-voxel blocks
 //!   (OpenVDB's leaves) that its bounding box grown by the band touches; per block, every voxel
 //!   in a triangle's grown box gets the distance to the triangle's closest point (Ericson 5.1.5),
 //!   and the smallest wins, so the value is the distance to the nearest triangle whenever that is
@@ -22,10 +22,10 @@
 //!   is active when that distance is below the half-width 3h; every other voxel of a block, and
 //!   every block the band does not reach, holds ± the background 3h (OpenVDB's level-set
 //!   convention, what its signed flood fill leaves). Blocks the band does not reach are listed
-//!   by their sign ([`NarrowBand::inside_blocks`]); the surface does not cross them, so one
+//!   by their sign (`NarrowBand::inside_blocks`); the surface does not cross them, so one
 //!   value of f at a block's centre voxel decides it.
-//! - **Dense** ([`dense`]): the band's exact values where the band is active; every other voxel
-//!   gets the distance of the mesh distance slices ([`crate::measure::GridMeshDistance`],
+//! - **Dense** (`dense`): the band's exact values where the band is active; every other voxel
+//!   gets the distance of the mesh distance slices (`crate::measure::GridMeshDistance`,
 //!   within the mesh's chord error, warm-started along each row of constant (i, j)) and the
 //!   sign the band holds for it (its block's voxel, or its block's sign).
 //! - **Sign**: inside the band, the side of the mesh the voxel centre lies on, seen from its
@@ -65,14 +65,14 @@ pub(crate) const BLOCK_VOXELS: usize = BLOCK * BLOCK * BLOCK;
 /// The edge length of a voxel.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub enum VoxelSize {
-    /// The region's longest side / [`DEFAULT_VOXELS`] (256 voxels along it). The default.
+    /// The region's longest side / `DEFAULT_VOXELS` (256 voxels along it). The default.
     #[default]
     Auto,
     /// This size, input units, > 0.
     Size(f64),
 }
 
-/// Parameters of [`narrow_band`] and [`dense`].
+/// Parameters of `narrow_band` and `dense`.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct VolumeParams {
     /// The voxel size; default [`VoxelSize::Auto`].
@@ -204,24 +204,6 @@ fn check_mesh(mesh: &TriangleMesh) -> Result<(), DistanceError> {
 
 /// The narrow-band level set of the signed distance to `mesh` (the polygonized zero set of
 /// `f`) over `region`.
-///
-/// ```
-/// use stablesurf::cloud::Aabb;
-/// use stablesurf::distance::volume::{narrow_band, VolumeParams, VoxelSize};
-/// use stablesurf::polygonize::{polygonize, PolygonizeParams};
-/// use stablesurf::ImplicitPolynomial;
-/// let mut c = vec![0.0; 10];
-/// (c[0], c[4], c[7], c[9]) = (-1.0, 1.0, 1.0, 1.0);
-/// let sphere = ImplicitPolynomial { degree: 2, coefficients: c, center: [0.0; 3], scale: 1.0 };
-/// let region = Aabb { min: [-1.5; 3], max: [1.5; 3] };
-/// let mesh = polygonize(&sphere, &region, &PolygonizeParams { depth: 5, ..Default::default() })?.mesh;
-/// let params = VolumeParams { voxel_size: VoxelSize::Size(0.1) };
-/// let band = narrow_band(&sphere, &mesh, &region, &params).unwrap();
-/// assert_eq!(band.grid.shape, [30, 30, 30]);
-/// assert!((band.background - 0.3).abs() < 1e-6);
-/// assert!(band.active_voxels() > 1000);
-/// # Ok::<(), stablesurf::polygonize::PolygonizeError>(())
-/// ```
 ///
 /// # Errors
 /// As [`VoxelGrid::over`]; [`DistanceError::NoSurface`] when the mesh has no triangles or a
@@ -615,5 +597,48 @@ mod tests {
             narrow_band(&poly, &empty, &region, &params).unwrap_err(),
             DistanceError::NoSurface
         );
+    }
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn narrow_band() -> Result<(), Box<dyn std::error::Error>> {
+        use crate::cloud::Aabb;
+        use crate::distance::volume::{narrow_band, VolumeParams, VoxelSize};
+        use crate::polygonize::{polygonize, PolygonizeParams};
+        use crate::ImplicitPolynomial;
+        let mut c = vec![0.0; 10];
+        (c[0], c[4], c[7], c[9]) = (-1.0, 1.0, 1.0, 1.0);
+        let sphere = ImplicitPolynomial {
+            degree: 2,
+            coefficients: c,
+            center: [0.0; 3],
+            scale: 1.0,
+        };
+        let region = Aabb {
+            min: [-1.5; 3],
+            max: [1.5; 3],
+        };
+        let mesh = polygonize(
+            &sphere,
+            &region,
+            &PolygonizeParams {
+                depth: 5,
+                ..Default::default()
+            },
+        )?
+        .mesh;
+        let params = VolumeParams {
+            voxel_size: VoxelSize::Size(0.1),
+        };
+        let band = narrow_band(&sphere, &mesh, &region, &params).unwrap();
+        assert_eq!(band.grid.shape, [30, 30, 30]);
+        assert!((band.background - 0.3).abs() < 1e-6);
+        assert!(band.active_voxels() > 1000);
+        Ok(())
     }
 }

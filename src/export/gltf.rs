@@ -21,7 +21,7 @@
 //! by 0.001); without, they are written unchanged (a scan in metres needs no unit).
 //!
 //! Far-off coordinates (a LiDAR tile in UTM coordinates, where `f32` steps are 0.25 m; the
-//! test is [`needs_double`](crate::export::needs_double)) are written relative to the centre of
+//! test is `needs_double`) are written relative to the centre of
 //! their bounding box, and the node's `translation` holds that centre as a JSON number with every
 //! digit of the `f64`: the shape keeps its detail and viewers place it where it belongs. Other
 //! meshes are written as before, with no translation.

@@ -1,6 +1,6 @@
-//! Export stage, OpenVDB writer: a [`NarrowBand`] level set → one `.vdb` file.
+//! Export stage, OpenVDB writer: a `NarrowBand` level set → one `.vdb` file.
 //!
-//! Input: the narrow band of [`crate::distance::volume`] and [`VdbOptions`] (the unit and the
+//! Input: the narrow band of [`crate::distance::volume`] and `VdbOptions` (the unit and the
 //! glTF up axis). Output: the bytes of an OpenVDB file (file format version 224, the current
 //! one) holding one grid: a `FloatGrid` (`Tree_float_5_4_3`) named `surface` of class
 //! `level set`, uncompressed, with the standard grid metadata (`class`, `name`,
@@ -37,7 +37,7 @@
 //!
 //! Index (i, j, k) maps to world as `voxel size · (i, j, k) + translation`, voxel centres at
 //! integer indices. Values and the transform are in input units, or in metres with
-//! [`VdbOptions::units`], like the glTF. With [`UpAxis::Y`] (the glTF default) the grid is put
+//! `VdbOptions::units`, like the glTF. With [`UpAxis::Y`] (the glTF default) the grid is put
 //! in Blender's Z-up frame the way Blender's glTF importer puts the glb: input (x, y, z) ↦
 //! (x, −z, y), by a permutation of the index axes (the map stays a uniform scale and a
 //! translation), so a `.glb` and a `.vdb` of one run imported together overlap; with
@@ -205,24 +205,6 @@ fn vec3i_bytes(v: [i32; 3]) -> Vec<u8> {
 }
 
 /// Writes `band` as an OpenVDB file (see the module docs) to `out`.
-///
-/// ```
-/// use stablesurf::cloud::Aabb;
-/// use stablesurf::distance::volume::{narrow_band, VolumeParams, VoxelSize};
-/// use stablesurf::export::vdb::{write, VdbOptions};
-/// use stablesurf::polygonize::{polygonize, PolygonizeParams};
-/// use stablesurf::ImplicitPolynomial;
-/// let mut c = vec![0.0; 10];
-/// (c[0], c[4], c[7], c[9]) = (-1.0, 1.0, 1.0, 1.0);
-/// let sphere = ImplicitPolynomial { degree: 2, coefficients: c, center: [0.0; 3], scale: 1.0 };
-/// let region = Aabb { min: [-1.5; 3], max: [1.5; 3] };
-/// let mesh = polygonize(&sphere, &region, &PolygonizeParams { depth: 4, ..Default::default() })?.mesh;
-/// let band = narrow_band(&sphere, &mesh, &region, &VolumeParams { voxel_size: VoxelSize::Size(0.2) }).unwrap();
-/// let mut bytes = Vec::new();
-/// write(&band, &VdbOptions::default(), &mut bytes).unwrap();
-/// assert_eq!(&bytes[..8], &[0x20, 0x42, 0x44, 0x56, 0, 0, 0, 0]);
-/// # Ok::<(), stablesurf::polygonize::PolygonizeError>(())
-/// ```
 ///
 /// # Errors
 /// [`ExportError::Write`] when `out` fails; [`ExportError::Format`] for a band without active
@@ -813,5 +795,54 @@ mod tests {
         write(&band, &VdbOptions::default(), &mut a).unwrap();
         write(&band.clone(), &VdbOptions::default(), &mut b).unwrap();
         assert_eq!(a, b);
+    }
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn write() -> Result<(), Box<dyn std::error::Error>> {
+        use crate::cloud::Aabb;
+        use crate::distance::volume::{narrow_band, VolumeParams, VoxelSize};
+        use crate::export::vdb::{write, VdbOptions};
+        use crate::polygonize::{polygonize, PolygonizeParams};
+        use crate::ImplicitPolynomial;
+        let mut c = vec![0.0; 10];
+        (c[0], c[4], c[7], c[9]) = (-1.0, 1.0, 1.0, 1.0);
+        let sphere = ImplicitPolynomial {
+            degree: 2,
+            coefficients: c,
+            center: [0.0; 3],
+            scale: 1.0,
+        };
+        let region = Aabb {
+            min: [-1.5; 3],
+            max: [1.5; 3],
+        };
+        let mesh = polygonize(
+            &sphere,
+            &region,
+            &PolygonizeParams {
+                depth: 4,
+                ..Default::default()
+            },
+        )?
+        .mesh;
+        let band = narrow_band(
+            &sphere,
+            &mesh,
+            &region,
+            &VolumeParams {
+                voxel_size: VoxelSize::Size(0.2),
+            },
+        )
+        .unwrap();
+        let mut bytes = Vec::new();
+        write(&band, &VdbOptions::default(), &mut bytes).unwrap();
+        assert_eq!(&bytes[..8], &[0x20, 0x42, 0x44, 0x56, 0, 0, 0, 0]);
+        Ok(())
     }
 }

@@ -14,11 +14,11 @@
 //! ```
 //!
 //! *Keep* leaves out the components far from the data and small nested or unsupported ones
-//! ([`Keep::Data`]); *trim* ([`crate::trim`]) removes what the data does not support and fairs
+//! ([`Keep::Data`]); *trim* ([`crate::trim`](mod@crate::trim)) removes what the data does not support and fairs
 //! the holes it leaves; *decimate* ([`decimate`]) collapses edges down to a triangle budget. The
 //! checks, the accuracy and the per-vertex values all measure the mesh as written, so they run
 //! last. One k-d tree of the data serves every nearest-point query. The stage does no IO and
-//! encodes nothing: [`crate::export`] turns its output into bytes. Every part runs on the rayon
+//! encodes nothing: [`crate::export`](mod@crate::export) turns its output into bytes. Every part runs on the rayon
 //! pool and its results do not depend on the thread count.
 
 pub mod decimate;
@@ -63,9 +63,9 @@ pub enum Keep {
     #[default]
     All,
     /// Only components with a data point within 2% of the data's diagonal, and no small closed
-    /// piece inside another ([`mesh::drop_small_nested_components`]; see [`NESTED_AREA_FRACTION`]),
-    /// nor a small piece with fewer than [`SUPPORT_POINTS_MIN`] data points in its box
-    /// ([`mesh::drop_small_unsupported_components`]).
+    /// piece inside another (`mesh::drop_small_nested_components`; see `NESTED_AREA_FRACTION`),
+    /// nor a small piece with fewer than `SUPPORT_POINTS_MIN` data points in its box
+    /// (`mesh::drop_small_unsupported_components`).
     Data,
 }
 
@@ -130,9 +130,9 @@ impl Finished {
 pub struct FinishReport {
     /// Components left out for having no data point within 2% of the data's diagonal.
     pub dropped_components: usize,
-    /// Small closed components left out for lying inside another ([`NESTED_AREA_FRACTION`]).
+    /// Small closed components left out for lying inside another (`NESTED_AREA_FRACTION`).
     pub dropped_nested: usize,
-    /// Small components left out for holding fewer than [`SUPPORT_POINTS_MIN`] data points in
+    /// Small components left out for holding fewer than `SUPPORT_POINTS_MIN` data points in
     /// their box.
     pub dropped_unsupported: usize,
     /// What the trim removed and closed.
@@ -165,7 +165,7 @@ pub enum FinishError {
 ///
 /// `known_embedded` passes on what the meshing proved: no triangle of `mesh` crosses another
 /// ([`crate::polygonize::Polygonized::embedded`]); the check then counts no self-intersecting
-/// face without testing again ([`mesh::check_with`]). Pass `false` for any other mesh.
+/// face without testing again (`mesh::check_with`). Pass `false` for any other mesh.
 ///
 /// # Errors
 /// [`FinishError::Trim`] from the trim, [`FinishError::Colours`] when `colours` is not one per

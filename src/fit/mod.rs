@@ -295,7 +295,7 @@ pub enum RidgeMatrix {
 /// Parameters of the fit stage.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FitParams {
-    /// Polynomial degree n (1 to [`MAX_DEGREE`]; automatic κ needs it even).
+    /// Polynomial degree n (1 to `MAX_DEGREE`; automatic κ needs it even).
     pub degree: u32,
     /// The fitting method.
     pub method: FitMethod,

@@ -105,12 +105,6 @@ pub(crate) struct VertexTriangles {
 
 impl VertexTriangles {
     /// Builds the rows for `n_vertices` vertices; every index in `triangles` must be below it.
-    ///
-    /// ```
-    /// let around = stablesurf::mesh::VertexTriangles::new(4, &[[0, 1, 2], [0, 2, 3]]);
-    /// assert_eq!(around.of(0), &[0, 1]);
-    /// assert_eq!(around.of(3), &[1]);
-    /// ```
     pub(crate) fn new(n_vertices: usize, triangles: &[[u32; 3]]) -> VertexTriangles {
         let mut start = vec![0usize; n_vertices + 1];
         for t in triangles {
@@ -485,20 +479,6 @@ fn component_areas(mesh: &TriangleMesh, labels: &[u32], n_components: usize) -> 
 /// are the small bubbles an implicit fit leaves inside thin parts (a duck's beak: seven, each
 /// under 0.13% of the area); a scanner never sees an object's inside, and a void of a
 /// mesh's own is rarely that small. Kept vertices and triangles stay in their order.
-///
-/// ```
-/// use stablesurf::mesh::{drop_small_nested_components, TriangleMesh};
-/// // A big tetrahedron and a small one inside it.
-/// let tet = |s: f64, o: f64| vec![[o, o, o], [o + s, o, o], [o, o + s, o], [o, o, o + s]];
-/// let mut positions = tet(10.0, 0.0);
-/// positions.extend(tet(0.5, 1.0));
-/// let faces = |b: u32| [[b, b + 2, b + 1], [b, b + 1, b + 3], [b, b + 3, b + 2], [b + 1, b + 2, b + 3]];
-/// let mut triangles = faces(0).to_vec();
-/// triangles.extend(faces(4));
-/// let mesh = TriangleMesh { normals: vec![[0.0, 0.0, 1.0]; 8], positions, triangles };
-/// let (kept, dropped) = drop_small_nested_components(&mesh, 0.01);
-/// assert_eq!((dropped, kept.triangles.len()), (1, 4));
-/// ```
 pub(crate) fn drop_small_nested_components(
     mesh: &TriangleMesh,
     max_fraction: f64,
@@ -550,21 +530,6 @@ pub(crate) fn drop_small_nested_components(
 /// or two beside the surface (too few points for a local fit to stand on); a small part the
 /// data samples keeps its points. Kept vertices and triangles stay in their order. Cost: one
 /// pass over `points` per small component, stopped at `min_points`.
-///
-/// ```
-/// use stablesurf::mesh::{drop_small_unsupported_components, TriangleMesh};
-/// // A big triangle over many points, a tiny one beside a single point.
-/// let mesh = TriangleMesh {
-///     positions: vec![[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [0.0, 10.0, 0.0],
-///                     [20.0, 0.0, 0.0], [20.1, 0.0, 0.0], [20.0, 0.1, 0.0]],
-///     normals: vec![[0.0, 0.0, 1.0]; 6],
-///     triangles: vec![[0, 1, 2], [3, 4, 5]],
-/// };
-/// let mut points: Vec<[f64; 3]> = (0..100).map(|i| [(i % 10) as f64 * 0.5, (i / 10) as f64 * 0.5, 0.0]).collect();
-/// points.push([20.05, 0.02, 0.0]);
-/// let (kept, dropped) = drop_small_unsupported_components(&mesh, &points, 0.01, 15);
-/// assert_eq!((dropped, kept.triangles.clone()), (1, vec![[0, 1, 2]]));
-/// ```
 pub(crate) fn drop_small_unsupported_components(
     mesh: &TriangleMesh,
     points: &[[f64; 3]],
@@ -785,3 +750,66 @@ pub(crate) fn unit_square() -> TriangleMesh {
 
 #[cfg(test)]
 mod tests;
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn vertex_triangles_new() {
+        let around = crate::mesh::VertexTriangles::new(4, &[[0, 1, 2], [0, 2, 3]]);
+        assert_eq!(around.of(0), &[0, 1]);
+        assert_eq!(around.of(3), &[1]);
+    }
+
+    #[test]
+    fn drop_small_nested_components() {
+        use crate::mesh::{drop_small_nested_components, TriangleMesh};
+        // A big tetrahedron and a small one inside it.
+        let tet = |s: f64, o: f64| vec![[o, o, o], [o + s, o, o], [o, o + s, o], [o, o, o + s]];
+        let mut positions = tet(10.0, 0.0);
+        positions.extend(tet(0.5, 1.0));
+        let faces = |b: u32| {
+            [
+                [b, b + 2, b + 1],
+                [b, b + 1, b + 3],
+                [b, b + 3, b + 2],
+                [b + 1, b + 2, b + 3],
+            ]
+        };
+        let mut triangles = faces(0).to_vec();
+        triangles.extend(faces(4));
+        let mesh = TriangleMesh {
+            normals: vec![[0.0, 0.0, 1.0]; 8],
+            positions,
+            triangles,
+        };
+        let (kept, dropped) = drop_small_nested_components(&mesh, 0.01);
+        assert_eq!((dropped, kept.triangles.len()), (1, 4));
+    }
+
+    #[test]
+    fn drop_small_unsupported_components() {
+        use crate::mesh::{drop_small_unsupported_components, TriangleMesh};
+        // A big triangle over many points, a tiny one beside a single point.
+        let mesh = TriangleMesh {
+            positions: vec![
+                [0.0, 0.0, 0.0],
+                [10.0, 0.0, 0.0],
+                [0.0, 10.0, 0.0],
+                [20.0, 0.0, 0.0],
+                [20.1, 0.0, 0.0],
+                [20.0, 0.1, 0.0],
+            ],
+            normals: vec![[0.0, 0.0, 1.0]; 6],
+            triangles: vec![[0, 1, 2], [3, 4, 5]],
+        };
+        let mut points: Vec<[f64; 3]> = (0..100)
+            .map(|i| [(i % 10) as f64 * 0.5, (i / 10) as f64 * 0.5, 0.0])
+            .collect();
+        points.push([20.05, 0.02, 0.0]);
+        let (kept, dropped) = drop_small_unsupported_components(&mesh, &points, 0.01, 15);
+        assert_eq!((dropped, kept.triangles.clone()), (1, vec![[0, 1, 2]]));
+    }
+}

@@ -148,7 +148,7 @@ pub fn write_model(model: &ImplicitModel, out: &mut impl Write) -> Result<(), Mo
 ///
 /// # Errors
 /// [`ModelError::Read`], naming `path`, when the bytes are not JSON, a required field is
-/// missing, `format` or `version` is not this build's, the degree exceeds [`MAX_DEGREE`], the
+/// missing, `format` or `version` is not this build's, the degree exceeds `MAX_DEGREE`, the
 /// coefficient count is not (n+1)(n+2)(n+3)/6, a number is not finite, or the scale is not
 /// positive.
 pub fn read_model(bytes: &[u8], path: &Path) -> Result<ImplicitModel, ModelError> {

@@ -125,8 +125,8 @@ pub enum NormalsError {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum NormalSource {
     /// `input` when the file has normals, else `mesh` when it has faces (not all degenerate),
-    /// else `crust` for at most [`AUTO_CRUST_MAX`] points and `pca` for more or for noisy
-    /// points ([`NoiseEstimate::is_noisy`]) (with a warning when the faces were all degenerate,
+    /// else `crust` for at most `AUTO_CRUST_MAX` points and `pca` for more or for noisy
+    /// points (`NoiseEstimate::is_noisy`) (with a warning when the faces were all degenerate,
     /// the cloud is too large for the crust or the noise too strong for it; falling back to
     /// `pca` with a warning where the crust fails).
     #[default]

@@ -1,5 +1,5 @@
 //! The k-d tree of points ([`PointTree`]) and the nearest-point queries built on it
-//! ([`PointIndex`], [`nearest_point_distances`]), run in a spatial order so that each query's
+//! (`PointIndex`, `nearest_point_distances`), run in a spatial order so that each query's
 //! answer bounds the next one's search.
 //!
 //! Input: points. Output: nearest points and distances, exact.
@@ -10,7 +10,7 @@
 //! nearest point to arbitrary places (mesh vertices, samples), queries of any radius, and
 //! the detail fit's growing balls.
 //!
-//! [`PointIndex`]: the distances from a uniform grid of the points (`PointGrid::for_nearest`, a
+//! `PointIndex`: the distances from a uniform grid of the points (`PointGrid::for_nearest`, a
 //! counting sort, built in a fraction of a k-d tree's time over a scan of millions of points),
 //! with the k-d tree for what the grid leaves open and for the colours' nearest points.
 //! [`PointTree`] is a k-d tree (Friedman, Bentley and Finkel 1977) with median splits on the
@@ -521,12 +521,6 @@ pub(crate) fn nearest_in(tree: &PointTree, q: [f64; 3], hint: Option<[f64; 3]>) 
 /// [`PointIndex`] of the finite points; a query with a non-finite coordinate gets NaN. Runs in
 /// parallel; the result does not depend on the thread count. `None` when `points` holds no
 /// finite point.
-///
-/// ```
-/// use stablesurf::point_tree::nearest_point_distances;
-/// let d = nearest_point_distances(&[[0.0, 0.0, 0.0], [3.0, 4.0, 0.0]], &[[0.0, 0.0, 1.0]]).unwrap();
-/// assert_eq!(d, vec![1.0, 26f64.sqrt()]);
-/// ```
 pub(crate) fn nearest_point_distances(
     queries: &[[f64; 3]],
     points: &[[f64; 3]],
@@ -772,5 +766,19 @@ mod tests {
             assert_eq!(tree.nearest_within(q, radius2).map(|n| n.0), Some(d2));
         }
         assert!(PointTree::new(&[]).is_none());
+    }
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn nearest_point_distances() {
+        use crate::point_tree::nearest_point_distances;
+        let d = nearest_point_distances(&[[0.0, 0.0, 0.0], [3.0, 4.0, 0.0]], &[[0.0, 0.0, 1.0]])
+            .unwrap();
+        assert_eq!(d, vec![1.0, 26f64.sqrt()]);
     }
 }

@@ -113,7 +113,7 @@ pub const CLOUD_NAME: &str = "points";
 pub enum ScanSource {
     /// A file.
     File(PathBuf),
-    /// The built-in sample ([`SAMPLE_SCAN`]).
+    /// The built-in sample (`SAMPLE_SCAN`).
     Sample,
     /// A Stanford `.conf` registration file: its scans, each oriented in its own frame, moved
     /// by their poses and merged ([`crate::merge`]).

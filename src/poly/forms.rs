@@ -102,19 +102,6 @@ impl ImplicitPolynomial {
     /// value and the refined one agree to a few per cent, and the refinement makes the reported
     /// value exact at the basin found. It is not a certificate of positivity; the containment
     /// radius built on it ([`Self::containment_radius`]) inherits that caveat.
-    ///
-    /// ```
-    /// use stablesurf::ImplicitPolynomial;
-    /// // f = x² + 2 y² + 3 z² − 1: the leading form ranges over [1, 3] on the sphere.
-    /// let mut coefficients = vec![0.0; 10];
-    /// coefficients[0] = -1.0;
-    /// coefficients[4] = 1.0;
-    /// coefficients[7] = 2.0;
-    /// coefficients[9] = 3.0;
-    /// let f = ImplicitPolynomial { degree: 2, coefficients, center: [0.0; 3], scale: 1.0 };
-    /// let e = f.leading_form_extrema();
-    /// assert!((e.min - 1.0).abs() < 1e-12 && (e.max - 3.0).abs() < 1e-12);
-    /// ```
     pub(crate) fn leading_form_extrema(&self) -> SphereExtrema {
         sphere_extrema(&self.leading_form())
     }
@@ -401,5 +388,30 @@ mod tests {
         let mut g = f.clone();
         g.coefficients[n_coefficients(3)] = -5.0;
         assert!(g.containment_radius().is_none());
+    }
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn implicit_polynomial_leading_form_extrema() {
+        use crate::ImplicitPolynomial;
+        // f = x² + 2 y² + 3 z² − 1: the leading form ranges over [1, 3] on the sphere.
+        let mut coefficients = vec![0.0; 10];
+        coefficients[0] = -1.0;
+        coefficients[4] = 1.0;
+        coefficients[7] = 2.0;
+        coefficients[9] = 3.0;
+        let f = ImplicitPolynomial {
+            degree: 2,
+            coefficients,
+            center: [0.0; 3],
+            scale: 1.0,
+        };
+        let e = f.leading_form_extrema();
+        assert!((e.min - 1.0).abs() < 1e-12 && (e.max - 3.0).abs() < 1e-12);
     }
 }

@@ -113,7 +113,7 @@ impl DataResolution {
             .clamp(f64::from(DATA_DEPTH_MIN), f64::from(DATA_DEPTH_MAX)) as u32
     }
 
-    /// Whether the points are at least [`DENSE_LEVELS`] levels finer than the cells of
+    /// Whether the points are at least `DENSE_LEVELS` levels finer than the cells of
     /// [`DataResolution::depth`]: detail mode's split tolerance is then cut and the chords take
     /// their whole move.
     pub fn dense(&self) -> bool {
@@ -163,22 +163,6 @@ pub(crate) fn depth_for_data(points: &[[f64; 3]], region: &Aabb) -> Option<u32> 
 /// every k-th point along the Z-order curve pins the surface as well, and the time saved pays
 /// for cubic refits of the deepest cells ([`crate::detail::DetailParams::refit_deepest`], which
 /// `run` sets with a stride above 1; see the module docs). 1 when no point lies in the region.
-///
-/// ```
-/// use stablesurf::polygonize::fit_stride;
-/// use stablesurf::Aabb;
-/// // The unit square sampled 1000 to a side, meshed at depth 7 over a box of side 1.2: the
-/// // 108 × 108 cells of 1.2 / 128 it meets hold 85 points on average, so every 28th is fitted.
-/// let points: Vec<[f64; 3]> = (0..1_000_000)
-///     .map(|i| [(i % 1000) as f64 * 1e-3, (i / 1000) as f64 * 1e-3, 0.0])
-///     .collect();
-/// let region = Aabb { min: [-0.1, -0.1, -0.6], max: [1.1, 1.1, 0.6] };
-/// assert_eq!(fit_stride(&points, &region, 7), 28);
-/// // At depth 8, 214 × 214 cells of 21 points: every 7th.
-/// assert_eq!(fit_stride(&points, &region, 8), 7);
-/// // At depth 9 the cells hold about 2.3² ≈ 5.5 points: every point.
-/// assert_eq!(fit_stride(&points, &region, 9), 1);
-/// ```
 pub(crate) fn fit_stride(points: &[[f64; 3]], region: &Aabb, depth: u32) -> u32 {
     let depth = depth.min(20);
     let per_axis = (1u64 << depth) as f64;
@@ -304,5 +288,31 @@ mod tests {
         // Only the finest depth can be dense: below it the depth follows the level.
         assert!(!at(6.2).dense());
         assert!(!at(5.0).dense());
+    }
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn fit_stride() {
+        use crate::polygonize::fit_stride;
+        use crate::Aabb;
+        // The unit square sampled 1000 to a side, meshed at depth 7 over a box of side 1.2: the
+        // 108 × 108 cells of 1.2 / 128 it meets hold 85 points on average, so every 28th is fitted.
+        let points: Vec<[f64; 3]> = (0..1_000_000)
+            .map(|i| [(i % 1000) as f64 * 1e-3, (i / 1000) as f64 * 1e-3, 0.0])
+            .collect();
+        let region = Aabb {
+            min: [-0.1, -0.1, -0.6],
+            max: [1.1, 1.1, 0.6],
+        };
+        assert_eq!(fit_stride(&points, &region, 7), 28);
+        // At depth 8, 214 × 214 cells of 21 points: every 7th.
+        assert_eq!(fit_stride(&points, &region, 8), 7);
+        // At depth 9 the cells hold about 2.3² ≈ 5.5 points: every point.
+        assert_eq!(fit_stride(&points, &region, 9), 1);
     }
 }

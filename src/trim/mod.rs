@@ -147,7 +147,7 @@ pub struct TrimParams {
     /// The noise the model averaged, as a share of the data's diagonal (the detail fit's
     /// [`crate::detail::DetailParams::noise`]): a noisy scan's points scatter by σ on both
     /// sides of the smooth surface fitted through them, further than their spacing where σ is
-    /// large, so a triangle (or vertex) within [`NOISE_SUPPORT`]·σ of a data point is supported
+    /// large, so a triangle (or vertex) within `NOISE_SUPPORT`·σ of a data point is supported
     /// whatever the spacing says. Default 0 (exact data; left out of the cache key then).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub noise: f64,

@@ -46,9 +46,9 @@
 //!    sweep uses the same condition for its half-edge collapses); (b) a moved triangle's normal
 //!    turns by more than the polygonizer's limit (about 40°), or faces away from the model's
 //!    normal at one of its corners (a fold), or its shape (mean ratio) falls below
-//!    [`MIN_QUALITY`] and below what the worst triangle around the edge had; (c) a new triangle
+//!    `MIN_QUALITY` and below what the worst triangle around the edge had; (c) a new triangle
 //!    meets another triangle of the mesh other than at their shared vertices and edges,
-//!    decided by the exact test of [`crate::mesh::triangles_intersect`] against every triangle
+//!    decided by the exact test of `crate::mesh::triangles_intersect` against every triangle
 //!    whose box meets the new fan's, found in a hierarchical spatial hash (each triangle in the
 //!    cell of its box's lowest corner, at the level whose cells are at least as large as the
 //!    box); the hash only finds candidates, so the decision is exact whatever its cells.

@@ -116,13 +116,6 @@ fn traced_zero_set(poly: &ImplicitPolynomial, half: f64, name: &str) -> (CoarseZ
 }
 
 /// The κ grid: 0, then 10^(−8 + i/4) for i = 0 … 32 (1e-8 … 1, four steps a decade).
-///
-/// ```
-/// let g = stablesurf::fit::kappa_grid();
-/// assert_eq!(g.len(), 34);
-/// assert_eq!(g[0], 0.0);
-/// assert!((g[1] - 1e-8).abs() < 1e-20 && (g[33] - 1.0).abs() < 1e-15);
-/// ```
 pub(crate) fn kappa_grid() -> Vec<f64> {
     let mut grid = vec![0.0];
     grid.extend((0..=32).map(|i| 10f64.powf(-8.0 + i as f64 / 4.0)));
@@ -696,5 +689,19 @@ mod tests {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn kappa_grid() {
+        let g = crate::fit::kappa::kappa_grid();
+        assert_eq!(g.len(), 34);
+        assert_eq!(g[0], 0.0);
+        assert!((g[1] - 1e-8).abs() < 1e-20 && (g[33] - 1.0).abs() < 1e-15);
     }
 }
