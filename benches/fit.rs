@@ -4,8 +4,8 @@
 //! at the end.
 
 use criterion::{criterion_group, Criterion};
-use stablesurf::fit::study::{sample, Shape, Variant};
 use stablesurf::fit::{fit, FitParams, Kappa};
+use stablesurf::testing::study::{sample, Shape, Variant};
 use stablesurf::OrientedCloud;
 
 #[path = "../tools/proc_time.rs"]

@@ -5,7 +5,8 @@
 
 use criterion::{criterion_group, criterion_main, Criterion};
 
-use stablesurf::polygonize::{polygonize, shapes, PolygonizeParams};
+use stablesurf::polygonize::{polygonize, PolygonizeParams};
+use stablesurf::testing::shapes;
 use stablesurf::Aabb;
 
 fn bench_degree_eight(c: &mut Criterion) {

@@ -145,7 +145,7 @@ impl Aabb {
     }
 
     /// Centre of the box.
-    pub fn center(&self) -> [f64; 3] {
+    pub(crate) fn center(&self) -> [f64; 3] {
         [0, 1, 2].map(|a| 0.5 * (self.min[a] + self.max[a]))
     }
 

@@ -12,6 +12,41 @@
 //! artifact; [`pipeline`] chains them through the content-addressed [`cache`]. The stage
 //! functions, their params, artifacts and errors are re-exported here; the modules hold the
 //! rest (formats, diagnostics, lower-level entry points).
+//!
+//! # The API
+//!
+//! The crate is public only as far as its consumers need: the command line (`src/cli/`, compiled
+//! into the binary), the Python package (`python/`), the developer tools (`tools/*.rs`, behind
+//! the `tools` feature), the repository's tests and benchmarks, and a library user who runs the
+//! pipeline or one stage. Everything else is `pub(crate)`. The public modules, and who needs
+//! each beyond a library user:
+//!
+//! | module | what it holds | needed by |
+//! |--------|---------------|-----------|
+//! | [`pipeline`] | `run`, `reconstruct`, `PipelineConfig`, `RunReport` and the stage reports | CLI, Python, tests, benches |
+//! | [`cache`] | the artifact store, its usage, verification and size limit; `codec` (entries) | CLI, Python, tools, tests |
+//! | [`limits`] | the numeric options' ranges | CLI, Python |
+//! | [`import`] | the scan readers, `scan_info`, `.conf` registrations, range grids | CLI, Python, tools, tests |
+//! | [`outliers`] | outlier removal (its params are `PipelineConfig::outliers`) | library users |
+//! | [`merge`] | the views' poses and their merge | CLI (`normals`, `info`) |
+//! | [`normals`] | normal estimation, the noise estimate | CLI, Python, tools, tests |
+//! | [`fit`](mod@fit) | the global fit, its κ rules, and the moments of `stablesurf moments` | CLI, Python, tools, tests |
+//! | [`detail`] | the detail (MPU) fit and its model | CLI, tools, tests |
+//! | [`polygonize`](mod@polygonize) | the adaptive octree mesher | CLI (`mesh`), tools, tests |
+//! | [`finish`](mod@finish) | the finish stage; `decimate` (also `stablesurf mesh`) | CLI, tests |
+//! | [`trim`](mod@trim) | the trim's params, report and errors | CLI, Python |
+//! | [`distance`] | the signed-distance slices; `volume` (vdb/npy) | CLI, tools, tests |
+//! | [`export`](mod@export) | the export stage and the writers (glTF, PLY, EXR, PNG, units) | CLI, tools, tests |
+//! | [`model`] | the fitted model and its files (`json`, `mpu`) | CLI, tools, tests |
+//! | [`outputs`] | a run's output files moved into place as one set | CLI |
+//! | [`render`] | the shaded preview | CLI (`render`, `preview.png`), tools |
+//! | [`cloud`], [`mesh`], [`poly`], [`implicit`] | the artifacts, mesh checks, the polynomial and the model interface | everyone |
+//! | [`measure`], [`point_tree`] | accuracy measures; the nearest-point index | tools, tests |
+//!
+//! `testing` (hidden from the docs) holds internals for the repository's tests, benchmarks and
+//! tools, not API: the Delaunay tetrahedralization and its predicates, the crust, and the
+//! fixtures `testing::shapes` (exact polynomials of known topology) and `testing::study` (the
+//! synthetic κ study).
 #![warn(missing_docs)]
 
 pub mod cache;

@@ -8,8 +8,8 @@
 //! it shares a vertex with the nearest vertex — true for the well-shaped meshes polygonize makes,
 //! and an upper bound on the distance otherwise.
 //!
-//! The other direction, mesh → points ([`nearest_point_distances`]), is the distance from each
-//! mesh vertex to the nearest data point ([`PointIndex`]: a grid of the points, a k-d tree
+//! The other direction, mesh → points (`nearest_point_distances`), is the distance from each
+//! mesh vertex to the nearest data point (`PointIndex`: a grid of the points, a k-d tree
 //! where the grid is slow; [`crate::point_tree`]). The PLY writer stores it as MeshLab's vertex quality and
 //! [`chamfer_distance`] averages it; both use this one function.
 //!
@@ -19,16 +19,16 @@
 //! distance to the nearest data point, unweighted by area. The symmetric figure is the mean of
 //! the two (divide by the data diagonal for the relative figure).
 //!
-//! The run's report uses [`accuracy`]: data → mesh as above (over every k-th point of a cloud
-//! of more than [`ACCURACY_POINTS`]), and mesh → data by *area*
+//! The run's report uses `accuracy`: data → mesh as above (over every k-th point of a cloud
+//! of more than `ACCURACY_POINTS`), and mesh → data by *area*
 //! (`mesh_to_points_by_area`): every triangle cut into congruent pieces small enough that each
 //! point of the mesh lies within 0.5% of the diagonal of a piece's centroid (`area_samples`),
 //! each centroid weighted by its piece's area, its distance to the
-//! nearest data point from the [`PointIndex`] below. Its far share (the area farther than 1% of
+//! nearest data point from the `PointIndex` below. Its far share (the area farther than 1% of
 //! the diagonal from every data point) shows surface the data does not support, which the data →
 //! mesh figure cannot see.
 //!
-//! The nearest-point queries are [`crate::point_tree`]'s: one [`PointIndex`] of the data answers
+//! The nearest-point queries are [`crate::point_tree`]'s: one `PointIndex` of the data answers
 //! all of an export's.
 
 use crate::numerics::point_tree::{
@@ -107,7 +107,7 @@ pub struct AreaDistanceSummary {
     /// Share of the mesh's area (0 to 1) farther than `far_relative` × diagonal from every data
     /// point.
     pub far_area_share: f64,
-    /// The threshold of `far_area_share`, relative to the diagonal ([`FAR_RELATIVE`]).
+    /// The threshold of `far_area_share`, relative to the diagonal (`FAR_RELATIVE`).
     pub far_relative: f64,
     /// The mesh's area, input units squared.
     pub area: f64,
@@ -119,7 +119,7 @@ pub struct AreaDistanceSummary {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Accuracy {
     /// Data → mesh: distance from every data point to the mesh, or from every k-th point when
-    /// there are more than [`ACCURACY_POINTS`] (the fields `mean`, `rms`, `max`,
+    /// there are more than `ACCURACY_POINTS` (the fields `mean`, `rms`, `max`,
     /// `mean_relative`, `max_relative`, `samples` at the top level of the JSON object).
     #[serde(flatten)]
     pub data_to_mesh: DistanceSummary,
@@ -148,7 +148,7 @@ impl Accuracy {
 }
 
 /// The threshold of [`AreaDistanceSummary::far_area_share`]: 1% of the data's diagonal.
-pub const FAR_RELATIVE: f64 = 0.01;
+pub(crate) const FAR_RELATIVE: f64 = 0.01;
 
 /// How far from its nearest sample a point of the mesh may lie in [`area_samples`], relative to
 /// the data's diagonal: half of [`FAR_RELATIVE`], so a sample stands for points at most that far
@@ -250,7 +250,7 @@ pub(crate) fn mesh_to_points_by_area(
 /// past that the exact queries only cost time. The maximum is the sample's: a subsample can
 /// miss the farthest point. The mesh → data side always searches all the points: a subsample
 /// would lie farther from the mesh.
-pub const ACCURACY_POINTS: usize = 100_000;
+pub(crate) const ACCURACY_POINTS: usize = 100_000;
 
 /// At most `most` of `points`: all of them, or every k-th from the first ([`kth_step`]).
 pub(crate) fn every_kth(points: &[[f64; 3]], most: usize) -> Cow<'_, [[f64; 3]]> {
@@ -271,7 +271,7 @@ pub(crate) fn kth_step(n: usize, most: usize) -> usize {
 
 /// The two-sided [`Accuracy`] of `mesh` against the data points indexed in `data`, relative to
 /// `diagonal` (the data's bounding-box diagonal); the two directions run in parallel.
-pub fn accuracy(data: &PointIndex<'_>, mesh: &TriangleMesh, diagonal: f64) -> Accuracy {
+pub(crate) fn accuracy(data: &PointIndex<'_>, mesh: &TriangleMesh, diagonal: f64) -> Accuracy {
     let sampled = every_kth(data.points(), ACCURACY_POINTS);
     let (to_mesh, to_points) = rayon::join(
         || DistanceSummary::from_distances(&point_to_mesh_distances(&sampled, mesh), diagonal),
@@ -365,7 +365,7 @@ pub(crate) struct MeshDistance<'a> {
 impl<'a> MeshDistance<'a> {
     /// Indexes `mesh`; `None` when it has no triangles, an index out of range or a vertex that
     /// is not finite.
-    pub fn new(mesh: &'a TriangleMesh) -> Option<Self> {
+    pub(crate) fn new(mesh: &'a TriangleMesh) -> Option<Self> {
         let n = mesh.positions.len();
         if mesh.triangles.is_empty()
             || !mesh.positions.iter().flatten().all(|c| c.is_finite())
@@ -462,7 +462,7 @@ impl<'a> MeshDistance<'a> {
 /// closer (every vertex lies within a cell diagonal of a seed), so it is skipped. The result is
 /// the distance to the mesh whenever one of the walks ends at the vertex nearest the closest
 /// point, which fails only where a piece of surface smaller than a coarse cell is closest.
-pub struct GridMeshDistance<'a> {
+pub(crate) struct GridMeshDistance<'a> {
     mesh: MeshDistance<'a>,
     /// Distinct neighbours of each vertex (offsets, list), for the walks.
     neighbours: (Vec<u32>, Vec<u32>),
@@ -481,7 +481,7 @@ const N_WALKS: usize = 3;
 
 impl<'a> GridMeshDistance<'a> {
     /// Indexes `mesh`; `None` as for `MeshDistance::new`.
-    pub fn new(mesh: &'a TriangleMesh) -> Option<Self> {
+    pub(crate) fn new(mesh: &'a TriangleMesh) -> Option<Self> {
         let index = MeshDistance::new(mesh)?;
         let mut lo = [f64::INFINITY; 3];
         let mut hi = [f64::NEG_INFINITY; 3];

@@ -32,26 +32,11 @@ impl Pose {
     };
 
     /// The pose as an isometry: rotation R(q)ᵀ = R(q⁻¹), then translation t.
-    ///
-    /// ```
-    /// use stablesurf::merge::Pose;
-    /// // A quarter turn about z: R(q) takes x to y, so R(q)ᵀ takes y to x.
-    /// let h = std::f64::consts::FRAC_1_SQRT_2;
-    /// let pose = Pose { translation: [0.0, 0.0, 1.0], rotation: [0.0, 0.0, h, h] };
-    /// let p = pose.apply([0.0, 1.0, 0.0]);
-    /// assert!((p[0] - 1.0).abs() < 1e-12 && p[1].abs() < 1e-12 && (p[2] - 1.0).abs() < 1e-12);
-    /// ```
     pub(crate) fn isometry(&self) -> Isometry3<f64> {
         let [x, y, z, w] = self.rotation;
         let q = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
         let [tx, ty, tz] = self.translation;
         Isometry3::from_parts(Translation3::new(tx, ty, tz), q.inverse())
-    }
-
-    /// A point moved into the common frame.
-    pub fn apply(&self, p: [f64; 3]) -> [f64; 3] {
-        let q = self.isometry() * Point3::from(p);
-        [q.x, q.y, q.z]
     }
 
     /// Points moved into the common frame, the isometry built once for all of them.
@@ -60,6 +45,11 @@ impl Pose {
     /// use stablesurf::merge::Pose;
     /// let pose = Pose { translation: [1.0, 2.0, 3.0], rotation: [0.0, 0.0, 0.0, 1.0] };
     /// assert_eq!(pose.apply_all(&[[0.0; 3], [1.0, 0.0, 0.0]]), [[1.0, 2.0, 3.0], [2.0, 2.0, 3.0]]);
+    /// // A quarter turn about z: R(q) takes x to y, so R(q)ᵀ takes y to x.
+    /// let h = std::f64::consts::FRAC_1_SQRT_2;
+    /// let pose = Pose { translation: [0.0, 0.0, 1.0], rotation: [0.0, 0.0, h, h] };
+    /// let p = pose.apply_all(&[[0.0, 1.0, 0.0]])[0];
+    /// assert!((p[0] - 1.0).abs() < 1e-12 && p[1].abs() < 1e-12 && (p[2] - 1.0).abs() < 1e-12);
     /// ```
     pub fn apply_all(&self, points: &[[f64; 3]]) -> Vec<[f64; 3]> {
         let iso = self.isometry();

@@ -19,7 +19,7 @@
 //!
 //! 1. `c` = the coordinate-wise median of the points (the lower median for an even count);
 //!    `d(p)` = the Euclidean distance from `c`.
-//! 2. `r` = the [`BULK_QUANTILE`] quantile of the distances (the radius holding 99% of the points).
+//! 2. `r` = the `BULK_QUANTILE` quantile of the distances (the radius holding 99% of the points).
 //! 3. A point is *far* when `d(p) > FAR_FACTOR · r`.
 //! 4. Sort the distances. A cut is at the first position `j` where the point is far **and** the
 //!    distance jumps from the previous point by more than `GAP_FACTOR · r`:
@@ -39,7 +39,7 @@
 //!   wider than `GAP_FACTOR · r` (and past 3·r) could go.
 //! * Several real objects: a second object holding more than 1% of the points is where the 99%
 //!   radius falls, so `r` reaches it and it is not far.
-//! * Tiny inputs: fewer than [`MIN_POINTS`] points are returned unchanged, as are degenerate
+//! * Tiny inputs: fewer than `MIN_POINTS` points are returned unchanged, as are degenerate
 //!   clouds whose 99% radius is zero (99% of the points on one position).
 //!
 //! Distances are computed from differences of quarter coordinates, rescaled when their squares
@@ -55,12 +55,12 @@
 //! points strewn in its box: 3 components, not watertight, 14% of the area more than 1% of the
 //! diagonal from the data). So, on a cloud with neither normals nor faces (a raw scan's points):
 //!
-//! 1. `reach(p)` = the distance from `p` to its [`ISOLATION_RANK`]-th nearest other point, and
-//!    `local(p)` = the median of `reach(q)` over its [`ISOLATION_NEIGHBOURS`] nearest `q`: the
+//! 1. `reach(p)` = the distance from `p` to its `ISOLATION_RANK`-th nearest other point, and
+//!    `local(p)` = the median of `reach(q)` over its `ISOLATION_NEIGHBOURS` nearest `q`: the
 //!    sampling of the surface around `p`;
-//! 2. `p` and a neighbour `q` (one of its [`ISOLATION_NEIGHBOURS`] nearest) are linked when
+//! 2. `p` and a neighbour `q` (one of its `ISOLATION_NEIGHBOURS` nearest) are linked when
 //!    `|p − q| ≤ ISOLATION_FACTOR · local(p)` and `≤ ISOLATION_FACTOR · local(q)`;
-//! 3. the points of a linked group of at most [`ISOLATED_GROUP_MAX`] points are isolated
+//! 3. the points of a linked group of at most `ISOLATED_GROUP_MAX` points are isolated
 //!    (fewer than a local fit needs), unless that would leave out half the cloud or more, or
 //!    most points coincide with three others (no spacing to judge by).
 //!
@@ -85,45 +85,45 @@ use crate::vec3::{norm, sub};
 
 /// Quantile of the distances to the median centre that defines the bulk radius `r`: 0.99, so up
 /// to 1% of the points may be outliers without moving `r`, and at most 1% can ever be removed.
-pub const BULK_QUANTILE: f64 = 0.99;
+pub(crate) const BULK_QUANTILE: f64 = 0.99;
 
 /// A point is far when its distance to the median centre exceeds `FAR_FACTOR · r`.
-pub const FAR_FACTOR: f64 = 3.0;
+pub(crate) const FAR_FACTOR: f64 = 3.0;
 
 /// The far points are cut only after a jump of more than `GAP_FACTOR · r` in the sorted distances
 /// (an empty shell that thick around the bulk), so a continuously sampled feature is never cut.
-pub const GAP_FACTOR: f64 = 0.5;
+pub(crate) const GAP_FACTOR: f64 = 0.5;
 
 /// Clouds with fewer points are never trimmed: too few points to tell a bulk from a stray one.
-pub const MIN_POINTS: usize = 20;
+pub(crate) const MIN_POINTS: usize = 20;
 
 /// Two neighbouring points of a bare cloud are linked when they are at most this many times
 /// either one's local spacing apart (see [Isolated points](self#isolated-points)).
-pub const ISOLATION_FACTOR: f64 = 5.0;
+pub(crate) const ISOLATION_FACTOR: f64 = 5.0;
 
 /// A point's reach, its local spacing's measure, is the distance to its `ISOLATION_RANK`-th
 /// nearest other point.
-pub const ISOLATION_RANK: usize = 3;
+pub(crate) const ISOLATION_RANK: usize = 3;
 
 /// How many nearest neighbours a point is linked to, and whose reaches give its local spacing.
-pub const ISOLATION_NEIGHBOURS: usize = 8;
+pub(crate) const ISOLATION_NEIGHBOURS: usize = 8;
 
 /// Linked groups of at most this many points are isolated: fewer than the 15 points a local
 /// fit of degree 2 needs.
-pub const ISOLATED_GROUP_MAX: usize = 14;
+pub(crate) const ISOLATED_GROUP_MAX: usize = 14;
 
 /// Parameters of [`remove_outliers`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct OutlierParams {
     /// Keep every point (the `--keep-outliers` escape hatch): nothing is removed.
     pub keep: bool,
-    /// See [`BULK_QUANTILE`].
+    /// See `BULK_QUANTILE`.
     pub bulk_quantile: f64,
-    /// See [`FAR_FACTOR`].
+    /// See `FAR_FACTOR`.
     pub far_factor: f64,
-    /// See [`GAP_FACTOR`].
+    /// See `GAP_FACTOR`.
     pub gap_factor: f64,
-    /// See [`ISOLATION_FACTOR`]; infinity keeps every isolated point.
+    /// See `ISOLATION_FACTOR`; infinity keeps every isolated point.
     pub isolation_factor: f64,
 }
 
@@ -159,8 +159,8 @@ pub struct OutlierSplit<'a> {
     pub bulk: Aabb,
     /// The median centre `c` of the rule (the origin for an empty input).
     pub center: [f64; 3],
-    /// The bulk radius `r` (distance from `center` holding [`BULK_QUANTILE`] of the points), or
-    /// `None` when the rule did not run (`keep`, fewer than [`MIN_POINTS`] points).
+    /// The bulk radius `r` (distance from `center` holding `BULK_QUANTILE` of the points), or
+    /// `None` when the rule did not run (`keep`, fewer than `MIN_POINTS` points).
     pub bulk_radius: Option<f64>,
 }
 

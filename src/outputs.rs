@@ -177,7 +177,7 @@ impl OutputSet {
     /// # Errors
     /// A name that is not a plain relative path, a name given twice, or a write that fails
     /// (the message names the file in the output folder).
-    pub fn stage(&mut self, files: &[(String, Vec<u8>)]) -> Result<(), OutputError> {
+    pub(crate) fn stage(&mut self, files: &[(String, Vec<u8>)]) -> Result<(), OutputError> {
         for (name, _) in files {
             if !plain_relative(name) {
                 return Err(OutputError::other(format!(

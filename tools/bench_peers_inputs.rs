@@ -1,7 +1,7 @@
 //! Tool: writes the synthetic inputs of `tools/bench_peers` as binary little-endian PLY point
 //! clouds with exact unit normals (`float x y z nx ny nz`).
 //!
-//! Shapes are those of `stablesurf::fit::study` (sphere, torus, eight, heart, cube, twisted),
+//! Shapes are those of `stablesurf::testing::study` (sphere, torus, eight, heart, cube, twisted),
 //! sampled clean with `study::sample` (seed 2008), plus a 1,000,000-point torus (`torus_1m.ply`).
 //!
 //! Usage: `cargo run --release --features tools --example bench_peers_inputs -- OUT_DIR [--quick] [--points N]
@@ -11,7 +11,7 @@
 use std::io::Write;
 use std::path::PathBuf;
 
-use stablesurf::fit::study::{sample, Shape, Variant};
+use stablesurf::testing::study::{sample, Shape, Variant};
 use stablesurf::OrientedCloud;
 
 fn write_ply(path: &PathBuf, cloud: &OrientedCloud) -> std::io::Result<()> {

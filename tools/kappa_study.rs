@@ -1,14 +1,14 @@
 //! The κ study: six synthetic shapes × degrees 4, 6, 8 × clean / noisy (variance 0.0025,
 //! normalized units) / 15% cut away × ε 0.05, 0.01, fitted with automatic κ under both rules,
-//! each fit judged independently (`stablesurf::fit::study::assess`: positive leading form, one
+//! each fit judged independently (`stablesurf::testing::study::assess`: positive leading form, one
 //! zero-set component near the data, nothing else in [−4, 4]³). Prints one line per case and a
 //! summary table (Markdown) for the README.
 //!
 //! Run: `cargo run --release --features tools --example kappa_study [-- POINTS [SEED]]` (default 3000 points per
 //! case, seed 2008).
 
-use stablesurf::fit::study::{assess, sample, Shape, Variant};
 use stablesurf::fit::{fit, FitParams, KappaRule};
+use stablesurf::testing::study::{assess, sample, Shape, Variant};
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();

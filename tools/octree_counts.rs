@@ -9,9 +9,8 @@
 
 use std::path::Path;
 
-use stablesurf::polygonize::{
-    polygonize, shapes, ImplicitFunction, PolygonizeParams, Simplification,
-};
+use stablesurf::polygonize::{polygonize, ImplicitFunction, PolygonizeParams, Simplification};
+use stablesurf::testing::shapes;
 use stablesurf::{Aabb, ImplicitPolynomial, TriangleMesh};
 
 fn fail(message: String) -> ! {

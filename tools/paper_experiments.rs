@@ -2,7 +2,7 @@
 //! `docs/paper-experiments.md` (tables, a statement of which claims hold) with picture grids
 //! like the paper's figures 4–10 (`docs/img/paper-*.png`).
 //!
-//! Inputs: the six synthetic shapes of `stablesurf::fit::study` (sphere, torus, eight, heart,
+//! Inputs: the six synthetic shapes of `stablesurf::testing::study` (sphere, torus, eight, heart,
 //! cube, twisted object; exact normals) and the real models of `../shared/data` that are present
 //! (normals from the file, else its faces, else the crust — the pipeline's `auto` source), each
 //! reduced to `--points` points (default 3000, a deterministic stride for the real models).
@@ -30,11 +30,11 @@ use std::time::Instant;
 
 use image::{Rgb, RgbImage};
 use rayon::prelude::*;
-use stablesurf::fit::study::{assess, cut_away, sample, Assessment, Lcg, Shape, Variant};
 use stablesurf::fit::{fit, FitMethod, FitParams, Kappa, KappaRule};
 use stablesurf::normals::{estimate_normals, NormalsParams};
 use stablesurf::polygonize::{polygonize, PolygonizeParams};
 use stablesurf::render::{render, RenderParams, View};
+use stablesurf::testing::study::{assess, cut_away, sample, Assessment, Lcg, Shape, Variant};
 use stablesurf::{Aabb, ImplicitPolynomial, OrientedCloud};
 
 /// Real models tried (skipped when absent), with the paper's closest object in brackets.
@@ -634,7 +634,7 @@ fn document(
         d,
         "Paper: Sahin & Unel, *Stable Algebraic Surfaces for 3D Object Representation*, J Math Imaging Vis \
          32:127–137 (2008), section 7 and figures 4–10.\n\n\
-         **Setup.** Synthetic shapes (`stablesurf::fit::study`): {} with exact normals{}. \
+         **Setup.** Synthetic shapes (`stablesurf::testing::study`): {} with exact normals{}. \
          Variants: *clean*; *noisy* (Gaussian noise of variance 0.0025 per coordinate in normalized units, \
          σ = 5% of the mean radius, normals kept — the paper's figure 10 level for the eight); *cut* (15% of \
          the points with the largest x + 0.3y + 0.2z removed — the paper's figure 9 level). Methods: LS \

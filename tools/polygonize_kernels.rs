@@ -9,7 +9,7 @@
 use std::io::Write;
 
 use stablesurf::implicit::ImplicitFunction;
-use stablesurf::polygonize::shapes;
+use stablesurf::testing::shapes;
 use stablesurf::Aabb;
 
 fn main() {

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Where the Chamfer of the simulated scans of tools/bench_noise comes from, and what closing the
-scan's open rim with a membrane would do to it (issue 62; the figures are in docs/defaults.md,
+scan's open rim with a membrane would do to it (the figures are in docs/defaults.md,
 "Partial scans of closed parts: a membrane over the open rim").
 
 Run in tools/validate/.venv (install: bash tools/bench_peers_install.sh):

@@ -26,9 +26,6 @@ use super::{is_entry_name, is_shard_name, listing, STAGES};
 /// The size limit when none is given: 5 GB, as ccache's default.
 pub const DEFAULT_MAX_SIZE: u64 = 5_000_000_000;
 
-/// The environment variable that sets the size limit (`--cache-max-size` overrides it).
-pub const MAX_SIZE_ENV: &str = "STABLESURF_CACHE_MAX_SIZE";
-
 /// The counts file under the cache root.
 pub(crate) const STATS_FILE: &str = "stats.json";
 
@@ -57,7 +54,7 @@ impl Stats {
 
 /// What one eviction pass removed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Evicted {
+pub(crate) struct Evicted {
     /// Entries removed.
     pub entries: u64,
     /// Their bytes.

@@ -52,7 +52,7 @@ pub use codec::{Artifact, OutputFiles};
 
 /// Version of the cache as a whole (entry envelope and key recipe). If you change either,
 /// bump it: every key changes and old entries are simply never read again.
-pub const CACHE_FORMAT_VERSION: u32 = 2;
+pub(crate) const CACHE_FORMAT_VERSION: u32 = 2;
 
 /// The stage folders a cache holds; nothing else under the root is the cache's.
 pub(crate) const STAGES: &[&str] = &[
@@ -100,7 +100,7 @@ pub struct Key(pub [u8; 32]);
 
 impl Key {
     /// The key of raw input bytes (the import stage's input).
-    pub fn of_bytes(bytes: &[u8]) -> Key {
+    pub(crate) fn of_bytes(bytes: &[u8]) -> Key {
         Key(*blake3::hash(bytes).as_bytes())
     }
 
@@ -123,15 +123,7 @@ impl fmt::Display for Key {
 }
 
 /// Computes a stage's key. `params` are the canonical bytes of the stage's params.
-///
-/// ```
-/// use stablesurf::cache::{stage_key, Key};
-/// let input = Key::of_bytes(b"scan");
-/// let a = stage_key("fit", 1, br#"{"degree":6}"#, &input);
-/// assert_eq!(a, stage_key("fit", 1, br#"{"degree":6}"#, &input));
-/// assert_ne!(a, stage_key("fit", 1, br#"{"degree":8}"#, &input));
-/// ```
-pub fn stage_key(stage: &str, stage_version: u32, params: &[u8], input: &Key) -> Key {
+pub(crate) fn stage_key(stage: &str, stage_version: u32, params: &[u8], input: &Key) -> Key {
     let mut h = blake3::Hasher::new();
     let mut field = |bytes: &[u8]| {
         h.update(&(bytes.len() as u64).to_le_bytes());
@@ -174,7 +166,7 @@ pub(crate) enum Lookup {
 
 impl Lookup {
     /// "hit", "miss" or "corrupt".
-    pub fn as_str(self) -> &'static str {
+    pub(crate) fn as_str(self) -> &'static str {
         match self {
             Lookup::Hit => "hit",
             Lookup::Miss => "miss",
@@ -388,11 +380,6 @@ impl Cache {
             max_size: bytes,
             ..self
         }
-    }
-
-    /// The size limit, in bytes.
-    pub fn max_size(&self) -> u64 {
-        self.max_size
     }
 
     /// The root directory, if enabled.
@@ -888,3 +875,18 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CacheError> {
 
 #[cfg(test)]
 mod tests;
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn stage_key() {
+        use crate::cache::{stage_key, Key};
+        let input = Key::of_bytes(b"scan");
+        let a = stage_key("fit", 1, br#"{"degree":6}"#, &input);
+        assert_eq!(a, stage_key("fit", 1, br#"{"degree":6}"#, &input));
+        assert_ne!(a, stage_key("fit", 1, br#"{"degree":8}"#, &input));
+    }
+}

@@ -44,33 +44,33 @@ use rayon::prelude::*;
 use crate::numerics::point_tree::PointTree;
 
 /// Cells within this many σ of a data point are barrier.
-pub const BARRIER: f64 = 2.0;
+pub(crate) const BARRIER: f64 = 2.0;
 
 /// How far along each normal line, either way, the exterior is sought: the barrier's radius
 /// and this many σ more (past the barrier on the near side of a point up to 3σ off its
 /// surface, and across a part a few σ thick).
-pub const REACH: f64 = 8.0;
+pub(crate) const REACH: f64 = 8.0;
 
 /// Most lattice cells (one byte each); above, the cells are made wider than σ.
-pub const MAX_CELLS: f64 = 16_777_216.0;
+pub(crate) const MAX_CELLS: f64 = 16_777_216.0;
 
 /// The enclosed volume, as a share of the barrier's, below which the points are taken to
 /// enclose nothing (an open scan, whose few enclosed cells are pockets in its noisy barrier).
-pub const ENCLOSED_SHARE: f64 = 0.01;
+pub(crate) const ENCLOSED_SHARE: f64 = 0.01;
 
 const FREE: u8 = 0;
 const WALL: u8 = 1;
 const OUTSIDE: u8 = 2;
 
 /// The neighbour whose distance [`sampling_gap`] measures.
-pub const GAP_NEIGHBOURS: usize = 16;
+pub(crate) const GAP_NEIGHBOURS: usize = 16;
 
 /// The median, over at most about 4096 evenly strided points, of the distance from a point
 /// to its [`GAP_NEIGHBOURS`]-th nearest neighbour. On a surface sampled at random with
 /// density ρ, that distance is about √(16/(πρ)), while the widest empty disk among n samples
 /// has a radius of about √(ln n/(πρ)), smaller for n below e¹⁶: balls of this radius around
 /// the points close the sampling's gaps.
-pub fn sampling_gap(points: &[[f64; 3]], tree: &PointTree) -> f64 {
+pub(crate) fn sampling_gap(points: &[[f64; 3]], tree: &PointTree) -> f64 {
     let stride = (points.len() / 4096).max(1);
     let mut found: Vec<f64> = points
         .par_iter()
@@ -92,7 +92,7 @@ pub fn sampling_gap(points: &[[f64; 3]], tree: &PointTree) -> f64 {
 /// module docs); returns how many. The barrier's radius is [`BARRIER`]·σ or `gap` (the
 /// [`sampling_gap`]), whichever is larger. Nothing changes when `sigma` is not positive and
 /// finite or there are no points.
-pub fn orient_by_exterior(
+pub(crate) fn orient_by_exterior(
     points: &[[f64; 3]],
     normals: &mut [[f64; 3]],
     sigma: f64,

@@ -143,7 +143,7 @@ struct Node {
 /// `LEAF_SIDE` times the smallest of their radii, so near the surface a leaf is one or two
 /// finest cells wide and lists a few dozen balls, of which about ten contain any given point.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct BallIndex {
+pub(crate) struct BallIndex {
     balls: Vec<Ball>,
     nodes: Vec<Node>,
     lists: Vec<u32>,
@@ -153,7 +153,7 @@ pub struct BallIndex {
 
 impl BallIndex {
     /// Builds the index of `cells`' balls.
-    pub fn new(cells: &[MpuCell]) -> BallIndex {
+    pub(crate) fn new(cells: &[MpuCell]) -> BallIndex {
         let balls: Vec<Ball> = cells.iter().map(Ball::new).collect();
         let mut lo = [f64::INFINITY; 3];
         let mut hi = [f64::NEG_INFINITY; 3];

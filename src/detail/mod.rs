@@ -73,12 +73,13 @@ mod local;
 mod model;
 
 pub use chamfer::{chamfer_distance, ChamferDistance};
-pub use index::BallIndex;
+pub(crate) use index::BallIndex;
 
 pub use model::{
     AuxiliaryPoints, DetailDiagnostics, DetailError, DetailParams, LocalConstraints, MpuCell,
-    MpuModel, NOISE_MARGIN, NOISE_POINTS_PER_COEFFICIENT, ROBUST_CUTOFF,
+    MpuModel,
 };
+pub(crate) use model::{NOISE_MARGIN, NOISE_POINTS_PER_COEFFICIENT, ROBUST_CUTOFF};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -95,7 +96,7 @@ use local::{
 
 /// Version of this stage's algorithm; if you change any input to its cache key or anything
 /// that changes its output for the same input and params, bump it.
-pub const STAGE_VERSION: u32 = 11;
+pub(crate) const STAGE_VERSION: u32 = 11;
 
 /// Levels near the root whose children are fitted in parallel (8³ tasks at most).
 const PARALLEL_LEVELS: u32 = 3;
@@ -243,7 +244,7 @@ impl Part {
 ///
 /// ```
 /// use stablesurf::detail::{fit_detail, DetailParams};
-/// use stablesurf::fit::study::{sample, Shape, Variant};
+/// use stablesurf::testing::study::{sample, Shape, Variant};
 /// use stablesurf::implicit::ImplicitFunction;
 /// let cloud = sample(Shape::Sphere, Variant::Clean, 500, 1);
 /// let model = fit_detail(&cloud, &DetailParams::default()).unwrap();

@@ -66,14 +66,14 @@ pub struct DetailParams {
     /// that keeps the scan's relative density, for points far finer than the cells the fit
     /// needs (each ball's rows, error measure and neighbour scans cost per point). Default 1:
     /// every point. `run` sets it from the points per cell of the mesh
-    /// ([`crate::polygonize::fit_stride`]).
+    /// (`crate::polygonize::fit_stride`).
     #[serde(default = "one")]
     pub stride: u32,
     /// With `degree` 2: a cell of level `max_depth` (not grown) whose quadric misses the split
     /// tolerance is fitted again as a cubic over the same rows, and the cubic is kept when its
     /// largest error over the ball is smaller. Default false; `run` sets it where it picks a
     /// stride above 1 from the data (points far finer than the mesh,
-    /// [`crate::polygonize::fit_stride`]): there the deepest cells hold relief a quadric cannot
+    /// `crate::polygonize::fit_stride`): there the deepest cells hold relief a quadric cannot
     /// follow, and the stride pays for the cubics.
     #[serde(default)]
     pub refit_deepest: bool,
@@ -85,16 +85,16 @@ pub struct DetailParams {
     ///   normal whose line meets the space outside a closed object sooner on its inner side is
     ///   turned ([`DetailDiagnostics::exterior_flipped`] counts them; `exterior.rs`);
     /// - a cell is split while the root mean square of |Q|/|∇Q| over its ball's points exceeds
-    ///   √(([`NOISE_MARGIN`]·σ)² + tolerance²), the scatter that noise σ and a shape error at the
+    ///   √((`NOISE_MARGIN`·σ)² + tolerance²), the scatter that noise σ and a shape error at the
     ///   tolerance give together, instead of while the largest exceeds the tolerance (the
     ///   largest of n Gaussian residuals is about σ·√(2 ln n): a cell of noisy points split
     ///   down to the deepest level, where each quadric follows the noise of a few points);
     /// - every fit holds at least c·(σ/tolerance)² points (c the local fit's coefficients, at
-    ///   most [`NOISE_POINTS_PER_COEFFICIENT`]·c): the least-squares fit of c unknowns to n
+    ///   most `NOISE_POINTS_PER_COEFFICIENT`·c): the least-squares fit of c unknowns to n
     ///   points scatters by about σ·√(c/n), so these average the noise down to the tolerance;
     ///   a cell with fewer is grown to them;
     /// - each fit is repeated once with its points' rows weighed by Tukey's biweight of their
-    ///   residual ([`ROBUST_CUTOFF`]·σ), and without the points whose normal opposes the first
+    ///   residual (`ROBUST_CUTOFF`·σ), and without the points whose normal opposes the first
     ///   fit's gradient, so that outliers and patches of flipped normals do not pull the
     ///   surface;
     /// - the whole octree is fitted a second time with the first blend's unit gradients as the
@@ -112,15 +112,15 @@ fn is_zero(v: &f64) -> bool {
 /// σ/√(2n) between balls, and the measured σ is a median over the scan. A larger margin
 /// rounds the shape away, a smaller one opens handles through thin parts under strong noise
 /// (docs/defaults.md, "Noise").
-pub const NOISE_MARGIN: f64 = 1.1;
+pub(crate) const NOISE_MARGIN: f64 = 1.1;
 
 /// The most points per coefficient a noisy fit asks for (see [`DetailParams::noise`]), so
 /// that a ball stays local under strong noise: more reach across a face's features, fewer
 /// left strong noise unaveraged enough to open the surface (docs/defaults.md, "Noise").
-pub const NOISE_POINTS_PER_COEFFICIENT: f64 = 24.0;
+pub(crate) const NOISE_POINTS_PER_COEFFICIENT: f64 = 24.0;
 
 /// Tukey's biweight cut-off of a noisy fit's robust reweighting, in σ.
-pub const ROBUST_CUTOFF: f64 = 4.0;
+pub(crate) const ROBUST_CUTOFF: f64 = 4.0;
 
 /// 1, the default of [`DetailParams::stride`] in a serialized params record without it.
 fn one() -> u32 {
@@ -149,59 +149,12 @@ impl Default for DetailParams {
 impl DetailParams {
     /// These params with the split tolerance `tolerance` (a fraction of the diagonal): the
     /// finest cells split down to `tolerance` or 1e-3, whichever is smaller (`--tolerance`).
-    ///
-    /// ```
-    /// use stablesurf::DetailParams;
-    /// let coarse = DetailParams::default().with_tolerance(0.01);
-    /// assert_eq!((coarse.tolerance, coarse.finest_tolerance), (0.01, 1e-3));
-    /// let d = DetailParams::default();
-    /// assert_eq!(d.clone().with_tolerance(d.tolerance), d);
-    /// ```
-    pub fn with_tolerance(self, tolerance: f64) -> DetailParams {
+    pub(crate) fn with_tolerance(self, tolerance: f64) -> DetailParams {
         DetailParams {
             tolerance,
             finest_tolerance: tolerance.min(1e-3),
             ..self
         }
-    }
-
-    /// Canonical bytes for the cache key: every field, little-endian, in declaration order.
-    ///
-    /// ```
-    /// use stablesurf::detail::DetailParams;
-    /// let a = DetailParams::default();
-    /// let b = DetailParams { degree: 3, ..Default::default() };
-    /// assert_eq!(a.to_bytes(), DetailParams::default().to_bytes());
-    /// assert_ne!(a.to_bytes(), b.to_bytes());
-    /// ```
-    pub fn to_bytes(&self) -> Vec<u8> {
-        let mut out = b"detail-params-v2".to_vec();
-        out.extend_from_slice(&self.degree.to_le_bytes());
-        for v in [
-            self.tolerance,
-            self.finest_tolerance,
-            self.epsilon,
-            self.kappa,
-            self.support,
-        ] {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-        out.extend_from_slice(&self.max_depth.to_le_bytes());
-        out.push(match self.auxiliary {
-            AuxiliaryPoints::CentreAndCorners => 1,
-            AuxiliaryPoints::None => 0,
-        });
-        out.push(match self.constraints {
-            LocalConstraints::Gradient => 1,
-            LocalConstraints::ThreeLevels => 0,
-        });
-        out.extend_from_slice(&self.stride.to_le_bytes());
-        out.push(u8::from(self.refit_deepest));
-        // Left out at 0, so that the keys of exact data are those of the params without it.
-        if self.noise > 0.0 {
-            out.extend_from_slice(&self.noise.to_le_bytes());
-        }
-        out
     }
 }
 
@@ -288,7 +241,7 @@ pub struct DetailDiagnostics {
     /// Auxiliary candidates dropped (neighbours disagreed).
     pub auxiliary_dropped: usize,
     /// Largest |f|/|∇f| of the blend over the data points, relative to the diagonal (over
-    /// every k-th point of a cloud of more than [`crate::measure::ACCURACY_POINTS`], as the
+    /// every k-th point of a cloud of more than `crate::measure::ACCURACY_POINTS`, as the
     /// export's accuracy).
     pub max_residual: f64,
     /// Mean |f|/|∇f| of the blend over the data points (sampled as `max_residual`), relative
@@ -327,12 +280,12 @@ pub struct MpuModel {
     pub diagnostics: DetailDiagnostics,
     /// Ball hierarchy over `cells` (derived: rebuild it with [`MpuModel::new`] after editing
     /// `cells`).
-    pub index: BallIndex,
+    pub(crate) index: BallIndex,
 }
 
 impl MpuModel {
     /// Assembles a model from its parts and builds the evaluation index.
-    pub fn new(
+    pub(crate) fn new(
         region: Aabb,
         root: Aabb,
         diagonal: f64,
@@ -348,5 +301,20 @@ impl MpuModel {
             diagnostics,
             index,
         }
+    }
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn detail_params_with_tolerance() {
+        use crate::DetailParams;
+        let coarse = DetailParams::default().with_tolerance(0.01);
+        assert_eq!((coarse.tolerance, coarse.finest_tolerance), (0.01, 1e-3));
+        let d = DetailParams::default();
+        assert_eq!(d.clone().with_tolerance(d.tolerance), d);
     }
 }

@@ -139,13 +139,15 @@ impl ExactDistance {
     }
 
     /// Number of zero-set samples found.
-    pub fn n_samples(&self) -> usize {
+    #[cfg(test)] // only the unit tests call it
+    pub(crate) fn n_samples(&self) -> usize {
         self.seeds.len()
     }
 
     /// Signed distance from `p` (input coordinates) to the zero set, input units, negative where
     /// f < 0.
-    pub fn distance(&self, p: [f64; 3]) -> f64 {
+    #[cfg(test)] // only the unit tests call it
+    pub(crate) fn distance(&self, p: [f64; 3]) -> f64 {
         self.distance_from(p, None, None, &mut NearSeeds::default())
             .0
     }

@@ -68,7 +68,7 @@ use crate::vec3::dist;
 use exact::{Evaluator, NearSeeds};
 
 /// Highest polynomial degree the distance evaluator accepts.
-pub const MAX_DEGREE: u32 = 32;
+pub(crate) const MAX_DEGREE: u32 = 32;
 
 /// The axis slices are perpendicular to.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -84,7 +84,7 @@ pub enum Axis {
 
 impl Axis {
     /// The axis as `"x"`, `"y"` or `"z"`.
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             Axis::X => "x",
             Axis::Y => "y",
@@ -111,7 +111,7 @@ pub enum DistanceMethod {
     #[default]
     Exact,
     /// Distance to the polygonized zero set (the output mesh), signed by f: within the mesh's
-    /// chord error of the exact distance (see [`crate::measure::GridMeshDistance`] for when the
+    /// chord error of the exact distance (see `crate::measure::GridMeshDistance` for when the
     /// search can miss); works for any model, not only a polynomial. Needs the mesh
     /// ([`slices_from_mesh`]).
     Mesh,
@@ -203,23 +203,6 @@ pub enum DistanceError {
     NoSurface,
 }
 
-/// A region for a model without a box: the cube of half-side 2·scale around the normalization
-/// centre (the fitted data have mean radius 1 in normalized units).
-///
-/// ```
-/// use stablesurf::distance::default_region;
-/// use stablesurf::ImplicitPolynomial;
-/// let p = ImplicitPolynomial { degree: 0, coefficients: vec![1.0], center: [1.0, 0.0, 0.0], scale: 0.5 };
-/// assert_eq!(default_region(&p).min, [0.0, -1.0, -1.0]);
-/// ```
-pub fn default_region(poly: &ImplicitPolynomial) -> Aabb {
-    let h = 2.0 * poly.scale;
-    Aabb {
-        min: poly.center.map(|c| c - h),
-        max: poly.center.map(|c| c + h),
-    }
-}
-
 /// Computes the K slices of the signed distance of `poly` across `region`.
 ///
 /// ```
@@ -301,7 +284,7 @@ pub fn slices(
 
 /// Computes the K slices of the signed distance to `mesh` across `region`
 /// ([`DistanceMethod::Mesh`]): the unsigned distance to the triangles around the nearest mesh
-/// vertex ([`crate::measure::GridMeshDistance`]), signed by `f` (negative where f < 0). `mesh` is
+/// vertex (`crate::measure::GridMeshDistance`), signed by `f` (negative where f < 0). `mesh` is
 /// the polygonized zero set of `f`; any [`ImplicitFunction`] works, so this also serves models
 /// that are not one polynomial. `params.method` is ignored (the slices record `Mesh`).
 ///
@@ -451,7 +434,11 @@ fn fill_grid(
 ///
 /// # Errors
 /// [`DistanceError::InvalidPolynomial`] when `poly` is malformed.
-pub fn taubin_distance(poly: &ImplicitPolynomial, p: [f64; 3]) -> Result<f64, DistanceError> {
+#[cfg(test)] // only the unit tests call it
+pub(crate) fn taubin_distance(
+    poly: &ImplicitPolynomial,
+    p: [f64; 3],
+) -> Result<f64, DistanceError> {
     Ok(Evaluator::new(poly)?.taubin(p, f64::INFINITY))
 }
 

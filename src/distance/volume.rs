@@ -1,5 +1,5 @@
 //! Signed-distance volumes (the `vdb` and `npy` outputs): a model, its mesh and a region → a
-//! narrow-band level set ([`NarrowBand`]) and a dense grid ([`DenseVolume`]) of signed
+//! narrow-band level set (`NarrowBand`) and a dense grid (`DenseVolume`) of signed
 //! Euclidean distances in input units, negative inside. No IO: the writers are
 //! `export::vdb` and `export::npy`.
 //!
@@ -13,8 +13,8 @@
 //!
 //! # Values
 //!
-//! - **Narrow band** ([`narrow_band`]): the exact Euclidean distance to the mesh for every voxel
-//!   within [`BAND_VOXELS`] voxels of it. Each triangle is binned into the 8³-voxel blocks
+//! - **Narrow band** (`narrow_band`): the exact Euclidean distance to the mesh for every voxel
+//!   within `BAND_VOXELS` voxels of it. Each triangle is binned into the 8³-voxel blocks
 //!   (OpenVDB's leaves) that its bounding box grown by the band touches; per block, every voxel
 //!   in a triangle's grown box gets the distance to the triangle's closest point (Ericson 5.1.5),
 //!   and the smallest wins, so the value is the distance to the nearest triangle whenever that is
@@ -22,10 +22,10 @@
 //!   is active when that distance is below the half-width 3h; every other voxel of a block, and
 //!   every block the band does not reach, holds ± the background 3h (OpenVDB's level-set
 //!   convention, what its signed flood fill leaves). Blocks the band does not reach are listed
-//!   by their sign ([`NarrowBand::inside_blocks`]); the surface does not cross them, so one
+//!   by their sign (`NarrowBand::inside_blocks`); the surface does not cross them, so one
 //!   value of f at a block's centre voxel decides it.
-//! - **Dense** ([`dense`]): the band's exact values where the band is active; every other voxel
-//!   gets the distance of the mesh distance slices ([`crate::measure::GridMeshDistance`],
+//! - **Dense** (`dense`): the band's exact values where the band is active; every other voxel
+//!   gets the distance of the mesh distance slices (`crate::measure::GridMeshDistance`,
 //!   within the mesh's chord error, warm-started along each row of constant (i, j)) and the
 //!   sign the band holds for it (its block's voxel, or its block's sign).
 //! - **Sign**: inside the band, the side of the mesh the voxel centre lies on, seen from its
@@ -49,30 +49,30 @@ use crate::vec3::dist2;
 use crate::vec3::{cross, dot, norm, sub};
 
 /// Half-width of the narrow band in voxels: voxels nearer the surface than this are active.
-pub const BAND_VOXELS: f64 = 3.0;
+pub(crate) const BAND_VOXELS: f64 = 3.0;
 /// The default voxel count along the region's longest side ([`VoxelSize::Auto`]).
-pub const DEFAULT_VOXELS: usize = 256;
+pub(crate) const DEFAULT_VOXELS: usize = 256;
 /// Most voxels along one axis (OpenVDB's top internal node spans 4096 voxels; the grid lives in
 /// one of them).
-pub const MAX_VOXELS_PER_AXIS: usize = 4096;
+pub(crate) const MAX_VOXELS_PER_AXIS: usize = 4096;
 /// Most voxels a dense grid may hold (2 GB of float32).
-pub const MAX_DENSE_VOXELS: usize = 1 << 29;
+pub(crate) const MAX_DENSE_VOXELS: usize = 1 << 29;
 /// Voxels along a side of a block (OpenVDB's leaf node, `Tree_float_5_4_3`'s 3).
-pub const BLOCK: usize = 8;
+pub(crate) const BLOCK: usize = 8;
 /// Voxels in a block.
-pub const BLOCK_VOXELS: usize = BLOCK * BLOCK * BLOCK;
+pub(crate) const BLOCK_VOXELS: usize = BLOCK * BLOCK * BLOCK;
 
 /// The edge length of a voxel.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub enum VoxelSize {
-    /// The region's longest side / [`DEFAULT_VOXELS`] (256 voxels along it). The default.
+    /// The region's longest side / `DEFAULT_VOXELS` (256 voxels along it). The default.
     #[default]
     Auto,
     /// This size, input units, > 0.
     Size(f64),
 }
 
-/// Parameters of [`narrow_band`] and [`dense`].
+/// Parameters of `narrow_band` and `dense`.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct VolumeParams {
     /// The voxel size; default [`VoxelSize::Auto`].
@@ -81,7 +81,7 @@ pub struct VolumeParams {
 
 /// A uniform grid of cubic voxels (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct VoxelGrid {
+pub(crate) struct VoxelGrid {
     /// Centre of voxel (0, 0, 0), input coordinates.
     pub origin: [f64; 3],
     /// Edge length h of a voxel, input units.
@@ -97,7 +97,7 @@ impl VoxelGrid {
     /// [`DistanceError::InvalidRegion`] for an empty or non-finite region,
     /// [`DistanceError::InvalidParams`] for a voxel size that is not positive and finite or that
     /// would give more than [`MAX_VOXELS_PER_AXIS`] voxels along an axis.
-    pub fn over(region: &Aabb, params: &VolumeParams) -> Result<VoxelGrid, DistanceError> {
+    pub(crate) fn over(region: &Aabb, params: &VolumeParams) -> Result<VoxelGrid, DistanceError> {
         check_region(region)?;
         let extent = [0, 1, 2].map(|a| region.max[a] - region.min[a]);
         let longest = extent.iter().cloned().fold(0.0, f64::max);
@@ -129,24 +129,19 @@ impl VoxelGrid {
     }
 
     /// Centre of voxel `ijk` (any integer coordinates), input coordinates.
-    pub fn position(&self, ijk: [i64; 3]) -> [f64; 3] {
+    pub(crate) fn position(&self, ijk: [i64; 3]) -> [f64; 3] {
         [0, 1, 2].map(|a| self.origin[a] + ijk[a] as f64 * self.voxel_size)
     }
 
     /// Number of voxels.
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.shape.iter().product()
-    }
-
-    /// Whether the grid has no voxel (never, for a grid made by [`VoxelGrid::over`]).
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
     }
 }
 
 /// One 8³ block of the narrow band (an OpenVDB leaf node).
 #[derive(Clone, Debug, PartialEq)]
-pub struct BandBlock {
+pub(crate) struct BandBlock {
     /// Index of the block's first voxel (multiples of [`BLOCK`]).
     pub origin: [i32; 3],
     /// The 512 values, x-major: voxel origin + (x, y, z) at `x·64 + y·8 + z` (OpenVDB's leaf
@@ -158,7 +153,7 @@ pub struct BandBlock {
 
 /// A narrow-band level set of the signed distance (see the module docs).
 #[derive(Clone, Debug, PartialEq)]
-pub struct NarrowBand {
+pub(crate) struct NarrowBand {
     /// The voxel grid.
     pub grid: VoxelGrid,
     /// The background: [`BAND_VOXELS`] × the voxel size (input units), the value of inactive
@@ -173,7 +168,8 @@ pub struct NarrowBand {
 
 impl NarrowBand {
     /// Number of active voxels.
-    pub fn active_voxels(&self) -> u64 {
+    #[cfg(test)] // only the unit tests call it
+    pub(crate) fn active_voxels(&self) -> u64 {
         self.blocks
             .iter()
             .map(|b| {
@@ -184,30 +180,11 @@ impl NarrowBand {
             })
             .sum()
     }
-
-    /// Smallest and largest index of an active voxel, or `None` without one.
-    pub fn active_bounds(&self) -> Option<([i32; 3], [i32; 3])> {
-        let mut bounds: Option<([i32; 3], [i32; 3])> = None;
-        for b in &self.blocks {
-            for n in 0..BLOCK_VOXELS {
-                if b.active[n / 64] >> (n % 64) & 1 == 1 {
-                    let ijk = [n / 64, (n / 8) % 8, n % 8].map(|c| c as i32);
-                    let p = [0, 1, 2].map(|a| b.origin[a] + ijk[a]);
-                    let (lo, hi) = bounds.get_or_insert((p, p));
-                    for a in 0..3 {
-                        lo[a] = lo[a].min(p[a]);
-                        hi[a] = hi[a].max(p[a]);
-                    }
-                }
-            }
-        }
-        bounds
-    }
 }
 
 /// A dense grid of signed distances (see the module docs).
 #[derive(Clone, Debug, PartialEq)]
-pub struct DenseVolume {
+pub(crate) struct DenseVolume {
     /// The voxel grid.
     pub grid: VoxelGrid,
     /// One value per voxel, C order over (i, j, k): voxel (i, j, k) at `(i·ny + j)·nz + k`.
@@ -228,28 +205,10 @@ fn check_mesh(mesh: &TriangleMesh) -> Result<(), DistanceError> {
 /// The narrow-band level set of the signed distance to `mesh` (the polygonized zero set of
 /// `f`) over `region`.
 ///
-/// ```
-/// use stablesurf::cloud::Aabb;
-/// use stablesurf::distance::volume::{narrow_band, VolumeParams, VoxelSize};
-/// use stablesurf::polygonize::{polygonize, PolygonizeParams};
-/// use stablesurf::ImplicitPolynomial;
-/// let mut c = vec![0.0; 10];
-/// (c[0], c[4], c[7], c[9]) = (-1.0, 1.0, 1.0, 1.0);
-/// let sphere = ImplicitPolynomial { degree: 2, coefficients: c, center: [0.0; 3], scale: 1.0 };
-/// let region = Aabb { min: [-1.5; 3], max: [1.5; 3] };
-/// let mesh = polygonize(&sphere, &region, &PolygonizeParams { depth: 5, ..Default::default() })?.mesh;
-/// let params = VolumeParams { voxel_size: VoxelSize::Size(0.1) };
-/// let band = narrow_band(&sphere, &mesh, &region, &params).unwrap();
-/// assert_eq!(band.grid.shape, [30, 30, 30]);
-/// assert!((band.background - 0.3).abs() < 1e-6);
-/// assert!(band.active_voxels() > 1000);
-/// # Ok::<(), stablesurf::polygonize::PolygonizeError>(())
-/// ```
-///
 /// # Errors
 /// As [`VoxelGrid::over`]; [`DistanceError::NoSurface`] when the mesh has no triangles or a
 /// vertex that is not finite or an index out of range.
-pub fn narrow_band<F: ImplicitFunction + ?Sized>(
+pub(crate) fn narrow_band<F: ImplicitFunction + ?Sized>(
     f: &F,
     mesh: &TriangleMesh,
     region: &Aabb,
@@ -445,7 +404,7 @@ fn voxel_range(grid: &VoxelGrid, tri: &[[f64; 3]; 3], margin: f64) -> Option<[[u
 /// # Errors
 /// [`DistanceError::InvalidParams`] when the grid has more than [`MAX_DENSE_VOXELS`] voxels (a
 /// larger voxel size helps); [`DistanceError::NoSurface`] as for [`narrow_band`].
-pub fn dense(mesh: &TriangleMesh, band: &NarrowBand) -> Result<DenseVolume, DistanceError> {
+pub(crate) fn dense(mesh: &TriangleMesh, band: &NarrowBand) -> Result<DenseVolume, DistanceError> {
     let grid = band.grid;
     if grid.len() > MAX_DENSE_VOXELS {
         return Err(DistanceError::InvalidParams(format!(
@@ -638,5 +597,48 @@ mod tests {
             narrow_band(&poly, &empty, &region, &params).unwrap_err(),
             DistanceError::NoSurface
         );
+    }
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn narrow_band() -> Result<(), Box<dyn std::error::Error>> {
+        use crate::cloud::Aabb;
+        use crate::distance::volume::{narrow_band, VolumeParams, VoxelSize};
+        use crate::polygonize::{polygonize, PolygonizeParams};
+        use crate::ImplicitPolynomial;
+        let mut c = vec![0.0; 10];
+        (c[0], c[4], c[7], c[9]) = (-1.0, 1.0, 1.0, 1.0);
+        let sphere = ImplicitPolynomial {
+            degree: 2,
+            coefficients: c,
+            center: [0.0; 3],
+            scale: 1.0,
+        };
+        let region = Aabb {
+            min: [-1.5; 3],
+            max: [1.5; 3],
+        };
+        let mesh = polygonize(
+            &sphere,
+            &region,
+            &PolygonizeParams {
+                depth: 5,
+                ..Default::default()
+            },
+        )?
+        .mesh;
+        let params = VolumeParams {
+            voxel_size: VoxelSize::Size(0.1),
+        };
+        let band = narrow_band(&sphere, &mesh, &region, &params).unwrap();
+        assert_eq!(band.grid.shape, [30, 30, 30]);
+        assert!((band.background - 0.3).abs() < 1e-6);
+        assert!(band.active_voxels() > 1000);
+        Ok(())
     }
 }

@@ -62,7 +62,7 @@ pub struct ExrOptions {
 }
 
 /// What `gridToWorldConvention` says.
-pub const GRID_TO_WORLD_CONVENTION: &str = "Imath row-vector: [x y z 1] = [col row slice 1] * gridToWorld; integer col, row are pixel centres; row 0 is the top of the image";
+pub(crate) const GRID_TO_WORLD_CONVENTION: &str = "Imath row-vector: [x y z 1] = [col row slice 1] * gridToWorld; integer col, row are pixel centres; row 0 is the top of the image";
 
 /// Writes `slice` as an OpenEXR image to `out`.
 ///

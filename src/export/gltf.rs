@@ -21,7 +21,7 @@
 //! by 0.001); without, they are written unchanged (a scan in metres needs no unit).
 //!
 //! Far-off coordinates (a LiDAR tile in UTM coordinates, where `f32` steps are 0.25 m; the
-//! test is [`needs_double`](crate::export::needs_double)) are written relative to the centre of
+//! test is `needs_double`) are written relative to the centre of
 //! their bounding box, and the node's `translation` holds that centre as a JSON number with every
 //! digit of the `f64`: the shape keeps its detail and viewers place it where it belongs. Other
 //! meshes are written as before, with no translation.
@@ -140,10 +140,12 @@ pub fn write_glb_coloured(
 }
 
 /// Writes `mesh` as a JSON glTF to `json_out` and its buffer to `bin_out`; the JSON refers to
-/// the buffer by `bin_uri` (a URI relative to the `.gltf` file, such as `"mesh.bin"`).
+/// the buffer by `bin_uri` (a URI relative to the `.gltf` file, such as `"mesh.bin"`), with one
+/// 8-bit sRGB colour per vertex, written as the `COLOR_0` attribute, when `colours` is given (as
+/// [`write_glb_coloured`]).
 ///
 /// ```
-/// use stablesurf::export::gltf::{write_gltf, GltfOptions, UpAxis};
+/// use stablesurf::export::gltf::{write_gltf_coloured, GltfOptions, UpAxis};
 /// use stablesurf::TriangleMesh;
 /// let mesh = TriangleMesh {
 ///     positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
@@ -152,29 +154,14 @@ pub fn write_glb_coloured(
 /// };
 /// let (mut json, mut bin) = (Vec::new(), Vec::new());
 /// let opts = GltfOptions { up: UpAxis::Z, ..Default::default() };
-/// write_gltf(&mesh, &mut json, &mut bin, "mesh.bin", &opts).unwrap();
+/// write_gltf_coloured(&mesh, None, &mut json, &mut bin, "mesh.bin", &opts).unwrap();
 /// let text = String::from_utf8(json).unwrap();
 /// assert!(text.contains("\"uri\": \"mesh.bin\"") && text.contains("\"generator\": \"stablesurf\""));
 /// assert_eq!(bin.len(), 3 * 12 + 3 * 12 + 8); // positions, normals, u16 indices padded to 4
 /// ```
 ///
 /// # Errors
-/// As [`write_glb`], and [`ExportError::InvalidMesh`] when `bin_uri` is empty.
-pub fn write_gltf(
-    mesh: &TriangleMesh,
-    json_out: &mut impl Write,
-    bin_out: &mut impl Write,
-    bin_uri: &str,
-    opts: &GltfOptions,
-) -> Result<(), ExportError> {
-    write_gltf_coloured(mesh, None, json_out, bin_out, bin_uri, opts)
-}
-
-/// [`write_gltf`] with one 8-bit sRGB colour per vertex, written as the `COLOR_0` attribute
-/// when `colours` is given (as [`write_glb_coloured`]).
-///
-/// # Errors
-/// As [`write_gltf`] and [`write_glb_coloured`].
+/// As [`write_glb_coloured`], and [`ExportError::InvalidMesh`] when `bin_uri` is empty.
 pub fn write_gltf_coloured(
     mesh: &TriangleMesh,
     colours: Option<&[[u8; 3]]>,

@@ -32,10 +32,8 @@ mod stage;
 pub mod units;
 pub mod vdb;
 
-pub use stage::{
-    export, export_mesh, model_slices, slices_from_model, ExportParams, ExportReport, OutputFile,
-    OutputFormat, STAGE_VERSION,
-};
+pub use stage::{export, ExportParams, ExportReport, OutputFile, OutputFormat};
+pub(crate) use stage::{export_mesh, model_slices, slices_from_model, STAGE_VERSION};
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -48,17 +46,17 @@ use crate::mesh::TriangleMesh;
 /// to a node translation (glTF). At 1e-7
 /// no mesh from a scan near the origin changes, while a 50 m LiDAR tile at UTM northings
 /// (4,000 km, where `f32` steps are 0.25 m) is written in doubles.
-pub const DOUBLE_PRECISION_RATIO: f64 = 1e-7;
+pub(crate) const DOUBLE_PRECISION_RATIO: f64 = 1e-7;
 
 /// Whether `positions` need `double` PLY properties: half an `f32` step at the largest
 /// coordinate magnitude exceeds [`DOUBLE_PRECISION_RATIO`] of the bounding-box diagonal.
-pub fn needs_double(positions: &[[f64; 3]]) -> bool {
+pub(crate) fn needs_double(positions: &[[f64; 3]]) -> bool {
     far_off_centre(positions).is_some()
 }
 
 /// The centre of the bounding box of `positions` when they [`needs_double`], else `None`: the
 /// origin glTF writes far-off positions relative to.
-pub fn far_off_centre(positions: &[[f64; 3]]) -> Option<[f64; 3]> {
+pub(crate) fn far_off_centre(positions: &[[f64; 3]]) -> Option<[f64; 3]> {
     let b = crate::cloud::Aabb::from_points(positions)?;
     let diagonal = b.diagonal();
     if diagonal.is_nan() || diagonal <= 0.0 {

@@ -1,6 +1,6 @@
-//! Export stage, NumPy writer: a [`DenseVolume`] → `volume.npy` and its sidecar `volume.json`.
+//! Export stage, NumPy writer: a `DenseVolume` → `volume.npy` and its sidecar `volume.json`.
 //!
-//! Input: the dense signed-distance grid of [`crate::distance::volume::dense`]. Output: a NumPy
+//! Input: the dense signed-distance grid of `crate::distance::volume::dense`. Output: a NumPy
 //! `.npy` file, format version 1.0: the magic `\x93NUMPY`, version bytes 1 0, a little-endian
 //! u16 header length, the header (a Python dict literal `{'descr': '<f4', 'fortran_order':
 //! False, 'shape': (nx, ny, nz), }` padded with spaces and a newline so that the data starts at
@@ -9,7 +9,7 @@
 //! y, k along z, at `origin + voxel_size · (i, j, k)` in input coordinates. Values are in input
 //! units, negative inside.
 //!
-//! The sidecar ([`sidecar`]) is JSON: `format` `stablesurf.volume`, `version` 1, `data`
+//! The sidecar (`sidecar`) is JSON: `format` `stablesurf.volume`, `version` 1, `data`
 //! (`volume.npy`), `shape`, `axis_order`, `origin` (the centre of voxel (0, 0, 0)),
 //! `voxel_size`, `grid_to_world` (a 4×4 row-major matrix taking (i, j, k, 1) to input
 //! coordinates), `units` (with `--units`), `sign` and `distance` (how the values were made).
@@ -23,21 +23,10 @@ use crate::distance::volume::{DenseVolume, BAND_VOXELS};
 
 /// Writes `volume` as a `.npy` file (see the module docs) to `out`.
 ///
-/// ```
-/// use stablesurf::distance::volume::{DenseVolume, VoxelGrid};
-/// use stablesurf::export::npy::write;
-/// let grid = VoxelGrid { origin: [0.0; 3], voxel_size: 1.0, shape: [2, 3, 4] };
-/// let volume = DenseVolume { grid, values: vec![0.5; 24] };
-/// let mut bytes = Vec::new();
-/// write(&volume, &mut bytes).unwrap();
-/// assert_eq!(&bytes[..8], b"\x93NUMPY\x01\x00");
-/// assert_eq!(bytes.len(), 128 + 24 * 4);
-/// ```
-///
 /// # Errors
 /// [`ExportError::Format`] when the values do not fill the grid; [`ExportError::Write`] when
 /// `out` fails.
-pub fn write(volume: &DenseVolume, out: &mut impl Write) -> Result<(), ExportError> {
+pub(crate) fn write(volume: &DenseVolume, out: &mut impl Write) -> Result<(), ExportError> {
     let [nx, ny, nz] = volume.grid.shape;
     if volume.values.len() != nx * ny * nz {
         return Err(ExportError::Format(format!(
@@ -64,7 +53,7 @@ pub fn write(volume: &DenseVolume, out: &mut impl Write) -> Result<(), ExportErr
 
 /// The sidecar JSON of `volume.npy` (see the module docs); `units` is the input's unit, if
 /// known.
-pub fn sidecar(volume: &DenseVolume, units: Option<LengthUnit>) -> Vec<u8> {
+pub(crate) fn sidecar(volume: &DenseVolume, units: Option<LengthUnit>) -> Vec<u8> {
     let g = &volume.grid;
     let h = g.voxel_size;
     let o = g.origin;
@@ -98,7 +87,7 @@ pub fn sidecar(volume: &DenseVolume, units: Option<LengthUnit>) -> Vec<u8> {
 }
 
 /// What `stablesurf info` shows of a `.npy` file: its version, dtype, shape and order from the
-/// header, and the range of the values when they are little-endian `float32` (what [`write()`]
+/// header, and the range of the values when they are little-endian `float32` (what `write()`
 /// writes), NaN ignored.
 ///
 /// # Errors
@@ -202,5 +191,30 @@ mod tests {
         for n in [0, 9, 40, bytes.len() - 1] {
             assert!(read_info(&bytes[..n]).is_err(), "prefix of {n} bytes");
         }
+    }
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn write() {
+        use crate::distance::volume::{DenseVolume, VoxelGrid};
+        use crate::export::npy::write;
+        let grid = VoxelGrid {
+            origin: [0.0; 3],
+            voxel_size: 1.0,
+            shape: [2, 3, 4],
+        };
+        let volume = DenseVolume {
+            grid,
+            values: vec![0.5; 24],
+        };
+        let mut bytes = Vec::new();
+        write(&volume, &mut bytes).unwrap();
+        assert_eq!(&bytes[..8], b"\x93NUMPY\x01\x00");
+        assert_eq!(bytes.len(), 128 + 24 * 4);
     }
 }

@@ -37,7 +37,7 @@
 //! way a `comment up z` header line records it.
 //!
 //! Positions are `float` unless that would lose the mesh's own detail: when rounding the largest
-//! coordinate to `f32` could move a vertex by more than [`DOUBLE_PRECISION_RATIO`](crate::export::DOUBLE_PRECISION_RATIO) of the mesh's
+//! coordinate to `f32` could move a vertex by more than `DOUBLE_PRECISION_RATIO` of the mesh's
 //! diagonal (a LiDAR tile in UTM coordinates: 0.25 m steps at 4,000 km from the origin), the
 //! positions are written as `double`, which MeshLab, CloudCompare, Blender and `plyfile` read.
 //!
@@ -277,7 +277,7 @@ pub fn write(
 }
 
 /// Distance from each vertex to the nearest of `points` (input units, as `f32`): the `quality`
-/// MeshLab shows ([`crate::numerics::point_tree::nearest_point_distances`], a k-d tree, in parallel; the
+/// MeshLab shows (`crate::numerics::point_tree::nearest_point_distances`, a k-d tree, in parallel; the
 /// result does not depend on the thread count). Non-finite points are ignored; a non-finite
 /// vertex gets NaN.
 ///

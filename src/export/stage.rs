@@ -32,7 +32,7 @@ use crate::model::Model;
 /// The export stage's version. If you change any input to this stage's key (the fields of
 /// [`ExportParams`] or how they are written), or anything that changes its output for the same
 /// input and params, bump `STAGE_VERSION`.
-pub const STAGE_VERSION: u32 = 15;
+pub(crate) const STAGE_VERSION: u32 = 15;
 
 /// One output file: its name relative to the output folder, and its bytes.
 pub type OutputFile = (String, Vec<u8>);
@@ -129,7 +129,7 @@ impl Default for ExportParams {
 
 impl ExportParams {
     /// Whether the params ask for `format`.
-    pub fn wants(&self, format: OutputFormat) -> bool {
+    pub(crate) fn wants(&self, format: OutputFormat) -> bool {
         self.formats.contains(&format)
     }
 
@@ -187,7 +187,7 @@ pub struct ExportReport {
 
 impl ExportReport {
     /// The figures of `files`.
-    pub fn of(files: &[OutputFile]) -> ExportReport {
+    pub(crate) fn of(files: &[OutputFile]) -> ExportReport {
         ExportReport {
             files: files.len(),
             bytes: files.iter().map(|f| f.1.len()).sum(),
@@ -245,7 +245,7 @@ pub fn export(
 
 /// Whether [`model_slices`] makes the slice files (from the model alone): slices are asked for,
 /// the model is a polynomial, and their distance is not the mesh's.
-pub fn slices_from_model(model: &Model, params: &ExportParams) -> bool {
+pub(crate) fn slices_from_model(model: &Model, params: &ExportParams) -> bool {
     params.slices_wanted()
         && matches!(model, Model::Global(_))
         && params.slices.method != DistanceMethod::Mesh
@@ -256,7 +256,7 @@ pub fn slices_from_model(model: &Model, params: &ExportParams) -> bool {
 ///
 /// # Errors
 /// [`ExportError::Distance`] when the slices cannot be computed, or a writer's error.
-pub fn model_slices(
+pub(crate) fn model_slices(
     model: &Model,
     params: &ExportParams,
 ) -> Option<Result<Vec<OutputFile>, ExportError>> {
@@ -277,7 +277,7 @@ pub fn model_slices(
 ///
 /// # Errors
 /// As [`export`].
-pub fn export_mesh(
+pub(crate) fn export_mesh(
     model: &Model,
     finished: &Finished,
     params: &ExportParams,

@@ -29,7 +29,7 @@ pub enum LengthUnit {
 
 impl LengthUnit {
     /// The unit's length in metres (exact by definition for all five).
-    pub fn metres(self) -> f64 {
+    pub(crate) fn metres(self) -> f64 {
         match self {
             LengthUnit::Mm => 0.001,
             LengthUnit::Cm => 0.01,
@@ -40,7 +40,7 @@ impl LengthUnit {
     }
 
     /// The unit's symbol, as `--units` takes it and the outputs record it.
-    pub fn symbol(self) -> &'static str {
+    pub(crate) fn symbol(self) -> &'static str {
         match self {
             LengthUnit::Mm => "mm",
             LengthUnit::Cm => "cm",

@@ -1,6 +1,6 @@
-//! Export stage, OpenVDB writer: a [`NarrowBand`] level set → one `.vdb` file.
+//! Export stage, OpenVDB writer: a `NarrowBand` level set → one `.vdb` file.
 //!
-//! Input: the narrow band of [`crate::distance::volume`] and [`VdbOptions`] (the unit and the
+//! Input: the narrow band of [`crate::distance::volume`] and `VdbOptions` (the unit and the
 //! glTF up axis). Output: the bytes of an OpenVDB file (file format version 224, the current
 //! one) holding one grid: a `FloatGrid` (`Tree_float_5_4_3`) named `surface` of class
 //! `level set`, uncompressed, with the standard grid metadata (`class`, `name`,
@@ -37,7 +37,7 @@
 //!
 //! Index (i, j, k) maps to world as `voxel size · (i, j, k) + translation`, voxel centres at
 //! integer indices. Values and the transform are in input units, or in metres with
-//! [`VdbOptions::units`], like the glTF. With [`UpAxis::Y`] (the glTF default) the grid is put
+//! `VdbOptions::units`, like the glTF. With [`UpAxis::Y`] (the glTF default) the grid is put
 //! in Blender's Z-up frame the way Blender's glTF importer puts the glb: input (x, y, z) ↦
 //! (x, −z, y), by a permutation of the index axes (the map stays a uniform scale and a
 //! translation), so a `.glb` and a `.vdb` of one run imported together overlap; with
@@ -54,20 +54,20 @@ use crate::distance::volume::{NarrowBand, BLOCK, BLOCK_VOXELS};
 /// OpenVDB's file magic number.
 const MAGIC: i64 = 0x5644_4220;
 /// The file format version written: 224 (multi-pass IO), OpenVDB's current one.
-pub const FILE_VERSION: u32 = 224;
+pub(crate) const FILE_VERSION: u32 = 224;
 /// The OpenVDB library version recorded in the header (the format's version 224 is current
 /// there).
 const LIBRARY_VERSION: [u32; 2] = [12, 0];
 /// The grid's name.
-pub const GRID_NAME: &str = "surface";
+pub(crate) const GRID_NAME: &str = "surface";
 /// The grid's tree type.
-pub const GRID_TYPE: &str = "Tree_float_5_4_3";
+pub(crate) const GRID_TYPE: &str = "Tree_float_5_4_3";
 /// Node-values record: no mask, every value follows.
 const NO_MASK_AND_ALL_VALS: u8 = 6;
 
 /// Options of [`write()`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct VdbOptions {
+pub(crate) struct VdbOptions {
     /// The unit of the input coordinates: the transform and the values are scaled to metres
     /// (as the glTF); `None` writes input units.
     pub units: Option<LengthUnit>,
@@ -206,28 +206,10 @@ fn vec3i_bytes(v: [i32; 3]) -> Vec<u8> {
 
 /// Writes `band` as an OpenVDB file (see the module docs) to `out`.
 ///
-/// ```
-/// use stablesurf::cloud::Aabb;
-/// use stablesurf::distance::volume::{narrow_band, VolumeParams, VoxelSize};
-/// use stablesurf::export::vdb::{write, VdbOptions};
-/// use stablesurf::polygonize::{polygonize, PolygonizeParams};
-/// use stablesurf::ImplicitPolynomial;
-/// let mut c = vec![0.0; 10];
-/// (c[0], c[4], c[7], c[9]) = (-1.0, 1.0, 1.0, 1.0);
-/// let sphere = ImplicitPolynomial { degree: 2, coefficients: c, center: [0.0; 3], scale: 1.0 };
-/// let region = Aabb { min: [-1.5; 3], max: [1.5; 3] };
-/// let mesh = polygonize(&sphere, &region, &PolygonizeParams { depth: 4, ..Default::default() })?.mesh;
-/// let band = narrow_band(&sphere, &mesh, &region, &VolumeParams { voxel_size: VoxelSize::Size(0.2) }).unwrap();
-/// let mut bytes = Vec::new();
-/// write(&band, &VdbOptions::default(), &mut bytes).unwrap();
-/// assert_eq!(&bytes[..8], &[0x20, 0x42, 0x44, 0x56, 0, 0, 0, 0]);
-/// # Ok::<(), stablesurf::polygonize::PolygonizeError>(())
-/// ```
-///
 /// # Errors
 /// [`ExportError::Write`] when `out` fails; [`ExportError::Format`] for a band without active
 /// voxels or with an index outside 0 ..= 4095.
-pub fn write(
+pub(crate) fn write(
     band: &NarrowBand,
     opts: &VdbOptions,
     out: &mut impl Write,
@@ -813,5 +795,54 @@ mod tests {
         write(&band, &VdbOptions::default(), &mut a).unwrap();
         write(&band.clone(), &VdbOptions::default(), &mut b).unwrap();
         assert_eq!(a, b);
+    }
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn write() -> Result<(), Box<dyn std::error::Error>> {
+        use crate::cloud::Aabb;
+        use crate::distance::volume::{narrow_band, VolumeParams, VoxelSize};
+        use crate::export::vdb::{write, VdbOptions};
+        use crate::polygonize::{polygonize, PolygonizeParams};
+        use crate::ImplicitPolynomial;
+        let mut c = vec![0.0; 10];
+        (c[0], c[4], c[7], c[9]) = (-1.0, 1.0, 1.0, 1.0);
+        let sphere = ImplicitPolynomial {
+            degree: 2,
+            coefficients: c,
+            center: [0.0; 3],
+            scale: 1.0,
+        };
+        let region = Aabb {
+            min: [-1.5; 3],
+            max: [1.5; 3],
+        };
+        let mesh = polygonize(
+            &sphere,
+            &region,
+            &PolygonizeParams {
+                depth: 4,
+                ..Default::default()
+            },
+        )?
+        .mesh;
+        let band = narrow_band(
+            &sphere,
+            &mesh,
+            &region,
+            &VolumeParams {
+                voxel_size: VoxelSize::Size(0.2),
+            },
+        )
+        .unwrap();
+        let mut bytes = Vec::new();
+        write(&band, &VdbOptions::default(), &mut bytes).unwrap();
+        assert_eq!(&bytes[..8], &[0x20, 0x42, 0x44, 0x56, 0, 0, 0, 0]);
+        Ok(())
     }
 }

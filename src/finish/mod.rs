@@ -14,11 +14,11 @@
 //! ```
 //!
 //! *Keep* leaves out the components far from the data and small nested or unsupported ones
-//! ([`Keep::Data`]); *trim* ([`crate::trim`]) removes what the data does not support and fairs
+//! ([`Keep::Data`]); *trim* ([`crate::trim`](mod@crate::trim)) removes what the data does not support and fairs
 //! the holes it leaves; *decimate* ([`decimate`]) collapses edges down to a triangle budget. The
 //! checks, the accuracy and the per-vertex values all measure the mesh as written, so they run
 //! last. One k-d tree of the data serves every nearest-point query. The stage does no IO and
-//! encodes nothing: [`crate::export`] turns its output into bytes. Every part runs on the rayon
+//! encodes nothing: [`crate::export`](mod@crate::export) turns its output into bytes. Every part runs on the rayon
 //! pool and its results do not depend on the thread count.
 
 pub mod decimate;
@@ -38,16 +38,16 @@ use decimate::{DecimateParams, DecimateReport};
 /// The finish stage's version. If you change any input to this stage's key (the fields of
 /// [`FinishParams`] or how they are written), or anything that changes its output for the same
 /// input and params, bump `STAGE_VERSION`.
-pub const STAGE_VERSION: u32 = 1;
+pub(crate) const STAGE_VERSION: u32 = 1;
 
 /// With [`Keep::Data`], closed pieces inside another piece and smaller than this share of the
 /// largest piece's area are left out ([`mesh::drop_small_nested_components`]).
-pub const NESTED_AREA_FRACTION: f64 = 0.01;
+pub(crate) const NESTED_AREA_FRACTION: f64 = 0.01;
 
 /// With [`Keep::Data`], pieces smaller than [`NESTED_AREA_FRACTION`] of the largest piece's area
 /// whose bounding box holds fewer than this many data points are left out
 /// ([`mesh::drop_small_unsupported_components`]): fewer than a local fit of degree 2 needs.
-pub const SUPPORT_POINTS_MIN: usize = 15;
+pub(crate) const SUPPORT_POINTS_MIN: usize = 15;
 
 /// Components whose nearest data point is farther than this share of the data's diagonal are
 /// left out by [`Keep::Data`].
@@ -63,9 +63,9 @@ pub enum Keep {
     #[default]
     All,
     /// Only components with a data point within 2% of the data's diagonal, and no small closed
-    /// piece inside another ([`mesh::drop_small_nested_components`]; see [`NESTED_AREA_FRACTION`]),
-    /// nor a small piece with fewer than [`SUPPORT_POINTS_MIN`] data points in its box
-    /// ([`mesh::drop_small_unsupported_components`]).
+    /// piece inside another (`mesh::drop_small_nested_components`; see `NESTED_AREA_FRACTION`),
+    /// nor a small piece with fewer than `SUPPORT_POINTS_MIN` data points in its box
+    /// (`mesh::drop_small_unsupported_components`).
     Data,
 }
 
@@ -120,7 +120,7 @@ pub struct Finished {
 
 impl Finished {
     /// The mesh the distance outputs measure: [`Finished::closed`], else the mesh itself.
-    pub fn closed(&self) -> &TriangleMesh {
+    pub(crate) fn closed(&self) -> &TriangleMesh {
         self.closed.as_ref().unwrap_or(&self.mesh)
     }
 }
@@ -130,9 +130,9 @@ impl Finished {
 pub struct FinishReport {
     /// Components left out for having no data point within 2% of the data's diagonal.
     pub dropped_components: usize,
-    /// Small closed components left out for lying inside another ([`NESTED_AREA_FRACTION`]).
+    /// Small closed components left out for lying inside another (`NESTED_AREA_FRACTION`).
     pub dropped_nested: usize,
-    /// Small components left out for holding fewer than [`SUPPORT_POINTS_MIN`] data points in
+    /// Small components left out for holding fewer than `SUPPORT_POINTS_MIN` data points in
     /// their box.
     pub dropped_unsupported: usize,
     /// What the trim removed and closed.
@@ -165,7 +165,7 @@ pub enum FinishError {
 ///
 /// `known_embedded` passes on what the meshing proved: no triangle of `mesh` crosses another
 /// ([`crate::polygonize::Polygonized::embedded`]); the check then counts no self-intersecting
-/// face without testing again ([`mesh::check_with`]). Pass `false` for any other mesh.
+/// face without testing again (`mesh::check_with`). Pass `false` for any other mesh.
 ///
 /// # Errors
 /// [`FinishError::Trim`] from the trim, [`FinishError::Colours`] when `colours` is not one per

@@ -37,7 +37,6 @@
 mod kappa;
 pub mod moments;
 mod solve;
-pub mod study;
 mod system;
 
 use std::str::FromStr;
@@ -47,13 +46,12 @@ use rayon::prelude::*;
 use crate::cloud::{Aabb, OrientedCloud};
 use crate::poly::{n_coefficients, FitDiagnostics, FitRecord, ImplicitModel, ImplicitPolynomial};
 
-pub use kappa::kappa_grid;
-
-use system::{Normalization, Rows, System};
+pub(crate) use system::Normalization;
+use system::{Rows, System};
 
 /// Highest supported degree (moments up to degree 2n are accumulated; beyond 20 the monomial
 /// basis is hopelessly ill-conditioned in double precision).
-pub const MAX_DEGREE: u32 = 20;
+pub(crate) const MAX_DEGREE: u32 = 20;
 
 /// Errors of the fit stage.
 #[derive(Debug, thiserror::Error)]
@@ -276,7 +274,7 @@ pub enum FitSolver {
 
 impl FitSolver {
     /// `"moments"` or `"qr"`.
-    pub fn as_str(&self) -> &'static str {
+    pub(crate) fn as_str(&self) -> &'static str {
         match self {
             FitSolver::Moments => "moments",
             FitSolver::Qr => "qr",
@@ -297,7 +295,7 @@ pub enum RidgeMatrix {
 /// Parameters of the fit stage.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FitParams {
-    /// Polynomial degree n (1 to [`MAX_DEGREE`]; automatic κ needs it even).
+    /// Polynomial degree n (1 to `MAX_DEGREE`; automatic κ needs it even).
     pub degree: u32,
     /// The fitting method.
     pub method: FitMethod,
@@ -768,7 +766,7 @@ fn solve_qr(
 /// Most data points the fit's first-order distances ([`FitDiagnostics::mean_distance`] and
 /// `max_distance`) are measured at: a larger cloud is measured on every k-th point (k = ⌈N /
 /// this⌉), as many as the run's accuracy measures ([`crate::measure::ACCURACY_POINTS`]).
-pub const DISTANCE_POINTS: usize = crate::measure::ACCURACY_POINTS;
+pub(crate) const DISTANCE_POINTS: usize = crate::measure::ACCURACY_POINTS;
 
 /// Mean and maximum of the first-order distance |f|/|∇f| at the points (input units), summed in
 /// fixed chunks in a fixed order; past [`DISTANCE_POINTS`] points, at every k-th

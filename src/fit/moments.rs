@@ -36,7 +36,7 @@ use super::system::{self, Normalization, Rows};
 use super::FitError;
 
 /// Version of the moments file format; bump it when the layout changes.
-pub const MOMENTS_FORMAT_VERSION: u32 = 1;
+pub(crate) const MOMENTS_FORMAT_VERSION: u32 = 1;
 
 const MAGIC: &[u8; 8] = b"SSMOMENT";
 const HASH_LEN: usize = 32;

@@ -49,7 +49,7 @@ pub(crate) struct Normalization {
 
 impl Normalization {
     /// Centroid and mean radial distance, both summed in fixed chunks in a fixed order.
-    pub fn of(points: &[[f64; 3]]) -> Normalization {
+    pub(crate) fn of(points: &[[f64; 3]]) -> Normalization {
         let n = points.len().max(1) as f64;
         let sums: Vec<[f64; 3]> = points
             .par_chunks(CHUNK_POINTS)
@@ -87,7 +87,7 @@ impl Normalization {
     }
 
     /// p̂ for an input point.
-    pub fn apply(&self, p: [f64; 3]) -> [f64; 3] {
+    pub(crate) fn apply(&self, p: [f64; 3]) -> [f64; 3] {
         [0, 1, 2].map(|a| (p[a] - self.center[a]) / self.scale)
     }
 }
@@ -119,7 +119,7 @@ pub(crate) struct System {
 
 impl System {
     /// The Gram matrix MᵀM (c×c, row-major) assembled from the moments.
-    pub fn gram(&self) -> Vec<f64> {
+    pub(crate) fn gram(&self) -> Vec<f64> {
         let e = exponents(self.degree);
         let c = e.len();
         let mut g = vec![0.0; c * c];
@@ -136,7 +136,7 @@ impl System {
 
     /// The diagonal of the ridge matrix D (6.18): D_ll = β_{i+j+k} / T_ll with the trinomial
     /// coefficient T_ll = (i+j+k)!/(i! j! k!).
-    pub fn ridge_diagonal(&self) -> Vec<f64> {
+    pub(crate) fn ridge_diagonal(&self) -> Vec<f64> {
         ridge_diagonal(self.degree, &self.beta)
     }
 }

@@ -56,7 +56,7 @@ mod las;
 mod obj;
 mod pcd;
 mod ply;
-pub mod range;
+pub(crate) mod range;
 mod stl;
 mod xyz;
 
@@ -316,7 +316,7 @@ pub struct Scan {
     /// line (intensity, quality) are not read: the cloud keeps x y z only").
     /// Empty when the cloud holds everything the file does. A caller should print them.
     pub notices: Vec<String>,
-    /// What triangulating the file's range grid did, when it has one (see [`range`]).
+    /// What triangulating the file's range grid did, when it has one (see `range`).
     pub range_grid: Option<range::RangeGridInfo>,
 }
 

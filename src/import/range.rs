@@ -37,11 +37,11 @@ use crate::vec3::{cross, dot, norm, sub};
 
 /// An edge longer than this many times the median grid-neighbour distance is a depth
 /// discontinuity.
-pub const LONG_EDGE_FACTOR: f64 = 4.0;
+pub(crate) const LONG_EDGE_FACTOR: f64 = 4.0;
 
 /// A triangle whose normal is more than this many degrees from the ray to the sensor is seen at
 /// a grazing angle (a depth discontinuity or a silhouette) and is cut.
-pub const GRAZING_DEG: f64 = 80.0;
+pub(crate) const GRAZING_DEG: f64 = 80.0;
 
 /// Rings of the falloff: a point this many edges or more from the boundary has falloff 1.
 const FALLOFF_RINGS: usize = 4;
@@ -74,7 +74,7 @@ pub struct RangeGridInfo {
 
 /// A triangulated range grid.
 #[derive(Clone, Debug)]
-pub struct RangeGrid {
+pub(crate) struct RangeGrid {
     /// Triangles facing the sensor.
     pub triangles: Vec<[u32; 3]>,
     /// The sensor and per-point falloff.

@@ -116,15 +116,7 @@ fn ray_in_corner(drop: usize, v: &[f64; 3], a: &[f64; 3], c: &[f64; 3], d: &[f64
 /// vertices strictly on the same side of the edge), since two triangles in different planes
 /// through an edge meet only on it; with all three shared (a duplicate face), always. A
 /// zero-area triangle (exactly collinear corners) or one with a repeated index is never counted.
-///
-/// ```
-/// use stablesurf::mesh::triangles_intersect;
-/// let p = [[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 0.0],
-///          [0.5, 0.5, -1.0], [0.5, 0.5, 1.0], [-3.0, -3.0, 0.0]];
-/// assert!(triangles_intersect([0, 1, 2], [3, 4, 5], &p));
-/// assert!(!triangles_intersect([0, 1, 2], [0, 4, 5], &p));
-/// ```
-pub fn triangles_intersect(s: [u32; 3], t: [u32; 3], positions: &[[f64; 3]]) -> bool {
+pub(crate) fn triangles_intersect(s: [u32; 3], t: [u32; 3], positions: &[[f64; 3]]) -> bool {
     let n = positions.len() as u32;
     if s.iter().chain(&t).any(|&i| i >= n) {
         return false;
@@ -223,7 +215,7 @@ fn intersect_with_axes(
 }
 
 /// Number of triangles of `mesh` that intersect another of its triangles other than at the
-/// vertices and edges they share (see [`triangles_intersect`] for what counts exactly).
+/// vertices and edges they share (see `triangles_intersect` for what counts exactly).
 ///
 /// Broad phase: the triangles' bounding boxes in a uniform grid of cubes three times the mean
 /// box side, sorted by cube (a radix sort of the dense cube numbers); each pair of triangles
@@ -247,7 +239,7 @@ pub fn self_intersecting_faces(mesh: &TriangleMesh) -> usize {
 
 /// One flag per triangle of `mesh`: whether it intersects another (see
 /// [`self_intersecting_faces`]).
-pub fn intersecting_triangles(mesh: &TriangleMesh) -> Vec<bool> {
+pub(crate) fn intersecting_triangles(mesh: &TriangleMesh) -> Vec<bool> {
     intersecting_triangles_among(mesh, None)
 }
 
@@ -446,4 +438,25 @@ pub(crate) fn triangle_box(t: &[u32; 3], positions: &[[f64; 3]]) -> ([f64; 3], [
         }
     }
     (lo, hi)
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn triangles_intersect() {
+        use crate::mesh::triangles_intersect;
+        let p = [
+            [0.0, 0.0, 0.0],
+            [2.0, 0.0, 0.0],
+            [0.0, 2.0, 0.0],
+            [0.5, 0.5, -1.0],
+            [0.5, 0.5, 1.0],
+            [-3.0, -3.0, 0.0],
+        ];
+        assert!(triangles_intersect([0, 1, 2], [3, 4, 5], &p));
+        assert!(!triangles_intersect([0, 1, 2], [0, 4, 5], &p));
+    }
 }

@@ -15,8 +15,10 @@
 
 mod intersect;
 
-pub use intersect::{intersecting_triangles, self_intersecting_faces, triangles_intersect};
-pub(crate) use intersect::{intersecting_triangles_among, triangle_box};
+#[cfg(test)]
+pub(crate) use intersect::intersecting_triangles;
+pub use intersect::self_intersecting_faces;
+pub(crate) use intersect::{intersecting_triangles_among, triangle_box, triangles_intersect};
 
 use crate::numerics::UnionFind;
 use crate::vec3::triangle_area;
@@ -94,7 +96,7 @@ fn valid_triangles(mesh: &TriangleMesh) -> impl Iterator<Item = [u32; 3]> + '_ {
 /// The triangles around each vertex, in compressed rows: the triangles of vertex `v` are
 /// `triangles[start[v]..start[v + 1]]` (indices into the input triangle list, in its order).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
-pub struct VertexTriangles {
+pub(crate) struct VertexTriangles {
     /// Row starts, `n_vertices + 1` entries.
     pub start: Vec<usize>,
     /// Triangle indices, row by row.
@@ -103,13 +105,7 @@ pub struct VertexTriangles {
 
 impl VertexTriangles {
     /// Builds the rows for `n_vertices` vertices; every index in `triangles` must be below it.
-    ///
-    /// ```
-    /// let around = stablesurf::mesh::VertexTriangles::new(4, &[[0, 1, 2], [0, 2, 3]]);
-    /// assert_eq!(around.of(0), &[0, 1]);
-    /// assert_eq!(around.of(3), &[1]);
-    /// ```
-    pub fn new(n_vertices: usize, triangles: &[[u32; 3]]) -> VertexTriangles {
+    pub(crate) fn new(n_vertices: usize, triangles: &[[u32; 3]]) -> VertexTriangles {
         let mut start = vec![0usize; n_vertices + 1];
         for t in triangles {
             for &v in t {
@@ -134,7 +130,7 @@ impl VertexTriangles {
     }
 
     /// The indices of the triangles around vertex `v`.
-    pub fn of(&self, v: usize) -> &[u32] {
+    pub(crate) fn of(&self, v: usize) -> &[u32] {
         &self.triangles[self.start[v]..self.start[v + 1]]
     }
 }
@@ -203,7 +199,7 @@ pub fn check(mesh: &TriangleMesh) -> MeshReport {
 /// a mesh it came from by removing triangles and adding ones tested against the rest (as
 /// [`crate::polygonize::Polygonized::embedded`] says of a polygonized mesh, and the component
 /// filter and the trim keep). `self_intersecting_faces` is then 0.
-pub fn check_with(mesh: &TriangleMesh, known_embedded: bool) -> MeshReport {
+pub(crate) fn check_with(mesh: &TriangleMesh, known_embedded: bool) -> MeshReport {
     let n = mesh.positions.len();
     let triangles: Vec<[u32; 3]> = valid_triangles(mesh).collect();
     let degenerate_faces = mesh.triangles.len() - triangles.len();
@@ -350,7 +346,7 @@ fn edge_key(a: u32, b: u32, n: u64) -> u64 {
 
 /// The boundary edges of `triangles` (edges used once), each as it runs in its triangle
 /// (a → b), sorted.
-pub fn boundary_edges(triangles: &[[u32; 3]]) -> Vec<[u32; 2]> {
+pub(crate) fn boundary_edges(triangles: &[[u32; 3]]) -> Vec<[u32; 2]> {
     let (uses, n) = edge_uses(triangles);
     let mut out: Vec<[u32; 2]> = uses
         .chunk_by(|x, y| x.0 == y.0)
@@ -483,21 +479,7 @@ fn component_areas(mesh: &TriangleMesh, labels: &[u32], n_components: usize) -> 
 /// are the small bubbles an implicit fit leaves inside thin parts (a duck's beak: seven, each
 /// under 0.13% of the area); a scanner never sees an object's inside, and a void of a
 /// mesh's own is rarely that small. Kept vertices and triangles stay in their order.
-///
-/// ```
-/// use stablesurf::mesh::{drop_small_nested_components, TriangleMesh};
-/// // A big tetrahedron and a small one inside it.
-/// let tet = |s: f64, o: f64| vec![[o, o, o], [o + s, o, o], [o, o + s, o], [o, o, o + s]];
-/// let mut positions = tet(10.0, 0.0);
-/// positions.extend(tet(0.5, 1.0));
-/// let faces = |b: u32| [[b, b + 2, b + 1], [b, b + 1, b + 3], [b, b + 3, b + 2], [b + 1, b + 2, b + 3]];
-/// let mut triangles = faces(0).to_vec();
-/// triangles.extend(faces(4));
-/// let mesh = TriangleMesh { normals: vec![[0.0, 0.0, 1.0]; 8], positions, triangles };
-/// let (kept, dropped) = drop_small_nested_components(&mesh, 0.01);
-/// assert_eq!((dropped, kept.triangles.len()), (1, 4));
-/// ```
-pub fn drop_small_nested_components(
+pub(crate) fn drop_small_nested_components(
     mesh: &TriangleMesh,
     max_fraction: f64,
 ) -> (TriangleMesh, usize) {
@@ -548,22 +530,7 @@ pub fn drop_small_nested_components(
 /// or two beside the surface (too few points for a local fit to stand on); a small part the
 /// data samples keeps its points. Kept vertices and triangles stay in their order. Cost: one
 /// pass over `points` per small component, stopped at `min_points`.
-///
-/// ```
-/// use stablesurf::mesh::{drop_small_unsupported_components, TriangleMesh};
-/// // A big triangle over many points, a tiny one beside a single point.
-/// let mesh = TriangleMesh {
-///     positions: vec![[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [0.0, 10.0, 0.0],
-///                     [20.0, 0.0, 0.0], [20.1, 0.0, 0.0], [20.0, 0.1, 0.0]],
-///     normals: vec![[0.0, 0.0, 1.0]; 6],
-///     triangles: vec![[0, 1, 2], [3, 4, 5]],
-/// };
-/// let mut points: Vec<[f64; 3]> = (0..100).map(|i| [(i % 10) as f64 * 0.5, (i / 10) as f64 * 0.5, 0.0]).collect();
-/// points.push([20.05, 0.02, 0.0]);
-/// let (kept, dropped) = drop_small_unsupported_components(&mesh, &points, 0.01, 15);
-/// assert_eq!((dropped, kept.triangles.clone()), (1, vec![[0, 1, 2]]));
-/// ```
-pub fn drop_small_unsupported_components(
+pub(crate) fn drop_small_unsupported_components(
     mesh: &TriangleMesh,
     points: &[[f64; 3]],
     max_fraction: f64,
@@ -783,3 +750,66 @@ pub(crate) fn unit_square() -> TriangleMesh {
 
 #[cfg(test)]
 mod tests;
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn vertex_triangles_new() {
+        let around = crate::mesh::VertexTriangles::new(4, &[[0, 1, 2], [0, 2, 3]]);
+        assert_eq!(around.of(0), &[0, 1]);
+        assert_eq!(around.of(3), &[1]);
+    }
+
+    #[test]
+    fn drop_small_nested_components() {
+        use crate::mesh::{drop_small_nested_components, TriangleMesh};
+        // A big tetrahedron and a small one inside it.
+        let tet = |s: f64, o: f64| vec![[o, o, o], [o + s, o, o], [o, o + s, o], [o, o, o + s]];
+        let mut positions = tet(10.0, 0.0);
+        positions.extend(tet(0.5, 1.0));
+        let faces = |b: u32| {
+            [
+                [b, b + 2, b + 1],
+                [b, b + 1, b + 3],
+                [b, b + 3, b + 2],
+                [b + 1, b + 2, b + 3],
+            ]
+        };
+        let mut triangles = faces(0).to_vec();
+        triangles.extend(faces(4));
+        let mesh = TriangleMesh {
+            normals: vec![[0.0, 0.0, 1.0]; 8],
+            positions,
+            triangles,
+        };
+        let (kept, dropped) = drop_small_nested_components(&mesh, 0.01);
+        assert_eq!((dropped, kept.triangles.len()), (1, 4));
+    }
+
+    #[test]
+    fn drop_small_unsupported_components() {
+        use crate::mesh::{drop_small_unsupported_components, TriangleMesh};
+        // A big triangle over many points, a tiny one beside a single point.
+        let mesh = TriangleMesh {
+            positions: vec![
+                [0.0, 0.0, 0.0],
+                [10.0, 0.0, 0.0],
+                [0.0, 10.0, 0.0],
+                [20.0, 0.0, 0.0],
+                [20.1, 0.0, 0.0],
+                [20.0, 0.1, 0.0],
+            ],
+            normals: vec![[0.0, 0.0, 1.0]; 6],
+            triangles: vec![[0, 1, 2], [3, 4, 5]],
+        };
+        let mut points: Vec<[f64; 3]> = (0..100)
+            .map(|i| [(i % 10) as f64 * 0.5, (i / 10) as f64 * 0.5, 0.0])
+            .collect();
+        points.push([20.05, 0.02, 0.0]);
+        let (kept, dropped) = drop_small_unsupported_components(&mesh, &points, 0.01, 15);
+        assert_eq!((dropped, kept.triangles.clone()), (1, vec![[0, 1, 2]]));
+    }
+}

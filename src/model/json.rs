@@ -37,14 +37,14 @@ use crate::cloud::Aabb;
 use crate::poly::{n_coefficients, FitDiagnostics, FitRecord, ImplicitModel, ImplicitPolynomial};
 
 /// The value of the `format` field.
-pub const MODEL_FORMAT: &str = "stablesurf.implicit-polynomial";
+pub(crate) const MODEL_FORMAT: &str = "stablesurf.implicit-polynomial";
 /// The model-file version this build writes and reads.
-pub const MODEL_VERSION: u32 = 1;
+pub(crate) const MODEL_VERSION: u32 = 1;
 /// The value of the `monomial_order` field.
-pub const MONOMIAL_ORDER: &str = "graded, x>y>z (Sahin-Unel 6.16)";
+pub(crate) const MONOMIAL_ORDER: &str = "graded, x>y>z (Sahin-Unel 6.16)";
 /// Highest degree a model file may declare (c = 1 771 coefficients at degree 20); a larger
 /// declared degree is almost certainly a typing error.
-pub const MAX_DEGREE: u32 = 20;
+pub(crate) const MAX_DEGREE: u32 = 20;
 
 /// `normalization` of the file.
 #[derive(Serialize)]
@@ -148,7 +148,7 @@ pub fn write_model(model: &ImplicitModel, out: &mut impl Write) -> Result<(), Mo
 ///
 /// # Errors
 /// [`ModelError::Read`], naming `path`, when the bytes are not JSON, a required field is
-/// missing, `format` or `version` is not this build's, the degree exceeds [`MAX_DEGREE`], the
+/// missing, `format` or `version` is not this build's, the degree exceeds `MAX_DEGREE`, the
 /// coefficient count is not (n+1)(n+2)(n+3)/6, a number is not finite, or the scale is not
 /// positive.
 pub fn read_model(bytes: &[u8], path: &Path) -> Result<ImplicitModel, ModelError> {

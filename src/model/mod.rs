@@ -173,7 +173,7 @@ impl ModelReport {
     }
 
     /// Marks a global model's zero set as clipped by the meshing box: not bounded in its mesh.
-    pub fn clip(&mut self) {
+    pub(crate) fn clip(&mut self) {
         if let ModelReport::Global {
             diagnostics,
             clipped,

@@ -35,7 +35,7 @@ use crate::poly::{n_coefficients, ImplicitPolynomial};
 pub(crate) const MAGIC: &[u8; 16] = b"stablesurf.mpu\0\0";
 
 /// The layout version this code writes and reads.
-pub const VERSION: u32 = 1;
+pub(crate) const VERSION: u32 = 1;
 
 /// Highest local degree a file may hold.
 const MAX_DEGREE: u32 = 4;
@@ -63,7 +63,7 @@ pub fn write_mpu(model: &MpuModel, out: &mut impl Write) -> Result<(), ModelErro
 ///
 /// # Errors
 /// [`ModelError::Format`] when the diagnostics cannot be encoded.
-pub fn mpu_bytes(model: &MpuModel) -> Result<Vec<u8>, ModelError> {
+pub(crate) fn mpu_bytes(model: &MpuModel) -> Result<Vec<u8>, ModelError> {
     let diagnostics = serde_json::to_vec(&model.diagnostics)
         .map_err(|e| ModelError::Format(format!("cannot encode the diagnostics: {e}")))?;
     let cells: usize = model

@@ -30,7 +30,7 @@ use crate::normals::{orient, pca, NormalsError, NormalsParams};
 ///
 /// # Errors
 /// [`NormalsError::NoMeshFaces`] when there is no triangle.
-pub fn mesh_normals(
+pub(crate) fn mesh_normals(
     points: &[[f64; 3]],
     triangles: &[[u32; 3]],
     params: &NormalsParams,
@@ -156,7 +156,7 @@ pub fn mesh_normals(
 /// triangles face the scanner): each vertex gets the sum of its triangles' unnormalised
 /// right-hand normals (area weighting); vertices with no usable triangle get a plane fit signed
 /// like their neighbours. Returns the normals and warnings.
-pub fn wound_normals(
+pub(crate) fn wound_normals(
     points: &[[f64; 3]],
     tris: &[[u32; 3]],
     params: &NormalsParams,
@@ -192,7 +192,7 @@ pub fn wound_normals(
 }
 
 /// What [`mesh_normals`] gives.
-pub struct MeshNormals {
+pub(crate) struct MeshNormals {
     /// One unit outward normal per point.
     pub normals: Vec<[f64; 3]>,
     /// The usable triangles, wound so that their right-hand normals point outward.
@@ -213,7 +213,7 @@ const MAX_SAMPLES_PER_POINT: usize = 4;
 /// back, the fertility's base): their vertices alone leave those faces as holes in the data,
 /// which the fit must then bridge. `triangles` must be wound outward ([`mesh_normals`]).
 /// Deterministic: the samples follow the order of the triangles.
-pub fn surface_samples(
+pub(crate) fn surface_samples(
     points: &[[f64; 3]],
     triangles: &[[u32; 3]],
 ) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
@@ -363,7 +363,7 @@ const CHECK_NEIGHBOURS_FROM: usize = 250_000;
 /// outward; otherwise they are kept, and only the whole cloud is turned outward if its
 /// normals point in, by the vote of the checked points (no graph of all points: a million
 /// given normals cost one pass).
-pub fn input_normals(
+pub(crate) fn input_normals(
     points: &[[f64; 3]],
     given: Vec<[f64; 3]>,
     params: &NormalsParams,

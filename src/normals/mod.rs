@@ -45,7 +45,7 @@ mod noise;
 pub(crate) mod orient;
 pub(crate) mod pca;
 
-pub use noise::{estimate_noise, NoiseEstimate, NOISY_SPACING};
+pub use noise::{estimate_noise, NoiseEstimate};
 
 use std::borrow::Cow;
 use std::str::FromStr;
@@ -58,7 +58,7 @@ use crate::cloud::{OrientedCloud, PointCloud};
 /// cloud gets plane fits (`pca`). The crust's two tetrahedralizations grow to gigabytes and
 /// about a minute a million points, plane fits to a tenth of that memory and seconds, and on
 /// dense data the two give the same surface (figures in CHANGELOG.md and docs/ARCHITECTURE.md).
-pub const AUTO_CRUST_MAX: usize = 200_000;
+pub(crate) const AUTO_CRUST_MAX: usize = 200_000;
 
 /// Errors of the normals stage.
 #[derive(Debug, thiserror::Error)]
@@ -125,8 +125,8 @@ pub enum NormalsError {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum NormalSource {
     /// `input` when the file has normals, else `mesh` when it has faces (not all degenerate),
-    /// else `crust` for at most [`AUTO_CRUST_MAX`] points and `pca` for more or for noisy
-    /// points ([`NoiseEstimate::is_noisy`]) (with a warning when the faces were all degenerate,
+    /// else `crust` for at most `AUTO_CRUST_MAX` points and `pca` for more or for noisy
+    /// points (`NoiseEstimate::is_noisy`) (with a warning when the faces were all degenerate,
     /// the cloud is too large for the crust or the noise too strong for it; falling back to
     /// `pca` with a warning where the crust fails).
     #[default]
@@ -516,7 +516,11 @@ fn estimate(
 
 /// Flips each normal `n` at `p` with n·(v − p) < 0, so that all face the viewpoint `v`.
 /// Returns how many were flipped.
-pub fn toward_viewpoint(points: &[[f64; 3]], normals: &mut [[f64; 3]], v: [f64; 3]) -> usize {
+pub(crate) fn toward_viewpoint(
+    points: &[[f64; 3]],
+    normals: &mut [[f64; 3]],
+    v: [f64; 3],
+) -> usize {
     let mut flipped = 0;
     for (p, n) in points.iter().zip(normals.iter_mut()) {
         if vec3::dot(n, &vec3::sub(&v, p)) < 0.0 {
@@ -528,12 +532,12 @@ pub fn toward_viewpoint(points: &[[f64; 3]], normals: &mut [[f64; 3]], v: [f64; 
 }
 
 /// Smallest confidence a range sample gets (a zero would leave a local fit without rows).
-pub const MIN_CONFIDENCE: f32 = 0.05;
+pub(crate) const MIN_CONFIDENCE: f32 = 0.05;
 
 /// Per point of a range scan, the confidence of its sample: the cosine between its normal and
 /// the direction to the sensor (1 without a sensor) times its falloff near the scan's edge,
 /// at least [`MIN_CONFIDENCE`].
-pub fn confidence(
+pub(crate) fn confidence(
     points: &[[f64; 3]],
     normals: &[[f64; 3]],
     range: &crate::cloud::RangeSurface,
@@ -738,38 +742,38 @@ fn mix(k: [u64; 3]) -> u64 {
 /// the few more they need.
 pub(crate) mod vec3 {
     #[inline]
-    pub fn sub(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+    pub(crate) fn sub(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
         crate::vec3::sub(*a, *b)
     }
     #[inline]
-    pub fn add(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+    pub(crate) fn add(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
         [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
     }
     #[inline]
-    pub fn scale(a: &[f64; 3], s: f64) -> [f64; 3] {
+    pub(crate) fn scale(a: &[f64; 3], s: f64) -> [f64; 3] {
         [a[0] * s, a[1] * s, a[2] * s]
     }
     #[inline]
-    pub fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    pub(crate) fn dot(a: &[f64; 3], b: &[f64; 3]) -> f64 {
         crate::vec3::dot(*a, *b)
     }
     #[inline]
-    pub fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
+    pub(crate) fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
         crate::vec3::cross(*a, *b)
     }
     #[inline]
-    pub fn norm(a: &[f64; 3]) -> f64 {
+    pub(crate) fn norm(a: &[f64; 3]) -> f64 {
         crate::vec3::norm(*a)
     }
     /// `a` scaled to unit length, or `None` when it is zero or not finite.
     #[inline]
-    pub fn normalized(a: &[f64; 3]) -> Option<[f64; 3]> {
+    pub(crate) fn normalized(a: &[f64; 3]) -> Option<[f64; 3]> {
         let l = norm(a);
         (l > 0.0 && l.is_finite()).then(|| scale(a, 1.0 / l))
     }
     /// Normal (not normalised, length twice the area) of triangle `a, b, c` by the right-hand rule.
     #[inline]
-    pub fn triangle_normal(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3]) -> [f64; 3] {
+    pub(crate) fn triangle_normal(a: &[f64; 3], b: &[f64; 3], c: &[f64; 3]) -> [f64; 3] {
         cross(&sub(b, a), &sub(c, a))
     }
 }

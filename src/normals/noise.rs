@@ -40,7 +40,7 @@ const POINTS_MAX: usize = 250_000;
 const FIRST_NEIGHBOURS: usize = 24;
 
 /// The largest neighbourhood tried (its estimate is kept even when its ball is still thin).
-pub const MAX_NEIGHBOURS: usize = 768;
+pub(crate) const MAX_NEIGHBOURS: usize = 768;
 
 /// The ball's radius must reach this many σ for the estimate at that scale to be kept.
 const REACH_IN_SIGMAS: f64 = 4.0;
@@ -68,12 +68,12 @@ pub struct NoiseEstimate {
 /// follow ([`NoiseEstimate::is_noisy`]). Below it the figure is mostly the surface's own relief
 /// at the scale of a few spacings, which a quadric over 24 points does not take out; the
 /// clean and noisy samples this threshold separates are in docs/defaults.md, "Noise".
-pub const NOISY_SPACING: f64 = 0.5;
+pub(crate) const NOISY_SPACING: f64 = 0.5;
 
 impl NoiseEstimate {
     /// Whether σ exceeds [`NOISY_SPACING`] × the spacing: the points scatter across their
     /// surface by more than half the distance between neighbours.
-    pub fn is_noisy(&self) -> bool {
+    pub(crate) fn is_noisy(&self) -> bool {
         self.relative_to_spacing() > NOISY_SPACING
     }
 
@@ -95,7 +95,7 @@ impl NoiseEstimate {
 ///
 /// ```
 /// use stablesurf::normals::estimate_noise;
-/// use stablesurf::fit::study::Lcg;
+/// use stablesurf::testing::study::Lcg;
 /// // A unit sphere of 20,000 points, moved along their radius by Gaussian noise of σ = 0.01.
 /// let mut rng = Lcg::new(3);
 /// let points: Vec<[f64; 3]> = (0..20_000)

@@ -335,7 +335,7 @@ impl Frontier {
 /// Makes the signs of `normals` consistent along a minimum spanning tree of the neighbour graph
 /// (the crust `triangles` and the k-nearest lists `knn`, which it consumes to renumber them in
 /// place of a copy). Returns the connected pieces as a label per point.
-pub fn orient_consistently(
+pub(crate) fn orient_consistently(
     points: &[[f64; 3]],
     normals: &mut [[f64; 3]],
     triangles: &[[u32; 3]],
@@ -413,7 +413,7 @@ pub fn orient_consistently(
 
 /// Turns each connected piece (`label` from [`orient_consistently`]) outward by the
 /// farthest-points vote. Returns the number of pieces flipped.
-pub fn orient_outward_pieces(
+pub(crate) fn orient_outward_pieces(
     points: &[[f64; 3]],
     normals: &mut [[f64; 3]],
     label: &[u32],
@@ -460,7 +460,7 @@ pub fn orient_outward_pieces(
 }
 
 /// Consistent signs, then outward, in one call.
-pub fn orient_outward(
+pub(crate) fn orient_outward(
     points: &[[f64; 3]],
     normals: &mut [[f64; 3]],
     triangles: &[[u32; 3]],

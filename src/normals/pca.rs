@@ -24,23 +24,23 @@ use crate::numerics::{Neighbours, PointGrid};
 
 /// The neighbour index over the points (`None` when there are none or a coordinate is not
 /// finite).
-pub fn build_index(points: &[[f64; 3]]) -> Option<PointGrid> {
+pub(crate) fn build_index(points: &[[f64; 3]]) -> Option<PointGrid> {
     PointGrid::new(points)
 }
 
 /// The `k` nearest neighbours of point `i` (itself excluded), nearest first, ties by index.
-pub fn nearest(index: &PointGrid, points: &[[f64; 3]], i: usize, k: usize) -> Vec<u32> {
+pub(crate) fn nearest(index: &PointGrid, points: &[[f64; 3]], i: usize, k: usize) -> Vec<u32> {
     index.nearest(points, i, k, 0.0, &mut Vec::new()).0
 }
 
 /// The k nearest neighbours of every point (the point itself excluded), nearest first, ties
 /// by index.
-pub fn knn(points: &[[f64; 3]], k: usize) -> Neighbours {
+pub(crate) fn knn(points: &[[f64; 3]], k: usize) -> Neighbours {
     knn_with_index(points, k).1
 }
 
 /// [`knn`], and the neighbour index it used (for [`adaptive_normals`]).
-pub fn knn_with_index(points: &[[f64; 3]], k: usize) -> (Option<PointGrid>, Neighbours) {
+pub(crate) fn knn_with_index(points: &[[f64; 3]], k: usize) -> (Option<PointGrid>, Neighbours) {
     match build_index(points) {
         Some(index) => {
             let neighbours = index.all_nearest(points, k);
@@ -51,13 +51,13 @@ pub fn knn_with_index(points: &[[f64; 3]], k: usize) -> (Option<PointGrid>, Neig
 }
 
 /// Normal of the least-squares plane through `centre` and `neighbours`.
-pub fn plane_normal(points: &[[f64; 3]], centre: usize, neighbours: &[u32]) -> [f64; 3] {
+pub(crate) fn plane_normal(points: &[[f64; 3]], centre: usize, neighbours: &[u32]) -> [f64; 3] {
     plane_fit(points, centre, neighbours).0
 }
 
 /// Normal of the least-squares plane through `centre` and `neighbours`, and the neighbourhood's
 /// thickness: √(λ₀/λ₁), the spread across the plane over the spread along it.
-pub fn plane_fit(points: &[[f64; 3]], centre: usize, neighbours: &[u32]) -> ([f64; 3], f64) {
+pub(crate) fn plane_fit(points: &[[f64; 3]], centre: usize, neighbours: &[u32]) -> ([f64; 3], f64) {
     let idx = std::iter::once(centre as u32).chain(neighbours.iter().copied());
     let count = (neighbours.len() + 1) as f64;
     let mut mean = [0.0; 3];
@@ -106,7 +106,7 @@ const CLEAN_THICKNESS: f64 = 0.05;
 /// the two balance (Mitra & Nguyen 2003 choose the scale from the same trade-off). The small
 /// neighbourhood is kept unless the flattest is at least 20% flatter. Returns the normal and the
 /// number of neighbours used.
-pub fn adaptive_plane_fit(
+pub(crate) fn adaptive_plane_fit(
     index: &PointGrid,
     points: &[[f64; 3]],
     i: usize,
@@ -179,7 +179,7 @@ pub fn adaptive_plane_fit(
 /// Plane-fit normals with the adaptive neighbourhood, in parallel; also returns, per point,
 /// whether its neighbourhood had to grow (the data is noisy at the k₀ scale there). `index` is
 /// the one `neighbours` came from ([`knn_with_index`]).
-pub fn adaptive_normals(
+pub(crate) fn adaptive_normals(
     points: &[[f64; 3]],
     index: Option<&PointGrid>,
     neighbours: &Neighbours,
@@ -316,7 +316,7 @@ fn null_vector(a: [[f64; 3]; 3], lambda: f64) -> [f64; 3] {
 }
 
 /// The `pca` source: adaptive plane fits, oriented consistently and outward.
-pub fn pca_normals(points: &[[f64; 3]], params: &NormalsParams) -> Vec<[f64; 3]> {
+pub(crate) fn pca_normals(points: &[[f64; 3]], params: &NormalsParams) -> Vec<[f64; 3]> {
     let (index, neighbours) = knn_with_index(points, params.k_neighbours);
     let (mut normals, _) =
         adaptive_normals(points, index.as_ref(), &neighbours, params.max_k_neighbours);

@@ -32,7 +32,8 @@ impl Lcg {
     }
 
     /// The next state's top 31 bits, as an integer (for picks and indices).
-    pub fn bits31(&mut self) -> u64 {
+    #[cfg(test)] // only the unit tests call it
+    pub(crate) fn bits31(&mut self) -> u64 {
         self.step() >> 33
     }
 

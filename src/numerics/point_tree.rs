@@ -1,5 +1,5 @@
 //! The k-d tree of points ([`PointTree`]) and the nearest-point queries built on it
-//! ([`PointIndex`], [`nearest_point_distances`]), run in a spatial order so that each query's
+//! (`PointIndex`, `nearest_point_distances`), run in a spatial order so that each query's
 //! answer bounds the next one's search.
 //!
 //! Input: points. Output: nearest points and distances, exact.
@@ -10,7 +10,7 @@
 //! nearest point to arbitrary places (mesh vertices, samples), queries of any radius, and
 //! the detail fit's growing balls.
 //!
-//! [`PointIndex`]: the distances from a uniform grid of the points (`PointGrid::for_nearest`, a
+//! `PointIndex`: the distances from a uniform grid of the points (`PointGrid::for_nearest`, a
 //! counting sort, built in a fraction of a k-d tree's time over a scan of millions of points),
 //! with the k-d tree for what the grid leaves open and for the colours' nearest points.
 //! [`PointTree`] is a k-d tree (Friedman, Bentley and Finkel 1977) with median splits on the
@@ -521,13 +521,10 @@ pub(crate) fn nearest_in(tree: &PointTree, q: [f64; 3], hint: Option<[f64; 3]>) 
 /// [`PointIndex`] of the finite points; a query with a non-finite coordinate gets NaN. Runs in
 /// parallel; the result does not depend on the thread count. `None` when `points` holds no
 /// finite point.
-///
-/// ```
-/// use stablesurf::point_tree::nearest_point_distances;
-/// let d = nearest_point_distances(&[[0.0, 0.0, 0.0], [3.0, 4.0, 0.0]], &[[0.0, 0.0, 1.0]]).unwrap();
-/// assert_eq!(d, vec![1.0, 26f64.sqrt()]);
-/// ```
-pub fn nearest_point_distances(queries: &[[f64; 3]], points: &[[f64; 3]]) -> Option<Vec<f64>> {
+pub(crate) fn nearest_point_distances(
+    queries: &[[f64; 3]],
+    points: &[[f64; 3]],
+) -> Option<Vec<f64>> {
     Some(PointIndex::new(points)?.distances(queries))
 }
 
@@ -540,7 +537,7 @@ pub fn nearest_point_distances(queries: &[[f64; 3]], points: &[[f64; 3]]) -> Opt
 /// when the points are too clustered for one cell size, goes to the [`PointTree`], built the
 /// first time it is needed. Both give the same distances (the minimum of the same squared
 /// distances), so which one answers changes the time, never the result.
-pub struct PointIndex<'a> {
+pub(crate) struct PointIndex<'a> {
     points: Cow<'a, [[f64; 3]]>,
     grid: Option<PointGrid>,
     tree: OnceLock<PointTree>,
@@ -549,7 +546,7 @@ pub struct PointIndex<'a> {
 impl<'a> PointIndex<'a> {
     /// Indexes the finite points of `points` (borrowed when all are finite); `None` when there
     /// is none, or more than `u32::MAX`.
-    pub fn new(points: &'a [[f64; 3]]) -> Option<PointIndex<'a>> {
+    pub(crate) fn new(points: &'a [[f64; 3]]) -> Option<PointIndex<'a>> {
         let points: Cow<[[f64; 3]]> = if points.iter().all(is_finite) {
             points.into()
         } else {
@@ -571,7 +568,7 @@ impl<'a> PointIndex<'a> {
     }
 
     /// The indexed (finite) points.
-    pub fn points(&self) -> &[[f64; 3]] {
+    pub(crate) fn points(&self) -> &[[f64; 3]] {
         &self.points
     }
 
@@ -641,7 +638,7 @@ mod tests {
     #[test]
     fn the_parallel_tree_build_lays_out_the_serial_tree() {
         // 300,000 scattered points: four levels of parallel splits above the serial subtrees.
-        let mut rng = crate::fit::study::Lcg::new(12345);
+        let mut rng = crate::testing::study::Lcg::new(12345);
         let mut next = || rng.uniform();
         let entries: Vec<([f64; 3], u32)> = (0..300_000u32)
             .map(|i| ([next(), next() * 2.0, next() * 0.5], i))
@@ -769,5 +766,19 @@ mod tests {
             assert_eq!(tree.nearest_within(q, radius2).map(|n| n.0), Some(d2));
         }
         assert!(PointTree::new(&[]).is_none());
+    }
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn nearest_point_distances() {
+        use crate::point_tree::nearest_point_distances;
+        let d = nearest_point_distances(&[[0.0, 0.0, 0.0], [3.0, 4.0, 0.0]], &[[0.0, 0.0, 1.0]])
+            .unwrap();
+        assert_eq!(d, vec![1.0, 26f64.sqrt()]);
     }
 }

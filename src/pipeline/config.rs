@@ -28,7 +28,7 @@ use super::{Keep, Mode};
 /// A setting chosen from the data unless it is fixed.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub enum Setting<T> {
-    /// Chosen by [`PipelineConfig::resolve`] from the points (in detail mode; in global mode
+    /// Chosen by `PipelineConfig::resolve` from the points (in detail mode; in global mode
     /// the stage's own default).
     #[default]
     Auto,
@@ -81,18 +81,18 @@ pub struct PipelineConfig {
     pub tolerance: Setting<f64>,
     /// The split of the mesh's curved edges ([`PolygonizeParams::refine`]). `Auto`, in detail
     /// mode: [`polygonize::REFINE_SAGITTA`] where the points are a level or more finer than
-    /// the mesh's depth ([`polygonize::DataResolution::finer_than`]), else `polygonize.refine`;
+    /// the mesh's depth (`polygonize::DataResolution::finer_than`), else `polygonize.refine`;
     /// in global mode `polygonize.refine`. `Fixed` (`--refine`, `--no-refine`): that.
     pub refine: Setting<Option<f64>>,
     /// Detail mode's fit stride ([`DetailParams::stride`]). `Auto`: every k-th point where the
-    /// points are far finer than the mesh's cells ([`polygonize::fit_stride`]), with the
+    /// points are far finer than the mesh's cells (`polygonize::fit_stride`), with the
     /// deepest cells' cubic refit; in global mode `detail.stride`. `Fixed(k)` (`--fit-stride`):
     /// k, without refits.
     pub fit_stride: Setting<u32>,
     /// The factor on the measured noise ([`crate::normals::estimate_noise`]) that detail
     /// mode's fit averages instead of following ([`DetailParams::noise`]; `--smooth`): 1 by
     /// default, 0 fits the points as exact (interpolates them), 2 smooths at twice the measured
-    /// noise. Points that are not noisy ([`NoiseEstimate::is_noisy`]) are fitted as exact
+    /// noise. Points that are not noisy (`NoiseEstimate::is_noisy`) are fitted as exact
     /// whatever the factor ([`smoothing`]).
     pub smooth: f64,
     /// The finish stage's params: components kept, trim and decimation (see
@@ -105,7 +105,7 @@ pub struct PipelineConfig {
 /// The config a run's stages after the normals take: every data-driven setting resolved
 /// ([`PipelineConfig::resolve`]).
 #[derive(Clone, Debug, PartialEq)]
-pub struct ResolvedConfig {
+pub(crate) struct ResolvedConfig {
     /// Global or detail model.
     pub mode: Mode,
     /// Fit stage parameters (global mode).
@@ -201,7 +201,7 @@ impl PipelineConfig {
     ///
     /// The data's resolution is measured on the input points in the detail model's region
     /// (their box grown by 10% per side); the stride on every point of `cloud`.
-    pub fn resolve(
+    pub(crate) fn resolve(
         &self,
         cloud: &[[f64; 3]],
         input: &[[f64; 3]],
@@ -290,12 +290,12 @@ pub const DENSE_TOLERANCE: f64 = 0.27;
 /// Noise below this share of the split tolerance is not smoothed: the largest of a few
 /// hundred Gaussian residuals is about 3–4 σ, so below a quarter of the tolerance noise alone
 /// does not fail a cell's split test, and the fit of exact data stands.
-pub const NOISE_FLOOR: f64 = 0.25;
+pub(crate) const NOISE_FLOOR: f64 = 0.25;
 
 /// The detail fit's [`DetailParams::noise`] for the measured `noise` of points whose box has
 /// the diagonal `diagonal`, at the factor `smooth`: `smooth`·σ over the diagonal, or 0 where
-/// the points are not noisy ([`NoiseEstimate::is_noisy`]: what a clean scan measures is its
-/// surface's own relief) or that is below [`NOISE_FLOOR`] × the split tolerance.
+/// the points are not noisy (`NoiseEstimate::is_noisy`: what a clean scan measures is its
+/// surface's own relief) or that is below `NOISE_FLOOR` × the split tolerance.
 ///
 /// ```
 /// use stablesurf::pipeline::smoothing;

@@ -31,9 +31,8 @@ mod records;
 pub use crate::export::{mesh_files, MeshFileOptions, MeshFormat, OutputFormat};
 pub use crate::finish::Keep;
 pub use crate::model::{meshing_region, Mode, Model, ModelReport};
-pub use config::{
-    smoothing, PipelineConfig, ResolvedConfig, Setting, DENSE_TOLERANCE, NOISE_FLOOR,
-};
+pub(crate) use config::ResolvedConfig;
+pub use config::{smoothing, PipelineConfig, Setting, DENSE_TOLERANCE};
 pub use reconstruct::{reconstruct, Reconstruction};
 use records::{mesh_figures, run_report, EntryMeta, StageReport};
 pub use records::{
@@ -43,9 +42,9 @@ pub use records::{
 
 /// The small real scan built into the binary: "Spot" the cow by Keenan Crane (CC0 1.0),
 /// 2,930 vertices, 5,856 triangles.
-pub const SAMPLE_SCAN: &[u8] = include_bytes!("../sample/spot.obj");
+pub(crate) const SAMPLE_SCAN: &[u8] = include_bytes!("../sample/spot.obj");
 /// The name the sample scan is reported under.
-pub const SAMPLE_NAME: &str = "spot.obj (built-in sample, Keenan Crane, CC0)";
+pub(crate) const SAMPLE_NAME: &str = "spot.obj (built-in sample, Keenan Crane, CC0)";
 
 /// Errors of a pipeline run: a stage's error, with the stage named.
 #[derive(Debug, thiserror::Error)]
@@ -114,7 +113,7 @@ pub const CLOUD_NAME: &str = "points";
 pub enum ScanSource {
     /// A file.
     File(PathBuf),
-    /// The built-in sample ([`SAMPLE_SCAN`]).
+    /// The built-in sample (`SAMPLE_SCAN`).
     Sample,
     /// A Stanford `.conf` registration file: its scans, each oriented in its own frame, moved
     /// by their poses and merged ([`crate::merge`]).

@@ -295,7 +295,7 @@ pub struct NoiseReport {
     /// `sigma` over the median spacing of the points.
     pub sigma_per_spacing: f64,
     /// The noise the detail fit averaged, over the diagonal ([`crate::detail::DetailParams::noise`]; 0 in
-    /// global mode, with `--smooth 0`, or where the noise is below [`super::NOISE_FLOOR`] × the
+    /// global mode, with `--smooth 0`, or where the noise is below `super::NOISE_FLOOR` × the
     /// tolerance).
     pub smoothed_per_diagonal: f64,
 }

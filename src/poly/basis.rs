@@ -17,13 +17,7 @@ pub fn n_coefficients(degree: u32) -> usize {
 }
 
 /// Exponents `[i, j, k]` of every monomial of degree ≤ `degree`, in the paper's order.
-///
-/// ```
-/// let e = stablesurf::poly::exponents(2);
-/// assert_eq!(e[4], [2, 0, 0]); // x²
-/// assert_eq!(e[8], [0, 1, 1]); // yz
-/// ```
-pub fn exponents(degree: u32) -> Vec<[u32; 3]> {
+pub(crate) fn exponents(degree: u32) -> Vec<[u32; 3]> {
     let mut out = Vec::with_capacity(n_coefficients(degree));
     for r in 0..=degree {
         for s in 0..=r {
@@ -86,5 +80,18 @@ mod tests {
                 assert_eq!(monomial_index(ex), l, "degree {n}, exponent {ex:?}");
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn exponents() {
+        let e = crate::poly::exponents(2);
+        assert_eq!(e[4], [2, 0, 0]); // x²
+        assert_eq!(e[8], [0, 1, 1]); // yz
     }
 }

@@ -192,7 +192,8 @@ impl ImplicitPolynomial {
     /// let (_, _, h) = f.eval_hessian([0.3, 0.1, 0.2]);
     /// assert_eq!(h, [[2.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 2.0]]);
     /// ```
-    pub fn eval_hessian(&self, p: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
+    #[cfg(test)] // only the unit tests call it
+    pub(crate) fn eval_hessian(&self, p: [f64; 3]) -> (f64, [f64; 3], [[f64; 3]; 3]) {
         let (f, g, h) = self.eval_hessian_normalized(self.normalize(p));
         let s2 = self.scale * self.scale;
         (
@@ -335,14 +336,7 @@ impl ImplicitPolynomial {
     ///
     /// Each grid line in x is a univariate polynomial whose n + 1 coefficients are computed once
     /// per line, so the cost is about n + 1 multiply-adds per grid point.
-    ///
-    /// ```
-    /// use stablesurf::ImplicitPolynomial;
-    /// let f = ImplicitPolynomial { degree: 1, coefficients: vec![0.0, 1.0, 10.0, 100.0], center: [0.0; 3], scale: 1.0 };
-    /// let v = f.eval_grid([0.0; 3], [1.0; 3], [2, 2, 2]);
-    /// assert_eq!(v, vec![0.0, 1.0, 10.0, 11.0, 100.0, 101.0, 110.0, 111.0]);
-    /// ```
-    pub fn eval_grid(&self, origin: [f64; 3], step: [f64; 3], dims: [usize; 3]) -> Vec<f64> {
+    pub(crate) fn eval_grid(&self, origin: [f64; 3], step: [f64; 3], dims: [usize; 3]) -> Vec<f64> {
         let layout = HornerLayout::new(self);
         let n = layout.degree;
         let total = dims[0] * dims[1] * dims[2];
@@ -489,5 +483,24 @@ mod tests {
                 );
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn implicit_polynomial_eval_grid() {
+        use crate::ImplicitPolynomial;
+        let f = ImplicitPolynomial {
+            degree: 1,
+            coefficients: vec![0.0, 1.0, 10.0, 100.0],
+            center: [0.0; 3],
+            scale: 1.0,
+        };
+        let v = f.eval_grid([0.0; 3], [1.0; 3], [2, 2, 2]);
+        assert_eq!(v, vec![0.0, 1.0, 10.0, 11.0, 100.0, 101.0, 110.0, 111.0]);
     }
 }

@@ -13,7 +13,7 @@ use crate::vec3::{cross, dot};
 /// The extrema of a homogeneous form on the unit sphere (see
 /// [`ImplicitPolynomial::leading_form_extrema`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct SphereExtrema {
+pub(crate) struct SphereExtrema {
     /// Smallest value found on the unit sphere.
     pub min: f64,
     /// Where it was found (a unit vector).
@@ -102,20 +102,7 @@ impl ImplicitPolynomial {
     /// value and the refined one agree to a few per cent, and the refinement makes the reported
     /// value exact at the basin found. It is not a certificate of positivity; the containment
     /// radius built on it ([`Self::containment_radius`]) inherits that caveat.
-    ///
-    /// ```
-    /// use stablesurf::ImplicitPolynomial;
-    /// // f = x² + 2 y² + 3 z² − 1: the leading form ranges over [1, 3] on the sphere.
-    /// let mut coefficients = vec![0.0; 10];
-    /// coefficients[0] = -1.0;
-    /// coefficients[4] = 1.0;
-    /// coefficients[7] = 2.0;
-    /// coefficients[9] = 3.0;
-    /// let f = ImplicitPolynomial { degree: 2, coefficients, center: [0.0; 3], scale: 1.0 };
-    /// let e = f.leading_form_extrema();
-    /// assert!((e.min - 1.0).abs() < 1e-12 && (e.max - 3.0).abs() < 1e-12);
-    /// ```
-    pub fn leading_form_extrema(&self) -> SphereExtrema {
+    pub(crate) fn leading_form_extrema(&self) -> SphereExtrema {
         sphere_extrema(&self.leading_form())
     }
 
@@ -123,7 +110,8 @@ impl ImplicitPolynomial {
     /// f ≥ H_min·rⁿ − Σ_{k<n} ‖H_k‖·r^k (H_min from [`Self::leading_form_extrema`], ‖H_k‖ from
     /// `Self::homogeneous_bound`), so f > 0 for |p̂| > R and the zero set lies in |p̂| ≤ R.
     /// `None` when H_min ≤ 0 (or the degree is 0).
-    pub fn containment_radius(&self) -> Option<f64> {
+    #[cfg(test)] // only the unit tests call it
+    pub(crate) fn containment_radius(&self) -> Option<f64> {
         let h_min = self.leading_form_extrema().min;
         self.containment_radius_with(h_min)
     }
@@ -400,5 +388,30 @@ mod tests {
         let mut g = f.clone();
         g.coefficients[n_coefficients(3)] = -5.0;
         assert!(g.containment_radius().is_none());
+    }
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn implicit_polynomial_leading_form_extrema() {
+        use crate::ImplicitPolynomial;
+        // f = x² + 2 y² + 3 z² − 1: the leading form ranges over [1, 3] on the sphere.
+        let mut coefficients = vec![0.0; 10];
+        coefficients[0] = -1.0;
+        coefficients[4] = 1.0;
+        coefficients[7] = 2.0;
+        coefficients[9] = 3.0;
+        let f = ImplicitPolynomial {
+            degree: 2,
+            coefficients,
+            center: [0.0; 3],
+            scale: 1.0,
+        };
+        let e = f.leading_form_extrema();
+        assert!((e.min - 1.0).abs() < 1e-12 && (e.max - 3.0).abs() < 1e-12);
     }
 }

@@ -9,14 +9,14 @@
 //! Evaluation: pointwise value, gradient and Hessian; [`ImplicitPolynomial::eval_many`] and
 //! [`ImplicitPolynomial::eval_gradient_many`] run over blocks of 64 points with a Horner scheme
 //! in x per (j, k) column (about c multiply-adds per point, vectorized over points, no `powi`);
-//! [`ImplicitPolynomial::eval_grid`] reduces each grid line to a univariate polynomial (about
+//! `ImplicitPolynomial::eval_grid` reduces each grid line to a univariate polynomial (about
 //! n + 1 multiply-adds per grid point).
 //!
 //! Boundedness (paper 6.2/6.3): f = Σ_k H_k with H_k homogeneous of degree k. For even n the zero
 //! set is closed and bounded when the leading form H_n is positive on the unit sphere;
-//! [`ImplicitPolynomial::leading_form_extrema`] finds its minimum (dense sampling plus Riemannian
+//! `ImplicitPolynomial::leading_form_extrema` finds its minimum (dense sampling plus Riemannian
 //! Newton refinement), `ImplicitPolynomial::homogeneous_bound` bounds ‖H_k‖ from above, and
-//! [`ImplicitPolynomial::containment_radius`] combines them into a radius outside which f > 0.
+//! `ImplicitPolynomial::containment_radius` combines them into a radius outside which f > 0.
 //!
 //! Invariants: `coefficients.len() == n_coefficients(degree)`; `scale > 0`.
 //!
@@ -32,8 +32,8 @@ mod basis;
 mod eval;
 mod forms;
 
-pub use basis::{exponents, monomial_index, n_coefficients};
-pub use forms::SphereExtrema;
+pub(crate) use basis::exponents;
+pub use basis::{monomial_index, n_coefficients};
 
 /// An implicit polynomial surface f(p) = 0 in input coordinates.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -84,7 +84,7 @@ pub struct FitDiagnostics {
     /// when the leading form is positive.
     pub containment_radius: Option<f64>,
     /// Mean first-order distance |f|/|∇f| from the data points to the zero set, input units
-    /// (over every k-th point past [`crate::fit::DISTANCE_POINTS`] points).
+    /// (over every k-th point past `crate::fit::DISTANCE_POINTS` points).
     pub mean_distance: f64,
     /// Maximum first-order distance |f|/|∇f| from the data points to the zero set, input units
     /// (over the same points as `mean_distance`).

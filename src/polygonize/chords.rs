@@ -43,7 +43,7 @@ const MAX_MOVE: f64 = 0.05;
 /// The positions of `mesh`'s vertices moved off the zero set by `share` of their least-squares
 /// chord move (1: the least-squares facets; see the module docs); vertices on the mesh's
 /// boundary, and vertices in no triangle, stay.
-pub fn chord_positions(mesh: &TriangleMesh, share: f64) -> Vec<[f64; 3]> {
+pub(crate) fn chord_positions(mesh: &TriangleMesh, share: f64) -> Vec<[f64; 3]> {
     let alpha = share * LEAST_SQUARES;
     let n = mesh.positions.len();
     let mut sum = vec![[0.0f64; 3]; n];

@@ -66,17 +66,17 @@ const CELL_OVER_SPACING_LOG2: f64 = 0.25;
 
 /// How many levels finer than the mesh the points must be for `run` to cut detail mode's
 /// split tolerance and take the chords' whole move (see the module docs).
-pub const DENSE_LEVELS: f64 = 1.0;
+pub(crate) const DENSE_LEVELS: f64 = 1.0;
 
 /// Detail mode fits every k-th point of a cloud whose points average at least this many to
 /// an occupied cell of the mesh's finest level ([`fit_stride`]).
-pub const FIT_CELL_POINTS: usize = 12;
+pub(crate) const FIT_CELL_POINTS: usize = 12;
 
 /// ... k = ⌊mean / this⌋: about this many points of each such cell are fitted.
-pub const FIT_STRIDE_POINTS: usize = 3;
+pub(crate) const FIT_STRIDE_POINTS: usize = 3;
 
 /// The largest stride [`fit_stride`] picks.
-pub const FIT_STRIDE_MAX: u32 = 64;
+pub(crate) const FIT_STRIDE_MAX: u32 = 64;
 
 /// At most this many points are measured for their nearest-neighbour distance.
 const SPACING_SAMPLES: usize = 20_000;
@@ -113,7 +113,7 @@ impl DataResolution {
             .clamp(f64::from(DATA_DEPTH_MIN), f64::from(DATA_DEPTH_MAX)) as u32
     }
 
-    /// Whether the points are at least [`DENSE_LEVELS`] levels finer than the cells of
+    /// Whether the points are at least `DENSE_LEVELS` levels finer than the cells of
     /// [`DataResolution::depth`]: detail mode's split tolerance is then cut and the chords take
     /// their whole move.
     pub fn dense(&self) -> bool {
@@ -123,7 +123,7 @@ impl DataResolution {
     /// Whether the points are at least [`DENSE_LEVELS`] levels finer than the cells of `depth`:
     /// detail mode's `run` then splits the mesh's curved edges
     /// ([`super::PolygonizeParams::refine`]).
-    pub fn finer_than(&self, depth: u32) -> bool {
+    pub(crate) fn finer_than(&self, depth: u32) -> bool {
         self.level >= f64::from(depth) + DENSE_LEVELS
     }
 }
@@ -149,7 +149,8 @@ impl DataResolution {
 ///     .collect();
 /// assert_eq!(depth_for_data(&sparse, &region), Some(6));
 /// ```
-pub fn depth_for_data(points: &[[f64; 3]], region: &Aabb) -> Option<u32> {
+#[cfg(test)] // only the unit tests call it
+pub(crate) fn depth_for_data(points: &[[f64; 3]], region: &Aabb) -> Option<u32> {
     DataResolution::of(points, region).map(|r| r.depth())
 }
 
@@ -162,23 +163,7 @@ pub fn depth_for_data(points: &[[f64; 3]], region: &Aabb) -> Option<u32> {
 /// every k-th point along the Z-order curve pins the surface as well, and the time saved pays
 /// for cubic refits of the deepest cells ([`crate::detail::DetailParams::refit_deepest`], which
 /// `run` sets with a stride above 1; see the module docs). 1 when no point lies in the region.
-///
-/// ```
-/// use stablesurf::polygonize::fit_stride;
-/// use stablesurf::Aabb;
-/// // The unit square sampled 1000 to a side, meshed at depth 7 over a box of side 1.2: the
-/// // 108 × 108 cells of 1.2 / 128 it meets hold 85 points on average, so every 28th is fitted.
-/// let points: Vec<[f64; 3]> = (0..1_000_000)
-///     .map(|i| [(i % 1000) as f64 * 1e-3, (i / 1000) as f64 * 1e-3, 0.0])
-///     .collect();
-/// let region = Aabb { min: [-0.1, -0.1, -0.6], max: [1.1, 1.1, 0.6] };
-/// assert_eq!(fit_stride(&points, &region, 7), 28);
-/// // At depth 8, 214 × 214 cells of 21 points: every 7th.
-/// assert_eq!(fit_stride(&points, &region, 8), 7);
-/// // At depth 9 the cells hold about 2.3² ≈ 5.5 points: every point.
-/// assert_eq!(fit_stride(&points, &region, 9), 1);
-/// ```
-pub fn fit_stride(points: &[[f64; 3]], region: &Aabb, depth: u32) -> u32 {
+pub(crate) fn fit_stride(points: &[[f64; 3]], region: &Aabb, depth: u32) -> u32 {
     let depth = depth.min(20);
     let per_axis = (1u64 << depth) as f64;
     let longest = (0..3)
@@ -303,5 +288,31 @@ mod tests {
         // Only the finest depth can be dense: below it the depth follows the level.
         assert!(!at(6.2).dense());
         assert!(!at(5.0).dense());
+    }
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn fit_stride() {
+        use crate::polygonize::fit_stride;
+        use crate::Aabb;
+        // The unit square sampled 1000 to a side, meshed at depth 7 over a box of side 1.2: the
+        // 108 × 108 cells of 1.2 / 128 it meets hold 85 points on average, so every 28th is fitted.
+        let points: Vec<[f64; 3]> = (0..1_000_000)
+            .map(|i| [(i % 1000) as f64 * 1e-3, (i / 1000) as f64 * 1e-3, 0.0])
+            .collect();
+        let region = Aabb {
+            min: [-0.1, -0.1, -0.6],
+            max: [1.1, 1.1, 0.6],
+        };
+        assert_eq!(fit_stride(&points, &region, 7), 28);
+        // At depth 8, 214 × 214 cells of 21 points: every 7th.
+        assert_eq!(fit_stride(&points, &region, 8), 7);
+        // At depth 9 the cells hold about 2.3² ≈ 5.5 points: every point.
+        assert_eq!(fit_stride(&points, &region, 9), 1);
     }
 }

@@ -41,10 +41,10 @@ pub(crate) struct Grid {
 
 impl Grid {
     /// Largest supported cap.
-    pub const MAX_CAP: u32 = 16;
+    pub(crate) const MAX_CAP: u32 = 16;
 
     /// The lattice for `region`, refined to `depth` with the guard capped at `cap`.
-    pub fn new(region: Aabb, depth: u32, cap: u32) -> Grid {
+    pub(crate) fn new(region: Aabb, depth: u32, cap: u32) -> Grid {
         debug_assert!(depth <= cap && cap <= Grid::MAX_CAP);
         let sides = [0, 1, 2].map(|a| region.max[a] - region.min[a]);
         let longest = sides.iter().copied().fold(0.0, f64::max);
@@ -67,19 +67,19 @@ impl Grid {
     }
 
     /// Side of a level-`level` cell in lattice steps.
-    pub fn cell_side(&self, level: u32) -> u64 {
+    pub(crate) fn cell_side(&self, level: u32) -> u64 {
         1 << (self.cap + 1 - level)
     }
 
     /// Smallest lattice corner of `cell`.
-    pub fn cell_min(&self, cell: Cell) -> [u64; 3] {
+    pub(crate) fn cell_min(&self, cell: Cell) -> [u64; 3] {
         let side = self.cell_side(cell.level);
         cell.coords.map(|c| u64::from(c) * side)
     }
 
     /// Input-space coordinates of the lattice point `l`.
     #[inline]
-    pub fn point(&self, l: [u64; 3]) -> [f64; 3] {
+    pub(crate) fn point(&self, l: [u64; 3]) -> [f64; 3] {
         [
             self.origin[0] + l[0] as f64 * self.step[0],
             self.origin[1] + l[1] as f64 * self.step[1],
@@ -88,14 +88,14 @@ impl Grid {
     }
 
     /// Whether `cell` lies wholly outside the region.
-    pub fn is_outside(&self, cell: Cell) -> bool {
+    pub(crate) fn is_outside(&self, cell: Cell) -> bool {
         let min = self.cell_min(cell);
         (0..3).any(|a| min[a] >= self.extent[a])
     }
 
     /// The closed box of `cell`, clipped to the region, in input coordinates (its corners are
     /// exactly [`Grid::point`]s).
-    pub fn cell_box(&self, cell: Cell) -> Aabb {
+    pub(crate) fn cell_box(&self, cell: Cell) -> Aabb {
         let min = self.cell_min(cell);
         let side = self.cell_side(cell.level);
         let max = [0, 1, 2].map(|a| (min[a] + side).min(self.extent[a]));
@@ -106,7 +106,7 @@ impl Grid {
     }
 
     /// A unique key for a cell (level and coordinates).
-    pub fn cell_key(&self, cell: Cell) -> u64 {
+    pub(crate) fn cell_key(&self, cell: Cell) -> u64 {
         u64::from(cell.level) << 48
             | u64::from(cell.coords[0])
             | u64::from(cell.coords[1]) << 16
@@ -116,7 +116,7 @@ impl Grid {
     /// The level-`level` cell that holds the input-space point `p` (a point on a face between
     /// two cells goes to the upper one), `None` when `p` lies outside the region or is not
     /// finite.
-    pub fn cell_of(&self, p: [f64; 3], level: u32) -> Option<Cell> {
+    pub(crate) fn cell_of(&self, p: [f64; 3], level: u32) -> Option<Cell> {
         let side = self.cell_side(level);
         let mut coords = [0u32; 3];
         for a in 0..3 {
@@ -132,7 +132,7 @@ impl Grid {
     }
 
     /// Whether integer coordinates at `level` name a cell inside the region.
-    pub fn in_range(&self, level: u32, coords: [i64; 3]) -> bool {
+    pub(crate) fn in_range(&self, level: u32, coords: [i64; 3]) -> bool {
         coords.iter().all(|&c| c >= 0 && c < 1i64 << level)
     }
 }

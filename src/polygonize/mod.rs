@@ -69,7 +69,7 @@
 //!    vertices on their edges has none (it is embedded by construction: each triangle lies in
 //!    its own tetrahedron), nor had the collapsed mesh on the positions the collapses were
 //!    judged on (on the bunny). So the triangles that cross another are found with the exact
-//!    test of [`crate::mesh::intersecting_triangles`], their vertices are put back at the root
+//!    test of `crate::mesh::intersecting_triangles`, their vertices are put back at the root
 //!    of f on their own lattice edge, and the pairs around the moved vertices are tested again;
 //!    a crossing that remains (a collapse judged on the linearly interpolated positions) sends
 //!    its vertices to that linear position. Few vertices move (about 160 of 250 000 on the
@@ -128,14 +128,11 @@ mod extract;
 mod grid;
 mod octree;
 mod refine;
-pub mod shapes;
 pub(crate) mod simplify;
 
 pub use crate::implicit::ImplicitFunction;
-pub use depth::{
-    depth_for_data, fit_stride, DataResolution, DATA_DEPTH_MAX, DATA_DEPTH_MIN, DENSE_LEVELS,
-    FIT_CELL_POINTS, FIT_STRIDE_MAX, FIT_STRIDE_POINTS,
-};
+pub(crate) use depth::fit_stride;
+pub use depth::{DataResolution, DATA_DEPTH_MAX, DATA_DEPTH_MIN};
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -147,12 +144,8 @@ use crate::poly::ImplicitPolynomial;
 
 use grid::Grid;
 
-/// Version of this stage's algorithm; if you change anything that changes its output for the same
-/// input and params, bump it.
-pub const STAGE_VERSION: u32 = 5;
-
 /// Largest `depth + guard_levels` supported.
-pub const MAX_LEVEL: u32 = Grid::MAX_CAP;
+pub(crate) const MAX_LEVEL: u32 = Grid::MAX_CAP;
 
 /// Projection tolerance: |f|/|∇f| at a vertex, as a fraction of the region's diagonal.
 const PROJECTION_TOLERANCE: f64 = 1e-7;
@@ -168,14 +161,14 @@ pub enum PolygonizeError {
         /// The region's largest corner.
         max: [f64; 3],
     },
-    /// `depth` is 0 or `depth + guard_levels` exceeds [`MAX_LEVEL`]; lower one of them.
+    /// `depth` is 0 or `depth + guard_levels` exceeds `MAX_LEVEL`; lower one of them.
     #[error("depth {depth} with {guard_levels} guard levels is out of range: depth must be at least 1 and depth + guard levels at most {max}, change --depth")]
     InvalidDepth {
         /// The requested depth.
         depth: u32,
         /// The requested guard levels.
         guard_levels: u32,
-        /// The largest allowed total, [`MAX_LEVEL`].
+        /// The largest allowed total, `MAX_LEVEL`.
         max: u32,
     },
     /// The model is malformed (wrong number of coefficients, non-finite numbers, scale ≤ 0);
@@ -204,7 +197,7 @@ pub struct PolygonizeParams {
     pub depth: u32,
     /// How many levels below `depth` the topology guard may refine cells where the gradient's
     /// direction may turn by 90° or more (near singular points, thin necks, tiny components).
-    /// 0 disables the guard. Default 3; `depth + guard_levels` ≤ [`MAX_LEVEL`] (16).
+    /// 0 disables the guard. Default 3; `depth + guard_levels` ≤ `MAX_LEVEL` (16).
     pub guard_levels: u32,
     /// How many levels coarser than `depth` the surface may stay in cells that hold no data
     /// point: the mesh has level `depth`'s resolution in the cells (of levels `depth − 1`,
@@ -242,7 +235,7 @@ pub struct PolygonizeParams {
     /// data's own scatter does not show), at their midpoint projected onto the zero set (see
     /// `refine`; the topology, the winding and the absence of crossings are kept). `None` (the
     /// default): no split. Detail mode's `run` sets [`REFINE_SAGITTA`] on points a level or
-    /// more finer than the mesh ([`DataResolution::finer_than`]), which sample the facets'
+    /// more finer than the mesh (`DataResolution::finer_than`), which sample the facets'
     /// interiors (`--refine`, `--no-refine`). When given, finite and > 0.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub refine: Option<f64>,
@@ -265,7 +258,7 @@ fn is_default_chord_share(share: &f64) -> bool {
 
 impl PolygonizeParams {
     /// The share of the chord move step 6 makes, or `None` without `fit_chords`.
-    pub fn chords(&self) -> Option<f64> {
+    pub(crate) fn chords(&self) -> Option<f64> {
         self.fit_chords.then_some(self.chord_share)
     }
 }
@@ -333,7 +326,7 @@ pub struct Polygonized {
     /// Vertices step 7 added, splitting the curved edges ([`PolygonizeParams::refine`]); 0
     /// without it.
     pub refined_vertices: usize,
-    /// Whether the exact test of step 5 ([`crate::mesh::intersecting_triangles`]) found no
+    /// Whether the exact test of step 5 (`crate::mesh::intersecting_triangles`) found no
     /// triangle crossing another in the final mesh: its last round tested every pair that could
     /// have changed, or a full test ran. `false` only when a crossing survived every fallback.
     pub embedded: bool,

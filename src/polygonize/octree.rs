@@ -122,7 +122,7 @@ impl DataCells {
     /// fewer points in its block when its parent is split. So planar parts of a scan are
     /// meshed with large triangles while its curved parts and its edges get the fine level.
     /// Deterministic: a set, whatever the thread count (the sums run in a fixed order).
-    pub fn new(
+    pub(crate) fn new(
         grid: &Grid,
         points: &[[f64; 3]],
         normals: Option<&[[f64; 3]]>,

@@ -167,7 +167,8 @@ pub(crate) fn midpoint(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use crate::mesh::{check, TriangleMesh};
-    use crate::polygonize::{polygonize, shapes, PolygonizeError, PolygonizeParams, Polygonized};
+    use crate::polygonize::{polygonize, PolygonizeError, PolygonizeParams, Polygonized};
+    use crate::testing::shapes;
     use crate::vec3::{dot, norm};
     use crate::Aabb;
 

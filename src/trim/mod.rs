@@ -85,7 +85,7 @@ use spacing::{spacing_and_reach_at, spacing_at};
 /// Version of this stage's algorithm: if you change anything that changes its output for the
 /// same input and params, bump it (the stage's params and version enter the export stage's
 /// cache key).
-pub const STAGE_VERSION: u32 = 4;
+pub(crate) const STAGE_VERSION: u32 = 4;
 
 /// Whether the stage trims.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -147,7 +147,7 @@ pub struct TrimParams {
     /// The noise the model averaged, as a share of the data's diagonal (the detail fit's
     /// [`crate::detail::DetailParams::noise`]): a noisy scan's points scatter by σ on both
     /// sides of the smooth surface fitted through them, further than their spacing where σ is
-    /// large, so a triangle (or vertex) within [`NOISE_SUPPORT`]·σ of a data point is supported
+    /// large, so a triangle (or vertex) within `NOISE_SUPPORT`·σ of a data point is supported
     /// whatever the spacing says. Default 0 (exact data; left out of the cache key then).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub noise: f64,
@@ -156,7 +156,7 @@ pub struct TrimParams {
 /// A triangle within this many σ of the noise ([`TrimParams::noise`]) of a data point is
 /// supported: the share of a Gaussian scatter's points farther than 3σ from its surface is
 /// 0.3%, so a surface that 3σ does not reach is not where the points are.
-pub const NOISE_SUPPORT: f64 = 3.0;
+pub(crate) const NOISE_SUPPORT: f64 = 3.0;
 
 fn is_zero(v: &f64) -> bool {
     *v == 0.0

@@ -12,7 +12,8 @@ use stablesurf::finish::decimate::{decimate, DecimateParams, Decimated};
 use stablesurf::measure::closest_point_on_triangle;
 use stablesurf::mesh::{check, MeshReport, TriangleMesh};
 use stablesurf::model::json::write_model;
-use stablesurf::polygonize::{polygonize, shapes, PolygonizeParams};
+use stablesurf::polygonize::{polygonize, PolygonizeParams};
+use stablesurf::testing::shapes;
 use stablesurf::{Aabb, ImplicitModel, ImplicitPolynomial};
 
 use crate::fixtures::{bin, read_report, run_ok, sphere_xyz, stderr_of};

@@ -10,12 +10,12 @@
 use std::path::Path;
 
 use stablesurf::detail::{chamfer_distance, fit_detail, DetailError, DetailParams, MpuModel};
-use stablesurf::fit::study::{sample, Shape, Variant};
 use stablesurf::measure::area_mean;
 use stablesurf::mesh::check;
 use stablesurf::model::mpu::{is_mpu, read_mpu, write_mpu};
 use stablesurf::pipeline::{Mode, PipelineConfig};
 use stablesurf::polygonize::{polygonize, ImplicitFunction, PolygonizeParams};
+use stablesurf::testing::study::{sample, Shape, Variant};
 use stablesurf::{OrientedCloud, TriangleMesh};
 
 use crate::fixtures::shared;

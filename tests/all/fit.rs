@@ -5,11 +5,11 @@
 use stablesurf::fit::moments::{
     merge_frame, merge_system, moments, MergedFrame, MomentsError, MomentsPass, PartialMoments,
 };
-use stablesurf::fit::study::{assess, sample, Shape, Variant};
 use stablesurf::fit::{
     fit, fit_from_moments, system_summary, FitError, FitMethod, FitParams, FitSolver, Kappa,
     KappaRule, RidgeMatrix,
 };
+use stablesurf::testing::study::{assess, sample, Shape, Variant};
 use stablesurf::{ImplicitPolynomial, OrientedCloud};
 
 use crate::fixtures::{quaternion_rotation, shared};
@@ -219,7 +219,7 @@ fn torus_reference_qr_route_agrees() {
 
 /// A deterministic rigid motion: rotation from a unit quaternion, then a translation.
 fn rigid_motion(seed: u64) -> ([[f64; 3]; 3], [f64; 3]) {
-    let mut rng = stablesurf::fit::study::Lcg::new(seed);
+    let mut rng = stablesurf::testing::study::Lcg::new(seed);
     let q: Vec<f64> = (0..4).map(|_| rng.normal()).collect();
     let r = quaternion_rotation(q[0], q[1], q[2], q[3]);
     let t = [0, 1, 2].map(|_| 5.0 * (2.0 * rng.uniform() - 1.0));

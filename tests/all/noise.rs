@@ -9,8 +9,8 @@
 
 use std::fmt::Write as _;
 
-use stablesurf::fit::study::{sample, Lcg, Shape, Variant};
 use stablesurf::pipeline::{reconstruct, Mode, PipelineConfig, Reconstruction, ScanSource, Silent};
+use stablesurf::testing::study::{sample, Lcg, Shape, Variant};
 use stablesurf::{Aabb, PointCloud};
 
 use crate::fixtures::{bin, read_report, run_ok, stderr_of};

@@ -8,9 +8,10 @@ use stablesurf::mesh::{
     check, component_labels, drop_components_far_from, MeshReport, TriangleMesh,
 };
 use stablesurf::polygonize::{
-    polygonize, polygonize_with_data, shapes, ImplicitFunction, PolygonizeError, PolygonizeParams,
+    polygonize, polygonize_with_data, ImplicitFunction, PolygonizeError, PolygonizeParams,
     Polygonized, Simplification,
 };
+use stablesurf::testing::shapes;
 use stablesurf::{Aabb, ImplicitPolynomial};
 
 fn boxed(min: [f64; 3], max: [f64; 3]) -> Aabb {

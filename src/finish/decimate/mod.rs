@@ -46,9 +46,9 @@
 //!    sweep uses the same condition for its half-edge collapses); (b) a moved triangle's normal
 //!    turns by more than the polygonizer's limit (about 40°), or faces away from the model's
 //!    normal at one of its corners (a fold), or its shape (mean ratio) falls below
-//!    [`MIN_QUALITY`] and below what the worst triangle around the edge had; (c) a new triangle
+//!    `MIN_QUALITY` and below what the worst triangle around the edge had; (c) a new triangle
 //!    meets another triangle of the mesh other than at their shared vertices and edges,
-//!    decided by the exact test of [`crate::mesh::triangles_intersect`] against every triangle
+//!    decided by the exact test of `crate::mesh::triangles_intersect` against every triangle
 //!    whose box meets the new fan's, found in a hierarchical spatial hash (each triangle in the
 //!    cell of its box's lowest corner, at the level whose cells are at least as large as the
 //!    box); the hash only finds candidates, so the decision is exact whatever its cells.
@@ -74,12 +74,12 @@ use crate::vec3::{cross, dot, norm, sub};
 
 /// Version of the decimation's algorithm: part of the finish stage's key when it decimates.
 /// If you change anything that changes its output for the same input and params, bump it.
-pub const VERSION: u32 = 1;
+pub(crate) const VERSION: u32 = 1;
 
 /// Smallest squared mean ratio (see the polygonizer's shape measure) a collapse may leave
 /// unless the triangles around the edge were already worse: mean ratio 0.2, a triangle of
 /// about 7° at its smallest corner.
-pub const MIN_QUALITY: f64 = 0.04;
+pub(crate) const MIN_QUALITY: f64 = 0.04;
 
 /// Newton steps allowed when placing a new vertex on the zero set.
 const NEWTON_STEPS: usize = 12;

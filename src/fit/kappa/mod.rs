@@ -116,14 +116,7 @@ fn traced_zero_set(poly: &ImplicitPolynomial, half: f64, name: &str) -> (CoarseZ
 }
 
 /// The κ grid: 0, then 10^(−8 + i/4) for i = 0 … 32 (1e-8 … 1, four steps a decade).
-///
-/// ```
-/// let g = stablesurf::fit::kappa_grid();
-/// assert_eq!(g.len(), 34);
-/// assert_eq!(g[0], 0.0);
-/// assert!((g[1] - 1e-8).abs() < 1e-20 && (g[33] - 1.0).abs() < 1e-15);
-/// ```
-pub fn kappa_grid() -> Vec<f64> {
+pub(crate) fn kappa_grid() -> Vec<f64> {
     let mut grid = vec![0.0];
     grid.extend((0..=32).map(|i| 10f64.powf(-8.0 + i as f64 / 4.0)));
     grid
@@ -563,9 +556,9 @@ mod tests {
         // the check fails before any mesh (no mesher reported). The data, the unit sphere,
         // is one piece.
         let radius = poly.containment_radius().unwrap_or(f64::INFINITY);
-        let cloud = crate::fit::study::sample(
-            crate::fit::study::Shape::Sphere,
-            crate::fit::study::Variant::Clean,
+        let cloud = crate::testing::study::sample(
+            crate::testing::study::Shape::Sphere,
+            crate::testing::study::Variant::Clean,
             3000,
             1,
         );
@@ -622,9 +615,9 @@ mod tests {
         assert_eq!(culled, plain);
         // A degree-8 fit of the heart (automatic κ, normalized coordinates), meshed in
         // [−R, R]³ as rule (d) does, with f > 0 certified from box norm 4 to R.
-        let cloud = crate::fit::study::sample(
-            crate::fit::study::Shape::Heart,
-            crate::fit::study::Variant::Clean,
+        let cloud = crate::testing::study::sample(
+            crate::testing::study::Shape::Heart,
+            crate::testing::study::Variant::Clean,
             1500,
             1,
         );
@@ -696,5 +689,19 @@ mod tests {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod examples {
+    //! The examples of this module's crate-internal items: they were doctests, which can only use
+    //! the public API.
+
+    #[test]
+    fn kappa_grid() {
+        let g = crate::fit::kappa::kappa_grid();
+        assert_eq!(g.len(), 34);
+        assert_eq!(g[0], 0.0);
+        assert!((g[1] - 1e-8).abs() < 1e-20 && (g[33] - 1.0).abs() < 1e-15);
     }
 }

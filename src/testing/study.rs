@@ -198,7 +198,7 @@ pub fn sample(shape: Shape, variant: Variant, n_points: usize, seed: u64) -> Ori
     match variant {
         Variant::Clean => {}
         Variant::Noisy => {
-            let norm = super::system::Normalization::of(&cloud.points);
+            let norm = crate::fit::Normalization::of(&cloud.points);
             let sigma = 0.05 * norm.scale;
             for p in cloud.points.iter_mut() {
                 for c in p.iter_mut() {

@@ -89,7 +89,7 @@ fn sphere_sparse(radius: f64) -> Sparse {
 /// The sphere x² + y² + z² − radius² = 0 (degree 2, one component, χ = 2).
 ///
 /// ```
-/// let s = stablesurf::polygonize::shapes::sphere(2.0);
+/// let s = stablesurf::testing::shapes::sphere(2.0);
 /// assert_eq!(s.eval([0.0, 2.0, 0.0]), 0.0);
 /// ```
 pub fn sphere(radius: f64) -> ImplicitPolynomial {
@@ -100,7 +100,7 @@ pub fn sphere(radius: f64) -> ImplicitPolynomial {
 /// r = `minor` < R (degree 4, genus 1, χ = 0).
 ///
 /// ```
-/// let t = stablesurf::polygonize::shapes::torus(1.0, 0.25);
+/// let t = stablesurf::testing::shapes::torus(1.0, 0.25);
 /// assert!(t.eval([1.25, 0.0, 0.0]).abs() < 1e-12);
 /// assert!(t.eval([1.0, 0.0, 0.0]) < 0.0);
 /// ```
@@ -126,7 +126,7 @@ fn torus_sparse(major: f64, minor: f64) -> Sparse {
 /// y² = x² − x⁴ (degree 8, genus 2, χ = −2). It fits in [−1.1, 1.1] × [−0.6, 0.6] × [−0.1, 0.1].
 ///
 /// ```
-/// let g = stablesurf::polygonize::shapes::genus_two();
+/// let g = stablesurf::testing::shapes::genus_two();
 /// assert_eq!(g.degree, 8);
 /// assert!(g.eval([0.5, 0.0, 0.0]) > 0.0); // inside a hole
 /// assert!(g.eval([1.0, 0.0, 0.0]) < 0.0); // inside the tube
@@ -143,7 +143,7 @@ pub fn genus_two() -> ImplicitPolynomial {
 /// equations (degree 4, two components, χ = 4). Needs `offset > radius`.
 ///
 /// ```
-/// let s = stablesurf::polygonize::shapes::two_spheres(1.0, 0.5);
+/// let s = stablesurf::testing::shapes::two_spheres(1.0, 0.5);
 /// assert!(s.eval([1.5, 0.0, 0.0]).abs() < 1e-12);
 /// assert!(s.eval([0.0, 0.0, 0.0]) > 0.0);
 /// ```
@@ -158,7 +158,7 @@ pub fn two_spheres(offset: f64, radius: f64) -> ImplicitPolynomial {
 /// axis, centred at (1, 0, 0). It fits in [−1.4, 2.4] × [−1.4, 1.4] × [−1.4, 1.4].
 ///
 /// ```
-/// let t = stablesurf::polygonize::shapes::linked_tori();
+/// let t = stablesurf::testing::shapes::linked_tori();
 /// assert_eq!(t.degree, 8);
 /// assert!(t.eval([-1.3, 0.0, 0.0]).abs() < 1e-9);
 /// ```
