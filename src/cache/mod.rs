@@ -58,6 +58,7 @@ pub(crate) const CACHE_FORMAT_VERSION: u32 = 2;
 pub(crate) const STAGES: &[&str] = &[
     "import",
     "normals",
+    "merge",
     "fit",
     "detail",
     "polygonize",

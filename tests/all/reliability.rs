@@ -113,7 +113,7 @@ fn cache_clear_removes_the_entries_and_keeps_everything_else() {
     assert!(cleared.status.success(), "{}", stderr_of(&cleared));
     let err = stderr_of(&cleared);
     assert!(
-        err.contains("cleared 5 entries") && err.contains("notes.txt"),
+        err.contains("cleared 6 entries") && err.contains("notes.txt"),
         "{err}"
     );
     let mut left: Vec<String> = fs::read_dir(&cache)
